@@ -1,0 +1,218 @@
+"""``magline`` command line: run a station, check a station file, fit a CSV, list plugins, history.
+
+Exit codes of ``magline run``: 0 pass, 1 fail, 2 error (bad station file, no DUT, plugin error).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from importlib.resources import as_file, files
+from pathlib import Path
+
+from magline.core import __version__
+from magline.core.fit import FitOptions, FitRefused, fit_calibration
+from magline.core.fit.samples_csv import SampleFileError, read_samples
+from magline.core.plugins import PluginError, Plugins, load_plugins
+from magline.core.record import Outcome
+from magline.core.station import Station, StationError, load_station
+from magline.core.station.loader import line_of
+
+EXIT = {Outcome.PASS: 0, Outcome.FAIL: 1, Outcome.ERROR: 2, Outcome.SKIPPED: 2}
+DEMO = "demo.yaml"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="magline", description=__doc__.splitlines()[0])
+    parser.add_argument("--version", action="version", version=f"magline {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    run = sub.add_parser("run", help="calibrate units on a station (default: the embedded mock demo)")
+    run.add_argument("station", nargs="?", help="station file (default: the embedded demo station)")
+    run.add_argument("--serial", help="unit serial (else prompt, or generated for the demo)")
+    run.add_argument("--part", help="part number (else the station's default)")
+    run.add_argument("--operator", default="", help="operator name for the record")
+    run.add_argument("--loop", action="store_true", help="keep prompting for the next serial")
+
+    check = sub.add_parser("check", help="validate a station file")
+    check.add_argument("station")
+
+    fit = sub.add_parser("fit", help="fit hard/soft iron to a raw-sample CSV")
+    fit.add_argument("csv")
+    fit.add_argument("--json", action="store_true", help="print one JSON object")
+    fit.add_argument("--field-ut", type=float, help="reference field magnitude (µT)")
+    fit.add_argument("--model", choices=["full", "diagonal", "sphere"], default="full")
+    fit.add_argument("--range-ut", type=float, help="sensor range (µT); samples at it are clipped")
+    fit.add_argument("--bins", type=int, default=100, help="coverage bins (Fibonacci sphere)")
+
+    sub.add_parser("plugins", help="list loaded plugins and their hooks (JSON)")
+
+    hist = sub.add_parser("history", help="show a unit's runs from a station's results store")
+    hist.add_argument("serial")
+    hist.add_argument("--station", help="station file naming the results store (default: demo)")
+
+    args = parser.parse_args(argv)
+    handler = {"run": _run, "check": _check, "fit": _fit, "plugins": _plugins, "history": _history}
+    return handler[args.command](args)
+
+
+def _err(message: str) -> None:
+    print(message, file=sys.stderr)
+
+
+def _load(path: str | None, plugins: Plugins) -> tuple[Station, Path]:
+    """Load a station file (or the embedded demo) and check the names it uses against the plugins."""
+    if path is None:
+        with as_file(files("magline.stations") / DEMO) as demo:
+            station = load_station(demo)
+            text, name, where = demo.read_text(encoding="utf-8"), str(demo), demo.parent
+    else:
+        station = load_station(path)
+        text, name, where = Path(path).read_text(encoding="utf-8"), path, Path(path).parent
+    problems = []
+    for part, product in station.products.items():
+        if product.backend not in plugins.dut_backends:
+            line = line_of(text, ("products", part, "backend"))
+            problems.append(f"{name}:{line}: products.{part}.backend: unknown DUT backend "
+                            f"{product.backend!r}; loaded: {', '.join(sorted(plugins.dut_backends))}")
+    for key, value, registry in (("field_source.type", station.field_source.type, plugins.field_sources),
+                                 ("results.sink", station.results.sink, plugins.result_sinks)):
+        if value not in registry:
+            line = line_of(text, tuple(key.split(".")))
+            problems.append(f"{name}:{line}: {key}: unknown {key.split('.')[0].replace('_', ' ')} "
+                            f"{value!r}; loaded: {', '.join(sorted(registry))}")
+    if problems:
+        raise StationError(problems)
+    return station, where
+
+
+def _run(args: argparse.Namespace) -> int:
+    from magline.core.console import OperatorConsole
+    from magline.core.sequencer import Sequencer
+
+    console = OperatorConsole()
+    try:
+        plugins = load_plugins(extra=[console])
+        station, where = _load(args.station, plugins)
+        sequencer = Sequencer(station, plugins, where)
+    except (StationError, PluginError, ValueError, KeyError) as exc:
+        _err(str(exc))
+        return 2
+    try:
+        code = 0
+        while True:
+            serial = args.serial or _ask_serial(station, args.station is None)
+            if serial is None:
+                return code
+            record = sequencer.run_unit(serial, args.part, args.operator)
+            code = EXIT[record.verdict]
+            if not args.loop:
+                return code
+            args.serial = None
+    finally:
+        sequencer.close()
+
+
+def _ask_serial(station: Station, demo: bool) -> str | None:
+    if demo and not sys.stdin.isatty():
+        from datetime import UTC, datetime
+        return "DEMO-" + datetime.now(UTC).strftime("%Y%m%d-%H%M%S")
+    try:
+        serial = input(f"{station.prompts.serial}: ").strip()
+    except EOFError:
+        return None
+    return serial or None
+
+
+def _check(args: argparse.Namespace) -> int:
+    try:
+        plugins = load_plugins()
+        station, _ = _load(args.station, plugins)
+    except (StationError, PluginError) as exc:
+        _err(str(exc))
+        return 2
+    parts = ", ".join(f"{p} ({station.limit_hash(p)})" for p in station.products)
+    print(f"{args.station}: OK — station {station.station.id}, line {station.station.line}, "
+          f"products {parts}")
+    return 0
+
+
+def _fit(args: argparse.Namespace) -> int:
+    try:
+        samples = read_samples(args.csv)
+        options = FitOptions(model=args.model, field_ut=args.field_ut, range_ut=args.range_ut,
+                             coverage_bins=args.bins)
+        result = fit_calibration(samples.mag_ut, options, t_ms=samples.t_ms, temp_c=samples.temp_c)
+    except SampleFileError as exc:
+        _err(str(exc))
+        return 2
+    except FitRefused as exc:
+        if args.json:
+            print(json.dumps({"refused": exc.reason, "message": exc.message, "advice": exc.advice}))
+        _err(f"calibration refused: {exc.message}\n{exc.advice}")
+        return 1
+    doc = result.to_dict()
+    if args.json:
+        print(json.dumps(doc))
+        return 0
+    print(_fit_summary(doc))
+    return 0
+
+
+def _fit_summary(doc: dict) -> str:
+    h, hs = doc["hard_iron_ut"], doc["hard_iron_sigma_ut"]
+    rows = ["    [" + ", ".join(f"{v:8.4f}" for v in row) + "]" for row in doc["soft_iron"]]
+    rej = ", ".join(f"{k} {v}" for k, v in doc["samples"]["rejected"].items()) or "none"
+    lines = [
+        f"model        {doc['model']}",
+        "hard iron    " + ", ".join(f"{v:.3f} ± {s:.3f}" for v, s in zip(h, hs, strict=True)) + " µT",
+        "soft iron", *rows,
+        f"field        {doc['field_ut']:.3f} µT "
+        f"(data: {doc['field_estimate_ut']:.3f} ± {doc['field_sigma_ut']:.3f})",
+        f"residual     rms {doc['residual_ut']['rms']:.3f} µT, max {doc['residual_ut']['max_abs']:.3f} µT",
+        f"coverage     {doc['coverage']['fraction']:.0%} of {doc['coverage']['bins']} bins, heading 1σ "
+        f"{doc['coverage']['direction_sigma_deg']:.3f}°",
+        f"samples      {doc['samples']['used']} used of {doc['samples']['total']}; rejected: {rej}",
+    ]
+    if doc["raw_to_reference_ratio"] is not None:
+        lines.append(f"raw/ref      {doc['raw_to_reference_ratio']:.4f}")
+    return "\n".join(lines)
+
+
+def _plugins(args: argparse.Namespace) -> int:
+    try:
+        plugins = load_plugins()
+    except PluginError as exc:
+        _err(str(exc))
+        return 2
+    print(json.dumps({"plugins": plugins.describe(), "dut_backends": sorted(plugins.dut_backends),
+                      "field_sources": sorted(plugins.field_sources),
+                      "result_sinks": sorted(plugins.result_sinks)}, indent=2))
+    return 0
+
+
+def _history(args: argparse.Namespace) -> int:
+    try:
+        plugins = load_plugins()
+        station, where = _load(args.station, plugins)
+        sink = plugins.result_sinks[station.results.sink](station, where)
+    except (StationError, PluginError) as exc:
+        _err(str(exc))
+        return 2
+    runs = sink.history(args.serial)
+    sink.close()
+    if not runs:
+        print(f"no runs for {args.serial}")
+        return 1
+    for run in runs:
+        cov = ", ".join(f"{a['coverage']:.0%}" for a in run["attempts"])
+        print(f"#{run['id']} {run['started']} {run['part']} {run['verdict'].upper()} "
+              f"attempts [{cov}] {run['cause'] or ''}".rstrip())
+        for f in run["failed"]:
+            print(f"    ✗ {f['name']} = {f['value']:.4g} {f['unit']} limits [{f['low']}, {f['high']}]")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

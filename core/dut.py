@@ -1,0 +1,90 @@
+"""What a DUT backend is: the autopilot-specific half of a calibration.
+
+Why a Protocol rather than hooks for every call: a backend holds a live link (a MAVLink socket,
+an in-process simulator) whose state spans the whole run, so it is an object created per unit by
+the factory a plugin registers through ``magline_register_dut_backends``.  The core's default
+phase hooks drive it; a plugin can still replace a whole phase through the phase hooks.
+
+Units: everything crossing this interface is in µT and the fit's convention
+``m_cal = S·(m_raw − h)``; conversion to Gauss / milligauss and to the autopilot's sign
+convention happens inside :meth:`DutBackend.calibration_params`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Literal, Protocol, runtime_checkable
+
+from numpy.typing import NDArray
+
+if TYPE_CHECKING:
+    from magline.core.fit import FitResult
+    from magline.core.station.schema import Product
+
+ParamValue = int | float
+
+
+class DutError(RuntimeError):
+    """A DUT-side failure (link lost, parameter refused, sensor missing) with its cause."""
+
+
+@dataclass
+class UnitInfo:
+    """Who answered on the link."""
+
+    autopilot: str
+    firmware: str
+    sensors: list[int]  # device ids of the magnetometers present
+    selected_sensor: int  # device id being calibrated
+    soft_iron_model: Literal["full", "diagonal"] = "full"  # what the autopilot can hold
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class SampleChunk:
+    """Raw samples of the selected magnetometer, µT, with their time stamps (ms)."""
+
+    mag_ut: NDArray
+    t_ms: NDArray
+    temp_c: NDArray | None = None
+
+
+@runtime_checkable
+class DutBackend(Protocol):
+    def connect(self) -> UnitInfo:
+        """Open the link, identify the autopilot and its magnetometers."""
+
+    def prepare(self) -> None:
+        """Stop the firmware rewriting calibration during the test; remember what to restore."""
+
+    def samples(self, rate_hz: float) -> Iterator[SampleChunk]:
+        """Stream raw (uncalibrated) samples until the caller stops iterating."""
+
+    def calibration_params(self, fit: FitResult) -> dict[str, ParamValue]:
+        """Map a fit to this autopilot's parameters (units and sign convention applied here)."""
+
+    def read_params(self, names: list[str]) -> dict[str, ParamValue]:
+        """Read parameters from the DUT."""
+
+    def write_params(self, params: dict[str, ParamValue]) -> dict[str, ParamValue]:
+        """Write parameters; return the values the DUT echoed (raise DutError when refused)."""
+
+    def commit(self) -> None:
+        """Force the parameters to non-volatile storage."""
+
+    def power_cycle(self) -> dict[str, float | str]:
+        """Power-cycle (or reboot) and reconnect; return figures (off time, time to link) and
+        ``method`` (how the power was cycled)."""
+
+    def selected_sensor_present(self) -> bool:
+        """After a power cycle: is the calibrated sensor still there with the same id?"""
+
+    def restore(self) -> None:
+        """Put back what :meth:`prepare` changed (called at the end of every run, also on errors)."""
+
+    def close(self) -> None:
+        """Release the link."""
+
+
+DutFactory = Callable[["Product"], DutBackend]

@@ -1,0 +1,1 @@
+"""Field sources: the expected local field the calibrated sphere must match."""

@@ -1,0 +1,369 @@
+"""Maximum-likelihood hard/soft-iron fit: robust start, geometric refinement, honest uncertainty.
+
+Why this design:
+* Isotropic sensor noise makes the *geometric* distance of a raw sample to the ellipsoid Gaussian;
+  minimising it (Sampson first-order distance, refined by Levenberg–Marquardt) is the ML estimate
+  and reaches the Cramér–Rao bound, where algebraic quadric fits are biased on partial coverage.
+* Spikes are removed by a robust scale (MAD) before the final, unweighted fit, so clean data lose
+  no efficiency to a robust loss.
+* The covariance from the final Jacobian is reported, and also decides whether the data determine
+  the calibration at all: refusing undeterminable data beats returning confident garbage.
+"""
+
+from __future__ import annotations
+
+import zlib
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import optimize, stats
+
+from magline.core.fit import model as mdl
+from magline.core.fit.algebraic import AlgebraicFitError, fit_ellipsoid, fit_sphere
+from magline.core.fit.coverage import coverage_fraction
+from magline.core.fit.debias import bootstrap_bias
+from magline.core.fit.result import FitOptions, FitRefused, FitResult
+from magline.core.fit.screening import planarity, screen_samples
+
+MIN_SAMPLES = {"full": 30, "diagonal": 20, "sphere": 12}
+MAD_TO_SIGMA = 1.4826
+ROTATE_MORE = "rotate the unit through more orientations (tumble about all three axes) and acquire again"
+
+
+def fit_calibration(
+    m_ut: NDArray,
+    options: FitOptions | None = None,
+    *,
+    t_ms: NDArray | None = None,
+    temp_c: NDArray | None = None,
+) -> FitResult:
+    """Fit ``h`` and ``S`` so that ``S·(m − h)`` lies on a sphere, or raise :class:`FitRefused`.
+
+    ``m_ut`` is an (n, 3) array of raw samples in µT.  ``t_ms`` / ``temp_c`` (optional, per sample)
+    let the fit model a linear warm-up drift of the offset; the offset reported is the end state.
+    """
+    opts = options or FitOptions()
+    m = np.asarray(m_ut, dtype=float)
+    if m.ndim != 2 or m.shape[1] != 3:
+        raise ValueError(f"samples must be an (n, 3) array, got shape {m.shape}")
+    screening = screen_samples(m, opts.range_ut)
+    rejected = dict(screening.rejected)
+    keep = screening.keep
+    need = MIN_SAMPLES[opts.model]
+    if keep.sum() < need:
+        raise FitRefused("too_few_samples", f"only {int(keep.sum())} usable samples (need ≥ {need})",
+                         "acquire for longer")
+
+    centre, scale, inliers = _robust_sphere(m[keep], opts.outlier_sigmas)
+    x_all = (m[keep] - centre) / scale
+    flat = planarity(x_all[inliers])
+    if flat < opts.min_planarity:
+        raise FitRefused("single_plane",
+                         f"all samples lie in one plane (planarity {flat:.3f}): the unit was rotated "
+                         "about a single axis", ROTATE_MORE)
+
+    regressor, drift_name = _drift_regressor(t_ms, temp_c, keep)
+    layout = mdl.Layout(opts.model, drift=False)
+    log_ref = None if opts.field_ut is None else float(np.log(opts.field_ut / scale))
+    p0 = _initial_params(layout, x_all[inliers], log_ref, opts)
+    p, inliers, sigma = _robust_refine(layout, p0, x_all, None, inliers, log_ref, opts)
+
+    drift_info = None
+    if regressor is not None:
+        drift_info, p, inliers, sigma, layout = _maybe_drift(
+            layout, p, x_all, regressor, inliers, sigma, log_ref, opts, drift_name)
+
+    tau = regressor if layout.drift else None
+    n_out = int((~inliers).sum())
+    if n_out:
+        rejected["outlier"] = n_out
+    if n_out > opts.max_outlier_fraction * len(x_all):
+        raise FitRefused("not_ellipsoid",
+                         f"{n_out} of {len(x_all)} samples do not lie on a common ellipsoid",
+                         "keep motors off and magnets away during acquisition, then acquire again")
+
+    x, tau_in = x_all[inliers], (tau[inliers] if tau is not None else None)
+    if opts.debias:
+        # seeded from the data so that the same samples always give the same calibration
+        rng = np.random.default_rng(zlib.crc32(x.tobytes()))
+
+        def objective(q, xs, w):
+            return _residuals_and_jac(layout, q, xs, tau_in, w, sigma, log_ref, opts)
+
+        bias = bootstrap_bias(layout, p, x, tau_in, sigma, objective, rng)
+        cov, _, _ = _covariance(layout, p, x, tau_in, sigma, log_ref, opts)
+        if np.any(np.abs(bias) > 2.0 * np.sqrt(np.clip(np.diag(cov), 1e-30, None))):
+            # A second-order term as large as the uncertainty: the problem is not locally linear,
+            # i.e. the orientations seen do not determine the calibration.
+            raise FitRefused("undetermined", "the orientations covered do not determine the calibration "
+                             "(the estimate is dominated by its own bias)", ROTATE_MORE)
+        p = p - bias
+    cov, jac, _ = _covariance(layout, p, x, tau_in, sigma, log_ref, opts)
+    return _assemble(layout, p, cov, jac, x, tau_in, centre, scale, keep, inliers, rejected, flat,
+                     drift_info, opts, len(m))
+
+
+# --------------------------------------------------------------------------- initialisation
+
+def _robust_sphere(m: NDArray, k: float) -> tuple[NDArray, float, NDArray]:
+    """Centre/scale for normalisation and a first inlier mask, from an iterated Kåsa fit."""
+    inl = np.ones(len(m), dtype=bool)
+    centre, radius = np.median(m, axis=0), 1.0
+    for _ in range(4):
+        try:
+            centre, radius = fit_sphere(m[inl])
+        except AlgebraicFitError:
+            break
+        dist = np.linalg.norm(m - centre, axis=1) - radius
+        mad = MAD_TO_SIGMA * np.median(np.abs(dist[inl] - np.median(dist[inl])))
+        # the sphere ignores soft iron, so this first cut is deliberately generous
+        new = np.abs(dist - np.median(dist[inl])) <= max(3 * k * mad, 0.02 * radius)
+        if new.sum() < 10 or np.array_equal(new, inl):
+            break
+        inl = new
+    if not np.isfinite(radius) or radius <= 0:
+        radius = float(np.median(np.linalg.norm(m - centre, axis=1))) or 1.0
+    return centre, float(radius), inl
+
+
+def _initial_params(layout: mdl.Layout, x: NDArray, log_ref: float | None, opts: FitOptions) -> NDArray:
+    """Start from the algebraic quadric when it is sane, else from a geometric sphere fit.
+
+    The algebraic ellipsoid is excellent on a full tumble but wild on a cap or with outliers; the
+    sphere fit is always sane and leads the geometric refinement into the right basin.
+    """
+    if layout.model != "sphere":
+        try:
+            h_alg, s_alg = fit_ellipsoid(x)
+            if np.all(np.abs(h_alg) < 0.5) and np.linalg.cond(s_alg) < 2.0:
+                return mdl.pack(layout, h_alg, s_alg)
+        except AlgebraicFitError:
+            pass
+    sphere = mdl.Layout("sphere", drift=False)
+    try:
+        p_sph = _solve(sphere, np.array([0.0, 0.0, 0.0, 1.0]), x, None, 0.01, log_ref, opts)
+    except FitRefused:
+        return mdl.pack(layout, np.zeros(3), np.eye(3))
+    h_s, s_s, _ = mdl.unpack(sphere, p_sph)
+    return mdl.pack(layout, h_s, s_s)
+
+
+# --------------------------------------------------------------------------- refinement
+
+def _residuals_and_jac(layout, p, x, tau, weights, sigma, log_ref, opts):
+    rho, jac = mdl.radial_jacobian(layout, p, x, tau)
+    r = (rho - 1.0) / weights
+    jac = jac / weights[:, None]
+    if log_ref is not None:
+        k = sigma / opts.gain_sigma
+        r = np.append(r, k * (mdl.log_raw_radius(layout, p) - log_ref))
+        jac = np.vstack([jac, k * mdl.log_gain_gradient(layout, p)])
+        if opts.shape_sigma and layout.model != "sphere":
+            # soft iron near identity: entries of S·F_ref (raw units) with prior 1σ shape_sigma
+            ks = sigma / opts.shape_sigma * np.exp(log_ref)
+            ident = np.array([1.0, 1.0, 1.0, 0.0, 0.0, 0.0][: layout.n_soft])
+            r = np.concatenate([r, ks * (p[layout.soft_slice] - ident * np.exp(-log_ref))])
+            rows = np.zeros((layout.n_soft, layout.size))
+            rows[:, layout.soft_slice] = np.eye(layout.n_soft) * ks
+            jac = np.vstack([jac, rows])
+    return r, jac
+
+
+def _solve(layout, p0, x, tau, sigma, log_ref, opts) -> NDArray:
+    p = p0
+    for _ in range(3):  # Sampson weights depend (weakly) on p; two or three passes converge
+        weights = mdl.gradient_norm(layout, p, x, tau)
+        if not np.all(np.isfinite(weights)) or np.any(weights <= 0):
+            raise FitRefused("not_ellipsoid", "the fit diverged", ROTATE_MORE)
+
+        def fun(q, w=weights):
+            return _residuals_and_jac(layout, q, x, tau, w, sigma, log_ref, opts)[0]
+
+        def jac(q, w=weights):
+            return _residuals_and_jac(layout, q, x, tau, w, sigma, log_ref, opts)[1]
+
+        sol = optimize.least_squares(fun, p, jac=jac, method="lm", xtol=1e-12, ftol=1e-12, gtol=1e-12)
+        step = np.max(np.abs(sol.x - p))
+        p = sol.x
+        if step < 1e-9:
+            break
+    _, s, _ = mdl.unpack(layout, p)
+    if not np.all(np.isfinite(p)) or np.any(np.linalg.eigvalsh(s) <= 0):
+        raise FitRefused("not_ellipsoid", "the samples do not describe an ellipsoid", ROTATE_MORE)
+    return p
+
+
+def _geometric_residuals(layout, p, x, tau) -> NDArray:
+    rho, _, _ = mdl.radial(layout, p, x, tau)
+    return (rho - 1.0) / mdl.gradient_norm(layout, p, x, tau)
+
+
+def _robust_refine(layout, p, x_all, tau_all, inliers, log_ref, opts):
+    sigma = _robust_sigma(_geometric_residuals(layout, p, x_all[inliers], _take(tau_all, inliers)))
+    for _ in range(5):
+        p = _solve(layout, p, x_all[inliers], _take(tau_all, inliers), sigma, log_ref, opts)
+        r = _geometric_residuals(layout, p, x_all, tau_all)
+        sigma = _robust_sigma(r[inliers])
+        new = np.abs(r) <= opts.outlier_sigmas * sigma
+        if np.array_equal(new, inliers):
+            break
+        if new.sum() < MIN_SAMPLES[layout.model]:
+            raise FitRefused("not_ellipsoid", "too few samples agree on one ellipsoid", ROTATE_MORE)
+        inliers = new
+    sigma = float(np.std(_geometric_residuals(layout, p, x_all[inliers], _take(tau_all, inliers))))
+    return p, inliers, max(sigma, 1e-12)
+
+
+def _robust_sigma(r: NDArray) -> float:
+    return max(float(MAD_TO_SIGMA * np.median(np.abs(r - np.median(r)))), 1e-12)
+
+
+def _take(a: NDArray | None, mask: NDArray) -> NDArray | None:
+    return None if a is None else a[mask]
+
+
+# --------------------------------------------------------------------------- drift
+
+def _drift_regressor(t_ms, temp_c, keep) -> tuple[NDArray | None, str | None]:
+    """Normalised regressor τ ∈ [−1, 0] (0 = last sample) for a linear offset drift, or None."""
+    for name, values, min_span in (("temp_c", temp_c, 0.5), ("t_ms", t_ms, 1000.0)):
+        if values is None:
+            continue
+        v = np.asarray(values, float)[keep]
+        if not np.all(np.isfinite(v)):
+            continue
+        span = float(v.max() - v.min())
+        if span >= min_span:
+            end = v[-1] if name == "t_ms" else v[np.argmax(np.abs(v - v[0]))]
+            return (v - end) / span, name
+    return None, None
+
+
+def _maybe_drift(layout, p, x_all, tau_all, inliers, sigma, log_ref, opts, name):
+    """Add a linear offset drift when a likelihood-ratio test says the data need it."""
+    drift_layout = mdl.Layout(layout.model, drift=True)
+    pd = np.concatenate([p, np.zeros(3)])
+    try:
+        pd, inl_d, sigma_d = _robust_refine(drift_layout, pd, x_all, tau_all, inliers, log_ref, opts)
+    except FitRefused:
+        return {"regressor": name, "modelled": False}, p, inliers, sigma, layout
+    both = inliers & inl_d
+    rss0 = float(np.sum(_geometric_residuals(layout, p, x_all[both], None) ** 2))
+    rss1 = float(np.sum(_geometric_residuals(drift_layout, pd, x_all[both], tau_all[both]) ** 2))
+    statistic = (rss0 - rss1) / sigma_d**2
+    threshold = float(stats.chi2.ppf(1.0 - opts.drift_p_value, 3))
+    info = {"regressor": name, "statistic": statistic, "threshold": threshold, "modelled": False}
+    if statistic > threshold:
+        info["modelled"] = True
+        return info, pd, inl_d, sigma_d, drift_layout
+    return info, p, inliers, sigma, layout
+
+
+# --------------------------------------------------------------------------- uncertainty & output
+
+def _covariance(layout, p, x, tau, sigma, log_ref, opts):
+    weights = mdl.gradient_norm(layout, p, x, tau)
+    r, jac = _residuals_and_jac(layout, p, x, tau, weights, sigma, log_ref, opts)
+    n_data = len(x)
+    rss = float(np.sum(r[:n_data] ** 2))
+    dof = max(n_data - layout.size, 1)
+    s2 = rss / dof
+    if log_ref is not None:  # re-scale the prior row to the final noise estimate
+        r, jac = _residuals_and_jac(layout, p, x, tau, weights, np.sqrt(s2), log_ref, opts)
+    try:
+        cov = s2 * np.linalg.inv(jac.T @ jac)
+    except np.linalg.LinAlgError as exc:
+        raise FitRefused("undetermined", "the samples do not determine the calibration", ROTATE_MORE) from exc
+    return cov, jac, rss
+
+
+def _assemble(layout, p, cov, jac, x, tau, centre, scale, keep, inliers, rejected, flat, drift_info,
+              opts, n_total) -> FitResult:
+    h_n, s_n, drift = mdl.unpack(layout, p)
+    log_r = mdl.log_raw_radius(layout, p)
+    field_est = float(scale * np.exp(log_r))
+    g = mdl.log_gain_gradient(layout, p)
+    field_sigma = float(field_est * np.sqrt(max(g @ cov @ g, 0.0)))
+    field_out = float(opts.field_ut) if opts.field_ut is not None else field_est
+    s_out = s_n / scale * field_out
+    h_out = centre + scale * h_n
+    h_sigma = scale * np.sqrt(np.clip(np.diag(cov)[:3], 0, None))
+    soft_sigma = _soft_sigma(layout, cov, field_out / scale)
+
+    # Determinability: the reported uncertainty itself says whether the data pin the calibration
+    # where it will be used — the calibrated field *direction* over the orientations seen.
+    jn = jac / np.linalg.norm(jac, axis=0)
+    cond = float(np.linalg.cond(jn))
+    dir_sigma = _direction_sigma_deg(layout, p, cov, x)
+    if not np.isfinite(cond) or not np.isfinite(dir_sigma) or dir_sigma > opts.max_direction_sigma_deg \
+            or np.linalg.norm(h_sigma) > opts.max_offset_sigma_fraction * field_est:
+        raise FitRefused("undetermined",
+                         f"the orientations covered do not determine the calibration (heading 1σ up to "
+                         f"{dir_sigma:.2f}°, offset 1σ {np.linalg.norm(h_sigma):.2f} µT)", ROTATE_MORE)
+    axis_ratio = np.linalg.eigvalsh(s_out)
+    if axis_ratio[-1] / axis_ratio[0] > opts.max_axis_ratio:
+        raise FitRefused("not_ellipsoid",
+                         f"implausible soft iron (axis ratio {axis_ratio[-1] / axis_ratio[0]:.2f})",
+                         "check for a magnet or steel part next to the sensor")
+
+    cal = (x - h_n - (np.outer(tau, drift) if tau is not None else 0.0)) @ s_n * field_out
+    residuals = np.linalg.norm(cal, axis=1) - field_out
+    geo = _geometric_residuals(layout, p, x, tau) * scale
+    noise = float(np.std(geo))
+    if np.sqrt(np.mean(geo**2)) > opts.max_residual_fraction * field_est:
+        raise FitRefused("not_ellipsoid",
+                         f"residual {np.sqrt(np.mean(geo**2)):.2f} µT is too large for an ellipsoid of "
+                         f"{field_est:.1f} µT", "keep motors off and magnets away, then acquire again")
+    used = np.zeros(n_total, dtype=bool)
+    used[np.flatnonzero(keep)[inliers]] = True
+    ratio = ratio_sigma = None
+    if opts.field_ut is not None:
+        ratio = field_est / float(opts.field_ut)
+        ratio_sigma = field_sigma / float(opts.field_ut)
+    if drift_info is not None and drift_info.get("modelled"):
+        drift_info["offset_change_ut"] = [float(v) for v in (-scale * drift)]
+    return FitResult(
+        model=layout.model, hard_iron_ut=h_out, soft_iron=s_out, field_ut=field_out,
+        field_estimate_ut=field_est, field_sigma_ut=field_sigma, reference_field_ut=opts.field_ut,
+        raw_to_reference_ratio=ratio, raw_to_reference_sigma=ratio_sigma,
+        hard_iron_sigma_ut=h_sigma, soft_iron_sigma=soft_sigma, residuals_ut=residuals, used=used,
+        samples_total=n_total, rejected=rejected,
+        coverage=coverage_fraction(cal, opts.coverage_bins), coverage_bins=opts.coverage_bins,
+        planarity=flat, condition_number=cond, direction_sigma_deg=dir_sigma, drift=drift_info,
+        noise_ut=noise,
+    )
+
+
+def _direction_sigma_deg(layout: mdl.Layout, p: NDArray, cov: NDArray, x: NDArray) -> float:
+    """Largest 1σ error (degrees) of the calibrated field direction over the samples seen.
+
+    First-order propagation of the parameter covariance, by finite differences of the calibrated
+    directions along the covariance's principal axes (drift terms excluded: end state).
+    """
+    w, vecs = np.linalg.eigh(cov)
+    w = np.clip(w, 0, None)
+
+    def directions(q):
+        h, s, _ = mdl.unpack(layout, q)
+        c = (x - h) @ s
+        return c / np.linalg.norm(c, axis=1, keepdims=True)
+
+    base = directions(p)
+    var = np.zeros(len(x))
+    for lam, vec in zip(w, vecs.T, strict=True):
+        if lam <= 0:
+            continue
+        step = 1e-3 * np.sqrt(lam)
+        delta = (directions(p + step * vec) - base) / 1e-3
+        var += np.einsum("ij,ij->i", delta, delta)
+    return float(np.degrees(np.sqrt(var.max())))
+
+
+def _soft_sigma(layout: mdl.Layout, cov: NDArray, factor: float) -> NDArray:
+    var = np.clip(np.diag(cov)[layout.soft_slice], 0, None)
+    sig = np.sqrt(var) * factor
+    if layout.model == "sphere":
+        return np.eye(3) * sig[0]
+    if layout.model == "diagonal":
+        return np.diag(sig)
+    return mdl.soft_matrix("full", sig)

@@ -1,0 +1,90 @@
+"""The raw-sample CSV format shared by `magline fit`, the results store and attachments.
+
+Header required; ``mag_x_ut,mag_y_ut,mag_z_ut`` mandatory, ``t_ms`` and ``temp_c`` optional.
+Every malformed input gets a message naming the file, the line and the column, because the
+person reading it is an operator or quality engineer, not a developer.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+REQUIRED = ("mag_x_ut", "mag_y_ut", "mag_z_ut")
+OPTIONAL = ("t_ms", "temp_c")
+
+
+class SampleFileError(ValueError):
+    """A raw-sample file that cannot be used, with the place of the problem in the message."""
+
+
+@dataclass
+class RawSamples:
+    mag_ut: NDArray
+    t_ms: NDArray | None = None
+    temp_c: NDArray | None = None
+
+    def __len__(self) -> int:
+        return len(self.mag_ut)
+
+
+def read_samples(path: str | Path) -> RawSamples:
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise SampleFileError(f"{path}: cannot read: {exc.strerror}") from exc
+    return parse_samples(text, str(path))
+
+
+def parse_samples(text: str, name: str = "<samples>") -> RawSamples:
+    rows = list(csv.reader(io.StringIO(text)))
+    if not rows or not any(cell.strip() for cell in rows[0]):
+        raise SampleFileError(f"{name}: empty file (expected a header with {', '.join(REQUIRED)})")
+    header = [h.strip() for h in rows[0]]
+    missing = [c for c in REQUIRED if c not in header]
+    if missing:
+        raise SampleFileError(f"{name}:1: missing column(s) {', '.join(missing)} (header: {', '.join(header)})")
+    cols = [c for c in (*REQUIRED, *OPTIONAL) if c in header]
+    index = {c: header.index(c) for c in cols}
+    data: dict[str, list[float]] = {c: [] for c in cols}
+    for lineno, row in enumerate(rows[1:], start=2):
+        if not row or all(not cell.strip() for cell in row):
+            continue
+        for col in cols:
+            i = index[col]
+            cell = row[i].strip() if i < len(row) else ""
+            try:
+                value = float(cell)
+            except ValueError:
+                raise SampleFileError(f"{name}:{lineno}: column {col}: {cell!r} is not a number") from None
+            if math.isnan(value) or math.isinf(value):
+                raise SampleFileError(f"{name}:{lineno}: column {col}: {cell!r} is not a finite number")
+            data[col].append(value)
+    if not data[REQUIRED[0]]:
+        raise SampleFileError(f"{name}: no samples after the header")
+    mag = np.column_stack([data[c] for c in REQUIRED])
+    return RawSamples(mag_ut=mag,
+                      t_ms=np.asarray(data["t_ms"]) if "t_ms" in data else None,
+                      temp_c=np.asarray(data["temp_c"]) if "temp_c" in data else None)
+
+
+def format_samples(samples: RawSamples) -> str:
+    """CSV text for samples (the inverse of :func:`parse_samples`)."""
+    out = io.StringIO()
+    cols = list(REQUIRED)
+    extra = [("t_ms", samples.t_ms), ("temp_c", samples.temp_c)]
+    cols += [name for name, values in extra if values is not None]
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow(cols)
+    for i in range(len(samples)):
+        row = [f"{v:.4f}" for v in samples.mag_ut[i]]
+        row += [f"{values[i]:.3f}" for _, values in extra if values is not None]
+        writer.writerow(row)
+    return out.getvalue()

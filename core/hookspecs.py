@@ -1,0 +1,152 @@
+"""Hook specifications: every point where a plugin can take part in a calibration.
+
+Order of a unit's run (one direction of data: station file → sequencer → phases → record)::
+
+    register_*  (once, at start-up)
+    phase_started / phase_finished around each phase, operator_prompt and acquisition_progress
+    during them:
+      identify → connect → acquire (retries) → fit → validate → persist → verify → record
+    unit_finished (after the record is stored)
+
+Hooks marked ``firstresult`` have one answer: the first plugin returning non-``None`` wins, so a
+third-party plugin registered later (LIFO) can replace the core's default implementation.
+A plugin is a plain module with functions named like these specs and decorated with
+:data:`magline.core.plugins.hookimpl`, listed under the ``magline`` entry-point group::
+
+    [project.entry-points.magline]
+    my_dut = "my_package.my_dut_plugin"
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
+
+import pluggy
+
+if TYPE_CHECKING:
+    from magline.core.dut import DutFactory
+    from magline.core.fit import FitOptions, FitResult
+    from magline.core.fit.samples_csv import RawSamples
+    from magline.core.measurements import Measurement
+    from magline.core.record import PersistReport, PhaseResult, RunRecord, VerifyReport
+    from magline.core.sequencer.context import Acquisition, RunContext
+
+hookspec = pluggy.HookspecMarker("magline")
+
+# --------------------------------------------------------------------------- registration
+
+
+@hookspec
+def magline_register_dut_backends(register: Callable[[str, DutFactory], None]) -> None:
+    """Add DUT backends by name.  Called once when the plugin manager starts.
+
+    :param register: call ``register(name, factory)`` once per backend; ``factory(product)``
+        receives the station file's product entry and returns a :class:`~magline.core.dut.DutBackend`.
+        The name is what a station file writes under ``products.<part>.backend``.
+    """
+
+
+@hookspec
+def magline_register_field_sources(register: Callable[[str, Callable[..., Any]], None]) -> None:
+    """Add field sources (the expected local field) by name.  Called once at start-up.
+
+    :param register: call ``register(name, factory)``; ``factory(station)`` receives the whole
+        station and returns an object with ``reference_field_ut() -> float`` (and, optionally,
+        ``close()``).  The name is the station file's ``field_source.type``.
+    """
+
+
+@hookspec
+def magline_register_result_sinks(register: Callable[[str, Callable[..., Any]], None]) -> None:
+    """Add result stores by name.  Called once at start-up.
+
+    :param register: call ``register(name, factory)``; ``factory(station, station_dir)`` returns a
+        sink with ``begin(record)``, ``save_attempt(record, attempt)``, ``finish(record)`` and
+        ``history(serial)``.  The name is the station file's ``results.sink``.
+    """
+
+
+# --------------------------------------------------------------------------- phases
+
+
+@hookspec(firstresult=True)
+def magline_acquire(run: RunContext, attempt: int) -> Acquisition | None:
+    """Acquire raw samples for one attempt.  Called once per attempt until coverage is reached.
+
+    :param run: the unit's run context (station, product, connected DUT, listeners).
+    :param attempt: 1 for the first acquisition, 2 for the first retry, ...
+    :return: the samples with their live coverage figure.  The sequencer keeps every attempt
+        and stores its raw data before anything is fitted.
+    """
+
+
+@hookspec(firstresult=True)
+def magline_fit(run: RunContext, samples: RawSamples, options: FitOptions) -> FitResult | None:
+    """Fit hard and soft iron.  Called once, on the attempt that reached coverage.
+
+    :param samples: raw samples (µT), with time and temperature where the DUT gives them.
+    :param options: model (full/diagonal/sphere as the DUT can hold), reference field, range.
+    :return: a :class:`~magline.core.fit.FitResult`; raise
+        :class:`~magline.core.fit.FitRefused` when the data cannot determine the calibration.
+    """
+
+
+@hookspec
+def magline_validate(run: RunContext, fit: FitResult) -> list[Measurement]:
+    """Produce measurements judged against the station's limits.  Every plugin may contribute.
+
+    :param fit: the accepted fit.
+    :return: a list of measurements (numeric with verdicts, arrays, JSON); the unit fails when
+        any numeric verdict is ``fail``.  Persist is only called when none failed.
+    """
+
+
+@hookspec(firstresult=True)
+def magline_persist(run: RunContext, fit: FitResult) -> PersistReport | None:
+    """Write the calibration into the DUT's parameters and force it to storage.
+
+    Called only when validation passed.  The default reads the parameters before, writes the
+    backend's mapping, checks every echo value and commits.
+
+    :return: parameters before and written; raise :class:`~magline.core.dut.DutError` on refusal.
+    """
+
+
+@hookspec(firstresult=True)
+def magline_verify_persistence(run: RunContext, persisted: PersistReport) -> VerifyReport | None:
+    """Power-cycle the DUT and prove the calibration survived.  Called after a successful persist.
+
+    :param persisted: what :func:`magline_persist` wrote.
+    :return: read-back values, mismatches and power-cycle figures; the unit fails on any mismatch
+        or when the calibrated sensor is missing after the cycle.
+    """
+
+
+# --------------------------------------------------------------------------- listeners
+
+
+@hookspec
+def magline_phase_started(run: RunContext, phase: str) -> None:
+    """A phase begins (operator views, logging).  ``phase`` is one of the sequencer's phase names."""
+
+
+@hookspec
+def magline_phase_finished(run: RunContext, phase: str, result: PhaseResult) -> None:
+    """A phase ended with its outcome (pass/fail/error/skipped), duration and log lines."""
+
+
+@hookspec
+def magline_acquisition_progress(run: RunContext, attempt: int, samples: int, coverage: float,
+                                 target: float) -> None:
+    """Live acquisition figures, called as samples arrive (coverage is a fraction 0..1)."""
+
+
+@hookspec
+def magline_operator_prompt(run: RunContext, message: str) -> None:
+    """Something the operator must do now (tumble, tumble again, scan)."""
+
+
+@hookspec
+def magline_unit_finished(run: RunContext, record: RunRecord) -> None:
+    """The unit's run is complete and stored; ``record`` holds the verdict and everything measured."""

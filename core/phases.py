@@ -1,0 +1,124 @@
+"""The core's default phase implementations (registered like any plugin, entry point ``core_phases``).
+
+Each is ``trylast`` so that a plugin implementing the same ``firstresult`` hook replaces it.
+They drive the DUT through the :class:`~magline.core.dut.DutBackend` protocol only, which is what
+makes them autopilot-independent.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from contextlib import closing
+
+import numpy as np
+
+from magline.core.dut import DutError, ParamValue
+from magline.core.fit import CoverageTracker, FitOptions, FitResult, fit_calibration
+from magline.core.fit.samples_csv import RawSamples
+from magline.core.measurements import Array, Json, Measurement, Numeric
+from magline.core.plugins import hookimpl
+from magline.core.record import PersistReport, VerifyReport
+from magline.core.sequencer.context import Acquisition, RunContext
+
+
+@hookimpl(trylast=True)
+def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
+    cfg = run.station.acquisition
+    dut = run.require_dut()
+    run.prompt(run.station.prompts.tumble if attempt == 1 else run.station.prompts.retry)
+    tracker = CoverageTracker(cfg.coverage_bins)
+    mags, times, temps = [], [], []
+    count = 0
+    deadline = time.monotonic() + cfg.timeout_s
+    with closing(dut.samples(cfg.rate_hz)) as stream:
+        for chunk in stream:
+            mags.append(np.atleast_2d(chunk.mag_ut))
+            times.append(np.atleast_1d(chunk.t_ms))
+            if chunk.temp_c is not None:
+                temps.append(np.atleast_1d(chunk.temp_c))
+            count += len(mags[-1])
+            coverage = tracker.add(mags[-1])
+            run.progress(attempt, count, coverage, cfg.coverage_target)
+            if count >= cfg.samples:
+                break
+            if time.monotonic() > deadline:
+                raise DutError(f"only {count} of {cfg.samples} samples within {cfg.timeout_s:.0f} s")
+    if count == 0:
+        raise DutError("the DUT sent no samples")
+    mag = np.vstack(mags)[: cfg.samples]
+    samples = RawSamples(mag_ut=mag, t_ms=np.concatenate(times)[: len(mag)],
+                         temp_c=np.concatenate(temps)[: len(mag)] if len(temps) == len(mags) else None)
+    final = CoverageTracker(cfg.coverage_bins, refit_every=1)
+    return Acquisition(attempt=attempt, samples=samples, coverage=final.add(mag), target=cfg.coverage_target)
+
+
+@hookimpl(trylast=True)
+def magline_fit(run: RunContext, samples: RawSamples, options: FitOptions) -> FitResult:
+    return fit_calibration(samples.mag_ut, options, t_ms=samples.t_ms, temp_c=samples.temp_c)
+
+
+@hookimpl
+def magline_validate(run: RunContext, fit: FitResult) -> list[Measurement]:
+    lim = run.limits
+    h = fit.hard_iron_ut
+    s = fit.soft_iron
+    offdiag = max(abs(s[0, 1]), abs(s[0, 2]), abs(s[1, 2])) / float(np.mean(np.diag(s)))
+    out: list[Measurement] = [
+        Numeric.of("hard_iron_x_ut", h[0], lim),
+        Numeric.of("hard_iron_y_ut", h[1], lim),
+        Numeric.of("hard_iron_z_ut", h[2], lim),
+        Numeric.of("hard_iron_norm_ut", float(np.linalg.norm(h)), lim),
+        Numeric.of("hard_iron_sigma_ut", float(np.linalg.norm(fit.hard_iron_sigma_ut)), lim),
+        Numeric.of("axis_ratio", fit.axis_ratio, lim),
+        Numeric.of("soft_iron_offdiag_max", offdiag, lim),
+        Numeric.of("residual_rms_ut", fit.residual_rms_ut, lim),
+        Numeric.of("residual_max_ut", fit.residual_max_ut, lim),
+        Numeric.of("field_ut", fit.field_ut, lim),
+        Numeric.of("coverage", fit.coverage, lim),
+        Numeric.of("direction_sigma_deg", fit.direction_sigma_deg, lim),
+        Numeric.of("rejected_fraction", 1.0 - fit.samples_used / fit.samples_total, lim),
+        Numeric.of("attempts", len(run.attempts), lim),
+        Array.of("residual_ut", fit.residuals_ut, lim),
+        Json(name="calibration", data={"hard_iron_ut": h.tolist(), "soft_iron": s.tolist(),
+                                       "field_ut": fit.field_ut, "model": fit.model}),
+    ]
+    if fit.raw_to_reference_ratio is not None:
+        out.append(Numeric.of("field_error_pct", (fit.raw_to_reference_ratio - 1.0) * 100.0, lim))
+    return out
+
+
+def _same(written: ParamValue, echoed: ParamValue) -> bool:
+    if isinstance(written, int) and not isinstance(written, bool):
+        return (isinstance(echoed, int) and echoed == written) or (
+            isinstance(echoed, float) and echoed.is_integer() and int(echoed) == written)
+    # autopilots store float32: compare at float32 precision
+    return math.isclose(float(written), float(echoed), rel_tol=1e-6, abs_tol=1e-7)
+
+
+@hookimpl(trylast=True)
+def magline_persist(run: RunContext, fit: FitResult) -> PersistReport:
+    dut = run.require_dut()
+    params = dut.calibration_params(fit)
+    before = dut.read_params(list(params))
+    run.log(f"writing {len(params)} parameters")
+    echoed = dut.write_params(params)
+    wrong = [f"{k}: wrote {v!r}, echoed {echoed.get(k)!r}" for k, v in params.items()
+             if k not in echoed or not _same(v, echoed[k])]
+    if wrong:
+        raise DutError("parameter write not confirmed: " + "; ".join(wrong))
+    dut.commit()
+    return PersistReport(before=before, written=params, echoed=echoed)
+
+
+@hookimpl(trylast=True)
+def magline_verify_persistence(run: RunContext, persisted: PersistReport) -> VerifyReport:
+    dut = run.require_dut()
+    figures = dict(dut.power_cycle())
+    method = str(figures.pop("method", "reboot"))
+    present = dut.selected_sensor_present()
+    read_back = dut.read_params(list(persisted.written))
+    mismatches = [f"{k}: wrote {v!r}, read back {read_back.get(k)!r}" for k, v in persisted.written.items()
+                  if k not in read_back or not _same(v, read_back[k])]
+    return VerifyReport(read_back=read_back, mismatches=mismatches, sensor_present=present,
+                        method=method, figures={k: float(v) for k, v in figures.items()})

@@ -1,0 +1,1 @@
+"""Result sinks: where every unit's record is stored (SQLite by default)."""

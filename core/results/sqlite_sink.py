@@ -1,0 +1,136 @@
+"""The default results store: one SQLite file per station, named in the station file.
+
+Why SQLite: a real database with transactions on a line PC, no server, readable by any quality
+tool.  Attempts (raw samples) are committed the moment they exist, so a crash later in the run
+loses nothing.  Relative paths are resolved against the directory magline runs in.
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+from magline.core.measurements import Array, Json, Numeric
+from magline.core.plugins import hookimpl
+from magline.core.record import AttemptRecord, RunRecord
+
+SCHEMA = """
+CREATE TABLE IF NOT EXISTS runs (
+    id INTEGER PRIMARY KEY, serial TEXT NOT NULL, part TEXT NOT NULL, station_id TEXT, line TEXT,
+    operator TEXT, software_version TEXT, limit_hash TEXT, started TEXT, finished TEXT,
+    verdict TEXT, cause TEXT, unit_info TEXT, calibration TEXT, persistence TEXT);
+CREATE INDEX IF NOT EXISTS runs_serial ON runs(serial);
+CREATE TABLE IF NOT EXISTS phases (
+    run_id INTEGER REFERENCES runs(id), seq INTEGER, name TEXT, outcome TEXT, duration_s REAL,
+    message TEXT, log TEXT);
+CREATE TABLE IF NOT EXISTS attempts (
+    run_id INTEGER REFERENCES runs(id), attempt INTEGER, samples INTEGER, coverage REAL,
+    target REAL, accepted INTEGER, raw_csv TEXT);
+CREATE TABLE IF NOT EXISTS measurements (
+    run_id INTEGER REFERENCES runs(id), name TEXT, kind TEXT, value REAL, unit TEXT, low REAL,
+    high REAL, verdict TEXT, data TEXT);
+CREATE TABLE IF NOT EXISTS params (
+    run_id INTEGER REFERENCES runs(id), stage TEXT, name TEXT, value REAL);
+CREATE TABLE IF NOT EXISTS attachments (
+    run_id INTEGER REFERENCES runs(id), name TEXT, mime TEXT, content BLOB);
+"""
+
+
+class SqliteSink:
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self.db = sqlite3.connect(path)
+        self.db.executescript(SCHEMA)
+        self.db.commit()
+
+    def close(self) -> None:
+        self.db.close()
+
+    def begin(self, record: RunRecord) -> None:
+        with self.db:
+            cur = self.db.execute(
+                "INSERT INTO runs (serial, part, station_id, line, operator, software_version, limit_hash,"
+                " started, verdict) VALUES (?,?,?,?,?,?,?,?,?)",
+                (record.serial, record.part, record.station_id, record.line, record.operator,
+                 record.software_version, record.limit_hash, record.started, "running"))
+            record.run_id = cur.lastrowid
+
+    def save_attempt(self, record: RunRecord, attempt: AttemptRecord) -> None:
+        if record.run_id is None:
+            self.begin(record)
+        with self.db:
+            self.db.execute("INSERT INTO attempts VALUES (?,?,?,?,?,?,?)",
+                            (record.run_id, attempt.attempt, attempt.samples, attempt.coverage,
+                             attempt.target, int(attempt.accepted), attempt.raw_csv))
+
+    def finish(self, record: RunRecord) -> None:
+        if record.run_id is None:
+            self.begin(record)
+        rid = record.run_id
+        with self.db:
+            self.db.execute(
+                "UPDATE runs SET finished=?, verdict=?, cause=?, unit_info=?, calibration=?, persistence=?"
+                " WHERE id=?",
+                (record.finished, str(record.verdict), record.cause, json.dumps(record.unit_info),
+                 json.dumps(record.calibration) if record.calibration else None,
+                 json.dumps(record.persistence), rid))
+            self.db.executemany("INSERT INTO phases VALUES (?,?,?,?,?,?,?)", [
+                (rid, i, p.name, str(p.outcome), p.duration_s, p.message, "\n".join(p.log))
+                for i, p in enumerate(record.phases)])
+            self.db.executemany("INSERT INTO measurements VALUES (?,?,?,?,?,?,?,?,?)",
+                                [_measurement_row(rid, m) for m in _flatten(record.measurements)])
+            for stage, params in (("before", record.params_before), ("written", record.params_written),
+                                  ("read_back", record.params_read_back)):
+                self.db.executemany("INSERT INTO params VALUES (?,?,?,?)",
+                                    [(rid, stage, k, float(v)) for k, v in params.items()])
+            self.db.executemany("INSERT INTO attachments VALUES (?,?,?,?)",
+                                [(rid, a.name, a.mime, a.content) for a in record.attachments])
+
+    def history(self, serial: str) -> list[dict[str, Any]]:
+        """Every run of a unit, oldest first, with attempts and failed measurements."""
+        self.db.row_factory = sqlite3.Row
+        try:
+            runs = [dict(r) for r in self.db.execute(
+                "SELECT id, serial, part, station_id, line, operator, started, finished, verdict, cause,"
+                " limit_hash, calibration FROM runs WHERE serial=? ORDER BY id", (serial,))]
+            for run in runs:
+                run["attempts"] = [dict(r) for r in self.db.execute(
+                    "SELECT attempt, samples, coverage, accepted FROM attempts WHERE run_id=? ORDER BY attempt",
+                    (run["id"],))]
+                run["failed"] = [dict(r) for r in self.db.execute(
+                    "SELECT name, value, unit, low, high FROM measurements WHERE run_id=? AND verdict='fail'",
+                    (run["id"],))]
+                run["calibration"] = json.loads(run["calibration"]) if run["calibration"] else None
+        finally:
+            self.db.row_factory = None
+        return runs
+
+
+def _flatten(measurements):
+    for m in measurements:
+        yield m
+        if isinstance(m, Array):
+            yield from m.aggregations
+
+
+def _measurement_row(rid: int, m) -> tuple:
+    if isinstance(m, Numeric):
+        return (rid, m.name, "numeric", m.value, m.unit, m.low, m.high, str(m.verdict), None)
+    if isinstance(m, Array):
+        return (rid, m.name, "array", None, m.unit, None, None, None, json.dumps(m.values))
+    if isinstance(m, Json):
+        return (rid, m.name, "json", None, None, None, None, None, json.dumps(m.data))
+    return (rid, getattr(m, "name", "?"), "other", None, None, None, None, None, json.dumps(asdict(m)))
+
+
+def _factory(station: Any, station_dir: Path) -> SqliteSink:
+    return SqliteSink(Path(station.results.path))
+
+
+@hookimpl
+def magline_register_result_sinks(register):
+    register("sqlite", _factory)

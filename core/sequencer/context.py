@@ -1,0 +1,70 @@
+"""Per-unit state handed to every phase hook.
+
+Why a context object: hooks get one argument that carries the station, the product, the live DUT
+and the listeners, so hook signatures stay stable as phases learn more.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from magline.core.fit.samples_csv import RawSamples
+
+if TYPE_CHECKING:
+    from magline.core.dut import DutBackend, UnitInfo
+    from magline.core.plugins import Plugins
+    from magline.core.record import PhaseResult, RunRecord
+    from magline.core.station.schema import Limit, Product, Station
+
+
+@dataclass
+class Acquisition:
+    """One acquisition attempt: raw samples and the live coverage they reached."""
+
+    attempt: int
+    samples: RawSamples
+    coverage: float
+    target: float
+
+    @property
+    def sufficient(self) -> bool:
+        return self.coverage >= self.target
+
+
+@dataclass
+class RunContext:
+    station: Station
+    station_dir: Path
+    part: str
+    product: Product
+    serial: str
+    operator: str
+    plugins: Plugins
+    record: RunRecord
+    limits: dict[str, Limit]
+    reference_field_ut: float | None = None
+    dut: DutBackend | None = None
+    unit: UnitInfo | None = None
+    attempts: list[Acquisition] = field(default_factory=list)
+    state: dict[str, Any] = field(default_factory=dict)  # scratch space for plugins
+    _phase: PhaseResult | None = None
+
+    def log(self, message: str) -> None:
+        """Add a line to the current phase's log (kept in the record)."""
+        if self._phase is not None:
+            self._phase.log.append(message)
+
+    def prompt(self, message: str) -> None:
+        self.log(f"operator: {message}")
+        self.plugins.hook.magline_operator_prompt(run=self, message=message)
+
+    def progress(self, attempt: int, samples: int, coverage: float, target: float) -> None:
+        self.plugins.hook.magline_acquisition_progress(run=self, attempt=attempt, samples=samples,
+                                                       coverage=coverage, target=target)
+
+    def require_dut(self) -> DutBackend:
+        if self.dut is None:
+            raise RuntimeError("no DUT is connected")
+        return self.dut

@@ -1,0 +1,217 @@
+"""Run one unit through the phases, in order, with outcomes, durations and logs.
+
+Rules the sequencer enforces whatever the plugins do:
+* an exception in a plugin ends the unit as ERROR (or FAIL for a DUT/fit refusal) with the cause;
+  it never propagates to the station loop;
+* raw samples are stored the moment an attempt ends, before fitting;
+* persist runs only when validation passed; verify only when persist succeeded;
+* the DUT is restored and closed, and the record stored, on every path.
+"""
+
+from __future__ import annotations
+
+import time
+import traceback
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from magline.core import __version__
+from magline.core.dut import DutError
+from magline.core.fit import FitOptions, FitRefused, FitResult
+from magline.core.fit.samples_csv import format_samples
+from magline.core.measurements import Json, Verdict, verdicts
+from magline.core.plugins import Plugins
+from magline.core.record import AttemptRecord, Outcome, PersistReport, PhaseResult, RunRecord, now_iso
+from magline.core.sequencer.context import RunContext
+from magline.core.station.schema import Station
+
+PHASES = ("identify", "connect", "acquire", "fit", "validate", "persist", "verify", "record")
+
+
+class PhaseFailed(Exception):
+    """A phase ended with a FAIL verdict (the unit is bad, not the station)."""
+
+
+class Sequencer:
+    """Runs units for one station file; holds the station-wide field source and results sink."""
+
+    def __init__(self, station: Station, plugins: Plugins, station_dir: Path | str = ".",
+                 sleep: Callable[[float], None] = time.sleep) -> None:
+        self.station = station
+        self.plugins = plugins
+        self.station_dir = Path(station_dir)
+        self.sleep = sleep
+        sink_factory = plugins.result_sinks[station.results.sink]
+        self.sink = sink_factory(station, self.station_dir)
+        source_factory = plugins.field_sources[station.field_source.type]
+        self.field_source = source_factory(station)
+
+    def close(self) -> None:
+        for obj in (self.field_source, self.sink):
+            closer = getattr(obj, "close", None)
+            if closer is not None:
+                closer()
+
+    # ------------------------------------------------------------------ one unit
+    def run_unit(self, serial: str, part: str | None = None, operator: str = "") -> RunRecord:
+        part = part or self.station.default_part or next(iter(self.station.products))
+        record = RunRecord(serial=serial, part=part, station_id=self.station.station.id,
+                           line=self.station.station.line, operator=operator,
+                           software_version=__version__,
+                           limit_hash=self.station.limit_hash(part) if part in self.station.products else "")
+        run = RunContext(station=self.station, station_dir=self.station_dir, part=part,
+                         product=self.station.products.get(part), serial=serial, operator=operator,
+                         plugins=self.plugins, record=record,
+                         limits=self.station.effective_limits(part) if part in self.station.products else {})
+        steps: list[tuple[str, Callable[[RunContext], Any]]] = [
+            ("identify", self._identify), ("connect", self._connect), ("acquire", self._acquire),
+            ("fit", self._fit), ("validate", self._validate), ("persist", self._persist),
+            ("verify", self._verify),
+        ]
+        failed = False
+        try:
+            for name, step in steps:
+                if failed:
+                    record.phases.append(PhaseResult(name=name, outcome=Outcome.SKIPPED))
+                    continue
+                outcome = self._run_phase(run, name, step)
+                if outcome is not Outcome.PASS:
+                    failed = True
+                    record.verdict = outcome
+                    record.cause = record.phases[-1].message
+        finally:
+            self._cleanup(run)
+        if not failed:
+            record.verdict = Outcome.PASS
+        self._run_phase(run, "record", self._record)
+        self.plugins.hook.magline_unit_finished(run=run, record=record)
+        return record
+
+    def _run_phase(self, run: RunContext, name: str, step: Callable[[RunContext], Any]) -> Outcome:
+        result = PhaseResult(name=name)
+        run._phase = result
+        run.record.phases.append(result)
+        self.plugins.hook.magline_phase_started(run=run, phase=name)
+        start = time.monotonic()
+        try:
+            step(run)
+            result.outcome = Outcome.PASS
+        except (PhaseFailed, DutError, FitRefused) as exc:
+            result.outcome = Outcome.FAIL
+            result.message = str(exc)
+        except Exception as exc:  # a plugin bug must not crash the station
+            result.outcome = Outcome.ERROR
+            result.message = f"{type(exc).__name__}: {exc}"
+            result.log.append(traceback.format_exc(limit=6))
+        result.duration_s = time.monotonic() - start
+        if result.message:
+            result.log.append(result.message)
+        run._phase = None
+        self.plugins.hook.magline_phase_finished(run=run, phase=name, result=result)
+        return result.outcome
+
+    # ------------------------------------------------------------------ phases
+    def _identify(self, run: RunContext) -> None:
+        if not run.serial.strip():
+            raise ValueError("no serial number given")
+        if run.product is None:
+            raise ValueError(f"part number {run.part!r} is not built on this station "
+                             f"(known: {', '.join(self.station.products)})")
+        run.log(f"unit {run.serial}, part {run.part}, limit set {run.record.limit_hash}")
+        self.sink.begin(run.record)
+
+    def _connect(self, run: RunContext) -> None:
+        factory = self.plugins.dut_backends.get(run.product.backend)
+        if factory is None:
+            raise ValueError(f"no DUT backend named {run.product.backend!r} is loaded")
+        run.reference_field_ut = self.field_source.reference_field_ut()
+        run.log(f"reference field {run.reference_field_ut:.2f} µT")
+        run.dut = factory(run.product)
+        run.unit = run.dut.connect()
+        run.record.unit_info = {
+            "autopilot": run.unit.autopilot, "firmware": run.unit.firmware,
+            "sensors": run.unit.sensors, "selected_sensor": run.unit.selected_sensor,
+            "soft_iron_model": run.unit.soft_iron_model, **run.unit.extra,
+        }
+        run.log(f"{run.unit.autopilot} {run.unit.firmware}, magnetometer {run.unit.selected_sensor}")
+        run.dut.prepare()
+
+    def _acquire(self, run: RunContext) -> None:
+        acq = self.station.acquisition
+        for attempt in range(1, acq.retries + 2):
+            if attempt > 1:
+                self.sleep(acq.retry_delay_s)
+            result = self.plugins.hook.magline_acquire(run=run, attempt=attempt)
+            run.attempts.append(result)
+            stored = AttemptRecord(attempt=attempt, samples=len(result.samples), coverage=result.coverage,
+                                   target=result.target, raw_csv=format_samples(result.samples),
+                                   accepted=result.sufficient)
+            run.record.attempts.append(stored)
+            self.sink.save_attempt(run.record, stored)  # raw data safe before any fitting
+            run.log(f"attempt {attempt}: {len(result.samples)} samples, coverage {result.coverage:.0%} "
+                    f"(target {result.target:.0%})")
+            if result.sufficient:
+                return
+        raise PhaseFailed(f"coverage {run.attempts[-1].coverage:.0%} below target "
+                          f"{acq.coverage_target:.0%} after {len(run.attempts)} attempts")
+
+    def _fit(self, run: RunContext) -> None:
+        acq = run.attempts[-1]
+        model = run.product.soft_iron_model
+        if model == "auto":
+            model = run.unit.soft_iron_model if run.unit else "full"
+        options = FitOptions(model=model, field_ut=run.reference_field_ut,
+                             range_ut=self.station.acquisition.range_ut,
+                             coverage_bins=self.station.acquisition.coverage_bins)
+        fit: FitResult = self.plugins.hook.magline_fit(run=run, samples=acq.samples, options=options)
+        run.state["fit"] = fit
+        run.record.calibration = fit.to_dict()
+        run.log(f"offset {fit.hard_iron_ut.round(2).tolist()} µT, field {fit.field_ut:.2f} µT, "
+                f"residual rms {fit.residual_rms_ut:.3f} µT")
+
+    def _validate(self, run: RunContext) -> None:
+        fit = run.state["fit"]
+        for contribution in self.plugins.hook.magline_validate(run=run, fit=fit):
+            run.record.measurements.extend(contribution)
+        failed = [m for m in verdicts(run.record.measurements) if m.verdict is Verdict.FAIL]
+        review = [m for m in verdicts(run.record.measurements) if m.verdict is Verdict.REVIEW]
+        for m in review:
+            run.log(f"review: {m.name} = {m.value:.4g} is within the marginal band")
+        if failed:
+            raise PhaseFailed("; ".join(f"{m.name} = {m.value:.4g} {m.unit} outside "
+                                        f"[{_fmt(m.low)}, {_fmt(m.high)}]" for m in failed))
+
+    def _persist(self, run: RunContext) -> None:
+        report: PersistReport = self.plugins.hook.magline_persist(run=run, fit=run.state["fit"])
+        run.state["persisted"] = report
+        run.record.params_before = dict(report.before)
+        run.record.params_written = dict(report.written)
+        run.record.measurements.append(Json(name="params_written", data=dict(report.written)))
+
+    def _verify(self, run: RunContext) -> None:
+        report = self.plugins.hook.magline_verify_persistence(run=run, persisted=run.state["persisted"])
+        run.record.params_read_back = dict(report.read_back)
+        run.record.persistence = {"method": report.method, "figures": report.figures,
+                                  "sensor_present": report.sensor_present, "mismatches": report.mismatches}
+        if not report.sensor_present:
+            raise PhaseFailed(f"magnetometer {run.unit.selected_sensor} missing after power cycle")
+        if report.mismatches:
+            raise PhaseFailed("calibration did not survive the power cycle: " + "; ".join(report.mismatches))
+
+    def _record(self, run: RunContext) -> None:
+        run.record.finished = now_iso()
+        self.sink.finish(run.record)
+
+    def _cleanup(self, run: RunContext) -> None:
+        if run.dut is None:
+            return
+        for action in ("restore", "close"):
+            try:
+                getattr(run.dut, action)()
+            except Exception as exc:
+                run.record.phases[-1].log.append(f"{action} failed: {type(exc).__name__}: {exc}")
+
+
+def _fmt(v: float | None) -> str:
+    return "—" if v is None else f"{v:.4g}"

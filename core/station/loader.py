@@ -1,0 +1,123 @@
+"""Load a station file safely and report every problem as ``file:line: key: what is wrong``.
+
+PyYAML's SafeLoader composes the node tree (which keeps line numbers) and constructs plain
+Python data from it; pydantic validates; each error's key path is mapped back to its node.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+import yaml
+from pydantic import ValidationError
+
+from magline.core.station.schema import Station
+
+Path_ = tuple[str | int, ...]
+
+
+class StationError(ValueError):
+    """One or more problems in a station file; ``problems`` holds one line each."""
+
+    def __init__(self, problems: list[str]) -> None:
+        super().__init__("\n".join(problems))
+        self.problems = problems
+
+
+def load_station(path: str | Path) -> Station:
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise StationError([f"{path}: cannot read station file: {exc.strerror}"]) from exc
+    return load_station_text(text, str(path))
+
+
+def load_station_text(text: str, name: str) -> Station:
+    loader = yaml.SafeLoader(text)
+    try:
+        node = loader.get_single_node()
+        if node is None:
+            raise StationError([f"{name}:1: the station file is empty"])
+        lines: dict[Path_, int] = {}
+        problems: list[str] = []
+        _index(node, (), lines, problems, name)
+        data = loader.construct_document(node)
+    except yaml.MarkedYAMLError as exc:
+        mark = exc.problem_mark or exc.context_mark
+        line = mark.line + 1 if mark else 1
+        raise StationError([f"{name}:{line}: YAML syntax: {exc.problem or exc.context}"]) from exc
+    finally:
+        loader.dispose()
+    if not isinstance(data, dict):
+        raise StationError([f"{name}:1: the station file must be a mapping of sections"])
+    try:
+        station = Station.model_validate(data)
+    except ValidationError as exc:
+        problems += [_describe(err, lines, name) for err in exc.errors()]
+    if problems:
+        raise StationError(problems)
+    return station
+
+
+def line_of(station_text: str, key_path: Iterable[str | int]) -> int:
+    """Line (1-based) of a key path in a station file's text; used for checks made after loading."""
+    loader = yaml.SafeLoader(station_text)
+    try:
+        node = loader.get_single_node()
+    finally:
+        loader.dispose()
+    lines: dict[Path_, int] = {}
+    _index(node, (), lines, [], "")
+    return _nearest(tuple(key_path), lines)
+
+
+def _index(node: yaml.Node, path: Path_, lines: dict[Path_, int], problems: list[str], name: str) -> None:
+    lines.setdefault(path, node.start_mark.line + 1)
+    if isinstance(node, yaml.MappingNode):
+        seen: set[Any] = set()
+        for key_node, value_node in node.value:
+            key = key_node.value
+            if key in seen:
+                problems.append(f"{name}:{key_node.start_mark.line + 1}: {_dotted((*path, key))}: duplicate key")
+            seen.add(key)
+            lines[(*path, key)] = key_node.start_mark.line + 1
+            _index(value_node, (*path, key), lines, problems, name)
+    elif isinstance(node, yaml.SequenceNode):
+        for i, item in enumerate(node.value):
+            _index(item, (*path, i), lines, problems, name)
+
+
+def _nearest(path: Path_, lines: dict[Path_, int]) -> int:
+    while path and path not in lines:
+        path = path[:-1]
+    return lines.get(path, 1)
+
+
+def _describe(err: Any, lines: dict[Path_, int], name: str) -> str:
+    loc = tuple(p for p in err["loc"] if not (isinstance(p, str) and p.startswith("function-")))
+    # pydantic adds the union member / validator name in some locations; keep only real keys
+    loc = tuple(p for p in loc if p not in ("float", "int", "str", "list[float]", "[key]"))
+    kind = err["type"]
+    if kind == "missing":
+        line = _nearest(loc[:-1], lines)
+        msg = "required key is missing"
+    elif kind == "extra_forbidden":
+        line = _nearest(loc, lines)
+        msg = "unknown key"
+    else:
+        line = _nearest(loc, lines)
+        msg = err["msg"]
+        if "input" in err and kind.endswith("_type"):
+            msg += f" (got {type(err['input']).__name__} {err['input']!r})"
+    key = _dotted(loc) or "(top level)"
+    return f"{name}:{line}: {key}: {msg}"
+
+
+def _dotted(path: Iterable[str | int]) -> str:
+    out = ""
+    for p in path:
+        out += f"[{p}]" if isinstance(p, int) else (f".{p}" if out else str(p))
+    return out

@@ -1,0 +1,132 @@
+"""The station-file schema.
+
+Why pydantic: the schema is declared once, unknown keys and wrong types are rejected with the
+exact key path, and the loader maps that path back to a line in the YAML file.  Strict mode: a
+string is never silently turned into a number.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from typing import Annotated, Any, Literal
+
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator
+
+from magline.core.measurements import KNOWN_LIMIT_NAMES
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
+
+
+class Location(_Strict):
+    latitude_deg: Annotated[float, Field(ge=-90, le=90)]
+    longitude_deg: Annotated[float, Field(ge=-180, le=180)]
+    altitude_m: float = 0.0
+
+
+class StationInfo(_Strict):
+    id: str
+    line: str
+    location: Location
+
+
+class Limit(_Strict):
+    """A pass/fail rule for one measurement; ``marginal`` is a band inside the limit that flags review."""
+
+    ge: float | None = None
+    le: float | None = None
+    range: Annotated[list[float], Field(min_length=2, max_length=2)] | None = None
+    marginal: Annotated[float, Field(ge=0)] | None = None
+
+    @model_validator(mode="after")
+    def _one_rule(self) -> Limit:
+        if self.range is not None and (self.ge is not None or self.le is not None):
+            raise ValueError("give either range or ge/le, not both")
+        if self.range is None and self.ge is None and self.le is None:
+            raise ValueError("a limit needs ge, le or range")
+        if self.range is not None and self.range[0] > self.range[1]:
+            raise ValueError("range must be [low, high] with low <= high")
+        return self
+
+    @property
+    def low(self) -> float | None:
+        return self.range[0] if self.range is not None else self.ge
+
+    @property
+    def high(self) -> float | None:
+        return self.range[1] if self.range is not None else self.le
+
+
+def _known_measurement(name: str) -> str:
+    if name not in KNOWN_LIMIT_NAMES:
+        raise ValueError(f"unknown measurement {name!r}; known: {', '.join(sorted(KNOWN_LIMIT_NAMES))}")
+    return name
+
+
+LimitSet = dict[Annotated[str, AfterValidator(_known_measurement)], Limit]
+
+
+class Product(_Strict):
+    """What the station does for one part number."""
+
+    backend: str
+    connection: str = ""
+    magnetometer: str | int = "primary"
+    soft_iron_model: Literal["auto", "full", "diagonal", "sphere"] = "auto"
+    options: dict[str, Any] = Field(default_factory=dict)
+    limits: LimitSet = Field(default_factory=dict)
+
+
+class FieldSource(_Strict):
+    type: str = "fixed"
+    options: dict[str, Any] = Field(default_factory=dict)
+
+
+class Acquisition(_Strict):
+    samples: Annotated[int, Field(ge=12)] = 600
+    rate_hz: Annotated[float, Field(gt=0, le=1000)] = 50.0
+    coverage_bins: Annotated[int, Field(ge=4, le=10000)] = 100
+    coverage_target: Annotated[float, Field(ge=0, le=1)] = 0.5
+    retries: Annotated[int, Field(ge=0, le=20)] = 2
+    retry_delay_s: Annotated[float, Field(ge=0)] = 1.0
+    timeout_s: Annotated[float, Field(gt=0)] = 120.0
+    range_ut: Annotated[float, Field(gt=0)] | None = None
+
+
+class Results(_Strict):
+    sink: str = "sqlite"
+    path: str = "magline-results.sqlite"
+
+
+class Prompts(_Strict):
+    serial: str = "Scan the unit's serial number"
+    tumble: str = "Tumble the unit slowly through all orientations"
+    retry: str = "Coverage too low — tumble again, covering every side"
+
+
+class Station(_Strict):
+    station: StationInfo
+    products: Annotated[dict[str, Product], Field(min_length=1)]
+    default_part: str | None = None
+    field_source: FieldSource = Field(default_factory=FieldSource)
+    acquisition: Acquisition = Field(default_factory=Acquisition)
+    limits: LimitSet = Field(default_factory=dict)
+    results: Results = Field(default_factory=Results)
+    prompts: Prompts = Field(default_factory=Prompts)
+
+    @model_validator(mode="after")
+    def _consistent(self) -> Station:
+        if self.default_part is not None and self.default_part not in self.products:
+            raise ValueError(f"default_part {self.default_part!r} is not one of the products")
+        return self
+
+    def effective_limits(self, part: str) -> dict[str, Limit]:
+        """Line-wide limits with the product's overrides applied."""
+        return {**self.limits, **self.products[part].limits}
+
+    def limit_hash(self, part: str) -> str:
+        """Stable hash of the effective limit set, stored with every result."""
+        doc = {k: v.model_dump(exclude_none=True) for k, v in sorted(self.effective_limits(part).items())}
+        return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:16]

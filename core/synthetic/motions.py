@@ -1,0 +1,122 @@
+"""Operator / fixture motions as sequences of field directions in the body frame.
+
+Each motion returns unit vectors: the direction of the local field as the rotating unit sees it.
+Smooth motions are integrated from an angular-velocity profile with scipy's Rotation, like a hand
+tumble or a gimbal would produce, including the wobble of a human hand.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+Motion = Callable[[int, np.random.Generator, NDArray], NDArray]
+
+
+def _uniform(n: int, rng: np.random.Generator) -> NDArray:
+    v = rng.normal(size=(n, 3))
+    return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+def full_sphere(n: int, rng: np.random.Generator, field_dir: NDArray) -> NDArray:
+    """Independent, uniformly spread directions (an ideal tumble)."""
+    return _uniform(n, rng)
+
+
+def hand_tumble(n: int, rng: np.random.Generator, field_dir: NDArray, wobble_deg: float = 6.0) -> NDArray:
+    """An operator's tumble: the field sweeps along great circles through well-spread waypoints.
+
+    Waypoints are a randomly rotated Fibonacci set visited in a nearest-neighbour tour (what a
+    trained operator does: "each face, then the corners"), with a smooth hand wobble on top.
+    """
+    k = max(14, n // 25)
+    base = Rotation.random(random_state=rng).apply(_fibonacci(k))
+    order = [int(rng.integers(k))]
+    while len(order) < k:
+        rest = [i for i in range(k) if i not in order]
+        order.append(max(rest, key=lambda i: base[i] @ base[order[-1]]))
+    way = base[order]
+    seg = np.minimum((np.arange(n) * (k - 1)) // n, k - 2)
+    frac = (np.arange(n) * (k - 1) / n) - seg
+    a, b = way[seg], way[seg + 1]
+    omega = np.arccos(np.clip(np.einsum("ij,ij->i", a, b), -1.0, 1.0))[:, None]
+    sin_o = np.maximum(np.sin(omega), 1e-9)
+    path = (np.sin((1 - frac[:, None]) * omega) * a + np.sin(frac[:, None] * omega) * b) / sin_o
+    t = np.linspace(0, 2 * np.pi, n)
+    wob = np.deg2rad(wobble_deg) * np.column_stack(
+        [np.sin(t * f + rng.uniform(0, 6.3)) for f in rng.uniform(3.0, 9.0, size=3)])
+    path = Rotation.from_rotvec(wob).apply(path)
+    return path / np.linalg.norm(path, axis=1, keepdims=True)
+
+
+def _fibonacci(k: int) -> NDArray:
+    i = np.arange(k) + 0.5
+    z = 1.0 - 2.0 * i / k
+    r = np.sqrt(1.0 - z * z)
+    phi = np.pi * (1.0 + 5.0**0.5) * i
+    return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
+
+
+def cap(fraction: float) -> Motion:
+    """Directions within a spherical cap holding ``fraction`` of the sphere's area.
+
+    The cap is centred on the field direction of the level unit: the motion of an operator who
+    spins the unit in yaw but tilts it only so far (never upside down, for a hemisphere).
+    """
+    cos_max = 1.0 - 2.0 * fraction
+
+    def motion(n: int, rng: np.random.Generator, field_dir: NDArray) -> NDArray:
+        z = rng.uniform(cos_max, 1.0, size=n)
+        phi = rng.uniform(0, 2 * np.pi, size=n)
+        r = np.sqrt(1 - z * z)
+        local = np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
+        align, _ = Rotation.align_vectors([field_dir], [[0.0, 0.0, 1.0]])
+        return align.apply(local)
+
+    return motion
+
+
+def _ring(n: int, rng: np.random.Generator, field_dir: NDArray, axis: NDArray, wobble_deg: float,
+          start: Rotation) -> NDArray:
+    angles = np.linspace(0, 2 * np.pi, n, endpoint=False) + rng.uniform(0, 2 * np.pi)
+    spin = Rotation.from_rotvec(np.outer(angles, axis))
+    wob = np.deg2rad(wobble_deg) * np.column_stack(
+        [np.sin(angles * k + rng.uniform(0, 6.3)) for k in (2.0, 3.0, 5.0)])
+    att = start * spin * Rotation.from_rotvec(wob)
+    return att.inv().apply(field_dir)
+
+
+def two_rings(n: int, rng: np.random.Generator, field_dir: NDArray, wobble_deg: float = 8.0) -> NDArray:
+    """Yaw spin while level, then a roll spin: the common 'two circles' shop-floor routine."""
+    first = n // 2
+    level = Rotation.identity()
+    a = _ring(first, rng, field_dir, np.array([0.0, 0.0, 1.0]), wobble_deg, level)
+    b = _ring(n - first, rng, field_dir, np.array([1.0, 0.0, 0.0]), wobble_deg, level)
+    return np.vstack([a, b])
+
+
+def single_axis(n: int, rng: np.random.Generator, field_dir: NDArray, wobble_deg: float = 3.0) -> NDArray:
+    """The classic mistake: spinning the unit about its vertical axis only."""
+    return _ring(n, rng, field_dir, np.array([0.0, 0.0, 1.0]), wobble_deg, Rotation.identity())
+
+
+MOTIONS: dict[str, Motion] = {
+    "full_sphere": full_sphere,
+    "hand_tumble": hand_tumble,
+    "hemisphere": cap(0.5),
+    "cap30": cap(0.30),
+    "two_rings": two_rings,
+    "single_axis": single_axis,
+}
+
+
+def motion_directions(name: str, n: int, rng: np.random.Generator, field_dir: NDArray) -> NDArray:
+    """Body-frame unit field directions for the named motion."""
+    try:
+        motion = MOTIONS[name]
+    except KeyError:
+        raise ValueError(f"unknown motion {name!r}; known: {', '.join(sorted(MOTIONS))}") from None
+    return motion(n, rng, np.asarray(field_dir, float) / np.linalg.norm(field_dir))

@@ -1,0 +1,1 @@
+"""The ardupilot plugin — not implemented yet (see its issue); registers no entry point until it works."""

@@ -1,0 +1,142 @@
+"""The mock DUT backend (see the package docstring)."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+from magline.core.dut import DutError, ParamValue, SampleChunk, UnitInfo
+from magline.core.fit import FitResult
+from magline.core.synthetic import SensorTruth, earth_field_ned, motion_directions
+from magline.core.synthetic.motions import single_axis
+from magline.plugins.mock.options import MockOptions
+from magline.plugins.mock.storage import NvStorage
+
+# The mock's own parameter names: offsets in µT (subtracted), the symmetric matrix S entries.
+OFFSETS = ("MAG_OFS_X", "MAG_OFS_Y", "MAG_OFS_Z")
+MATRIX = (("MAG_S11", 0, 0), ("MAG_S22", 1, 1), ("MAG_S33", 2, 2),
+          ("MAG_S12", 0, 1), ("MAG_S13", 0, 2), ("MAG_S23", 1, 2))
+DEFAULTS: dict[str, ParamValue] = {**dict.fromkeys(OFFSETS, 0.0), "MAG_S11": 1.0, "MAG_S22": 1.0,
+                                   "MAG_S33": 1.0, "MAG_S12": 0.0, "MAG_S13": 0.0, "MAG_S23": 0.0,
+                                   "MAG_DEV_ID": 0, "MAG_AUTOCAL": 1}
+CHUNK = 10
+
+
+class MockDut:
+    def __init__(self, options: MockOptions) -> None:
+        self.opts = options
+        self.rng = np.random.default_rng(options.seed)
+        self.truth = SensorTruth(hard_iron_ut=np.array(options.hard_iron_ut),
+                                 soft_iron=np.array(options.soft_iron), noise_ut=options.noise_ut)
+        self.field_ned = earth_field_ned(options.field_ut, options.inclination_deg)
+        self.storage = NvStorage(Path(options.storage))
+        self.ram: dict[str, ParamValue] = {}
+        self.acquisitions = 0
+        self.connected = False
+        self.sensor_present = True
+        self._saved_autocal: ParamValue | None = None
+
+    # ------------------------------------------------------------------ link
+    def connect(self) -> UnitInfo:
+        if self.opts.faults.fail_connect:
+            raise DutError("mock DUT does not answer (fault injected)")
+        self._boot()
+        return UnitInfo(autopilot="mock", firmware="1.0.0", sensors=[self.opts.device_id],
+                        selected_sensor=self.opts.device_id,
+                        soft_iron_model="diagonal" if self.opts.soft_iron_model == "diagonal" else "full",
+                        extra={"storage": str(self.storage.path)})
+
+    def _boot(self) -> None:
+        self.ram = {**DEFAULTS, **self.storage.load()}
+        self.connected = True
+
+    def prepare(self) -> None:
+        self._saved_autocal = self.ram["MAG_AUTOCAL"]
+        self.ram["MAG_AUTOCAL"] = 0
+
+    def restore(self) -> None:
+        if self._saved_autocal is not None and self.connected:
+            self.ram["MAG_AUTOCAL"] = self._saved_autocal
+
+    def close(self) -> None:
+        self.connected = False
+
+    # ------------------------------------------------------------------ data
+    def samples(self, rate_hz: float) -> Iterator[SampleChunk]:
+        """Raw samples while the simulated operator moves the unit (motion chosen per attempt)."""
+        motion = self.opts.motions[min(self.acquisitions, len(self.opts.motions) - 1)]
+        self.acquisitions += 1
+        t0 = time.monotonic()
+        sent = 0
+        while True:
+            directions = self._motion(motion)
+            fields = directions * self.opts.field_ut
+            for start in range(0, len(fields), CHUNK):
+                if not self.connected:
+                    raise DutError("link to mock DUT lost")
+                block = fields[start:start + CHUNK]
+                raw = self.truth.read(block, self.rng)
+                t_ms = (sent + np.arange(len(raw))) * 1000.0 / rate_hz
+                sent += len(raw)
+                if self.opts.realtime:
+                    delay = t0 + sent / rate_hz - time.monotonic()
+                    if delay > 0:
+                        time.sleep(delay)
+                yield SampleChunk(mag_ut=raw, t_ms=t_ms)
+
+    def _motion(self, name: str) -> np.ndarray:
+        n = self.opts.motion_samples
+        if name == "single_axis":
+            field_dir = self.field_ned / np.linalg.norm(self.field_ned)
+            return single_axis(n, self.rng, field_dir, wobble_deg=self.opts.single_axis_wobble_deg)
+        return motion_directions(name, n, self.rng, self.field_ned)
+
+    # ------------------------------------------------------------------ parameters
+    def calibration_params(self, fit: FitResult) -> dict[str, ParamValue]:
+        params: dict[str, ParamValue] = {name: float(v) for name, v in zip(OFFSETS, fit.hard_iron_ut, strict=True)}
+        # the mock firmware computes S·(m − h) with |m_cal| in its own gain: normalise to unit field
+        s = fit.soft_iron / fit.field_ut * self.opts.field_ut
+        params.update({name: float(s[i, j]) for name, i, j in MATRIX})
+        params["MAG_DEV_ID"] = int(self.opts.device_id)
+        return params
+
+    def read_params(self, names: list[str]) -> dict[str, ParamValue]:
+        self._require_link()
+        return {n: self.ram[n] for n in names if n in self.ram}
+
+    def write_params(self, params: dict[str, ParamValue]) -> dict[str, ParamValue]:
+        self._require_link()
+        echoed: dict[str, ParamValue] = {}
+        for name, value in params.items():
+            if name not in self.ram:
+                continue  # unknown names are ignored, as autopilots do
+            if name in self.opts.faults.refuse_writes:
+                echoed[name] = self.ram[name]
+                continue
+            self.ram[name] = int(value) if isinstance(self.ram[name], int) else float(np.float32(value))
+            echoed[name] = self.ram[name]
+        return echoed
+
+    def commit(self) -> None:
+        self._require_link()
+        if not self.opts.faults.skip_commit:
+            self.storage.save(self.ram)
+
+    def power_cycle(self) -> dict[str, float | str]:
+        start = time.monotonic()
+        self.connected = False
+        self.ram = {}
+        if self.opts.faults.sensor_missing_after_reboot:
+            self.sensor_present = False
+        self._boot()
+        return {"method": "mock power cycle", "time_to_link_s": time.monotonic() - start}
+
+    def selected_sensor_present(self) -> bool:
+        return self.sensor_present
+
+    def _require_link(self) -> None:
+        if not self.connected:
+            raise DutError("mock DUT link is down")

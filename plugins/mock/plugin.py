@@ -1,0 +1,24 @@
+"""Registers the ``mock`` DUT backend."""
+
+from __future__ import annotations
+
+from pydantic import ValidationError
+
+from magline.core.plugins import hookimpl
+from magline.core.station.schema import Product
+from magline.plugins.mock.dut import MockDut
+from magline.plugins.mock.options import MockOptions
+
+
+def create_mock_dut(product: Product) -> MockDut:
+    try:
+        options = MockOptions.model_validate(product.options)
+    except ValidationError as exc:
+        problems = "; ".join(f"options.{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())
+        raise ValueError(f"mock backend: {problems}") from exc
+    return MockDut(options)
+
+
+@hookimpl
+def magline_register_dut_backends(register):
+    register("mock", create_mock_dut)
