@@ -74,7 +74,10 @@ def fit_calibration(
             layout, p, x_all, regressor, inliers, sigma, log_ref, opts, drift_name)
 
     tau = regressor if layout.drift else None
-    n_out = int((~inliers).sum())
+    warm_up = drift_info.get("warm_up_excluded", 0) if drift_info else 0
+    if warm_up:
+        rejected["warm_up"] = warm_up
+    n_out = int((~inliers).sum()) - warm_up
     if n_out:
         rejected["outlier"] = n_out
     if n_out > opts.max_outlier_fraction * len(x_all):
@@ -240,23 +243,47 @@ def _drift_regressor(t_ms, temp_c, keep) -> tuple[NDArray | None, str | None]:
 
 
 def _maybe_drift(layout, p, x_all, tau_all, inliers, sigma, log_ref, opts, name):
-    """Add a linear offset drift when a likelihood-ratio test says the data need it."""
-    drift_layout = mdl.Layout(layout.model, drift=True)
-    pd = np.concatenate([p, np.zeros(3)])
-    try:
-        pd, inl_d, sigma_d = _robust_refine(drift_layout, pd, x_all, tau_all, inliers, log_ref, opts)
-    except FitRefused:
-        return {"regressor": name, "modelled": False}, p, inliers, sigma, layout
-    both = inliers & inl_d
-    rss0 = float(np.sum(_geometric_residuals(layout, p, x_all[both], None) ** 2))
-    rss1 = float(np.sum(_geometric_residuals(drift_layout, pd, x_all[both], tau_all[both]) ** 2))
-    statistic = (rss0 - rss1) / sigma_d**2
+    """Handle warm-up drift of the offset, tested with a likelihood-ratio test (p = drift_p_value).
+
+    No significant drift: nothing changes.  Drift that dies out (warm-up): the earliest quarter,
+    then half, of the acquisition is excluded until the rest shows none.  Drift that persists:
+    a linear offset drift is modelled on the latest half and the end state reported.
+    """
     threshold = float(stats.chi2.ppf(1.0 - opts.drift_p_value, 3))
-    info = {"regressor": name, "statistic": statistic, "threshold": threshold, "modelled": False}
-    if statistic > threshold:
-        info["modelled"] = True
-        return info, pd, inl_d, sigma_d, drift_layout
+    info: dict = {"regressor": name, "threshold": threshold, "modelled": False, "warm_up_excluded": 0}
+    drift_layout = mdl.Layout(layout.model, drift=True)
+    for cut in (0.0, 0.25, 0.5):
+        window = tau_all >= -1.0 + cut - 1e-12
+        if cut > 0.0:
+            try:
+                p, inliers, sigma = _fit_window(layout, p, x_all, None, inliers & window, window, log_ref, opts)
+            except FitRefused:
+                break
+            info["warm_up_excluded"] = int((~window).sum())
+        try:
+            pd, inl_d, sigma_d = _fit_window(drift_layout, np.concatenate([p[:layout.size], np.zeros(3)]),
+                                             x_all, tau_all, inliers, window, log_ref, opts)
+        except FitRefused:
+            break
+        both = inliers & inl_d
+        rss0 = float(np.sum(_geometric_residuals(layout, p, x_all[both], None) ** 2))
+        rss1 = float(np.sum(_geometric_residuals(drift_layout, pd, x_all[both], tau_all[both]) ** 2))
+        info["statistic"] = (rss0 - rss1) / sigma_d**2
+        if info["statistic"] <= threshold:
+            return info, p, inliers, sigma, layout
+        if cut == 0.5:
+            info["modelled"] = True
+            return info, pd, inl_d, sigma_d, drift_layout
     return info, p, inliers, sigma, layout
+
+
+def _fit_window(layout, p, x_all, tau_all, inliers, window, log_ref, opts):
+    """Robust refit on the samples inside ``window``; the returned inlier mask is over all samples."""
+    idx = np.flatnonzero(window)
+    p, inl, sigma = _robust_refine(layout, p, x_all[idx], _take(tau_all, window), inliers[idx], log_ref, opts)
+    full = np.zeros(len(x_all), dtype=bool)
+    full[idx[inl]] = True
+    return p, full, sigma
 
 
 # --------------------------------------------------------------------------- uncertainty & output

@@ -1,0 +1,49 @@
+"""Shared fixtures: throwaway station files and a fast (non-realtime) mock station."""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+REPO = Path(__file__).resolve().parents[1]
+DEMO = REPO / "stations" / "demo.yaml"
+
+
+def demo_config() -> dict:
+    return yaml.safe_load(DEMO.read_text(encoding="utf-8"))
+
+
+def deep_update(base: dict, changes: dict) -> dict:
+    out = copy.deepcopy(base)
+    for key, value in changes.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = deep_update(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
+@pytest.fixture
+def make_station(tmp_path, monkeypatch):
+    """Write a demo-derived station file into a temp dir (cwd too) and return its path."""
+    monkeypatch.chdir(tmp_path)
+
+    def make(changes: dict | None = None, name: str = "station.yaml", seed: int = 7) -> Path:
+        cfg = demo_config()
+        cfg = deep_update(cfg, {"products": {"MOCK-100": {"options": {"realtime": False, "seed": seed}}},
+                                "acquisition": {"retry_delay_s": 0.0}})
+        cfg = deep_update(cfg, changes or {})
+        path = tmp_path / name
+        path.write_text(yaml.safe_dump(cfg, sort_keys=False, allow_unicode=True), encoding="utf-8")
+        return path
+
+    return make
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(20261122)

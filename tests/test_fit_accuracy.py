@@ -1,0 +1,147 @@
+"""The fit against known synthetic truth; tolerances come from the reported (and checked) 1σ."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from magline.core.fit import FitOptions, FitRefused, fit_calibration
+from magline.core.synthetic import earth_field_ned, motion_directions, random_truth
+
+FIELD = 48.0
+E = earth_field_ned(FIELD, 62.0)
+
+
+def draw(rng, motion="hand_tumble", n=600, **truth_kw):
+    truth = random_truth(rng, **truth_kw)
+    d = motion_directions(motion, n, rng, E)
+    return truth, d, truth.read(d * FIELD, rng)
+
+
+def test_full_tumble_recovers_truth_within_reported_sigma(rng):
+    truth, _, m = draw(rng)
+    fit = fit_calibration(m)
+    z = (fit.hard_iron_ut - truth.hard_iron_ut) / fit.hard_iron_sigma_ut
+    assert np.all(np.abs(z) < 4.5)
+    # the shape of S is identifiable up to scale: compare normalised matrices
+    s_fit = fit.soft_iron / np.cbrt(np.linalg.det(fit.soft_iron))
+    s_true = truth.soft_iron / np.cbrt(np.linalg.det(truth.soft_iron))
+    assert np.max(np.abs(s_fit - s_true)) < 5e-3
+    cal = fit.apply(m[fit.used])
+    assert np.std(np.linalg.norm(cal, axis=1)) < 2 * truth.noise_ut
+    assert fit.rejected == {}
+    assert 0.25 < fit.noise_ut < 0.35
+
+
+@pytest.mark.parametrize("motion", ["hand_tumble", "hemisphere", "two_rings"])
+def test_reported_offset_sigma_matches_monte_carlo_scatter(rng, motion):
+    truth = random_truth(rng)
+    d = motion_directions(motion, 600, rng, E)
+    errors, sigmas = [], []
+    for _ in range(60):
+        fit = fit_calibration(truth.read(d * FIELD, rng))
+        errors.append(fit.hard_iron_ut - truth.hard_iron_ut)
+        sigmas.append(fit.hard_iron_sigma_ut)
+    errors, sigmas = np.array(errors), np.array(sigmas)
+    ratio = np.sqrt((errors**2).mean(axis=0)) / np.sqrt((sigmas**2).mean(axis=0))
+    # 60 draws: the RMS of a Gaussian sample has ~9 % relative scatter; 0.7..1.35 is > 3σ wide
+    assert np.all((ratio > 0.7) & (ratio < 1.35)), ratio
+    # unbiased on partial coverage too: mean error within 4 standard errors
+    assert np.all(np.abs(errors.mean(axis=0)) < 4 * errors.std(axis=0) / np.sqrt(len(errors)) + 1e-3)
+
+
+def test_reference_field_scales_and_reports_ratio(rng):
+    truth, _, m = draw(rng)
+    fit = fit_calibration(m, FitOptions(field_ut=FIELD))
+    assert fit.field_ut == FIELD
+    radius = np.linalg.norm(fit.apply(m[fit.used]), axis=1)
+    assert abs(radius.mean() - FIELD) < 0.05
+    true_ratio = np.linalg.det(truth.soft_iron) ** (-1 / 3)  # raw radius / true field
+    assert fit.raw_to_reference_ratio == pytest.approx(true_ratio, abs=4 * fit.raw_to_reference_sigma)
+
+
+def test_spikes_are_rejected_and_counted(rng):
+    truth, _, m = draw(rng)
+    clean = fit_calibration(m)
+    spiky = m.copy()
+    idx = rng.choice(len(m), size=12, replace=False)
+    dirs = rng.normal(size=(12, 3))
+    spiky[idx] += dirs / np.linalg.norm(dirs, axis=1, keepdims=True) * rng.uniform(20, 200, size=(12, 1))
+    fit = fit_calibration(spiky)
+    assert fit.rejected.get("outlier", 0) >= 11
+    assert np.linalg.norm(fit.hard_iron_ut - truth.hard_iron_ut) < 5 * np.linalg.norm(clean.hard_iron_sigma_ut)
+
+
+def test_clipped_samples_excluded_with_and_without_range(rng):
+    truth, d, _ = draw(rng, max_offset_ut=50)
+    truth.hard_iron_ut = np.array([40.0, 5.0, -10.0])
+    truth.range_ut = 70.0
+    m = truth.read(d * FIELD, rng)
+    clipped = np.any(np.abs(m) >= 70.0, axis=1)
+    assert clipped.mean() > 0.05
+    with_range = fit_calibration(m, FitOptions(range_ut=70.0))
+    assert with_range.rejected["clipped"] == clipped.sum()
+    auto = fit_calibration(m)
+    assert auto.rejected["clipped"] == clipped.sum()
+    for fit in (with_range, auto):
+        assert np.all(np.abs(fit.hard_iron_ut - truth.hard_iron_ut) < 5 * fit.hard_iron_sigma_ut)
+
+
+def test_warm_up_drift_is_modelled_with_time(rng):
+    truth, d, _ = draw(rng)
+    t_ms = np.arange(600) * 20.0
+    drift = np.outer(1 - np.exp(-t_ms / 3000.0), [3.0, -2.0, 1.5])  # settles at +h_end
+    m = truth.read(d * FIELD, rng) + drift - drift[-1]
+    plain = fit_calibration(m)
+    modelled = fit_calibration(m, t_ms=t_ms)
+    assert modelled.drift["modelled"] or modelled.rejected.get("warm_up", 0) > 0
+    err_plain = np.linalg.norm(plain.hard_iron_ut - truth.hard_iron_ut)
+    err_model = np.linalg.norm(modelled.hard_iron_ut - truth.hard_iron_ut)
+    assert err_model < err_plain / 2
+
+
+def test_no_drift_term_when_data_do_not_need_it(rng):
+    _, _, m = draw(rng)
+    fit = fit_calibration(m, t_ms=np.arange(600) * 20.0)
+    assert fit.drift["modelled"] is False
+
+
+def test_diagonal_and_sphere_models(rng):
+    truth, d, _ = draw(rng)
+    truth.soft_iron = np.diag([1.1, 0.95, 1.0])
+    m = truth.read(d * FIELD, rng)
+    diag = fit_calibration(m, FitOptions(model="diagonal"))
+    assert np.count_nonzero(diag.soft_iron - np.diag(np.diag(diag.soft_iron))) == 0
+    assert np.all(np.abs(diag.hard_iron_ut - truth.hard_iron_ut) < 5 * diag.hard_iron_sigma_ut)
+    truth.soft_iron = np.eye(3)
+    sphere = fit_calibration(truth.read(d * FIELD, rng), FitOptions(model="sphere"))
+    assert np.allclose(sphere.soft_iron, np.eye(3) * sphere.soft_iron[0, 0])
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_single_axis_rotation_is_refused(seed):
+    rng = np.random.default_rng(seed)
+    _, _, m = draw(rng, motion="single_axis")
+    with pytest.raises(FitRefused) as info:
+        fit_calibration(m, FitOptions(field_ut=FIELD))
+    assert "rotate" in info.value.advice
+    assert info.value.reason in {"single_plane", "undetermined"}
+
+
+def test_too_few_samples_refused(rng):
+    _, _, m = draw(rng, n=20)
+    with pytest.raises(FitRefused, match="usable samples"):
+        fit_calibration(m)
+
+
+def test_non_ellipsoidal_data_refused(rng):
+    m = rng.uniform(-60, 60, size=(600, 3))
+    with pytest.raises(FitRefused) as info:
+        fit_calibration(m)
+    assert info.value.reason in {"not_ellipsoid", "undetermined"}
+
+
+def test_same_samples_give_same_calibration(rng):
+    _, _, m = draw(rng, motion="hemisphere")
+    a, b = fit_calibration(m), fit_calibration(m)
+    assert np.array_equal(a.hard_iron_ut, b.hard_iron_ut)

@@ -1,0 +1,73 @@
+"""`magline fit`: JSON shape, readable summary, refusals and CSV errors."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from magline.core.cli import main
+from magline.core.fit.samples_csv import RawSamples, format_samples
+from magline.core.synthetic import earth_field_ned, motion_directions, random_truth
+
+
+def write_csv(path, motion="hand_tumble", seed=3):
+    rng = np.random.default_rng(seed)
+    truth = random_truth(rng)
+    d = motion_directions(motion, 600, rng, earth_field_ned(48.0, 62.0))
+    m = truth.read(d * 48.0, rng)
+    path.write_text(format_samples(RawSamples(mag_ut=m, t_ms=np.arange(600) * 20.0)), encoding="utf-8")
+    return truth
+
+
+def test_fit_json_document(tmp_path, capsys):
+    truth = write_csv(tmp_path / "raw.csv")
+    assert main(["fit", str(tmp_path / "raw.csv"), "--json", "--field-ut", "48"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    for key in ("hard_iron_ut", "soft_iron", "field_ut", "residual_ut", "coverage", "samples",
+                "hard_iron_sigma_ut", "field_sigma_ut", "raw_to_reference_ratio"):
+        assert key in doc
+    h, s = np.array(doc["hard_iron_ut"]), np.array(doc["soft_iron"])
+    assert s.shape == (3, 3) and np.allclose(s, s.T)
+    assert doc["samples"]["total"] == 600 and doc["samples"]["used"] <= 600
+    assert np.all(np.abs(h - truth.hard_iron_ut) < 5 * np.array(doc["hard_iron_sigma_ut"]))
+    # the contract: soft_iron @ (m − hard_iron_ut) lies on a sphere of field_ut
+    raw = np.loadtxt(tmp_path / "raw.csv", delimiter=",", skiprows=1)[:, :3]
+    radius = np.linalg.norm((raw - h) @ s.T, axis=1)
+    assert abs(radius.mean() - doc["field_ut"]) < 0.1
+
+
+def test_fit_summary_is_readable(tmp_path, capsys):
+    write_csv(tmp_path / "raw.csv")
+    assert main(["fit", str(tmp_path / "raw.csv"), "--model", "full"]) == 0
+    out = capsys.readouterr().out
+    assert "hard iron" in out and "µT" in out and "full" in out
+
+
+def test_fit_refuses_single_axis_with_advice(tmp_path, capsys):
+    write_csv(tmp_path / "raw.csv", motion="single_axis")
+    assert main(["fit", str(tmp_path / "raw.csv"), "--json"]) == 1
+    captured = capsys.readouterr()
+    assert "rotate" in captured.err
+    assert json.loads(captured.out)["refused"] in {"single_plane", "undetermined"}
+
+
+@pytest.mark.parametrize(("content", "expected"), [
+    ("", "empty file"),
+    ("mag_x_ut,mag_y_ut\n1,2\n", "missing column(s) mag_z_ut"),
+    ("mag_x_ut,mag_y_ut,mag_z_ut\n1,2,3\n1,abc,3\n", ":3: column mag_y_ut: 'abc' is not a number"),
+    ("mag_x_ut,mag_y_ut,mag_z_ut\n1,2,nan\n", ":2: column mag_z_ut: 'nan' is not a finite number"),
+    ("mag_x_ut,mag_y_ut,mag_z_ut\n", "no samples"),
+])
+def test_csv_errors_are_clear(tmp_path, capsys, content, expected):
+    path = tmp_path / "bad.csv"
+    path.write_text(content, encoding="utf-8")
+    assert main(["fit", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert str(path) in err and expected in err
+
+
+def test_missing_file(tmp_path, capsys):
+    assert main(["fit", str(tmp_path / "nope.csv")]) == 2
+    assert "cannot read" in capsys.readouterr().err
