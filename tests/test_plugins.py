@@ -1,0 +1,152 @@
+"""Plugin discovery: entry points, third-party DUTs, disabling, misspelt hooks, listing."""
+
+from __future__ import annotations
+
+import json
+import sys
+import textwrap
+from typing import ClassVar
+
+import pytest
+
+from magline.core.cli import main
+from magline.core.plugins import PluginError, hookimpl, load_plugins
+from magline.core.record import Outcome
+from magline.core.sequencer import Sequencer
+from magline.core.station import load_station
+
+
+@pytest.fixture
+def third_party(tmp_path, monkeypatch):
+    """A tiny installed distribution with a ``magline`` entry point adding DUT backend 'acme'."""
+    site = tmp_path / "site"
+    pkg = site / "acme_magline"
+    pkg.mkdir(parents=True)
+    (pkg / "__init__.py").write_text(textwrap.dedent('''
+        from magline.core.plugins import hookimpl
+        from magline.plugins.mock.plugin import create_mock_dut
+
+        CREATED = []
+
+        def make(product):
+            CREATED.append(product.connection)
+            return create_mock_dut(product)
+
+        @hookimpl
+        def magline_register_dut_backends(register):
+            register("acme", make)
+    '''), encoding="utf-8")
+    dist = site / "acme_magline-1.0.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: acme-magline\nVersion: 1.0\n", encoding="utf-8")
+    (dist / "entry_points.txt").write_text("[magline]\nacme = acme_magline\n", encoding="utf-8")
+    monkeypatch.syspath_prepend(str(site))
+    yield site
+    sys.modules.pop("acme_magline", None)
+
+
+def test_third_party_backend_can_be_named_in_a_station(third_party, make_station, tmp_path):
+    path = make_station({"products": {"MOCK-100": {"backend": "acme", "connection": "acme://bench-3"}}})
+    plugins = load_plugins()
+    assert "acme" in plugins.dut_backends
+    seq = Sequencer(load_station(path), plugins, tmp_path, sleep=lambda s: None)
+    record = seq.run_unit("TP-1")
+    seq.close()
+    assert record.verdict is Outcome.PASS
+    import acme_magline
+    assert acme_magline.CREATED == ["acme://bench-3"]
+
+
+def test_builtins_load_through_the_entry_point_group():
+    names = {d["name"] for d in load_plugins().describe()}
+    assert {"core_phases", "sqlite_results", "fixed_field", "mock"} <= names
+
+
+def test_disable_plugins_by_name(monkeypatch, make_station, capsys):
+    monkeypatch.setenv("MAGLINE_DISABLE_PLUGINS", "mock")
+    assert "mock" not in load_plugins().dut_backends
+    assert main(["check", str(make_station())]) == 2
+    assert "unknown DUT backend 'mock'" in capsys.readouterr().err
+
+
+def test_misspelt_hook_is_rejected_at_start_up():
+    class Typo:
+        @hookimpl
+        def magline_validat(self, run, fit):
+            return []
+
+    with pytest.raises(PluginError, match="magline_validat"):
+        load_plugins(extra=[Typo()])
+
+
+def test_duplicate_backend_name_rejected():
+    class Dup:
+        @hookimpl
+        def magline_register_dut_backends(self, register):
+            register("mock", lambda product: None)
+
+    with pytest.raises(PluginError, match="registered twice"):
+        load_plugins(extra=[Dup()])
+
+
+def test_plugins_command_lists_hooks(capsys):
+    assert main(["plugins"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    core = next(p for p in doc["plugins"] if p["name"] == "core_phases")
+    assert "magline_fit" in core["hooks"] and "mock" in doc["dut_backends"]
+
+
+def test_fit_hook_can_be_replaced_by_a_plugin(make_station, tmp_path):
+    from magline.core.fit import FitRefused
+
+    class NoFit:
+        @hookimpl
+        def magline_fit(self, run, samples, options):
+            raise FitRefused("custom", "custom fitter says no", "call engineering")
+
+    record = Sequencer(load_station(make_station()), load_plugins(extra=[NoFit()]), tmp_path,
+                       sleep=lambda s: None).run_unit("F1")
+    assert record.verdict is Outcome.FAIL and "custom fitter says no" in record.cause
+
+
+def test_acquire_persist_and_verify_hooks_can_be_replaced(make_station, tmp_path, rng):
+    """A replay plugin feeds recorded samples; a persist plugin and a verify plugin take over."""
+    import numpy as np
+
+    from magline.core.fit.samples_csv import RawSamples
+    from magline.core.record import PersistReport, VerifyReport
+    from magline.core.sequencer import Acquisition
+    from magline.core.synthetic import earth_field_ned, motion_directions, random_truth
+
+    truth = random_truth(rng, max_offset_ut=40.0)
+    d = motion_directions("full_sphere", 600, rng, earth_field_ned(48.0, 63.0))
+    recorded = truth.read(d * 48.0, rng)
+
+    class Replay:
+        calls: ClassVar[list] = []
+
+        @hookimpl
+        def magline_acquire(self, run, attempt):
+            self.calls.append(("acquire", attempt))
+            return Acquisition(attempt=attempt, samples=RawSamples(mag_ut=recorded, t_ms=np.arange(600) * 10.0),
+                               coverage=1.0, target=0.6)
+
+        @hookimpl
+        def magline_persist(self, run, fit):
+            self.calls.append(("persist", round(float(fit.hard_iron_ut[0]), 1)))
+            return PersistReport(before={"X": 0.0}, written={"X": 1.0}, echoed={"X": 1.0})
+
+        @hookimpl
+        def magline_verify_persistence(self, run, persisted):
+            self.calls.append(("verify", persisted.written["X"]))
+            return VerifyReport(read_back={"X": 0.0}, mismatches=["X: wrote 1.0, read back 0.0"],
+                                sensor_present=True, method="replay")
+
+    replay = Replay()
+    record = Sequencer(load_station(make_station()), load_plugins(extra=[replay]), tmp_path,
+                       sleep=lambda s: None).run_unit("R1")
+    assert replay.calls == [("acquire", 1), ("persist", round(float(record.calibration["hard_iron_ut"][0]), 1)),
+                            ("verify", 1.0)]
+    assert abs(record.calibration["hard_iron_ut"][0] - truth.hard_iron_ut[0]) < 0.2
+    assert record.verdict is Outcome.FAIL and "X: wrote 1.0, read back 0.0" in record.cause
+    assert record.persistence["method"] == "replay"

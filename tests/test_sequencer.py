@@ -1,0 +1,175 @@
+"""The sequencer end to end on the mock station: retries, verdicts, persistence, errors, records."""
+
+from __future__ import annotations
+
+import json
+import os
+import sqlite3
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+from conftest import REPO, demo_config
+
+from magline.core.cli import main
+from magline.core.fit.samples_csv import parse_samples
+from magline.core.plugins import hookimpl, load_plugins
+from magline.core.record import Outcome
+from magline.core.sequencer import Sequencer
+from magline.core.station import load_station
+
+
+def rows(db: Path, sql: str, *args) -> list[tuple]:
+    con = sqlite3.connect(db)
+    try:
+        return con.execute(sql, args).fetchall()
+    finally:
+        con.close()
+
+
+def test_demo_command_passes_after_exactly_one_retry(tmp_path):
+    """The README's first command, as a user runs it: real process, real files."""
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    proc = subprocess.run([sys.executable, "-m", "magline.core.cli", "run", str(REPO / "stations" / "demo.yaml"),
+                           "--serial", "SN-0001"], cwd=tmp_path, capture_output=True, text=True, timeout=120,
+                          env=env, stdin=subprocess.DEVNULL)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "PASS" in proc.stdout and "\x1b[" not in proc.stdout  # plain text when not a terminal
+    db = tmp_path / "magline-demo-results.sqlite"
+    (verdict, calibration), = rows(db, "SELECT verdict, calibration FROM runs WHERE serial='SN-0001'")
+    assert verdict == "pass"
+    attempts = rows(db, "SELECT attempt, coverage, accepted, raw_csv FROM attempts ORDER BY attempt")
+    assert [(a, acc) for a, _, acc, _ in attempts] == [(1, 0), (2, 1)]
+    assert attempts[0][1] < 0.6 <= attempts[1][1]
+    raw = parse_samples(attempts[1][3])
+    assert len(raw) == 600
+    truth = demo_config()["products"]["MOCK-100"]["options"]
+    cal = json.loads(calibration)
+    sigma = np.array(cal["hard_iron_sigma_ut"])
+    from magline.plugins.mock.options import MockOptions
+    h_true = np.array(truth.get("hard_iron_ut", MockOptions().hard_iron_ut))
+    assert np.all(np.abs(np.array(cal["hard_iron_ut"]) - h_true) < 5 * sigma + 0.01)
+    s_true = np.array(truth.get("soft_iron", MockOptions().soft_iron))
+    assert np.max(np.abs(np.array(cal["soft_iron"]) / 48.0 - s_true / 48.0 * 1.0)) < 0.02
+    storage = json.loads((tmp_path / "magline-demo-storage.json").read_text())
+    assert storage["MAG_OFS_X"] == cal["hard_iron_ut"][0] or abs(storage["MAG_OFS_X"] - cal["hard_iron_ut"][0]) < 1e-4
+    written = dict(rows(db, "SELECT name, value FROM params WHERE stage='written'"))
+    read_back = dict(rows(db, "SELECT name, value FROM params WHERE stage='read_back'"))
+    assert written.keys() == read_back.keys() and len(written) == 10
+
+
+def run_station(path, serial="U1", extra=()):
+    plugins = load_plugins(extra=list(extra))
+    seq = Sequencer(load_station(path), plugins, path.parent, sleep=lambda s: None)
+    try:
+        return seq.run_unit(serial)
+    finally:
+        seq.close()
+
+
+def phase(record, name):
+    return next(p for p in record.phases if p.name == name)
+
+
+def test_failing_limit_fails_unit_and_never_persists(make_station, tmp_path):
+    path = make_station({"products": {"MOCK-100": {"limits": {"hard_iron_norm_ut": {"le": 10.0}}}}})
+    record = run_station(path)
+    assert record.verdict is Outcome.FAIL
+    assert phase(record, "validate").outcome is Outcome.FAIL
+    assert "hard_iron_norm_ut" in record.cause
+    assert phase(record, "persist").outcome is Outcome.SKIPPED
+    assert not (tmp_path / "magline-demo-storage.json").exists()  # nothing reached the DUT's storage
+    assert record.params_written == {}
+
+
+def test_broken_persistence_fails_at_verify(make_station):
+    path = make_station({"products": {"MOCK-100": {"options": {"faults": {"skip_commit": True}}}}})
+    record = run_station(path)
+    assert record.verdict is Outcome.FAIL
+    assert phase(record, "persist").outcome is Outcome.PASS
+    verify = phase(record, "verify")
+    assert verify.outcome is Outcome.FAIL and "did not survive the power cycle" in verify.message
+    assert "MAG_OFS_X" in verify.message
+
+
+def test_refused_write_fails_persist_with_names(make_station):
+    path = make_station({"products": {"MOCK-100": {"options": {"faults": {"refuse_writes": ["MAG_S12"]}}}}})
+    record = run_station(path)
+    assert record.verdict is Outcome.FAIL
+    assert "MAG_S12" in phase(record, "persist").message
+    assert phase(record, "verify").outcome is Outcome.SKIPPED
+
+
+def test_missing_sensor_after_power_cycle(make_station):
+    path = make_station({"products": {"MOCK-100": {"options": {"faults": {"sensor_missing_after_reboot": True}}}}})
+    record = run_station(path)
+    assert record.verdict is Outcome.FAIL and "missing after power cycle" in record.cause
+
+
+def test_low_coverage_every_attempt_fails_and_keeps_all_attempts(make_station, tmp_path):
+    path = make_station({"products": {"MOCK-100": {"options": {"motions": ["single_axis"]}}},
+                         "acquisition": {"retries": 2}})
+    record = run_station(path)
+    assert record.verdict is Outcome.FAIL and "coverage" in record.cause
+    assert len(rows(tmp_path / "magline-demo-results.sqlite", "SELECT * FROM attempts")) == 3
+
+
+class Raiser:
+    @hookimpl
+    def magline_validate(self, run, fit):
+        if run.serial == "BAD":
+            raise RuntimeError("validator exploded")
+        return []
+
+
+def test_plugin_exception_is_an_error_and_station_keeps_running(make_station, tmp_path):
+    path = make_station()
+    plugins = load_plugins(extra=[Raiser()])
+    seq = Sequencer(load_station(path), plugins, tmp_path, sleep=lambda s: None)
+    bad = seq.run_unit("BAD")
+    good = seq.run_unit("GOOD")
+    seq.close()
+    assert bad.verdict is Outcome.ERROR and "validator exploded" in bad.cause
+    assert good.verdict is Outcome.PASS
+    verdicts = dict(rows(tmp_path / "magline-demo-results.sqlite", "SELECT serial, verdict FROM runs"))
+    assert verdicts == {"BAD": "error", "GOOD": "pass"}
+
+
+def test_loop_mode_prompts_for_serials_until_eof(make_station, monkeypatch, capsys, tmp_path):
+    path = make_station()
+    answers = iter(["A-1", "A-2"])
+
+    def fake_input(prompt):
+        try:
+            return next(answers)
+        except StopIteration:
+            raise EOFError from None
+
+    monkeypatch.setattr("builtins.input", fake_input)
+    assert main(["run", str(path), "--loop"]) == 0
+    serials = [r[0] for r in rows(tmp_path / "magline-demo-results.sqlite", "SELECT serial FROM runs")]
+    assert serials == ["A-1", "A-2"]
+    assert main(["history", "A-2", "--station", str(path)]) == 0
+    assert "PASS" in capsys.readouterr().out
+
+
+def test_connect_failure_is_a_fail_with_cause(make_station):
+    path = make_station({"products": {"MOCK-100": {"options": {"faults": {"fail_connect": True}}}}})
+    record = run_station(path)
+    assert record.verdict is Outcome.FAIL and "does not answer" in record.cause
+
+
+def test_unknown_part_is_an_error(make_station):
+    path = make_station()
+    plugins = load_plugins()
+    seq = Sequencer(load_station(path), plugins, path.parent)
+    record = seq.run_unit("U9", part="NOPE")
+    seq.close()
+    assert record.verdict is Outcome.ERROR and "NOPE" in record.cause
+
+
+def test_run_exit_codes(make_station):
+    assert main(["run", str(make_station()), "--serial", "E1"]) == 0
+    assert main(["run", str(make_station({"limits": {"coverage": {"ge": 0.99}}}, name="s2.yaml")),
+                 "--serial", "E2"]) == 1

@@ -1,0 +1,102 @@
+"""Station files: every problem named with file, line and key; nothing runs on a bad file."""
+
+from __future__ import annotations
+
+import pytest
+
+from magline.core.cli import main
+from magline.core.station import StationError, load_station, load_station_text
+
+GOOD = """\
+station:
+  id: s1
+  line: L1
+  location: {latitude_deg: 47.0, longitude_deg: 8.0}
+products:
+  P1:
+    backend: mock
+    limits:
+      coverage: {ge: 0.6}
+field_source: {type: fixed, options: {field_ut: 48.0}}
+limits:
+  coverage: {ge: 0.5}
+  residual_rms_ut: {le: 1.0, marginal: 0.1}
+"""
+
+
+def problems(text: str) -> list[str]:
+    with pytest.raises(StationError) as info:
+        load_station_text(text, "line7.yaml")
+    return info.value.problems
+
+
+def test_good_file_loads_and_product_overrides_line_limits():
+    station = load_station_text(GOOD, "ok.yaml")
+    limits = station.effective_limits("P1")
+    assert limits["coverage"].low == 0.6 and limits["residual_rms_ut"].high == 1.0
+    other = load_station_text(GOOD.replace("coverage: {ge: 0.6}", "coverage: {ge: 0.7}"), "ok.yaml")
+    assert station.limit_hash("P1") != other.limit_hash("P1")
+    assert len(station.limit_hash("P1")) == 16
+
+
+def test_unknown_key_names_file_line_and_key():
+    out = problems(GOOD.replace("  line: L1\n", "  line: L1\n  colour: red\n"))
+    assert out == ["line7.yaml:4: station.colour: unknown key"]
+
+
+def test_wrong_type():
+    out = problems(GOOD.replace("latitude_deg: 47.0", "latitude_deg: north"))
+    assert len(out) == 1 and out[0].startswith("line7.yaml:4: station.location.latitude_deg:")
+    assert "north" in out[0]
+
+
+def test_missing_key_points_at_its_parent():
+    out = problems(GOOD.replace("    backend: mock\n", ""))
+    assert out == ["line7.yaml:6: products.P1.backend: required key is missing"]
+
+
+def test_unknown_measurement_in_limits():
+    out = problems(GOOD.replace("residual_rms_ut: {le", "residual_rms: {le"))
+    assert len(out) == 1 and out[0].startswith("line7.yaml:13: limits.residual_rms: ")
+    assert "unknown measurement" in out[0]
+
+
+def test_several_problems_reported_together_and_duplicates_caught():
+    out = problems(GOOD.replace("  line: L1\n", "  line: L1\n  line: L2\n  extra: 1\n"))
+    assert any("duplicate key" in p and ":4:" in p for p in out)
+    assert any("station.extra: unknown key" in p for p in out)
+
+
+def test_yaml_syntax_error_and_unsafe_tags():
+    assert problems("station: [unclosed\n")[0].startswith("line7.yaml:")
+    out = problems("station: !!python/object/apply:os.system ['echo hi']\n")
+    assert "YAML" in out[0]
+
+
+def test_unknown_backend_named_by_check(tmp_path, capsys):
+    path = tmp_path / "bad.yaml"
+    path.write_text(GOOD.replace("backend: mock", "backend: px9"), encoding="utf-8")
+    assert main(["check", str(path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"{path}:7: products.P1.backend: unknown DUT backend 'px9'")
+
+
+def test_check_good_file(tmp_path, capsys):
+    path = tmp_path / "ok.yaml"
+    path.write_text(GOOD, encoding="utf-8")
+    assert main(["check", str(path)]) == 0
+    assert "OK" in capsys.readouterr().out
+
+
+def test_shipped_station_files_are_valid():
+    from pathlib import Path
+    for path in (Path(__file__).resolve().parents[1] / "stations").glob("*.yaml"):
+        assert load_station(path).products
+
+
+def test_run_with_bad_station_exits_2_and_runs_nothing(tmp_path, capsys):
+    path = tmp_path / "bad.yaml"
+    path.write_text(GOOD.replace("  line: L1\n", ""), encoding="utf-8")
+    assert main(["run", str(path), "--serial", "X1"]) == 2
+    assert "station.line: required key is missing" in capsys.readouterr().err
+    assert not (tmp_path / "magline-results.sqlite").exists()
