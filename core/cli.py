@@ -16,8 +16,8 @@ from magline.core.fit import FitOptions, FitRefused, fit_calibration
 from magline.core.fit.samples_csv import SampleFileError, read_samples
 from magline.core.plugins import PluginError, Plugins, load_plugins
 from magline.core.record import Outcome
-from magline.core.station import Station, StationError, load_station
-from magline.core.station.loader import line_of
+from magline.core.station import Station, StationError, load_station_text
+from magline.core.station.loader import line_of, read_station_text
 
 EXIT = {Outcome.PASS: 0, Outcome.FAIL: 1, Outcome.ERROR: 2, Outcome.SKIPPED: 2}
 DEMO = "demo.yaml"
@@ -65,11 +65,10 @@ def _load(path: str | None, plugins: Plugins) -> tuple[Station, Path]:
     """Load a station file (or the embedded demo) and check the names it uses against the plugins."""
     if path is None:
         with as_file(files("magline.stations") / DEMO) as demo:
-            station = load_station(demo)
-            text, name, where = demo.read_text(encoding="utf-8"), str(demo), demo.parent
+            text, name, where = read_station_text(demo), str(demo), demo.parent
     else:
-        station = load_station(path)
-        text, name, where = Path(path).read_text(encoding="utf-8"), path, Path(path).parent
+        text, name, where = read_station_text(path), path, Path(path).parent
+    station = load_station_text(text, name)
     problems = []
     for part, product in station.products.items():
         if product.backend not in plugins.dut_backends:

@@ -256,12 +256,12 @@ def _maybe_drift(layout, p, x_all, tau_all, inliers, sigma, log_ref, opts, name)
         window = tau_all >= -1.0 + cut - 1e-12
         if cut > 0.0:
             try:
-                p, inliers, sigma = _fit_window(layout, p, x_all, None, inliers & window, window, log_ref, opts)
+                p, inliers, sigma = _fit_window(layout, p, x_all, None, inliers, window, log_ref, opts)
             except FitRefused:
                 break
             info["warm_up_excluded"] = int((~window).sum())
         try:
-            pd, inl_d, sigma_d = _fit_window(drift_layout, np.concatenate([p[:layout.size], np.zeros(3)]),
+            pd, inl_d, sigma_d = _fit_window(drift_layout, np.concatenate([p, np.zeros(3)]),
                                              x_all, tau_all, inliers, window, log_ref, opts)
         except FitRefused:
             break

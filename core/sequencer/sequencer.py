@@ -20,7 +20,7 @@ from magline.core import __version__
 from magline.core.dut import DutError
 from magline.core.fit import FitOptions, FitRefused, FitResult
 from magline.core.fit.samples_csv import format_samples
-from magline.core.measurements import Attachment, Json, Verdict, verdicts
+from magline.core.measurements import Json, Verdict, verdicts
 from magline.core.plugins import Plugins
 from magline.core.record import AttemptRecord, Outcome, PersistReport, PhaseResult, RunRecord, now_iso
 from magline.core.sequencer.context import RunContext
@@ -148,8 +148,6 @@ class Sequencer:
                                    target=result.target, raw_csv=format_samples(result.samples),
                                    accepted=result.sufficient)
             run.record.attempts.append(stored)
-            run.record.attachments.append(Attachment(name=f"attempt-{attempt}-raw.csv", mime="text/csv",
-                                                     content=stored.raw_csv.encode("utf-8")))
             self.sink.save_attempt(run.record, stored)  # raw data safe before any fitting
             run.log(f"attempt {attempt}: {len(result.samples)} samples, coverage {result.coverage:.0%} "
                     f"(target {result.target:.0%})")

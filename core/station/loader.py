@@ -27,12 +27,15 @@ class StationError(ValueError):
 
 
 def load_station(path: str | Path) -> Station:
-    path = Path(path)
+    return load_station_text(read_station_text(path), str(path))
+
+
+def read_station_text(path: str | Path) -> str:
+    """The file's text, or a StationError naming the file when it cannot be read."""
     try:
-        text = path.read_text(encoding="utf-8")
+        return Path(path).read_text(encoding="utf-8")
     except OSError as exc:
         raise StationError([f"{path}: cannot read station file: {exc.strerror}"]) from exc
-    return load_station_text(text, str(path))
 
 
 def load_station_text(text: str, name: str) -> Station:
