@@ -1,5 +1,7 @@
 """``magline`` command line: run a station, check a station file, fit a CSV, list plugins, history.
 
+Plugins add their own sub-commands through ``magline_add_commands`` (the mock plugin: ``sim``).
+
 Exit codes of ``magline run``: 0 pass, 1 fail, 2 error (bad station file, no DUT, plugin error).
 """
 
@@ -52,7 +54,14 @@ def main(argv: list[str] | None = None) -> int:
     hist.add_argument("serial")
     hist.add_argument("--station", help="station file naming the results store (default: demo)")
 
+    try:
+        load_plugins().hook.magline_add_commands(subparsers=sub)
+    except PluginError as exc:
+        _err(str(exc))
+        return 2
     args = parser.parse_args(argv)
+    if hasattr(args, "handler"):
+        return args.handler(args)
     handler = {"run": _run, "check": _check, "fit": _fit, "plugins": _plugins, "history": _history}
     return handler[args.command](args)
 

@@ -19,6 +19,7 @@ A plugin is a plain module with functions named like these specs and decorated w
 
 from __future__ import annotations
 
+import argparse
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
@@ -64,6 +65,17 @@ def magline_register_result_sinks(register: Callable[[str, Callable[..., Any]], 
     :param register: call ``register(name, factory)``; ``factory(station, station_dir)`` returns a
         sink with ``begin(record)``, ``save_attempt(record, attempt)``, ``finish(record)`` and
         ``history(serial)``.  The name is the station file's ``results.sink``.
+    """
+
+
+@hookspec
+def magline_add_commands(subparsers: argparse._SubParsersAction) -> None:
+    """Add sub-commands to the ``magline`` command line.  Called once, before arguments are parsed.
+
+    :param subparsers: the command line's sub-parser collection; call
+        ``subparsers.add_parser(name, help=...)`` and ``parser.set_defaults(handler=fn)``, where
+        ``fn(args) -> int`` runs the command and returns its exit code.  Keep imports inside ``fn``
+        so that ``magline --help`` stays fast.  (The mock plugin adds ``magline sim`` this way.)
     """
 
 

@@ -1,4 +1,4 @@
-"""Registers the ``mock`` DUT backend."""
+"""Registers the ``mock`` DUT backend and the ``magline sim`` command (simulated flight controllers)."""
 
 from __future__ import annotations
 
@@ -6,6 +6,7 @@ from pydantic import ValidationError
 
 from magline.core.plugins import hookimpl
 from magline.core.station.schema import Product
+from magline.plugins.mock.commands import add_sim_command
 from magline.plugins.mock.dut import MockDut
 from magline.plugins.mock.options import MockOptions
 
@@ -22,3 +23,8 @@ def create_mock_dut(product: Product) -> MockDut:
 @hookimpl
 def magline_register_dut_backends(register):
     register("mock", create_mock_dut)
+
+
+@hookimpl
+def magline_add_commands(subparsers):
+    add_sim_command(subparsers)

@@ -1,0 +1,255 @@
+"""A simulated ArduPilot flight controller (behaviour per ``shared/reference`` §7–§10, §14).
+
+What it reproduces, because each is a trap for a factory tool:
+- PARAM_SET is C-cast (``float(value)``), the type field is ignored, unknown names, NaN and
+  infinity are ignored without a reply; a set of one element of a vector parameter is answered
+  with all three; the value reaches storage before the echo is sent;
+- compass sets are reordered at boot so set i holds the sensor named by ``COMPASS_PRIO{i+1}_ID``,
+  and the detected ids appear in ``COMPASS_DEV_ID*`` in RAM only;
+- a compass counts as calibrated only if its offsets are non-zero and its DEV_ID was *saved*
+  (MAV_CMD_PREFLIGHT_CALIBRATION param2 = 76); MAV_CMD_RUN_PREARM_CHECKS reports it;
+- RAW_IMU / SCALED_IMU2 / SCALED_IMU3 carry the *corrected* body-frame field in mG (offsets added,
+  SCALE, then the DIA/ODI matrix), so raw data needs the calibration neutralised or inverted;
+- a reboot closes the TCP connection; the client must reconnect.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import numpy as np
+from numpy.typing import NDArray
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from magline.plugins.mock.sim.magnetometers import SimMagnetometer, attitude
+from magline.plugins.mock.sim.params import INT8, INT16, INT32, REAL32, ParamSpec, ParamValue, ccast_from_wire
+from magline.plugins.mock.sim.vehicle import ACCEPTED, UNSUPPORTED, SimulatedAutopilot
+
+SETS = ("", "2", "3")
+AXES = ("X", "Y", "Z")
+MAX_SCALE_FACTOR = 1.5
+FIELD_MG_LIMITS = (185.0, 875.0)
+
+
+def set_names(suffix: str) -> dict[str, list[str] | str]:
+    """Parameter names of one compass set (``""``, ``"2"``, ``"3"``)."""
+    ext = "EXTERNAL" if suffix == "" else f"EXTERN{suffix}"
+    return {"OFS": [f"COMPASS_OFS{suffix}_{a}" for a in AXES], "DIA": [f"COMPASS_DIA{suffix}_{a}" for a in AXES],
+            "ODI": [f"COMPASS_ODI{suffix}_{a}" for a in AXES], "MOT": [f"COMPASS_MOT{suffix}_{a}" for a in AXES],
+            "SCALE": f"COMPASS_SCALE{suffix}", "DEV_ID": f"COMPASS_DEV_ID{suffix}",
+            "ORIENT": f"COMPASS_ORIENT{suffix}", "EXTERNAL": f"COMPASS_{ext}", "USE": f"COMPASS_USE{suffix}"}
+
+
+def _set_specs(suffix: str) -> list[ParamSpec]:
+    n = set_names(suffix)
+    specs = [ParamSpec(x, REAL32, 0.0) for x in n["OFS"]] + [ParamSpec(x, REAL32, 1.0) for x in n["DIA"]]
+    specs += [ParamSpec(x, REAL32, 0.0) for x in n["ODI"]] + [ParamSpec(x, REAL32, 0.0) for x in n["MOT"]]
+    specs += [ParamSpec(n["SCALE"], REAL32, 0.0), ParamSpec(n["DEV_ID"], INT32, 0),
+              ParamSpec(n["ORIENT"], INT8, 0), ParamSpec(n["EXTERNAL"], INT8, 0), ParamSpec(n["USE"], INT8, 1)]
+    return specs
+
+
+class ArduPilotSim(SimulatedAutopilot):
+    flavour = "ardupilot"
+    autopilot = mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA
+    capabilities = (mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST
+                    | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+                    | mavlink.MAV_PROTOCOL_CAPABILITY_COMPASS_CALIBRATION | mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2)
+    default_listen = "tcp:127.0.0.1:5760"
+    storage_name = "eeprom.json"
+    firmware_version = (4, 6, 2)
+    # compass priority 0/1/2 → RAW_IMU (and SCALED_IMU, same numbers) / SCALED_IMU2 / SCALED_IMU3
+    stream_sensor: ClassVar[dict[int, int]] = {mavlink.MAVLINK_MSG_ID_RAW_IMU: 0, mavlink.MAVLINK_MSG_ID_SCALED_IMU: 0,
+                     mavlink.MAVLINK_MSG_ID_SCALED_IMU2: 1, mavlink.MAVLINK_MSG_ID_SCALED_IMU3: 2}
+    REBOOT_DELAY_S = 0.2
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        self.stored: dict[str, ParamValue] = {}
+        self.sets: list[SimMagnetometer | None] = [None, None, None]  # sensor behind each set after boot
+        super().__init__(*args, **kwargs)
+
+    def param_specs(self) -> list[ParamSpec]:
+        specs = [s for suffix in SETS for s in _set_specs(suffix)]
+        specs += [ParamSpec(f"COMPASS_PRIO{i}_ID", INT32, 0) for i in (1, 2, 3)]
+        specs += [ParamSpec(f"COMPASS_DEV_ID{i}", INT32, 0, read_only=True) for i in range(4, 9)]
+        specs += [ParamSpec("COMPASS_ENABLE", INT8, 1), ParamSpec("COMPASS_LEARN", INT8, 0),
+                  ParamSpec("COMPASS_MOTCT", INT8, 0), ParamSpec("COMPASS_OFFS_MAX", INT16, 1800),
+                  ParamSpec("COMPASS_CAL_FIT", REAL32, 16.0), ParamSpec("COMPASS_AUTO_ROT", INT8, 2),
+                  ParamSpec("AHRS_ORIENTATION", INT8, 0), ParamSpec("SYSID_THISMAV", INT16, 1)]
+        return specs
+
+    # ------------------------------------------------------------------ parameters
+    def wire_value(self, spec: ParamSpec, value: ParamValue) -> float:
+        return float(value)
+
+    def handle_param_set(self, msg: Any) -> None:
+        name = msg.param_id
+        spec = self.table.specs.get(name)
+        if spec is None or self.faults.ignores(name):
+            return
+        value = ccast_from_wire(msg.param_value, spec.type)  # param_type is ignored
+        if value is None:
+            return
+        if spec.read_only:
+            self.statustext(mavlink.MAV_SEVERITY_WARNING, "Param write denied")
+            self.send_param(name)
+            return
+        self.table.set(name, value)
+        self._store(name)
+        for sibling in self._vector_of(name):
+            self.send_param(sibling)
+
+    @staticmethod
+    def _vector_of(name: str) -> list[str]:
+        if name[-2:] in ("_X", "_Y", "_Z") and name.startswith("COMPASS_"):
+            return [name[:-1] + a for a in AXES]
+        return [name]
+
+    def _store(self, name: str) -> None:
+        """AP_Param keeps a record only for values that differ from the default."""
+        if name in self.faults.no_persist:
+            return
+        value = self.table.values[name]
+        if value == self.table.specs[name].default:
+            self.stored.pop(name, None)
+        else:
+            self.stored[name] = value
+        self.write_storage(self.stored)
+
+    def load_from_storage(self, stored: dict[str, ParamValue]) -> None:
+        self.stored = dict(stored)
+        self.table.load(stored)
+        self._reorder_sets()
+
+    def _reorder_sets(self) -> None:
+        """Boot: swap whole sets so set i is COMPASS_PRIO{i+1}_ID, then detect sensors into them."""
+        v = self.table.values
+        names = [set_names(s) for s in SETS]
+        for i in range(3):
+            want = v[f"COMPASS_PRIO{i + 1}_ID"]
+            if not want or v[names[i]["DEV_ID"]] == want:
+                continue
+            j = next((k for k in range(3) if v[names[k]["DEV_ID"]] == want), None)
+            if j is not None:
+                self._swap(names[i], names[j])
+        prio = [v[f"COMPASS_PRIO{i}_ID"] for i in (1, 2, 3)]
+        remaining = [m for m in self.detected if m.device_id not in prio]
+        self.sets = []
+        for i in range(3):
+            sensor = next((m for m in self.detected if prio[i] and m.device_id == prio[i]), None)
+            if sensor is None and not prio[i] and remaining:
+                sensor = remaining.pop(0)
+            self.sets.append(sensor)
+            v[names[i]["DEV_ID"]] = sensor.device_id if sensor else 0  # RAM only
+            if not prio[i] and sensor is not None:
+                v[f"COMPASS_PRIO{i + 1}_ID"] = sensor.device_id  # set automatically, RAM only
+
+    def _swap(self, a: dict, b: dict) -> None:
+        v = self.table.values
+        for key in ("OFS", "DIA", "ODI", "MOT"):
+            for x, y in zip(a[key], b[key], strict=True):
+                v[x], v[y] = v[y], v[x]
+        for key in ("SCALE", "DEV_ID", "ORIENT", "EXTERNAL"):
+            v[a[key]], v[b[key]] = v[b[key]], v[a[key]]
+
+    def _force_save_calibration(self) -> None:
+        """MAV_CMD_PREFLIGHT_CALIBRATION param2 = 76: save every non-zero DEV_ID (and the priorities)."""
+        for suffix in SETS:
+            self._store(set_names(suffix)["DEV_ID"])
+        for i in (1, 2, 3):
+            self._store(f"COMPASS_PRIO{i}_ID")
+
+    # ------------------------------------------------------------------ calibration as the firmware applies it
+    def set_index(self, sensor: SimMagnetometer) -> int | None:
+        return next((i for i, m in enumerate(self.sets) if m is sensor), None)
+
+    def corrected_ut(self, sensor: SimMagnetometer, raw_ut: NDArray) -> NDArray:
+        i = self.set_index(sensor)
+        if i is None:
+            return raw_ut
+        return self.correct_mg(i, raw_ut * 10.0) / 10.0
+
+    def correct_mg(self, i: int, raw_mg: NDArray) -> NDArray:
+        """rotate (identity here) → add OFS → SCALE if valid → DIA/ODI matrix unless all DIA are 0."""
+        v = self.table.values
+        n = set_names(SETS[i])
+        out = raw_mg + np.array([v[x] for x in n["OFS"]])
+        scale = v[n["SCALE"]]
+        if 1.0 / MAX_SCALE_FACTOR <= scale <= MAX_SCALE_FACTOR:
+            out = out * scale
+        dia = [v[x] for x in n["DIA"]]
+        if any(dia):
+            odi = [v[x] for x in n["ODI"]]
+            m = np.array([[dia[0], odi[0], odi[1]], [odi[0], dia[1], odi[2]], [odi[1], odi[2], dia[2]]])
+            out = m @ out
+        return out
+
+    def configured(self, i: int) -> bool:
+        """Compass::configured: non-zero offsets and the *stored* DEV_ID equals the detected one."""
+        n = set_names(SETS[i])
+        sensor = self.sets[i]
+        ofs = [self.table.values[x] for x in n["OFS"]]
+        return sensor is not None and any(ofs) and self.stored.get(n["DEV_ID"]) == sensor.device_id
+
+    # ------------------------------------------------------------------ streams
+    def stream_message(self, msg_id: int, now: float) -> Any | None:
+        i = self.stream_sensor[msg_id]
+        sensor = self.sets[i] if i < len(self.sets) else None
+        if sensor is None:
+            return None
+        raw_ut = sensor.read_ut(self.body_field_ut(now), self.rng)
+        mg = np.clip(np.round(self.correct_mg(i, raw_ut * 10.0)), -32768, 32767).astype(int)
+        motion = self.motions[min(max(self._motion_index, 0), len(self.motions) - 1)]
+        acc = attitude(motion, now - self._t0, self.speed).inv().apply([0.0, 0.0, -1000.0]).astype(int)
+        t_ms = self.time_boot_ms(now)
+        mag = [int(x) for x in mg]
+        if msg_id == mavlink.MAVLINK_MSG_ID_RAW_IMU:
+            return self.mav.raw_imu_encode(t_ms * 1000, *acc, 0, 0, 0, *mag, 0, 2500)
+        encode = {mavlink.MAVLINK_MSG_ID_SCALED_IMU: self.mav.scaled_imu_encode,
+                  mavlink.MAVLINK_MSG_ID_SCALED_IMU2: self.mav.scaled_imu2_encode,
+                  mavlink.MAVLINK_MSG_ID_SCALED_IMU3: self.mav.scaled_imu3_encode}[msg_id]
+        return encode(t_ms, *acc, 0, 0, 0, *mag, 2500)
+
+    # ------------------------------------------------------------------ commands
+    def extra_commands(self) -> dict:
+        return {mavlink.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN: self._reboot,
+                mavlink.MAV_CMD_PREFLIGHT_CALIBRATION: self._calibration,
+                mavlink.MAV_CMD_RUN_PREARM_CHECKS: self._prearm}
+
+    def _reboot(self, params: list[float]) -> int:
+        if int(params[0]) not in (1, 3):
+            return UNSUPPORTED
+        self.request_reboot(self.REBOOT_DELAY_S)  # ACK first; storage is already written
+        return ACCEPTED
+
+    def _calibration(self, params: list[float]) -> int:
+        if int(params[1]) == 76:
+            self._force_save_calibration()
+            return ACCEPTED
+        return UNSUPPORTED
+
+    def _prearm(self, params: list[float]) -> int:
+        self.after_ack(self._report_prearm)
+        return ACCEPTED
+
+    def prearm_failures(self) -> list[str]:
+        """The compass arming checks (AP_Arming): calibrated, offsets within OFFS_MAX, field strength."""
+        out = []
+        v = self.table.values
+        for i, sensor in enumerate(self.sets):
+            n = set_names(SETS[i])
+            if sensor is None or not v[n["USE"]]:
+                continue
+            if not self.configured(i):
+                out.append("Compass not calibrated")
+                continue
+            if np.linalg.norm([v[x] for x in n["OFS"]]) > v["COMPASS_OFFS_MAX"]:
+                out.append("Compass offsets too high")
+            field_mg = np.linalg.norm(self.correct_mg(i, sensor.read_ut(self.body_field_ut(0.0), self.rng) * 10.0))
+            if not FIELD_MG_LIMITS[0] <= field_mg <= FIELD_MG_LIMITS[1]:
+                out.append("Check mag field")
+        return out
+
+    def _report_prearm(self) -> None:
+        for text in dict.fromkeys(self.prearm_failures()):
+            self.statustext(mavlink.MAV_SEVERITY_CRITICAL, f"PreArm: {text}")

@@ -1,0 +1,45 @@
+"""Faults the simulator can inject, switchable from the command line and from tests.
+
+Each is something a real line has seen: a lossy link, a write the firmware ignores, storage
+that does not keep a value, a board that boots slowly or not at all, a link that dies in the
+middle of an acquisition, a sensor gone after reboot, a second sensor enumerated first.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+
+
+@dataclass
+class SimFaults:
+    drop_percent: float = 0.0  # each outgoing frame is lost with this probability (%)
+    ignore_param_set: list[str] = field(default_factory=list)  # names ("*" = all) whose PARAM_SET is dropped
+    no_persist: list[str] = field(default_factory=list)  # names whose value never reaches storage
+    reboot_fails: bool = False  # after a reboot the board never comes back
+    link_loss_after_s: float | None = None  # the link goes silent this long after a mag stream starts
+    mag_missing_after_reboot: int | None = None  # device id that is not detected on the next boot
+    swap_mags_after_reboot: bool = False  # the second sensor enumerates first on the next boot
+
+    @classmethod
+    def parse(cls, items: list[str]) -> SimFaults:
+        """From ``name[=value]`` strings, as given to ``--fault`` (lists are comma separated)."""
+        faults = cls()
+        known = {f.name: f for f in fields(cls)}
+        for item in items:
+            name, _, value = item.partition("=")
+            name = name.strip().replace("-", "_")
+            if name not in known:
+                raise ValueError(f"unknown fault {name!r}; known: {', '.join(known)}")
+            current = getattr(faults, name)
+            if isinstance(current, bool):
+                setattr(faults, name, value.lower() not in ("0", "false", "no"))
+            elif isinstance(current, list):
+                setattr(faults, name, [v.strip() for v in value.split(",") if v.strip()])
+            elif name == "mag_missing_after_reboot":
+                setattr(faults, name, int(value))
+            else:
+                setattr(faults, name, float(value))
+        return faults
+
+    def ignores(self, name: str) -> bool:
+        return "*" in self.ignore_param_set or name in self.ignore_param_set

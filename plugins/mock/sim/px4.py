@@ -1,0 +1,259 @@
+"""A simulated PX4 flight controller (behaviour per ``shared/reference`` §1–§5).
+
+What it reproduces, because each is a trap for a factory tool:
+- integer parameters are byte-wise encoded and PARAM_SET must carry the exact type; a wrong type
+  or an unknown name is dropped without a reply;
+- calibration slots are matched by ``CAL_MAGn_ID``, never by position; a sensor without a matching
+  slot is used uncalibrated; ``XODIAG/YODIAG/ZODIAG`` exist only from firmware 1.12;
+- the PARAM_VALUE echo only means "in RAM": autosave runs 300 ms after a change and at most once
+  per 2 s, so a reboot soon after a write loses it unless MAV_CMD_PREFLIGHT_STORAGE (param1 = 1)
+  forced a save; a save in progress finishes before a commanded reboot but not before a power cut;
+- SCALED_IMU/2/3 stream the raw sensor in mG; HIGHRES_IMU the calibrated field in Gauss;
+- with SENS_MAG_AUTOCAL = 1 the firmware writes its own calibration into an uncalibrated slot;
+- the device id of each ``sensor_mag`` instance is visible through the MAVLink shell
+  (``listener sensor_mag -i N``), as on a real board.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any, ClassVar
+
+import numpy as np
+from numpy.typing import NDArray
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from magline.plugins.mock.sim.magnetometers import SimMagnetometer, attitude
+from magline.plugins.mock.sim.params import INT32, REAL32, ParamSpec, ParamValue, bytewise_from_wire, bytewise_to_wire
+from magline.plugins.mock.sim.vehicle import ACCEPTED, DENIED, UNSUPPORTED, Power, SimulatedAutopilot
+
+SLOTS = 4
+AXES = ("X", "Y", "Z")
+SHELL_DEVICE = mavlink.SERIAL_CONTROL_DEV_SHELL
+SHELL_REPLY = mavlink.SERIAL_CONTROL_FLAG_REPLY
+
+
+def slot_params(n: int, with_odiag: bool) -> list[ParamSpec]:
+    p = f"CAL_MAG{n}_"
+    specs = [ParamSpec(p + "ID", INT32, 0), ParamSpec(p + "PRIO", INT32, -1), ParamSpec(p + "ROT", INT32, -1)]
+    specs += [ParamSpec(f"{p}{a}OFF", REAL32, 0.0) for a in AXES]
+    specs += [ParamSpec(f"{p}{a}SCALE", REAL32, 1.0) for a in AXES]
+    if with_odiag:
+        specs += [ParamSpec(f"{p}{a}ODIAG", REAL32, 0.0) for a in AXES]
+    specs += [ParamSpec(f"{p}{a}COMP", REAL32, 0.0) for a in AXES]
+    return specs
+
+
+class Px4Sim(SimulatedAutopilot):
+    flavour = "px4"
+    autopilot = mavlink.MAV_AUTOPILOT_PX4
+    capabilities = (mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
+                    | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+                    | mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2)
+    default_listen = "udp:127.0.0.1:14550"
+    storage_name = "px4-parameters.json"
+    stream_sensor: ClassVar[dict[int, int]] = {
+        mavlink.MAVLINK_MSG_ID_SCALED_IMU: 0, mavlink.MAVLINK_MSG_ID_SCALED_IMU2: 1,
+        mavlink.MAVLINK_MSG_ID_SCALED_IMU3: 2, mavlink.MAVLINK_MSG_ID_HIGHRES_IMU: 0}
+    AUTOSAVE_DELAY_S = 0.3
+    AUTOSAVE_INTERVAL_S = 2.0
+    REBOOT_DELAY_S = 0.4
+
+    def __init__(self, *args: Any, firmware: str = "1.15.0", autocal_after_s: float = 30.0, **kwargs: Any) -> None:
+        self.firmware_version = tuple(int(x) for x in firmware.split("."))[:3]  # type: ignore[assignment]
+        self.autocal_after_s = autocal_after_s
+        self._save_due: float | None = None
+        self._last_save = -1e9
+        self._saving: tuple[float, dict[str, ParamValue]] | None = None  # (finishes at, snapshot)
+        self._shell_line = b""
+        super().__init__(*args, **kwargs)
+
+    @property
+    def has_odiag(self) -> bool:
+        return self.firmware_version >= (1, 12, 0)
+
+    def param_specs(self) -> list[ParamSpec]:
+        specs = [s for n in range(SLOTS) for s in slot_params(n, self.has_odiag)]
+        specs += [ParamSpec("CAL_MAG_COMP_TYP", INT32, 0), ParamSpec("CAL_MAG_SIDES", INT32, 63),
+                  ParamSpec("SENS_MAG_AUTOCAL", INT32, 1), ParamSpec("SENS_MAG_AUTOROT", INT32, 1),
+                  ParamSpec("SENS_MAG_MODE", INT32, 1), ParamSpec("SENS_MAG_RATE", REAL32, 15.0),
+                  ParamSpec("SENS_MAG_SIDES", INT32, 63), ParamSpec("SENS_BOARD_ROT", INT32, 0),
+                  ParamSpec("MBE_ENABLE", INT32, 1), ParamSpec("SYS_FAC_CAL_MODE", INT32, 0),
+                  ParamSpec("SYS_AUTOSTART", INT32, 4001), ParamSpec("MAV_SYS_ID", INT32, 1)]
+        return specs
+
+    # ------------------------------------------------------------------ parameters
+    def wire_value(self, spec: ParamSpec, value: ParamValue) -> float:
+        return bytewise_to_wire(value, spec.type)
+
+    def handle_param_set(self, msg: Any) -> None:
+        name = msg.param_id
+        spec = self.table.specs.get(name)
+        if spec is None or msg.param_type != spec.type or self.faults.ignores(name):
+            return  # PX4 1.13–1.16: console error only, no reply
+        value = bytewise_from_wire(msg.param_value, spec.type)
+        if not spec.is_int and not np.isfinite(value):
+            return
+        if self.table.set(name, value) and self._save_due is None:
+            self._save_due = max(time.monotonic() + self.AUTOSAVE_DELAY_S, self._last_save + self.AUTOSAVE_INTERVAL_S)
+        self.send_param(name)
+
+    def load_from_storage(self, stored: dict[str, ParamValue]) -> None:
+        self.table.load(stored)
+        self._save_due = None
+        self._saving = None
+        self._shell_line = b""
+
+    def _start_save(self, now: float) -> None:
+        self._saving = (now + self.save_duration_s, self.table.non_default())
+        self._last_save = now
+
+    def tick(self, now: float) -> None:
+        if self._saving is not None and now >= self._saving[0]:
+            self.write_storage(self._saving[1])
+            self._saving = None
+        if self._save_due is not None and now >= self._save_due and self._saving is None:
+            self._save_due = None
+            self._start_save(now)
+        if self.power is Power.UP:
+            self._autocal(now)
+
+    def on_power_loss(self) -> None:
+        self._saving = None  # a save cut by the power never reaches storage
+        self._save_due = None
+
+    def shutdown_ready(self, now: float) -> bool:
+        return self._saving is None  # the reboot waits for the shutdown lock a save holds
+
+    # ------------------------------------------------------------------ calibration as the firmware applies it
+    def slot_of(self, device_id: int) -> int | None:
+        for n in range(SLOTS):
+            if self.table.values[f"CAL_MAG{n}_ID"] == device_id:
+                return n
+        return None
+
+    def calibration(self, n: int) -> tuple[NDArray, NDArray]:
+        """(offset in Gauss, scale matrix) held in slot n."""
+        v = self.table.values
+        p = f"CAL_MAG{n}_"
+        off = np.array([v[f"{p}{a}OFF"] for a in AXES])
+        s = np.diag([v[f"{p}{a}SCALE"] for a in AXES])
+        if self.has_odiag:
+            s[0, 1] = s[1, 0] = v[p + "XODIAG"]
+            s[0, 2] = s[2, 0] = v[p + "YODIAG"]
+            s[1, 2] = s[2, 1] = v[p + "ZODIAG"]
+        return off, s
+
+    def corrected_ut(self, sensor: SimMagnetometer, raw_ut: NDArray) -> NDArray:
+        n = self.slot_of(sensor.device_id)
+        if n is None:
+            return raw_ut  # no matching slot: calibration reset, raw data used
+        off_g, s = self.calibration(n)
+        return s @ (raw_ut / 100.0 - off_g) * 100.0
+
+    def _autocal(self, now: float) -> None:
+        """SENS_MAG_AUTOCAL: an uncalibrated sensor gets the firmware's own offset estimate."""
+        if self.table.values["SENS_MAG_AUTOCAL"] != 1 or now - self._booted_at < self.autocal_after_s:
+            return
+        for sensor in self.detected:
+            if self.slot_of(sensor.device_id) is not None:
+                continue
+            free = self.slot_of(0)
+            if free is None:
+                return
+            p = f"CAL_MAG{free}_"
+            self.table.set(p + "ID", sensor.device_id)
+            self.table.set(p + "PRIO", 75 if sensor.external else 50)
+            for axis, h in zip(AXES, sensor.hard_iron_ut, strict=True):
+                self.table.set(f"{p}{axis}OFF", round(h / 100.0, 2))  # a coarse online estimate
+            if self._save_due is None:
+                self._save_due = max(now + self.AUTOSAVE_DELAY_S, self._last_save + self.AUTOSAVE_INTERVAL_S)
+
+    # ------------------------------------------------------------------ streams
+    def stream_message(self, msg_id: int, now: float) -> Any | None:
+        reading = self.raw_reading_ut(self.stream_sensor[msg_id], now)
+        if reading is None:
+            return None
+        sensor, raw_ut = reading
+        acc = self._accel_mg(now)
+        t_ms = self.time_boot_ms(now)
+        if msg_id == mavlink.MAVLINK_MSG_ID_HIGHRES_IMU:
+            cal_g = self.corrected_ut(sensor, raw_ut) / 100.0
+            return self.mav.highres_imu_encode(t_ms * 1000, *(acc * 9.80665e-3), 0.0, 0.0, 0.0, *cal_g,
+                                               1013.25, 0.0, 0.0, 25.0, 0x1FF)
+        mg = np.clip(np.round(raw_ut * 10.0), -32768, 32767).astype(int)
+        encode = {mavlink.MAVLINK_MSG_ID_SCALED_IMU: self.mav.scaled_imu_encode,
+                  mavlink.MAVLINK_MSG_ID_SCALED_IMU2: self.mav.scaled_imu2_encode,
+                  mavlink.MAVLINK_MSG_ID_SCALED_IMU3: self.mav.scaled_imu3_encode}[msg_id]
+        return encode(t_ms, *acc.astype(int), 0, 0, 0, *(int(x) for x in mg), 2500)
+
+    def _accel_mg(self, now: float) -> NDArray:
+        motion = self.motions[min(max(self._motion_index, 0), len(self.motions) - 1)]
+        return attitude(motion, now - self._t0, self.speed).inv().apply([0.0, 0.0, -1000.0])
+
+    # ------------------------------------------------------------------ commands
+    def extra_commands(self) -> dict:
+        return {mavlink.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN: self._reboot,
+                mavlink.MAV_CMD_PREFLIGHT_STORAGE: self._storage}
+
+    def _reboot(self, params: list[float]) -> int:
+        action = int(params[0])
+        if action == 0:
+            return ACCEPTED
+        if action in (1, 3):
+            self.request_reboot(self.REBOOT_DELAY_S)
+            return ACCEPTED
+        if action == 2:
+            self.after_ack(self.power_off)  # shutdown: stays off until power is applied again
+            return ACCEPTED
+        return DENIED
+
+    def _storage(self, params: list[float]) -> int:
+        action = int(params[0])
+        if action == 0:
+            self.load_from_storage(self.read_storage())
+            return ACCEPTED
+        if action == 1:
+            self.after_ack(lambda: self._start_save(time.monotonic()))  # ACK first, save on the worker
+            return ACCEPTED
+        if action == 3:
+            for name in self.table.names:
+                if name.startswith("CAL_MAG"):
+                    self.table.set(name, self.table.specs[name].default)
+            self._start_save(time.monotonic())
+            self.request_reboot(self.REBOOT_DELAY_S)
+            return ACCEPTED
+        return UNSUPPORTED
+
+    # ------------------------------------------------------------------ MAVLink shell
+    def handle_other(self, msg: Any) -> None:
+        if msg.get_type() != "SERIAL_CONTROL" or msg.device != SHELL_DEVICE:
+            return
+        self._shell_line += bytes(msg.data[: msg.count])
+        while b"\n" in self._shell_line:
+            line, _, self._shell_line = self._shell_line.partition(b"\n")
+            self._shell_reply(self._shell(line.decode(errors="replace").strip()))
+
+    def _shell(self, line: str) -> str:
+        words = line.split()
+        if not words:
+            return ""
+        if words[:2] == ["listener", "sensor_mag"]:
+            instance = int(words[words.index("-i") + 1]) if "-i" in words else 0
+            if instance >= len(self.detected):
+                return "never published\n"
+            sensor = self.detected[instance]
+            raw = sensor.read_ut(self.body_field_ut(time.monotonic()), self.rng) / 100.0
+            ts = self.time_boot_ms(time.monotonic()) * 1000
+            return (f"\nTOPIC: sensor_mag instance {instance}\n sensor_mag\n    timestamp: {ts}\n"
+                    f"    timestamp_sample: {ts - 250}\n    device_id: {sensor.device_id} "
+                    f"(Type: 0x{sensor.device_id >> 16 & 0xFF:02X}, bus {sensor.device_id >> 3 & 0x1F})\n"
+                    f"    x: {raw[0]:.5f}\n    y: {raw[1]:.5f}\n    z: {raw[2]:.5f}\n    temperature: 25.00000\n"
+                    f"    error_count: 0\n    is_external: {sensor.external}\n")
+        return f"nsh: {words[0]}: command not found\n"
+
+    def _shell_reply(self, text: str) -> None:
+        data = (text + "nsh> ").encode()
+        for start in range(0, len(data), 70):
+            chunk = data[start:start + 70]
+            self.mav.serial_control_send(SHELL_DEVICE, SHELL_REPLY, 0, 0, len(chunk), list(chunk.ljust(70, b"\0")))

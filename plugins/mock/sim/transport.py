@@ -1,0 +1,136 @@
+"""The simulator's end of the link: a UDP or TCP server socket on a real address.
+
+Why servers: a backend must reach the simulator exactly as it reaches a board on a network
+(``udpout://127.0.0.1:14550`` for MAVSDK, ``tcp:127.0.0.1:5760`` for pymavlink), so the
+simulator listens and learns its peers from what they send.  Both links can be taken down the
+way a rebooting board does it: TCP closes its connections and accepts no new ones until the
+board is up again; UDP forgets its peers and drops what arrives meanwhile.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import select
+import socket
+from typing import Protocol
+
+
+class AddressError(ValueError):
+    """A ``--listen`` address that is not ``udp:HOST:PORT`` or ``tcp:HOST:PORT``."""
+
+
+def parse_listen(address: str) -> tuple[str, str, int]:
+    try:
+        scheme, host, port = address.split(":")
+        if scheme not in ("udp", "tcp"):
+            raise ValueError(scheme)
+        return scheme, host, int(port)
+    except ValueError as exc:
+        raise AddressError(f"listen address {address!r}: expected udp:HOST:PORT or tcp:HOST:PORT") from exc
+
+
+class ServerLink(Protocol):
+    address: str
+
+    def poll(self, timeout: float, up: bool) -> list[tuple[object, bytes]]:
+        """Bytes received per peer within ``timeout``; while not ``up`` nothing is accepted."""
+
+    def send(self, data: bytes) -> None:
+        """Send to every known peer."""
+
+    def drop_peers(self) -> None:
+        """Forget (UDP) or close (TCP) every peer: what a reboot or power loss does."""
+
+    def close(self) -> None: ...
+
+
+class UdpServerLink:
+    def __init__(self, host: str, port: int) -> None:
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind((host, port))
+        self.address = f"udp:{host}:{self.sock.getsockname()[1]}"
+        self.peers: set[tuple[str, int]] = set()
+
+    def poll(self, timeout: float, up: bool) -> list[tuple[object, bytes]]:
+        out: list[tuple[object, bytes]] = []
+        ready, _, _ = select.select([self.sock], [], [], timeout)
+        while ready:
+            try:
+                data, peer = self.sock.recvfrom(65535)
+            except OSError:
+                break
+            if up:
+                self.peers.add(peer)
+                out.append((peer, data))
+            ready, _, _ = select.select([self.sock], [], [], 0)
+        return out
+
+    def send(self, data: bytes) -> None:
+        for peer in list(self.peers):
+            with contextlib.suppress(OSError):
+                self.sock.sendto(data, peer)
+
+    def drop_peers(self) -> None:
+        self.peers.clear()
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+class TcpServerLink:
+    def __init__(self, host: str, port: int) -> None:
+        self.listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        self.listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        self.listener.bind((host, port))
+        self.listener.listen(4)
+        self.address = f"tcp:{host}:{self.listener.getsockname()[1]}"
+        self.clients: list[socket.socket] = []
+
+    def poll(self, timeout: float, up: bool) -> list[tuple[object, bytes]]:
+        watch = [*self.clients, self.listener] if up else list(self.clients)
+        if not watch:
+            select.select([], [], [], timeout)
+            return []
+        ready, _, _ = select.select(watch, [], [], timeout)
+        out: list[tuple[object, bytes]] = []
+        for sock in ready:
+            if sock is self.listener:
+                client, _ = self.listener.accept()
+                client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                self.clients.append(client)
+                continue
+            try:
+                data = sock.recv(65535)
+            except OSError:
+                data = b""
+            if not data:
+                self._drop(sock)
+            elif up:
+                out.append((sock, data))
+        return out
+
+    def send(self, data: bytes) -> None:
+        for client in list(self.clients):
+            try:
+                client.sendall(data)
+            except OSError:
+                self._drop(client)
+
+    def _drop(self, client: socket.socket) -> None:
+        if client in self.clients:
+            self.clients.remove(client)
+        with contextlib.suppress(OSError):
+            client.close()
+
+    def drop_peers(self) -> None:
+        for client in list(self.clients):
+            self._drop(client)
+
+    def close(self) -> None:
+        self.drop_peers()
+        self.listener.close()
+
+
+def open_server(address: str) -> ServerLink:
+    scheme, host, port = parse_listen(address)
+    return UdpServerLink(host, port) if scheme == "udp" else TcpServerLink(host, port)

@@ -1,0 +1,445 @@
+"""The simulated flight controller's engine: link, MAVLink framing, power states, streams, commands.
+
+What is common to both autopilots lives here; what differs (parameter table and encoding,
+persistence rules, how the held calibration is applied, which messages carry which sensor)
+is in :mod:`.px4` and :mod:`.ardupilot`.  One thread runs the board: it polls the socket,
+handles whole frames (garbage and truncated frames are dropped by the parser, never fatal),
+sends heartbeats and the requested streams, and advances timers (autosave, boot).
+
+Power states::
+
+    UP ──reboot command──▶ SHUTTING_DOWN ──(delay, running save finished)──▶ BOOTING ──boot time──▶ UP
+    any ──power_off()──▶ OFF (RAM lost, an unfinished save is lost) ──power_on()──▶ BOOTING
+"""
+
+from __future__ import annotations
+
+import enum
+import random
+import threading
+import time
+from abc import ABC, abstractmethod
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+from numpy.typing import NDArray
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from magline.core.synthetic import earth_field_ned
+from magline.plugins.mock.sim.faults import SimFaults
+from magline.plugins.mock.sim.magnetometers import SimMagnetometer, body_field, default_magnetometers
+from magline.plugins.mock.sim.params import ParamSpec, ParamTable, ParamValue
+from magline.plugins.mock.sim.transport import open_server
+from magline.plugins.mock.storage import NvStorage
+
+ACCEPTED, TEMPORARILY_REJECTED, DENIED, UNSUPPORTED, FAILED = (
+    mavlink.MAV_RESULT_ACCEPTED, mavlink.MAV_RESULT_TEMPORARILY_REJECTED, mavlink.MAV_RESULT_DENIED,
+    mavlink.MAV_RESULT_UNSUPPORTED, mavlink.MAV_RESULT_FAILED)
+MAX_STREAM_HZ = 1000.0
+
+
+class Power(enum.Enum):
+    UP = "up"
+    SHUTTING_DOWN = "shutting down"
+    BOOTING = "booting"
+    OFF = "off"
+
+
+class _Wire:
+    """File-like sink pymavlink writes packed frames to; applies the packet-loss fault."""
+
+    def __init__(self, board: SimulatedAutopilot) -> None:
+        self.board = board
+
+    def write(self, data: bytes) -> None:
+        self.board._transmit(data)
+
+
+class SimulatedAutopilot(ABC):
+    """A flight controller on a real socket.  Use :meth:`start` / :meth:`stop` (or ``with``)."""
+
+    flavour: str
+    autopilot: int
+    capabilities: int
+    default_listen: str
+    storage_name: str
+    shutdown_delay_s: float
+    stream_sensor: ClassVar[dict[int, int]]  # message id → index into the detected sensors
+
+    def __init__(self, listen: str | None = None, *, workdir: str | Path = ".",
+                 magnetometers: list[SimMagnetometer] | None = None, mag_count: int = 1,
+                 field_ut: float = 48.0, inclination_deg: float = 62.0,
+                 motions: tuple[str, ...] = ("tumble",), speed: float = 1.0, boot_time_s: float = 2.0,
+                 faults: SimFaults | None = None, seed: int | None = None, system_id: int = 1,
+                 save_duration_s: float = 0.05) -> None:
+        self.listen = listen or self.default_listen
+        self.workdir = Path(workdir)
+        self.rng = np.random.default_rng(seed)
+        self.random = random.Random(seed)
+        self.magnetometers = magnetometers or default_magnetometers(mag_count, self.rng)
+        self.field_ned = earth_field_ned(field_ut, inclination_deg)
+        self.field_ut = field_ut
+        self.motions = tuple(motions)
+        self.speed = speed
+        self.boot_time_s = boot_time_s
+        self.faults = faults or SimFaults()
+        self.system_id = system_id
+        self.save_duration_s = save_duration_s
+        self.table = ParamTable(self.param_specs())
+        self.mav = mavlink.MAVLink(_Wire(self), srcSystem=system_id, srcComponent=mavlink.MAV_COMP_ID_AUTOPILOT1)
+        self.lock = threading.RLock()
+        self.power = Power.OFF
+        self.detected: list[SimMagnetometer] = []
+        self.link = None
+        self.link_dead = False
+        self.bad_frames = 0
+        self.boots = 0
+        self._parsers: dict[object, mavlink.MAVLink] = {}
+        self._streams: dict[int, list[float]] = {}
+        self._motion_index = -1
+        self._mag_stream_started: float | None = None
+        self._t0 = time.monotonic()
+        self._booted_at = self._t0
+        self._up_at = 0.0
+        self._down_at = 0.0
+        self._next_heartbeat = 0.0
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._after_ack: Callable[[], None] | None = None
+
+    # ------------------------------------------------------------------ flavour
+    @abstractmethod
+    def param_specs(self) -> list[ParamSpec]:
+        """The firmware's parameter table (names, types, defaults)."""
+
+    @abstractmethod
+    def wire_value(self, spec: ParamSpec, value: ParamValue) -> float:
+        """The float that goes into PARAM_VALUE.param_value for this autopilot."""
+
+    @abstractmethod
+    def handle_param_set(self, msg: Any) -> None:
+        """PARAM_SET as this autopilot treats it (encoding, type check, storage, echo)."""
+
+    @abstractmethod
+    def load_from_storage(self, stored: dict[str, ParamValue]) -> None:
+        """Boot: fill the table from storage and the detected sensors."""
+
+    @abstractmethod
+    def corrected_ut(self, sensor: SimMagnetometer, raw_ut: NDArray) -> NDArray:
+        """Apply the calibration the firmware currently holds for ``sensor`` (µT in, µT out)."""
+
+    @abstractmethod
+    def stream_message(self, msg_id: int, now: float) -> Any | None:
+        """The message to send for a due stream (``None`` when its sensor is absent)."""
+
+    def extra_commands(self) -> dict[int, Callable[[list[float]], int]]:
+        """Flavour-specific COMMAND_LONG handlers: ``handler(params) -> MAV_RESULT``."""
+        return {}
+
+    def tick(self, now: float) -> None:
+        """Timers of the firmware (autosave, self-calibration)."""
+        return None
+
+    def on_power_loss(self) -> None:
+        """Power went away: forget whatever the firmware had not finished."""
+        return None
+
+    def shutdown_ready(self, now: float) -> bool:
+        """Commanded shutdown: may the board go down now (running saves finished)?"""
+        return True
+
+    def handle_other(self, msg: Any) -> None:
+        """Messages the engine does not handle itself (e.g. SERIAL_CONTROL)."""
+        return None
+
+    # ------------------------------------------------------------------ lifecycle
+    def start(self) -> SimulatedAutopilot:
+        self.workdir.mkdir(parents=True, exist_ok=True)
+        self.link = open_server(self.listen)
+        self.listen = self.link.address
+        with self.lock:
+            self._boot(time.monotonic(), first=True)
+        self._thread = threading.Thread(target=self._run, name=f"sim-{self.flavour}", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5)
+        if self.link is not None:
+            self.link.close()
+
+    def __enter__(self) -> SimulatedAutopilot:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    @property
+    def address(self) -> str:
+        return self.listen
+
+    def wait_stopped(self) -> None:
+        """Block until :meth:`stop` (the command-line entry point uses this)."""
+        while not self._stop.wait(0.5):
+            pass
+
+    # ------------------------------------------------------------------ power (thread-safe)
+    def power_off(self) -> None:
+        """Cut power: link silent, RAM lost, an unfinished save lost."""
+        with self.lock:
+            self.on_power_loss()
+            self._go_dark(Power.OFF)
+
+    def power_on(self) -> None:
+        with self.lock:
+            if self.power is Power.OFF:
+                self.power = Power.BOOTING
+                self._up_at = time.monotonic() + self.boot_time_s
+
+    def request_reboot(self, delay_s: float) -> None:
+        with self.lock:
+            self.power = Power.SHUTTING_DOWN
+            self._down_at = time.monotonic() + delay_s
+
+    def _go_dark(self, state: Power) -> None:
+        self.power = state
+        self.link_dead = False
+        self._streams.clear()
+        self._parsers.clear()
+        if self.link is not None:
+            self.link.drop_peers()
+
+    def _boot(self, now: float, first: bool = False) -> None:
+        mags = list(self.magnetometers)
+        if not first:
+            if self.faults.mag_missing_after_reboot is not None:
+                mags = [m for m in mags if m.device_id != self.faults.mag_missing_after_reboot]
+            if self.faults.swap_mags_after_reboot and len(mags) > 1:
+                mags[0], mags[1] = mags[1], mags[0]
+        self.detected = mags
+        self.load_from_storage(self.read_storage())
+        self.power = Power.UP
+        self.boots += 1
+        self._booted_at = now
+        self._next_heartbeat = now
+
+    # ------------------------------------------------------------------ storage
+    @property
+    def storage_path(self) -> Path:
+        return self.workdir / self.storage_name
+
+    def read_storage(self) -> dict[str, ParamValue]:
+        return NvStorage(self.storage_path).load()
+
+    def write_storage(self, values: dict[str, ParamValue]) -> None:
+        """Atomically replace the storage file (a real board's flash sector write)."""
+        keep = {n: v for n, v in self.read_storage().items() if n in self.faults.no_persist}
+        values = {n: v for n, v in values.items() if n not in self.faults.no_persist} | keep
+        NvStorage(self.storage_path).save(values)
+
+    # ------------------------------------------------------------------ inspection for tests
+    def param(self, name: str) -> ParamValue:
+        with self.lock:
+            return self.table.values[name]
+
+    def sensor(self, device_id: int) -> SimMagnetometer:
+        return next(m for m in self.magnetometers if m.device_id == device_id)
+
+    def corrected_sphere(self, device_id: int, n: int = 500) -> NDArray:
+        """What the firmware would report for ``n`` orientations of the field, with the calibration
+        it holds now (µT) — the check that a written calibration really flattens the sphere."""
+        sensor = self.sensor(device_id)
+        v = self.rng.normal(size=(n, 3))
+        v = v / np.linalg.norm(v, axis=1, keepdims=True) * self.field_ut
+        with self.lock:
+            return np.array([self.corrected_ut(sensor, sensor.read_ut(b, self.rng)) for b in v])
+
+    # ------------------------------------------------------------------ main loop
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            up = self.power is Power.UP and not self.link_dead
+            chunks = self.link.poll(0.002, up=up)
+            now = time.monotonic()
+            with self.lock:
+                for peer, data in chunks:
+                    self._receive(peer, data)
+                self._advance(now)
+
+    def _receive(self, peer: object, data: bytes) -> None:
+        parser = self._parsers.get(peer)
+        if parser is None:
+            parser = self._parsers[peer] = mavlink.MAVLink(None, srcSystem=self.system_id)
+            parser.robust_parsing = True
+        try:
+            messages = parser.parse_buffer(data) or []
+        except mavlink.MAVError:
+            self.bad_frames += 1
+            self._parsers.pop(peer, None)
+            return
+        for msg in messages:
+            if msg.get_type() == "BAD_DATA":
+                self.bad_frames += 1
+                continue
+            try:
+                self._handle(msg)
+            except (ValueError, KeyError, TypeError, AttributeError):
+                self.bad_frames += 1  # a well-framed message with nonsense content
+
+    def _advance(self, now: float) -> None:
+        if self.power is Power.SHUTTING_DOWN and now >= self._down_at and self.shutdown_ready(now):
+            self.on_power_loss()
+            self._go_dark(Power.OFF if self.faults.reboot_fails else Power.BOOTING)
+            self._up_at = now + self.boot_time_s
+        if self.power is Power.BOOTING and now >= self._up_at:
+            self._boot(now)
+        if self.power is Power.OFF:
+            return
+        self.tick(now)
+        if self.power is not Power.UP:
+            return
+        if (self.faults.link_loss_after_s is not None and self._mag_stream_started is not None
+                and now - self._mag_stream_started > self.faults.link_loss_after_s):
+            self.link_dead = True
+        if now >= self._next_heartbeat:
+            self._next_heartbeat += 1.0
+            self.mav.heartbeat_send(mavlink.MAV_TYPE_QUADROTOR, self.autopilot,
+                                    mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 0, mavlink.MAV_STATE_STANDBY)
+        for msg_id, due in self._streams.items():
+            if now >= due[1]:
+                due[1] = max(due[1] + due[0], now - due[0])
+                message = self.stream_message(msg_id, now)
+                if message is not None:
+                    self.mav.send(message)
+
+    def _transmit(self, data: bytes) -> None:
+        if self.power not in (Power.UP, Power.SHUTTING_DOWN) or self.link_dead or self.link is None:
+            return
+        if self.faults.drop_percent and self.random.random() * 100.0 < self.faults.drop_percent:
+            return
+        self.link.send(data)
+
+    # ------------------------------------------------------------------ helpers for flavours
+    def time_boot_ms(self, now: float) -> int:
+        return int((now - self._booted_at) * 1000) & 0xFFFFFFFF
+
+    def body_field_ut(self, now: float) -> NDArray:
+        motion = self.motions[min(max(self._motion_index, 0), len(self.motions) - 1)]
+        return body_field(self.field_ned, motion, now - self._t0, self.speed)
+
+    def raw_reading_ut(self, index: int, now: float) -> tuple[SimMagnetometer, NDArray] | None:
+        if index >= len(self.detected):
+            return None
+        sensor = self.detected[index]
+        return sensor, sensor.read_ut(self.body_field_ut(now), self.rng)
+
+    def send_param(self, name: str) -> None:
+        spec = self.table.specs[name]
+        self.mav.param_value_send(name.encode(), self.wire_value(spec, self.table.values[name]), spec.type,
+                                  len(self.table.names), self.table.index(name))
+
+    def statustext(self, severity: int, text: str) -> None:
+        self.mav.statustext_send(severity, text.encode()[:50])
+
+    def _for_us(self, msg: Any) -> bool:
+        return getattr(msg, "target_system", 0) in (0, self.system_id)
+
+    # ------------------------------------------------------------------ message handling
+    def _handle(self, msg: Any) -> None:
+        kind = msg.get_type()
+        if kind == "HEARTBEAT":
+            return
+        if not self._for_us(msg):
+            return
+        if kind == "PARAM_REQUEST_LIST":
+            for name in self.table.names:
+                self.send_param(name)
+        elif kind == "PARAM_REQUEST_READ":
+            name = msg.param_id if msg.param_index < 0 else (
+                self.table.names[msg.param_index] if msg.param_index < len(self.table.names) else None)
+            if name in self.table:
+                self.send_param(name)
+        elif kind == "PARAM_SET":
+            self.handle_param_set(msg)
+        elif kind in ("COMMAND_LONG", "COMMAND_INT"):
+            params = ([msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7]
+                      if kind == "COMMAND_LONG" else
+                      [msg.param1, msg.param2, msg.param3, msg.param4, float(msg.x), float(msg.y), msg.z])
+            self._command(msg, msg.command, params)
+        else:
+            self.handle_other(msg)
+
+    def _command(self, msg: Any, command: int, params: list[float]) -> None:
+        handlers: dict[int, Callable[[list[float]], int]] = {
+            mavlink.MAV_CMD_SET_MESSAGE_INTERVAL: self._set_message_interval,
+            mavlink.MAV_CMD_REQUEST_MESSAGE: self._request_message,
+            mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: self._request_capabilities,
+            **self.extra_commands(),
+        }
+        handler = handlers.get(command)
+        result = handler(params) if handler else UNSUPPORTED
+        self.mav.command_ack_send(command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent())
+        after = self._after_ack
+        if after is not None:
+            self._after_ack = None
+            after()
+
+    def after_ack(self, action: Callable[[], None]) -> None:
+        """Run ``action`` once the current command's ACK is sent (ACK first, then act)."""
+        self._after_ack = action
+
+    def _set_message_interval(self, params: list[float]) -> int:
+        msg_id, interval_us = int(params[0]), params[1]
+        if msg_id not in self.stream_sensor and msg_id != mavlink.MAVLINK_MSG_ID_HEARTBEAT:
+            return FAILED
+        if msg_id == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
+            return ACCEPTED
+        if interval_us < 0 or interval_us == 0:
+            self._streams.pop(msg_id, None)
+        else:
+            interval = max(interval_us / 1e6, 1.0 / MAX_STREAM_HZ)
+            if not self._streams:
+                self._motion_index += 1  # the operator starts (another) tumble
+                self._mag_stream_started = time.monotonic()
+            self._streams[msg_id] = [interval, time.monotonic()]
+        if not self._streams:
+            self._mag_stream_started = None
+        return ACCEPTED
+
+    def _request_message(self, params: list[float]) -> int:
+        msg_id = int(params[0])
+        if msg_id == mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
+            self.after_ack(self._send_version)
+            return ACCEPTED
+        if msg_id in self.stream_sensor:
+            self.after_ack(lambda: self._send_once(msg_id))
+            return ACCEPTED
+        return UNSUPPORTED
+
+    def _request_capabilities(self, params: list[float]) -> int:
+        if int(params[0]) != 1:
+            return ACCEPTED
+        self.after_ack(self._send_version)
+        return ACCEPTED
+
+    def _send_once(self, msg_id: int) -> None:
+        message = self.stream_message(msg_id, time.monotonic())
+        if message is not None:
+            self.mav.send(message)
+
+    firmware_version: tuple[int, int, int] = (1, 0, 0)
+
+    def _send_version(self) -> None:
+        major, minor, patch = self.firmware_version
+        sw = (major << 24) | (minor << 16) | (patch << 8) | mavlink.FIRMWARE_VERSION_TYPE_OFFICIAL
+        self.mav.autopilot_version_send(self.capabilities, sw, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8,
+                                        0x1209, 0x5741, 0x4D41474C494E45)
+
+    def describe(self) -> dict[str, Any]:
+        """What is simulated, for the command line's start-up lines."""
+        return {"flavour": self.flavour, "listen": self.address, "storage": str(self.storage_path),
+                "sensors": [m.device_id for m in self.magnetometers], "boot_time_s": self.boot_time_s}
+

@@ -1,0 +1,445 @@
+"""The simulated flight controllers, proven with plain pymavlink and MAVSDK clients over loopback."""
+
+from __future__ import annotations
+
+import math
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+from gcs_client import Gcs, bytewise_float_as_int, int_as_bytewise_float
+from pymavlink import mavutil
+
+from magline.plugins.mock.sim import SimFaults, create_sim
+
+ML = mavutil.mavlink
+INT32, REAL32 = ML.MAV_PARAM_TYPE_INT32, ML.MAV_PARAM_TYPE_REAL32
+
+
+@pytest.fixture
+def px4(tmp_path):
+    with create_sim("px4", "udp:127.0.0.1:0", workdir=tmp_path, mag_count=2, seed=3, boot_time_s=0.3) as sim:
+        yield sim
+
+
+@pytest.fixture
+def ardupilot(tmp_path):
+    with create_sim("ardupilot", "tcp:127.0.0.1:0", workdir=tmp_path, mag_count=3, seed=4, boot_time_s=0.3) as sim:
+        yield sim
+
+
+def _version(gcs: Gcs):
+    ack = gcs.command(ML.MAV_CMD_REQUEST_MESSAGE, ML.MAVLINK_MSG_ID_AUTOPILOT_VERSION)
+    assert ack.result == ML.MAV_RESULT_ACCEPTED
+    return gcs.recv("AUTOPILOT_VERSION")
+
+
+def _vectors(gcs: Gcs, kind: str, n: int, scale: float) -> np.ndarray:
+    out = []
+    while len(out) < n:
+        msg = gcs.recv(kind, timeout=2.0)
+        assert msg is not None, f"{kind} stream stopped"
+        out.append((msg.xmag * scale, msg.ymag * scale, msg.zmag * scale))
+    return np.array(out)
+
+
+def _magnitudes(gcs: Gcs, kind: str, n: int, scale: float) -> np.ndarray:
+    return np.linalg.norm(_vectors(gcs, kind, n, scale), axis=1)
+
+
+# --------------------------------------------------------------------------- identity and protocol
+
+
+def test_px4_identifies_itself_and_encodes_ints_bytewise(px4):
+    gcs = Gcs(px4.address)
+    assert gcs.wait_heartbeat().autopilot == ML.MAV_AUTOPILOT_PX4
+    caps = _version(gcs).capabilities
+    assert caps & ML.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
+    assert not caps & ML.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST
+
+    dev = px4.magnetometers[1].device_id
+    echo = gcs.set("CAL_MAG2_ID", int_as_bytewise_float(dev), INT32)
+    assert echo.param_type == INT32 and bytewise_float_as_int(echo.param_value) == dev
+    assert px4.param("CAL_MAG2_ID") == dev
+    prio = gcs.get("CAL_MAG0_PRIO")  # -1 travels as bytes whose float reading is NaN
+    assert math.isnan(prio.param_value) and bytewise_float_as_int(prio.param_value) == -1
+
+    assert gcs.set("CAL_MAG0_XOFF", 0.125, REAL32).param_value == pytest.approx(0.125)
+    # a C-cast int (60.0) with the wrong type, and an unknown name: dropped without a reply
+    assert gcs.set("CAL_MAG0_PRIO", 60.0, REAL32, timeout=0.5) is None
+    assert gcs.set("CAL_MAG9_XOFF", 1.0, REAL32, timeout=0.5) is None
+    assert px4.param("CAL_MAG0_PRIO") == -1
+    assert gcs.command(31999).result == ML.MAV_RESULT_UNSUPPORTED
+
+
+def test_ardupilot_identifies_itself_and_casts_floats(ardupilot):
+    gcs = Gcs(ardupilot.address)
+    assert gcs.wait_heartbeat().autopilot == ML.MAV_AUTOPILOT_ARDUPILOTMEGA
+    caps = _version(gcs).capabilities
+    assert caps & ML.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST
+    assert not caps & ML.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
+
+    ids = [gcs.get(n).param_value for n in ("COMPASS_DEV_ID", "COMPASS_DEV_ID2", "COMPASS_DEV_ID3")]
+    assert ids == [float(m.device_id) for m in ardupilot.magnetometers]  # C-cast: the plain number
+    # the type field is ignored: an INT32-typed set still stores the float's value
+    assert gcs.set("COMPASS_OFFS_MAX", 1500.0, INT32).param_value == 1500.0
+    assert ardupilot.param("COMPASS_OFFS_MAX") == 1500
+    # one element of a vector: all three come back, the echo carries the value
+    gcs.conn.mav.param_set_send(1, 1, b"COMPASS_OFS_Y", 123.5, REAL32)
+    echoes = {m.param_id: m.param_value for m in (gcs.recv("PARAM_VALUE") for _ in range(3))}
+    assert echoes == {"COMPASS_OFS_X": 0.0, "COMPASS_OFS_Y": 123.5, "COMPASS_OFS_Z": 0.0}
+    # unknown names and NaN are ignored without a reply
+    assert gcs.set("COMPASS_OFS4_X", 1.0, REAL32, timeout=0.5) is None
+    assert gcs.set("COMPASS_OFS_X", float("nan"), REAL32, timeout=0.5) is None
+    assert ardupilot.param("COMPASS_OFS_X") == 0.0
+    assert gcs.command(ML.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 2).result == ML.MAV_RESULT_UNSUPPORTED
+
+
+@pytest.mark.parametrize("flavour,kind,msg_id,scale", [
+    ("px4", "SCALED_IMU2", ML.MAVLINK_MSG_ID_SCALED_IMU2, 0.1),
+    ("ardupilot", "RAW_IMU", ML.MAVLINK_MSG_ID_RAW_IMU, 0.1),
+])
+def test_mag_streams_follow_set_message_interval(tmp_path, flavour, kind, msg_id, scale):
+    with create_sim(flavour, f"{'udp' if flavour == 'px4' else 'tcp'}:127.0.0.1:0", workdir=tmp_path,
+                    mag_count=2, seed=5, boot_time_s=0.3) as sim:
+        gcs = Gcs(sim.address)
+        assert gcs.recv(kind, timeout=0.5) is None  # nothing streams until requested
+        assert gcs.command(ML.MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, 10_000).result == ML.MAV_RESULT_ACCEPTED
+        raw = _vectors(gcs, kind, 100, scale)
+        # raw readings of the streamed sensor: its own truth maps them onto the field sphere
+        sensor = sim.detected[1] if flavour == "px4" else sim.sets[0]
+        radius = np.linalg.norm((raw - sensor.hard_iron_ut) @ sensor.soft_iron.T, axis=1)
+        assert np.abs(radius - sim.field_ut).max() < 2.0
+        assert np.abs(np.linalg.norm(raw, axis=1) - sim.field_ut).mean() > 5.0  # and they are not calibrated
+        assert gcs.command(ML.MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, -1).result == ML.MAV_RESULT_ACCEPTED
+        time.sleep(0.1)
+        while gcs.conn.recv_match(type=kind, blocking=False):
+            pass
+        assert gcs.recv(kind, timeout=0.3) is None
+        assert gcs.command(ML.MAV_CMD_SET_MESSAGE_INTERVAL, 9999, 10_000).result == ML.MAV_RESULT_FAILED
+
+
+def test_reboot_goes_silent_then_comes_back_with_stored_params(px4, ardupilot):
+    for sim, name, wire, ptype in ((px4, "CAL_MAG1_XOFF", 0.25, REAL32), (ardupilot, "COMPASS_OFS2_X", 42.0, REAL32)):
+        gcs = Gcs(sim.address)
+        assert gcs.set(name, wire, ptype) is not None
+        gcs.command(ML.MAV_CMD_PREFLIGHT_STORAGE, 1)  # PX4 needs it; ArduPilot answers UNSUPPORTED
+        time.sleep(0.2)
+        boots = sim.boots
+        assert gcs.command(ML.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 1).result == ML.MAV_RESULT_ACCEPTED
+        gcs.close()
+        deadline = time.monotonic() + 5
+        while sim.boots == boots and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert sim.boots == boots + 1
+        gcs = Gcs(sim.address)  # ArduPilot closed the TCP connection: a client must reconnect
+        assert gcs.get(name).param_value == pytest.approx(wire)
+        gcs.close()
+
+
+# --------------------------------------------------------------------------- persistence traps
+
+
+def test_px4_autosave_trap_and_forced_save(tmp_path):
+    def write_two_then_reboot(workdir, force_save: bool) -> dict:
+        with create_sim("px4", "udp:127.0.0.1:0", workdir=workdir, seed=1, boot_time_s=0.2) as sim:
+            gcs = Gcs(sim.address)
+            assert gcs.set("CAL_MAG0_XOFF", 0.11, REAL32) is not None  # A
+            time.sleep(0.5)
+            assert gcs.set("CAL_MAG0_YOFF", 0.22, REAL32) is not None  # B, 0.5 s later
+            if force_save:
+                assert gcs.command(ML.MAV_CMD_PREFLIGHT_STORAGE, 1).result == ML.MAV_RESULT_ACCEPTED
+            assert gcs.command(ML.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 1).result == ML.MAV_RESULT_ACCEPTED
+            gcs.close()
+            deadline = time.monotonic() + 5
+            while sim.boots < 2 and time.monotonic() < deadline:
+                time.sleep(0.05)
+            return {n: sim.param(n) for n in ("CAL_MAG0_XOFF", "CAL_MAG0_YOFF")}
+
+    lost = write_two_then_reboot(tmp_path / "trap", force_save=False)
+    assert lost["CAL_MAG0_XOFF"] == pytest.approx(0.11)  # A's autosave ran 300 ms after it
+    assert lost["CAL_MAG0_YOFF"] == 0.0  # B's save was held back by the 2 s limit
+    kept = write_two_then_reboot(tmp_path / "forced", force_save=True)
+    assert kept == pytest.approx({"CAL_MAG0_XOFF": 0.11, "CAL_MAG0_YOFF": 0.22})
+
+
+def _prearm_texts(gcs: Gcs) -> list[str]:
+    assert gcs.command(ML.MAV_CMD_RUN_PREARM_CHECKS).result == ML.MAV_RESULT_ACCEPTED
+    texts = []
+    while (msg := gcs.recv("STATUSTEXT", timeout=0.5)) is not None:
+        texts.append(msg.text)
+    return texts
+
+
+def test_ardupilot_dev_id_trap(tmp_path):
+    def calibrate_then_reboot(workdir, force_save: bool) -> list[str]:
+        with create_sim("ardupilot", "tcp:127.0.0.1:0", workdir=workdir, seed=2, boot_time_s=0.2) as sim:
+            gcs = Gcs(sim.address)
+            for axis, value in zip("XYZ", -10 * sim.magnetometers[0].hard_iron_ut, strict=True):
+                gcs.conn.mav.param_set_send(1, 1, f"COMPASS_OFS_{axis}".encode(), float(value), REAL32)
+                assert gcs.recv("PARAM_VALUE", param_id=f"COMPASS_OFS_{axis}") is not None
+            assert "PreArm: Compass not calibrated" in _prearm_texts(gcs)  # id only in RAM so far
+            if force_save:
+                assert gcs.command(ML.MAV_CMD_PREFLIGHT_CALIBRATION, 0, 76).result == ML.MAV_RESULT_ACCEPTED
+            gcs.command(ML.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 1)
+            gcs.close()
+            deadline = time.monotonic() + 5
+            while sim.boots < 2 and time.monotonic() < deadline:
+                time.sleep(0.05)
+            gcs = Gcs(sim.address)
+            return _prearm_texts(gcs)
+
+    assert "PreArm: Compass not calibrated" in calibrate_then_reboot(tmp_path / "trap", force_save=False)
+    assert calibrate_then_reboot(tmp_path / "saved", force_save=True) == []
+
+
+def test_ardupilot_reorders_sets_by_priority_at_boot(ardupilot):
+    gcs = Gcs(ardupilot.address)
+    third = ardupilot.magnetometers[2].device_id
+    gcs.set("COMPASS_OFS3_X", 77.0, REAL32)  # set 3 belongs to the third sensor now
+    gcs.set("COMPASS_PRIO1_ID", float(third), INT32)
+    gcs.set("COMPASS_PRIO3_ID", float(ardupilot.magnetometers[0].device_id), INT32)
+    gcs.command(ML.MAV_CMD_PREFLIGHT_CALIBRATION, 0, 76)  # save the ids so the sets can follow them
+    gcs.command(ML.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 1)
+    gcs.close()
+    time.sleep(0.8)
+    gcs = Gcs(ardupilot.address)
+    assert gcs.get("COMPASS_DEV_ID").param_value == third
+    assert gcs.get("COMPASS_OFS_X").param_value == 77.0  # the whole set moved with its sensor
+    assert gcs.get("COMPASS_OFS3_X").param_value == 0.0
+
+
+# --------------------------------------------------------------------------- the firmware applies what was written
+
+
+def _write_px4_calibration(gcs: Gcs, slot: int, device: int, h_ut, s, sign: float = 1.0) -> None:
+    p = f"CAL_MAG{slot}_"
+    assert gcs.set(p + "ID", int_as_bytewise_float(device), INT32) is not None
+    for axis, value in zip("XYZ", sign * np.asarray(h_ut) / 100.0, strict=True):
+        assert gcs.set(f"{p}{axis}OFF", float(value), REAL32) is not None
+    for name, (i, j) in (("XSCALE", (0, 0)), ("YSCALE", (1, 1)), ("ZSCALE", (2, 2)),
+                         ("XODIAG", (0, 1)), ("YODIAG", (0, 2)), ("ZODIAG", (1, 2))):
+        assert gcs.set(p + name, float(s[i][j]), REAL32) is not None
+
+
+def test_px4_right_sign_flattens_the_sphere_wrong_sign_does_not(px4):
+    gcs = Gcs(px4.address)
+    mag = px4.magnetometers[0]
+    gcs.command(ML.MAV_CMD_SET_MESSAGE_INTERVAL, ML.MAVLINK_MSG_ID_HIGHRES_IMU, 10_000)
+    _write_px4_calibration(gcs, 3, mag.device_id, mag.hard_iron_ut, mag.soft_iron, sign=-1.0)
+    wrong = _magnitudes(gcs, "HIGHRES_IMU", 150, 100.0)  # Gauss → µT
+    _write_px4_calibration(gcs, 3, mag.device_id, mag.hard_iron_ut, mag.soft_iron)
+    time.sleep(0.05)
+    while gcs.conn.recv_match(type="HIGHRES_IMU", blocking=False):
+        pass
+    right = _magnitudes(gcs, "HIGHRES_IMU", 150, 100.0)
+    assert abs(right.mean() - px4.field_ut) < 0.3 and right.std() < 0.6  # noise 0.3 µT
+    assert wrong.std() > 10 * right.std()
+
+
+def test_ardupilot_right_sign_flattens_the_sphere_wrong_sign_does_not(ardupilot):
+    gcs = Gcs(ardupilot.address)
+    mag = ardupilot.magnetometers[0]
+
+    def write(sign: float) -> None:
+        for axis, value in zip("XYZ", sign * -10 * mag.hard_iron_ut, strict=True):
+            gcs.set(f"COMPASS_OFS_{axis}", float(value), REAL32)
+        for axis, value in zip("XYZ", np.diag(mag.soft_iron), strict=True):
+            gcs.set(f"COMPASS_DIA_{axis}", float(value), REAL32)
+        s = mag.soft_iron
+        for axis, value in zip("XYZ", (s[0, 1], s[0, 2], s[1, 2]), strict=True):
+            gcs.set(f"COMPASS_ODI_{axis}", float(value), REAL32)
+        gcs.set("COMPASS_SCALE", 1.0, REAL32)
+
+    write(-1.0)
+    wrong = ardupilot.corrected_sphere(mag.device_id)
+    write(1.0)
+    right = ardupilot.corrected_sphere(mag.device_id)
+    r_wrong, r_right = np.linalg.norm(wrong, axis=1), np.linalg.norm(right, axis=1)
+    assert abs(r_right.mean() - ardupilot.field_ut) < 0.3 and r_right.std() < 0.6
+    assert r_wrong.std() > 10 * r_right.std()
+    # and the stream the backend reads carries exactly that corrected field
+    gcs.command(ML.MAV_CMD_SET_MESSAGE_INTERVAL, ML.MAVLINK_MSG_ID_RAW_IMU, 10_000)
+    streamed = _magnitudes(gcs, "RAW_IMU", 100, 0.1)
+    assert abs(streamed.mean() - ardupilot.field_ut) < 0.5 and streamed.std() < 0.8
+
+
+# --------------------------------------------------------------------------- robustness and faults
+
+
+@pytest.mark.parametrize("scheme", ["udp", "tcp"])
+def test_sim_survives_garbage_and_truncated_frames(tmp_path, scheme):
+    flavour = "px4" if scheme == "udp" else "ardupilot"
+    with create_sim(flavour, f"{scheme}:127.0.0.1:0", workdir=tmp_path, seed=1, boot_time_s=0.2) as sim:
+        _, host, port = sim.address.split(":")
+        rng = np.random.default_rng(0)
+        frame = ML.MAVLink_param_request_read_message(1, 1, b"SYSID_THISMAV", -1).pack(ML.MAVLink(None, 255, 190))
+        junk = [bytes(rng.integers(0, 256, 300, dtype=np.uint8)), b"\xfd\xff\x00\x00", frame[:9], frame[:-3],
+                b"\xfe" * 50]
+        if scheme == "udp":
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+                for j in junk:
+                    s.sendto(j, (host, int(port)))
+        else:
+            with socket.create_connection((host, int(port))) as s:
+                s.sendall(b"".join(junk))
+                time.sleep(0.2)
+        time.sleep(0.2)
+        assert sim.bad_frames > 0
+        gcs = Gcs(sim.address)
+        assert gcs.get("CAL_MAG0_ID" if flavour == "px4" else "COMPASS_OFFS_MAX") is not None
+
+
+def test_faults_ignored_set_no_persist_and_missing_mag(tmp_path):
+    faults = SimFaults(ignore_param_set=["CAL_MAG0_YOFF"], no_persist=["CAL_MAG0_ZOFF"])
+    with create_sim("px4", "udp:127.0.0.1:0", workdir=tmp_path, mag_count=2, seed=1, boot_time_s=0.2,
+                    faults=faults) as sim:
+        missing = sim.magnetometers[0].device_id
+        sim.faults.mag_missing_after_reboot = missing
+        gcs = Gcs(sim.address)
+        assert gcs.set("CAL_MAG0_YOFF", 0.3, REAL32, timeout=0.5) is None
+        assert gcs.set("CAL_MAG0_ZOFF", 0.4, REAL32) is not None
+        gcs.command(ML.MAV_CMD_PREFLIGHT_STORAGE, 1)
+        time.sleep(0.3)
+        assert "CAL_MAG0_ZOFF" not in sim.read_storage()
+        gcs.command(ML.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 1)
+        time.sleep(1.0)
+        assert [m.device_id for m in sim.detected] == [sim.magnetometers[1].device_id]
+
+
+def test_link_loss_mid_stream_and_reboot_that_never_returns(tmp_path):
+    with create_sim("ardupilot", "tcp:127.0.0.1:0", workdir=tmp_path, seed=1, boot_time_s=0.2,
+                    faults=SimFaults(link_loss_after_s=0.3)) as sim:
+        gcs = Gcs(sim.address)
+        gcs.command(ML.MAV_CMD_SET_MESSAGE_INTERVAL, ML.MAVLINK_MSG_ID_RAW_IMU, 20_000)
+        assert gcs.recv("RAW_IMU") is not None
+        time.sleep(0.5)
+        while gcs.conn.recv_match(blocking=False):
+            pass
+        assert gcs.recv(["RAW_IMU", "HEARTBEAT"], timeout=1.5) is None
+    with create_sim("px4", "udp:127.0.0.1:0", workdir=tmp_path, seed=1, boot_time_s=0.2,
+                    faults=SimFaults(reboot_fails=True)) as sim:
+        gcs = Gcs(sim.address)
+        gcs.command(ML.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 1)
+        time.sleep(0.8)
+        with pytest.raises(TimeoutError):
+            gcs.wait_heartbeat(timeout=1.0)
+
+
+def test_power_cut_loses_an_unfinished_save_that_a_reboot_would_keep(tmp_path):
+    """A save in progress holds PX4's shutdown lock: a reboot waits for it, a power cut does not."""
+    for cut, expect in ((False, 0.5), (True, 0.0)):
+        with create_sim("px4", "udp:127.0.0.1:0", workdir=tmp_path / str(cut), seed=1, boot_time_s=0.2,
+                        save_duration_s=0.5) as sim:
+            gcs = Gcs(sim.address)
+            gcs.set("CAL_MAG0_XOFF", 0.5, REAL32)
+            time.sleep(0.35)  # the autosave has started and runs for 0.5 s
+            if cut:
+                sim.power_off()
+                sim.power_on()
+            else:
+                gcs.command(ML.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 1)
+            time.sleep(1.5)
+            assert sim.param("CAL_MAG0_XOFF") == expect
+
+
+# --------------------------------------------------------------------------- MAVSDK as a client
+
+
+@pytest.mark.parametrize("flavour,url", [("px4", "udpout://{host}:{port}"), ("ardupilot", "tcpout://{host}:{port}")])
+def test_mavsdk_client_params_reboot_and_streams(tmp_path, flavour, url):
+    import json
+
+    from mavsdk import ComponentType, Configuration, Mavsdk, log_subscribe
+    from mavsdk.plugins.action.action import Action
+    from mavsdk.plugins.mavlink_direct.mavlink_direct import MavlinkDirect, MavlinkMessage
+    from mavsdk.plugins.param.param import Param
+
+    log_subscribe(lambda *_: True)
+    scheme = "udp" if flavour == "px4" else "tcp"
+    with create_sim(flavour, f"{scheme}:127.0.0.1:0", workdir=tmp_path, mag_count=2, seed=6, boot_time_s=0.3) as sim:
+        _, host, port = sim.address.split(":")
+        mavsdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
+        try:
+            mavsdk.add_any_connection(url.format(host=host, port=port))
+            system = mavsdk.first_autopilot(5.0)
+            assert system is not None
+            param = Param(system)
+            int_name, float_name = (("CAL_MAG1_ID", "CAL_MAG1_XOFF") if flavour == "px4"
+                                    else ("COMPASS_PRIO2_ID", "COMPASS_OFS2_X"))
+            dev = sim.magnetometers[1].device_id
+            param.set_param_int(int_name, dev)
+            param.set_param_float(float_name, 0.375)
+            assert sim.param(int_name) == dev and sim.param(float_name) == 0.375
+            assert param.get_param_int(int_name) == dev
+
+            direct = MavlinkDirect(system)
+            got: list[dict] = []
+            kind = "SCALED_IMU2"
+            direct.subscribe_message(kind, lambda msg, _: got.append(json.loads(msg.fields_json)))
+            direct.send_message(MavlinkMessage("COMMAND_LONG", 245, 190, 1, 1, json.dumps({
+                "target_system": 1, "target_component": 1, "command": ML.MAV_CMD_SET_MESSAGE_INTERVAL,
+                "confirmation": 0, "param1": ML.MAVLINK_MSG_ID_SCALED_IMU2, "param2": 20_000, "param3": 0,
+                "param4": 0, "param5": 0, "param6": 0, "param7": 0})))
+            deadline = time.monotonic() + 5
+            while len(got) < 10 and time.monotonic() < deadline:
+                time.sleep(0.05)
+            assert len(got) >= 10 and all(abs(g["xmag"]) + abs(g["ymag"]) + abs(g["zmag"]) > 0 for g in got)
+
+            if flavour == "px4":
+                param.set_param_float("CAL_MAG1_YOFF", 0.5)
+                direct.send_message(MavlinkMessage("COMMAND_LONG", 245, 190, 1, 1, json.dumps({
+                    "target_system": 1, "target_component": 1, "command": ML.MAV_CMD_PREFLIGHT_STORAGE,
+                    "confirmation": 0, "param1": 1, "param2": 0, "param3": 0, "param4": 0, "param5": 0,
+                    "param6": 0, "param7": 0})))
+                time.sleep(0.3)
+            boots = sim.boots
+            Action(system).reboot()
+            deadline = time.monotonic() + 5
+            while sim.boots == boots and time.monotonic() < deadline:
+                time.sleep(0.05)
+            assert sim.boots == boots + 1
+            assert sim.param(float_name) == 0.375  # reloaded from storage, not left in RAM
+        finally:
+            mavsdk.destroy()
+
+
+# --------------------------------------------------------------------------- command line
+
+
+def test_magline_sim_command_prints_address_and_stops_on_sigterm(tmp_path):
+    proc = subprocess.Popen([sys.executable, "-m", "magline.core.cli", "sim", "px4", "--listen", "udp:127.0.0.1:0",
+                             "--workdir", str(tmp_path), "--boot-time", "0.2"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    try:
+        first = proc.stdout.readline().strip()
+        assert first.startswith("listening on udp:127.0.0.1:")
+        gcs = Gcs(first.removeprefix("listening on "))
+        assert gcs.wait_heartbeat().autopilot == ML.MAV_AUTOPILOT_PX4
+        gcs.close()
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=10) == 0
+
+
+@pytest.mark.parametrize("flavour,address", [("px4", "udp:127.0.0.1:14550"), ("ardupilot", "tcp:127.0.0.1:5760")])
+def test_magline_sim_defaults_to_the_example_station_address(tmp_path, flavour, address):
+    proc = subprocess.Popen([sys.executable, "-m", "magline.core.cli", "sim", flavour, "--workdir", str(tmp_path)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == f"listening on {address}"
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=10)
+
+
+def test_magline_sim_rejects_a_bad_fault_name(tmp_path):
+    out = subprocess.run([sys.executable, "-m", "magline.core.cli", "sim", "px4", "--fault", "melt",
+                          "--workdir", str(tmp_path)], capture_output=True, text=True, timeout=30)
+    assert out.returncode == 2 and "unknown fault 'melt'" in out.stderr
