@@ -35,6 +35,16 @@ def third_party(tmp_path, monkeypatch):
         @hookimpl
         def magline_register_dut_backends(register):
             register("acme", make)
+
+        def hello(args):
+            print(f"acme says hello to {args.who}")
+            return 5
+
+        @hookimpl
+        def magline_add_commands(subparsers):
+            cmd = subparsers.add_parser("acme-hello", help="third-party command")
+            cmd.add_argument("who")
+            cmd.set_defaults(handler=hello)
     '''), encoding="utf-8")
     dist = site / "acme_magline-1.0.dist-info"
     dist.mkdir()
@@ -55,6 +65,12 @@ def test_third_party_backend_can_be_named_in_a_station(third_party, make_station
     assert record.verdict is Outcome.PASS
     import acme_magline
     assert acme_magline.CREATED == ["acme://bench-3"]
+
+
+def test_third_party_plugin_adds_a_command_line_command(third_party, capsys):
+    """magline_add_commands: the plugin's sub-command runs and its exit code is returned."""
+    assert main(["acme-hello", "line 3"]) == 5
+    assert "acme says hello to line 3" in capsys.readouterr().out
 
 
 def test_builtins_load_through_the_entry_point_group():
