@@ -14,9 +14,10 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Literal, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Literal, Protocol, TypeVar, runtime_checkable
 
 from numpy.typing import NDArray
+from pydantic import BaseModel, ValidationError
 
 if TYPE_CHECKING:
     from magline.core.fit import FitResult
@@ -80,6 +81,10 @@ class DutBackend(Protocol):
     def selected_sensor_present(self) -> bool:
         """After a power cycle: is the calibrated sensor still there with the same id?"""
 
+    def persistence_problems(self) -> list[str]:
+        """After a power cycle: what the autopilot itself says is wrong with the calibration
+        (ArduPilot: "Compass not calibrated" when the device id was not saved); empty when fine."""
+
     def restore(self) -> None:
         """Put back what :meth:`prepare` changed (called at the end of every run, also on errors)."""
 
@@ -88,3 +93,14 @@ class DutBackend(Protocol):
 
 
 DutFactory = Callable[["Product"], DutBackend]
+
+OptionsModel = TypeVar("OptionsModel", bound=BaseModel)
+
+
+def backend_options(model: type[OptionsModel], product: Product, backend: str) -> OptionsModel:
+    """Validate a product's ``options`` for a backend; the error names every bad key."""
+    try:
+        return model.model_validate(product.options)
+    except ValidationError as exc:
+        problems = "; ".join(f"options.{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())
+        raise ValueError(f"{backend} backend: {problems}") from exc

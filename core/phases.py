@@ -19,7 +19,7 @@ from magline.core.fit.samples_csv import RawSamples
 from magline.core.measurements import Array, Json, Measurement, Numeric
 from magline.core.plugins import hookimpl
 from magline.core.record import PersistReport, VerifyReport
-from magline.core.sequencer.context import Acquisition, RunContext
+from magline.core.sequencer.context import Acquisition, AcquisitionAborted, RunContext
 
 
 @hookimpl(trylast=True)
@@ -31,26 +31,35 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
     mags, times, temps = [], [], []
     count = 0
     deadline = time.monotonic() + cfg.timeout_s
-    with closing(dut.samples(cfg.rate_hz)) as stream:
-        for chunk in stream:
-            mags.append(np.atleast_2d(chunk.mag_ut))
-            times.append(np.atleast_1d(chunk.t_ms))
-            if chunk.temp_c is not None:
-                temps.append(np.atleast_1d(chunk.temp_c))
-            count += len(mags[-1])
-            coverage = tracker.add(mags[-1])
-            run.progress(attempt, count, coverage, cfg.coverage_target)
-            if count >= cfg.samples:
-                break
-            if time.monotonic() > deadline:
-                raise DutError(f"only {count} of {cfg.samples} samples within {cfg.timeout_s:.0f} s")
+    try:
+        with closing(dut.samples(cfg.rate_hz)) as stream:
+            for chunk in stream:
+                mags.append(np.atleast_2d(chunk.mag_ut))
+                times.append(np.atleast_1d(chunk.t_ms))
+                if chunk.temp_c is not None:
+                    temps.append(np.atleast_1d(chunk.temp_c))
+                count += len(mags[-1])
+                coverage = tracker.add(mags[-1])
+                run.progress(attempt, count, coverage, cfg.coverage_target)
+                if count >= cfg.samples:
+                    break
+                if time.monotonic() > deadline:
+                    raise DutError(f"only {count} of {cfg.samples} samples within {cfg.timeout_s:.0f} s")
+    except DutError as exc:
+        partial = _acquisition(attempt, mags, times, temps, cfg.samples, cfg.coverage_bins, cfg.coverage_target)
+        raise AcquisitionAborted(str(exc), partial) from exc
     if count == 0:
         raise DutError("the DUT sent no samples")
-    mag = np.vstack(mags)[: cfg.samples]
-    samples = RawSamples(mag_ut=mag, t_ms=np.concatenate(times)[: len(mag)],
-                         temp_c=np.concatenate(temps)[: len(mag)] if len(temps) == len(mags) else None)
-    final = CoverageTracker(cfg.coverage_bins, refit_every=1)
-    return Acquisition(attempt=attempt, samples=samples, coverage=final.add(mag), target=cfg.coverage_target)
+    return _acquisition(attempt, mags, times, temps, cfg.samples, cfg.coverage_bins, cfg.coverage_target)
+
+
+def _acquisition(attempt: int, mags: list, times: list, temps: list, limit: int, bins: int,
+                 target: float) -> Acquisition:
+    mag = np.vstack(mags)[:limit] if mags else np.empty((0, 3))
+    samples = RawSamples(mag_ut=mag, t_ms=np.concatenate(times)[: len(mag)] if times else np.empty(0),
+                         temp_c=np.concatenate(temps)[: len(mag)] if temps and len(temps) == len(mags) else None)
+    coverage = CoverageTracker(bins, refit_every=1).add(mag) if len(mag) else 0.0
+    return Acquisition(attempt=attempt, samples=samples, coverage=coverage, target=target)
 
 
 @hookimpl(trylast=True)
@@ -102,13 +111,27 @@ def magline_persist(run: RunContext, fit: FitResult) -> PersistReport:
     params = dut.calibration_params(fit)
     before = dut.read_params(list(params))
     run.log(f"writing {len(params)} parameters")
-    echoed = dut.write_params(params)
-    wrong = [f"{k}: wrote {v!r}, echoed {echoed.get(k)!r}" for k, v in params.items()
-             if k not in echoed or not _same(v, echoed[k])]
-    if wrong:
-        raise DutError("parameter write not confirmed: " + "; ".join(wrong))
+    try:
+        echoed = dut.write_params(params)
+        wrong = [f"{k}: wrote {v!r}, echoed {echoed.get(k)!r}" for k, v in params.items()
+                 if k not in echoed or not _same(v, echoed[k])]
+        if wrong:
+            raise DutError("parameter write not confirmed: " + "; ".join(wrong))
+    except DutError as exc:
+        raise DutError(f"{exc}; {_roll_back(run, before)}") from exc
     dut.commit()
     return PersistReport(before=before, written=params, echoed=echoed)
+
+
+def _roll_back(run: RunContext, before: dict[str, ParamValue]) -> str:
+    """A write failed part-way: put the previous values back so no half calibration stays behind."""
+    try:
+        run.require_dut().write_params(before)
+    except Exception as exc:  # the link may be what failed; say so rather than hide it
+        run.log(f"rollback failed: {type(exc).__name__}: {exc}")
+        return "ROLLBACK FAILED — the unit may hold a partial calibration; quarantine it"
+    run.log(f"rolled back {len(before)} parameters to their previous values")
+    return "previous values restored"
 
 
 @hookimpl(trylast=True)
@@ -120,5 +143,7 @@ def magline_verify_persistence(run: RunContext, persisted: PersistReport) -> Ver
     read_back = dut.read_params(list(persisted.written))
     mismatches = [f"{k}: wrote {v!r}, read back {read_back.get(k)!r}" for k, v in persisted.written.items()
                   if k not in read_back or not _same(v, read_back[k])]
+    if present:
+        mismatches += [f"autopilot reports: {text}" for text in dut.persistence_problems()]
     return VerifyReport(read_back=read_back, mismatches=mismatches, sensor_present=present,
                         method=method, figures={k: float(v) for k, v in figures.items()})

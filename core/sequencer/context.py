@@ -33,6 +33,14 @@ class Acquisition:
         return self.coverage >= self.target
 
 
+class AcquisitionAborted(RuntimeError):
+    """The DUT failed mid-acquisition; carries what arrived so the raw data is still recorded."""
+
+    def __init__(self, message: str, partial: Acquisition) -> None:
+        super().__init__(message)
+        self.partial = partial
+
+
 @dataclass
 class RunContext:
     station: Station

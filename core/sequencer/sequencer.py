@@ -23,7 +23,7 @@ from magline.core.fit.samples_csv import format_samples
 from magline.core.measurements import Json, Verdict, verdicts
 from magline.core.plugins import Plugins
 from magline.core.record import AttemptRecord, Outcome, PersistReport, PhaseResult, RunRecord, now_iso
-from magline.core.sequencer.context import RunContext
+from magline.core.sequencer.context import Acquisition, AcquisitionAborted, RunContext
 from magline.core.station.schema import Station
 
 PHASES = ("identify", "connect", "acquire", "fit", "validate", "persist", "verify", "record")
@@ -142,19 +142,25 @@ class Sequencer:
         for attempt in range(1, acq.retries + 2):
             if attempt > 1:
                 self.sleep(acq.retry_delay_s)
-            result = self.plugins.hook.magline_acquire(run=run, attempt=attempt)
+            try:
+                result = self.plugins.hook.magline_acquire(run=run, attempt=attempt)
+            except AcquisitionAborted as exc:
+                self._store_attempt(run, exc.partial, accepted=False)  # keep what arrived before the failure
+                raise DutError(f"{exc} (after {len(exc.partial.samples)} samples; raw data kept)") from exc
             run.attempts.append(result)
-            stored = AttemptRecord(attempt=attempt, samples=len(result.samples), coverage=result.coverage,
-                                   target=result.target, raw_csv=format_samples(result.samples),
-                                   accepted=result.sufficient)
-            run.record.attempts.append(stored)
-            self.sink.save_attempt(run.record, stored)  # raw data safe before any fitting
+            self._store_attempt(run, result, accepted=result.sufficient)
             run.log(f"attempt {attempt}: {len(result.samples)} samples, coverage {result.coverage:.0%} "
                     f"(target {result.target:.0%})")
             if result.sufficient:
                 return
         raise PhaseFailed(f"coverage {run.attempts[-1].coverage:.0%} below target "
                           f"{acq.coverage_target:.0%} after {len(run.attempts)} attempts")
+
+    def _store_attempt(self, run: RunContext, result: Acquisition, accepted: bool) -> None:
+        stored = AttemptRecord(attempt=result.attempt, samples=len(result.samples), coverage=result.coverage,
+                               target=result.target, raw_csv=format_samples(result.samples), accepted=accepted)
+        run.record.attempts.append(stored)
+        self.sink.save_attempt(run.record, stored)  # raw data safe before any fitting
 
     def _fit(self, run: RunContext) -> None:
         acq = run.attempts[-1]

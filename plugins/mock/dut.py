@@ -137,6 +137,9 @@ class MockDut:
     def selected_sensor_present(self) -> bool:
         return self.sensor_present
 
+    def persistence_problems(self) -> list[str]:
+        return []
+
     def _require_link(self) -> None:
         if not self.connected:
             raise DutError("mock DUT link is down")

@@ -2,8 +2,7 @@
 
 from __future__ import annotations
 
-from pydantic import ValidationError
-
+from magline.core.dut import backend_options
 from magline.core.plugins import hookimpl
 from magline.core.station.schema import Product
 from magline.plugins.mock.commands import add_sim_command
@@ -12,11 +11,7 @@ from magline.plugins.mock.options import MockOptions
 
 
 def create_mock_dut(product: Product) -> MockDut:
-    try:
-        options = MockOptions.model_validate(product.options)
-    except ValidationError as exc:
-        problems = "; ".join(f"options.{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())
-        raise ValueError(f"mock backend: {problems}") from exc
+    options = backend_options(MockOptions, product, "mock")
     return MockDut(options)
 
 

@@ -64,29 +64,43 @@ def default_magnetometers(count: int, rng: np.random.Generator) -> list[SimMagne
 # --------------------------------------------------------------------------- attitude
 
 MOTIONS = ("tumble", "single_axis", "gimbal", "still")
+SWEEP_S = 8.0  # a full pole-to-pole sweep of the tumble at speed 1
+SPIN_RAD_S = 2 * np.pi * 0.9
 
 
-def attitude(motion: str, t: float, speed: float = 1.0) -> Rotation:
+def _spiral(t: float, stepped: bool) -> NDArray:
+    """Direction of the field in the body: a spherical spiral sweeping pole to pole and back."""
+    phase = (t / SWEEP_S) % 2.0
+    u = phase if phase <= 1.0 else 2.0 - phase  # 0..1..0
+    if stepped:
+        u = (np.floor(u * 8) + 0.5) / 8  # a two-axis gimbal: eight pitch steps, continuous yaw
+    z = 1.0 - 2.0 * u
+    r = np.sqrt(max(0.0, 1.0 - z * z))
+    phi = SPIN_RAD_S * t
+    return np.array([r * np.cos(phi), r * np.sin(phi), z])
+
+
+def attitude(motion: str, t: float, speed: float = 1.0, field_dir: NDArray | None = None) -> Rotation:
     """Body attitude (body → NED) at ``t`` seconds into a scripted motion.
 
-    ``tumble`` turns about all three axes at incommensurate rates, so it keeps sweeping new
-    orientations for as long as it runs; ``single_axis`` is the operator's classic mistake (yaw
-    only); ``gimbal`` is a two-axis fixture: continuous yaw, pitch stepping once per turn.
+    ``tumble`` turns the unit so the field sweeps the whole sphere in a spiral every
+    ``SWEEP_S / speed`` seconds (what a trained operator or a tumbling fixture achieves);
+    ``single_axis`` is the operator's classic mistake (yaw only); ``gimbal`` is a two-axis
+    fixture (continuous yaw, stepped pitch); ``still`` does not move.
     """
     t = t * speed
-    if motion == "tumble":
-        return Rotation.from_euler("ZYX", [1.10 * t, 0.73 * t, 0.47 * t])
     if motion == "single_axis":
         return Rotation.from_euler("Z", 1.2 * t)
-    if motion == "gimbal":
-        turn = int(1.2 * t // (2 * np.pi))
-        pitch = np.deg2rad([-75, -45, -15, 15, 45, 75, 90, -90][turn % 8])
-        return Rotation.from_euler("ZYX", [1.2 * t, pitch, 0.0])
     if motion == "still":
         return Rotation.identity()
-    raise ValueError(f"unknown motion {motion!r}; choose from {', '.join(MOTIONS)}")
+    if motion not in ("tumble", "gimbal"):
+        raise ValueError(f"unknown motion {motion!r}; choose from {', '.join(MOTIONS)}")
+    f = np.array([0.47, 0.0, 0.88]) if field_dir is None else field_dir / np.linalg.norm(field_dir)
+    body_dir = _spiral(t, stepped=motion == "gimbal")
+    view, _ = Rotation.align_vectors([body_dir], [f])  # maps the NED field direction into the body
+    return view.inv()
 
 
 def body_field(field_ned_ut: NDArray, motion: str, t: float, speed: float = 1.0) -> NDArray:
     """The local field as the body sees it at ``t``."""
-    return attitude(motion, t, speed).inv().apply(field_ned_ut)
+    return attitude(motion, t, speed, field_ned_ut).inv().apply(field_ned_ut)

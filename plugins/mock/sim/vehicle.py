@@ -173,7 +173,7 @@ class SimulatedAutopilot(ABC):
             self.link.close()
 
     def __enter__(self) -> SimulatedAutopilot:
-        return self.start()
+        return self if self._thread is not None else self.start()
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
@@ -413,6 +413,10 @@ class SimulatedAutopilot(ABC):
         msg_id = int(params[0])
         if msg_id == mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
             self.after_ack(self._send_version)
+            return ACCEPTED
+        if msg_id == mavlink.MAVLINK_MSG_ID_SYSTEM_TIME:
+            self.after_ack(lambda: self.mav.system_time_send(int(time.time() * 1e6),
+                                                             self.time_boot_ms(time.monotonic())))
             return ACCEPTED
         if msg_id in self.stream_sensor:
             self.after_ack(lambda: self._send_once(msg_id))

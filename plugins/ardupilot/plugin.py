@@ -1,0 +1,19 @@
+"""Registers the ``ardupilot`` DUT backend."""
+
+from __future__ import annotations
+
+from magline.core.dut import backend_options
+from magline.core.plugins import hookimpl
+from magline.core.station.schema import Product
+from magline.plugins.ardupilot.dut import ArduPilotDut
+from magline.plugins.ardupilot.options import ArduPilotOptions
+
+
+def create_ardupilot_dut(product: Product) -> ArduPilotDut:
+    options = backend_options(ArduPilotOptions, product, "ardupilot")
+    return ArduPilotDut(product, options)
+
+
+@hookimpl
+def magline_register_dut_backends(register):
+    register("ardupilot", create_ardupilot_dut)

@@ -1,0 +1,50 @@
+"""Station files pointed at a simulator on a free loopback port, for the backend tests."""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+from pathlib import Path
+
+import yaml
+from conftest import REPO, deep_update
+
+from magline.core.plugins import load_plugins
+from magline.core.record import RunRecord
+from magline.core.sequencer import Sequencer
+from magline.core.station import load_station
+
+FAST_ACQUISITION = {"samples": 400, "rate_hz": 200.0, "retry_delay_s": 0.0, "timeout_s": 30.0}
+
+
+def write_station(example: str, tmp_path: Path, address: str, options: dict | None = None,
+                  changes: dict | None = None) -> Path:
+    """``stations/<example>`` with the connection moved to ``address`` and a fast acquisition."""
+    cfg = yaml.safe_load((REPO / "stations" / example).read_text(encoding="utf-8"))
+    part = cfg["default_part"]
+    cfg = deep_update(cfg, {"products": {part: {"connection": address, "options": options or {}}},
+                            "acquisition": FAST_ACQUISITION,
+                            "results": {"path": str(tmp_path / "results.sqlite")}})
+    cfg = deep_update(cfg, changes or {})
+    path = tmp_path / "station.yaml"
+    path.write_text(yaml.safe_dump(cfg, sort_keys=False), encoding="utf-8")
+    return path
+
+
+def run_unit(station: Path, serial: str = "SN-1") -> RunRecord:
+    seq = Sequencer(load_station(station), load_plugins(), station.parent, sleep=lambda s: None)
+    try:
+        return seq.run_unit(serial)
+    finally:
+        seq.close()
+
+
+def stored_attempts(results: Path, serial: str) -> list[tuple[int, str]]:
+    """(samples, raw CSV) of every stored acquisition attempt of ``serial``."""
+    with sqlite3.connect(results) as db:
+        return db.execute("SELECT a.samples, a.raw_csv FROM attempts a JOIN runs r ON a.run_id = r.id "
+                          "WHERE r.serial = ?", (serial,)).fetchall()
+
+
+def load_json(path: Path) -> dict:
+    return json.loads(path.read_text(encoding="utf-8"))

@@ -1,0 +1,177 @@
+"""The ArduPilot backend end to end against the simulated ArduPilot over TCP on loopback."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from simstation import load_json, run_unit, stored_attempts, write_station
+
+from magline.core.record import Outcome
+from magline.plugins.ardupilot.calibration import HeldCalibration, fit_to_params
+from magline.plugins.mock.sim import SimFaults, create_sim
+
+OPTIONS = {"connect_timeout_s": 5.0, "boot_timeout_s": 10.0, "prearm_wait_s": 0.3}
+
+
+def start_sim(tmp_path, mags: int = 1, faults: SimFaults | None = None, stored: dict | None = None):
+    workdir = tmp_path / "fc"
+    workdir.mkdir()
+    if stored:
+        (workdir / "eeprom.json").write_text(__import__("json").dumps(stored), encoding="utf-8")
+    return create_sim("ardupilot", "tcp:127.0.0.1:0", workdir=workdir, mag_count=mags, seed=11,
+                      boot_time_s=0.3, speed=5.0, faults=faults).start()
+
+
+def test_units_and_sign_convention_at_the_plugin_boundary():
+    fit = SimpleNamespace(hard_iron_ut=np.array([1.0, -2.0, 30.0]),
+                          soft_iron=np.array([[1.1, 0.01, 0.02], [0.01, 0.9, 0.03], [0.02, 0.03, 1.0]]))
+    params = fit_to_params(fit, "2")
+    assert [params[f"COMPASS_OFS2_{a}"] for a in "XYZ"] == pytest.approx([-10.0, 20.0, -300.0])  # mG, added
+    assert [params[f"COMPASS_DIA2_{a}"] for a in "XYZ"] == pytest.approx([1.1, 0.9, 1.0])
+    assert [params[f"COMPASS_ODI2_{a}"] for a in "XYZ"] == pytest.approx([0.01, 0.02, 0.03])
+    assert params["COMPASS_SCALE2"] == 1.0
+
+
+def test_inverse_correction_matches_the_simulated_firmware(tmp_path, rng):
+    """The backend undoes exactly what the (independently written) simulator applies."""
+    with start_sim(tmp_path) as sim:
+        for scale in (0.0, 1.2, 2.0):  # 2.0 is outside [1/1.5, 1.5]: the firmware ignores it
+            values = {"COMPASS_OFS_X": 120.0, "COMPASS_OFS_Y": -40.0, "COMPASS_OFS_Z": 300.0,
+                      "COMPASS_DIA_X": 1.05, "COMPASS_DIA_Y": 0.97, "COMPASS_DIA_Z": 1.01,
+                      "COMPASS_ODI_X": 0.02, "COMPASS_ODI_Y": -0.01, "COMPASS_ODI_Z": 0.03, "COMPASS_SCALE": scale}
+            for name, value in values.items():
+                sim.table.set(name, value)
+            raw_mg = rng.normal(scale=400, size=(20, 3))
+            corrected = np.array([sim.correct_mg(0, r) for r in raw_mg])
+            held = HeldCalibration.from_params(values, "")
+            assert held.raw_ut(corrected) == pytest.approx(raw_mg / 10.0, abs=1e-3)
+
+
+def test_end_to_end_pass_writes_the_fit_and_it_survives_the_reboot(tmp_path):
+    with start_sim(tmp_path) as sim:
+        record = run_unit(write_station("ardupilot-sim.yaml", tmp_path, sim.address, OPTIONS))
+        assert record.verdict is Outcome.PASS, record.cause
+        h = np.array(record.calibration["hard_iron_ut"])
+        s = np.array(record.calibration["soft_iron"])
+        stored = load_json(sim.storage_path)
+        assert [stored[f"COMPASS_OFS_{a}"] for a in "XYZ"] == pytest.approx(-10 * h, abs=1e-4, rel=1e-6)
+        assert [stored[f"COMPASS_DIA_{a}"] for a in "XYZ"] == pytest.approx(np.diag(s), abs=1e-4)
+        assert [stored[f"COMPASS_ODI_{a}"] for a in "XYZ"] == pytest.approx([s[0, 1], s[0, 2], s[1, 2]], abs=1e-4)
+        assert stored["COMPASS_DEV_ID"] == sim.magnetometers[0].device_id  # force-saved
+        assert sim.boots == 2  # it really rebooted
+        radius = np.linalg.norm(sim.corrected_sphere(sim.magnetometers[0].device_id), axis=1)
+        assert abs(radius.mean() - sim.field_ut) < 0.3 and radius.std() < 0.6  # a sphere within the noise
+        assert np.linalg.norm(h - sim.magnetometers[0].hard_iron_ut) < 1.0
+        assert record.params_before["COMPASS_OFS_X"] == 0.0
+        assert record.params_read_back == pytest.approx(record.params_written, rel=1e-6, abs=1e-4)
+        assert record.persistence["method"] == "mavlink-reboot"
+        assert record.persistence["figures"]["time_to_heartbeat_s"] > 0
+
+
+def test_three_compasses_with_reordered_priorities_calibrates_the_named_one(tmp_path):
+    # the other two compasses are not used for navigation here (else ArduPilot's arming check would,
+    # rightly, fail the unit for them: a line calibrates every compass it uses)
+    with start_sim(tmp_path, mags=3, stored={"COMPASS_PRIO1_ID": 4395033, "COMPASS_PRIO2_ID": 396809,
+                                             "COMPASS_PRIO3_ID": 458786, "COMPASS_USE": 0,
+                                             "COMPASS_USE3": 0}) as sim:
+        target = sim.sensor(396809)
+        assert sim.sets.index(target) == 1  # the named sensor sits in set 2 after the boot reorder
+        record = run_unit(write_station("ardupilot-sim.yaml", tmp_path, sim.address, OPTIONS,
+                                        {"products": {"AP-QUAD-200": {"magnetometer": 396809}}}))
+        assert record.verdict is Outcome.PASS, record.cause
+        assert record.unit_info["compass_set"] == 2
+        stored = load_json(sim.storage_path)
+        assert stored["COMPASS_OFS2_X"] == pytest.approx(-10 * record.calibration["hard_iron_ut"][0], rel=1e-6)
+        assert not any(k.startswith(("COMPASS_OFS_", "COMPASS_OFS3_", "COMPASS_DIA_", "COMPASS_DIA3_"))
+                       for k in stored)  # the other sets untouched
+        assert np.linalg.norm(np.array(record.calibration["hard_iron_ut"]) - target.hard_iron_ut) < 1.0
+
+
+def test_a_magnetometer_the_unit_does_not_have_fails_with_the_ids_it_has(tmp_path):
+    with start_sim(tmp_path, mags=2) as sim:
+        record = run_unit(write_station("ardupilot-sim.yaml", tmp_path, sim.address, OPTIONS,
+                                        {"products": {"AP-QUAD-200": {"magnetometer": 12345}}}))
+        assert record.verdict is Outcome.FAIL
+        assert "magnetometer 12345 is not on this unit; it has 396809, 458786" in record.cause
+
+
+def test_dev_id_trap_is_caught_by_verify_when_the_force_save_is_disabled(tmp_path):
+    with start_sim(tmp_path) as sim:
+        record = run_unit(write_station("ardupilot-sim.yaml", tmp_path, sim.address,
+                                        {**OPTIONS, "force_save_device_ids": False}))
+        assert record.verdict is Outcome.FAIL
+        assert [p.name for p in record.phases if p.outcome is Outcome.FAIL] == ["verify"]
+        assert "PreArm: Compass not calibrated" in record.cause
+
+
+def test_ignored_parameter_fails_the_unit_and_rolls_back(tmp_path):
+    with start_sim(tmp_path, faults=SimFaults(ignore_param_set=["COMPASS_ODI_Y"])) as sim:
+        record = run_unit(write_station("ardupilot-sim.yaml", tmp_path, sim.address, OPTIONS), "SN-ODI")
+        assert record.verdict is Outcome.FAIL
+        assert "COMPASS_ODI_Y" in record.cause and "no echo" in record.cause
+        assert "previous values restored" in record.cause
+        stored = load_json(sim.storage_path)
+        assert not any(k.startswith(("COMPASS_OFS_", "COMPASS_DIA_")) for k in stored)  # nothing half-written
+        assert stored_attempts(tmp_path / "results.sqlite", "SN-ODI")[0][0] == 400  # raw data kept
+
+
+def test_lost_link_mid_acquisition_fails_and_keeps_the_raw_data(tmp_path):
+    with start_sim(tmp_path, faults=SimFaults(link_loss_after_s=0.6)) as sim:
+        record = run_unit(write_station("ardupilot-sim.yaml", tmp_path, sim.address,
+                                        {**OPTIONS, "stream_timeout_s": 0.5}), "SN-LINK")
+        assert record.verdict is Outcome.FAIL
+        assert "link lost during acquisition" in record.cause and "raw data kept" in record.cause
+        (samples, raw_csv), = stored_attempts(tmp_path / "results.sqlite", "SN-LINK")
+        assert samples > 10 and raw_csv.count("\n") == samples + 1
+        assert not any(k.startswith("COMPASS_OFS") for k in load_json(sim.storage_path)) \
+            if sim.storage_path.exists() else True
+
+
+def test_missing_compass_after_reboot_fails_the_unit(tmp_path):
+    with start_sim(tmp_path, faults=SimFaults(mag_missing_after_reboot=396809)) as sim:
+        record = run_unit(write_station("ardupilot-sim.yaml", tmp_path, sim.address, OPTIONS), "SN-GONE")
+        assert record.verdict is Outcome.FAIL
+        assert "magnetometer 396809 missing after power cycle" in record.cause
+        assert stored_attempts(tmp_path / "results.sqlite", "SN-GONE")
+
+
+def test_offsets_beyond_compass_offs_max_are_refused_before_writing(tmp_path):
+    with start_sim(tmp_path, stored={"COMPASS_OFFS_MAX": 200}) as sim:
+        record = run_unit(write_station("ardupilot-sim.yaml", tmp_path, sim.address, OPTIONS))
+        assert record.verdict is Outcome.FAIL
+        assert "exceeds COMPASS_OFFS_MAX = 200 mG" in record.cause
+        assert set(load_json(sim.storage_path)) == {"COMPASS_OFFS_MAX"}  # nothing written
+
+
+def test_no_vehicle_at_the_address_fails_with_a_clear_message(tmp_path):
+    import socket
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    record = run_unit(write_station("ardupilot-sim.yaml", tmp_path, f"tcp:127.0.0.1:{port}",
+                                    {**OPTIONS, "connect_timeout_s": 1.0}))
+    assert record.verdict is Outcome.FAIL
+    assert f"no ArduPilot vehicle answered on tcp:127.0.0.1:{port} within 1 s" in record.cause
+
+
+def test_compass_learn_is_switched_off_during_the_test_and_restored(tmp_path):
+    with start_sim(tmp_path, stored={"COMPASS_LEARN": 3}) as sim:
+        seen: list[int] = []
+        from magline.core.plugins import hookimpl, load_plugins
+        from magline.core.sequencer import Sequencer
+        from magline.core.station import load_station
+
+        class Spy:
+            @hookimpl
+            def magline_phase_started(self, run, phase):
+                if phase == "fit":
+                    seen.append(sim.param("COMPASS_LEARN"))
+
+        station = write_station("ardupilot-sim.yaml", tmp_path, sim.address, OPTIONS)
+        seq = Sequencer(load_station(station), load_plugins(extra=[Spy()]), tmp_path, sleep=lambda s: None)
+        record = seq.run_unit("SN-LEARN")
+        seq.close()
+        assert record.verdict is Outcome.PASS, record.cause
+        assert seen == [0] and sim.param("COMPASS_LEARN") == 3
