@@ -12,6 +12,7 @@ convention happens inside :meth:`DutBackend.calibration_params`.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Literal, Protocol, TypeVar, runtime_checkable
@@ -95,6 +96,32 @@ class DutBackend(Protocol):
 DutFactory = Callable[["Product"], DutBackend]
 
 OptionsModel = TypeVar("OptionsModel", bound=BaseModel)
+
+
+def await_new_boot(reconnect: Callable[[float], None], uptime_s: Callable[[], float | None], started: float,
+                   timeout_s: float, poll_s: float = 0.3) -> tuple[float, float]:
+    """After a reboot / power-on at ``started`` (monotonic), reconnect until the vehicle proves a new boot.
+
+    Why the uptime check: right after the command the old boot may still answer (PX4 waits 400 ms,
+    a UDP link never closes), and a read-back from it would prove nothing.  A boot whose uptime is
+    shorter than the time since the command is the new one.  ``reconnect(remaining_s)`` opens a
+    fresh link or raises :class:`DutError`; ``uptime_s()`` returns the vehicle's uptime or ``None``.
+    Returns (seconds from the command to the new boot's link, its uptime then).
+    """
+    deadline = started + timeout_s
+    while True:
+        time.sleep(poll_s)
+        try:
+            reconnect(max(deadline - time.monotonic(), 0.1))
+        except DutError:
+            raise DutError(f"the vehicle did not come back within {timeout_s:g} s of the power cycle") from None
+        reconnected = time.monotonic() - started
+        uptime = uptime_s()
+        if uptime is not None and uptime < reconnected:
+            return reconnected, uptime
+        if time.monotonic() > deadline:
+            raise DutError(f"the vehicle still runs its old boot {timeout_s:g} s after the reboot command "
+                           "(reboot refused?)")
 
 
 def backend_options(model: type[OptionsModel], product: Product, backend: str) -> OptionsModel:

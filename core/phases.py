@@ -124,12 +124,26 @@ def magline_persist(run: RunContext, fit: FitResult) -> PersistReport:
 
 
 def _roll_back(run: RunContext, before: dict[str, ParamValue]) -> str:
-    """A write failed part-way: put the previous values back so no half calibration stays behind."""
-    try:
-        run.require_dut().write_params(before)
-    except Exception as exc:  # the link may be what failed; say so rather than hide it
-        run.log(f"rollback failed: {type(exc).__name__}: {exc}")
-        return "ROLLBACK FAILED — the unit may hold a partial calibration; quarantine it"
+    """A write failed part-way: put the previous values back so no half calibration stays behind.
+
+    Each parameter on its own: the one that was refused usually still holds its old value, which
+    a read confirms; only a parameter that is neither restored nor unchanged is a real problem."""
+    dut = run.require_dut()
+    stuck = []
+    for name, value in before.items():
+        try:
+            dut.write_params({name: value})
+        except Exception:
+            try:
+                now = dut.read_params([name]).get(name)
+            except Exception:
+                now = None
+            if now is None or not _same(value, now):
+                stuck.append(f"{name} = {now!r} (was {value!r})")
+    if stuck:
+        run.log("rollback failed for " + "; ".join(stuck))
+        return "ROLLBACK FAILED for " + ", ".join(s.split(" =")[0] for s in stuck) + \
+            " — the unit may hold a partial calibration; quarantine it"
     run.log(f"rolled back {len(before)} parameters to their previous values")
     return "previous values restored"
 

@@ -15,7 +15,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from magline.core.dut import DutError, ParamValue, SampleChunk, UnitInfo
+from magline.core.dut import DutError, ParamValue, SampleChunk, UnitInfo, await_new_boot
 from magline.core.fit import FitResult
 from magline.core.station.schema import Product
 from magline.plugins.ardupilot.calibration import (
@@ -163,22 +163,12 @@ class ArduPilotDut:
         start = time.monotonic()
         self.link.require_accepted(ML.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, "reboot", 1)
         self.link.close()  # ArduPilot drops the connection; a fresh one proves the new boot
-        deadline = start + self.opts.boot_timeout_s
-        while True:
-            time.sleep(0.2)
-            try:
-                self.link.open(max(deadline - time.monotonic(), 0.1))
-            except DutError:
-                raise DutError(f"the vehicle did not come back within {self.opts.boot_timeout_s:g} s "
-                               "of the reboot command") from None
-            reconnected = time.monotonic() - start
-            uptime = self._uptime_s()
-            if uptime is not None and uptime < reconnected:
-                break  # a boot younger than the command: this is the new boot
+
+        def reconnect(remaining_s: float) -> None:
             self.link.close()
-            if time.monotonic() > deadline:
-                raise DutError(f"the vehicle kept running its old boot {self.opts.boot_timeout_s:g} s after "
-                               "the reboot command (reboot refused?)")
+            self.link.open(remaining_s)
+
+        reconnected, uptime = await_new_boot(reconnect, self._uptime_s, start, self.opts.boot_timeout_s)
         self._read_ids()
         if self.device_id in self.ids.values():
             self.suffix = self._suffix_of(self.device_id)

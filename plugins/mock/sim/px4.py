@@ -56,12 +56,13 @@ class Px4Sim(SimulatedAutopilot):
         mavlink.MAVLINK_MSG_ID_SCALED_IMU: 0, mavlink.MAVLINK_MSG_ID_SCALED_IMU2: 1,
         mavlink.MAVLINK_MSG_ID_SCALED_IMU3: 2, mavlink.MAVLINK_MSG_ID_HIGHRES_IMU: 0}
     AUTOSAVE_DELAY_S = 0.3
-    AUTOSAVE_INTERVAL_S = 2.0
     REBOOT_DELAY_S = 0.4
 
-    def __init__(self, *args: Any, firmware: str = "1.15.0", autocal_after_s: float = 30.0, **kwargs: Any) -> None:
+    def __init__(self, *args: Any, firmware: str = "1.15.0", autocal_after_s: float = 30.0,
+                 autosave_interval_s: float = 2.0, **kwargs: Any) -> None:
         self.firmware_version = tuple(int(x) for x in firmware.split("."))[:3]  # type: ignore[assignment]
         self.autocal_after_s = autocal_after_s
+        self.autosave_interval_s = autosave_interval_s  # PX4: 2 s; a test may stretch it
         self._save_due: float | None = None
         self._last_save = -1e9
         self._saving: tuple[float, dict[str, ParamValue]] | None = None  # (finishes at, snapshot)
@@ -95,7 +96,7 @@ class Px4Sim(SimulatedAutopilot):
         if not spec.is_int and not np.isfinite(value):
             return
         if self.table.set(name, value) and self._save_due is None:
-            self._save_due = max(time.monotonic() + self.AUTOSAVE_DELAY_S, self._last_save + self.AUTOSAVE_INTERVAL_S)
+            self._save_due = max(time.monotonic() + self.AUTOSAVE_DELAY_S, self._last_save + self.autosave_interval_s)
         self.send_param(name)
 
     def load_from_storage(self, stored: dict[str, ParamValue]) -> None:
@@ -167,7 +168,7 @@ class Px4Sim(SimulatedAutopilot):
             for axis, h in zip(AXES, sensor.hard_iron_ut, strict=True):
                 self.table.set(f"{p}{axis}OFF", round(h / 100.0, 2))  # a coarse online estimate
             if self._save_due is None:
-                self._save_due = max(now + self.AUTOSAVE_DELAY_S, self._last_save + self.AUTOSAVE_INTERVAL_S)
+                self._save_due = max(now + self.AUTOSAVE_DELAY_S, self._last_save + self.autosave_interval_s)
 
     # ------------------------------------------------------------------ streams
     def stream_message(self, msg_id: int, now: float) -> Any | None:

@@ -1,0 +1,54 @@
+"""PX4's calibration parameters: slot choice by device id, the fit → CAL_MAGn_* mapping.
+
+Conventions (``shared/reference`` §0–§3): PX4 stores offsets in Gauss and *subtracts* them,
+``m = S·(raw − OFF)`` in the sensor frame, so with magline's ``S·(m_raw − h)`` in µT:
+OFF = h/100, SCALE = diag(S), XODIAG = S12, YODIAG = S13, ZODIAG = S23 (ODIAG from 1.12 only).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from magline.core.dut import DutError, ParamValue
+from magline.core.fit import FitResult
+
+SLOTS = 4
+AXES = ("X", "Y", "Z")
+UT_PER_GAUSS = 100.0
+INT_SUFFIXES = ("_ID", "_PRIO", "_ROT")
+INT_PARAMS = {"SENS_MAG_AUTOCAL", "MBE_ENABLE", "SENS_MAG_MODE", "SENS_MAG_SIDES", "SENS_BOARD_ROT"}
+ODIAG_SINCE = (1, 12, 0)
+PRIO_EXTERNAL, PRIO_INTERNAL = 75, 50
+
+
+def is_int_param(name: str) -> bool:
+    return name in INT_PARAMS or name.endswith(INT_SUFFIXES)
+
+
+def choose_slot(slot_ids: list[int], device_id: int, preferred: int) -> int:
+    """PX4's own rule (FindAvailableCalibrationIndex): the slot already holding the id, else the
+    preferred slot (the sensor's uORB instance) if free, else the first free one — never by position."""
+    if device_id in slot_ids:
+        return slot_ids.index(device_id)
+    if 0 <= preferred < len(slot_ids) and slot_ids[preferred] == 0:
+        return preferred
+    if 0 in slot_ids:
+        return slot_ids.index(0)
+    raise DutError(f"no free CAL_MAG slot for magnetometer {device_id}: the slots hold "
+                   f"{', '.join(map(str, slot_ids))} (clear stale slots: set their CAL_MAGn_ID to 0)")
+
+
+def fit_to_params(fit: FitResult, slot: int, device_id: int, prio: int, with_odiag: bool) -> dict[str, ParamValue]:
+    p = f"CAL_MAG{slot}_"
+    s = np.asarray(fit.soft_iron)
+    if not with_odiag:
+        off = np.abs(s - np.diag(np.diag(s))).max()
+        if off > 1e-9:
+            raise DutError(f"this firmware has no CAL_MAGn_xODIAG; a full soft-iron fit (off-diagonal up to "
+                           f"{off:.4f}) cannot be written — fit the diagonal model")
+    params: dict[str, ParamValue] = {p + "ID": int(device_id), p + "PRIO": int(prio)}
+    params |= {f"{p}{a}OFF": float(v) / UT_PER_GAUSS for a, v in zip(AXES, fit.hard_iron_ut, strict=True)}
+    params |= {f"{p}{a}SCALE": float(v) for a, v in zip(AXES, np.diag(s), strict=True)}
+    if with_odiag:
+        params |= {p + "XODIAG": float(s[0, 1]), p + "YODIAG": float(s[0, 2]), p + "ZODIAG": float(s[1, 2])}
+    return params

@@ -1,0 +1,192 @@
+"""The PX4 DUT backend: calibrate one magnetometer through MAVSDK, persist, prove it survived.
+
+Sequence as the core's phases drive it: connect (discovery, firmware, sensors by device id
+through the MAVLink shell, calibration slot by id) → prepare (SENS_MAG_AUTOCAL off) → samples
+(SCALED_IMU/2/3 of the sensor's uORB instance: raw, mG) → parameters (CAL_MAGn_* of the slot)
+→ commit (MAV_CMD_PREFLIGHT_STORAGE param1 = 1) → reboot, fresh link, read back → restore.
+
+The online bias estimator (MBE_ENABLE) is left alone: it acts on the calibrated
+vehicle_magnetometer (HIGHRES_IMU), not on the raw sensor_mag that SCALED_IMU carries, and a
+change would need a reboot to take effect.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import queue
+import re
+import time
+from collections.abc import Iterator
+
+import numpy as np
+
+from magline.core.dut import DutError, ParamValue, SampleChunk, UnitInfo, await_new_boot
+from magline.core.fit import FitResult
+from magline.core.station.schema import Product
+from magline.plugins.px4.calibration import (
+    ODIAG_SINCE,
+    PRIO_EXTERNAL,
+    PRIO_INTERNAL,
+    SLOTS,
+    choose_slot,
+    fit_to_params,
+    is_int_param,
+)
+from magline.plugins.px4.link import Px4Link
+from magline.plugins.px4.options import Px4Options
+
+STREAMS = (("SCALED_IMU", 26), ("SCALED_IMU2", 116), ("SCALED_IMU3", 129))  # uORB sensor_mag instance 0/1/2
+MAV_CMD_SET_MESSAGE_INTERVAL, MAV_CMD_REQUEST_MESSAGE, MAV_CMD_PREFLIGHT_STORAGE = 511, 512, 245
+SYSTEM_TIME = ("SYSTEM_TIME", 2)
+MG_PER_UT = 10.0
+CHUNK = 10
+DEVICE_ID = re.compile(r"device_id:\s*(\d+)")
+EXTERNAL = re.compile(r"is_external:\s*(\w+)")
+
+
+class Px4Dut:
+    def __init__(self, product: Product, options: Px4Options) -> None:
+        self.product = product
+        self.opts = options
+        self.link = Px4Link(product.connection, connect_timeout_s=options.connect_timeout_s)
+        self.sensors: list[tuple[int, bool]] = []  # (device id, external) per sensor_mag instance
+        self.device_id = 0
+        self.instance = 0
+        self.slot = 0
+        self.with_odiag = True
+        self._saved_autocal: int | None = None
+
+    # ------------------------------------------------------------------ link
+    def connect(self) -> UnitInfo:
+        self.link.open()
+        version = self.link.firmware()
+        firmware = ".".join(map(str, version)) if version else "unknown"
+        self.with_odiag = version >= ODIAG_SINCE if version else self._has_param("CAL_MAG0_XODIAG")
+        self.sensors = self._discover()
+        if not self.sensors:
+            raise DutError("the PX4 shell lists no sensor_mag instance: no magnetometer detected")
+        self.device_id = self._selected_id()
+        self.instance = [d for d, _ in self.sensors].index(self.device_id)
+        slot_ids = [int(self.link.get(f"CAL_MAG{n}_ID", True)) for n in range(SLOTS)]
+        self.slot = choose_slot(slot_ids, self.device_id, preferred=self.instance)
+        prio = int(self.link.get(f"CAL_MAG{self.slot}_PRIO", True))
+        self.prio = prio if prio >= 1 else (PRIO_EXTERNAL if self.sensors[self.instance][1] else PRIO_INTERNAL)
+        return UnitInfo(autopilot="PX4", firmware=firmware, sensors=[d for d, _ in self.sensors],
+                        selected_sensor=self.device_id, soft_iron_model="full" if self.with_odiag else "diagonal",
+                        extra={"cal_slot": self.slot, "sensor_instance": self.instance})
+
+    def _has_param(self, name: str) -> bool:
+        try:
+            self.link.get(name, False)
+            return True
+        except DutError:
+            return False
+
+    def _discover(self) -> list[tuple[int, bool]]:
+        """Device id of each sensor_mag instance, from the MAVLink shell (SCALED_IMU carries none)."""
+        found = []
+        for instance in range(len(STREAMS)):
+            out = self.link.shell(f"listener sensor_mag -i {instance} -n 1")
+            match = DEVICE_ID.search(out)
+            if match is None:
+                break
+            ext = EXTERNAL.search(out)
+            found.append((int(match.group(1)), bool(ext and ext.group(1) in ("True", "1"))))
+        return found
+
+    def _selected_id(self) -> int:
+        ids = [d for d, _ in self.sensors]
+        wanted = self.product.magnetometer
+        if wanted == "primary":
+            return ids[0]
+        if not isinstance(wanted, int) and not str(wanted).isdigit():
+            raise DutError(f"magnetometer {wanted!r}: give a device id or 'primary'")
+        if int(wanted) not in ids:
+            raise DutError(f"magnetometer {wanted} is not on this unit; it has {', '.join(map(str, ids))}")
+        return int(wanted)
+
+    def close(self) -> None:
+        self.link.close()
+
+    # ------------------------------------------------------------------ prepare / restore
+    def prepare(self) -> None:
+        autocal = int(self.link.get("SENS_MAG_AUTOCAL", True))
+        if autocal != 0:  # the firmware must not write its own calibration into a slot meanwhile
+            self.link.set("SENS_MAG_AUTOCAL", 0, True)
+            self._saved_autocal = autocal
+
+    def restore(self) -> None:
+        if self._saved_autocal is not None and self.link.is_open:
+            self.link.set("SENS_MAG_AUTOCAL", self._saved_autocal, True)
+            self._saved_autocal = None
+            self.commit()  # else a power-off right after the station leaves it switched off
+
+    # ------------------------------------------------------------------ data
+    def samples(self, rate_hz: float) -> Iterator[SampleChunk]:
+        kind, msg_id = STREAMS[self.instance]
+        inbox, handle = self.link.subscribe(kind)
+        self.link.require_accepted(MAV_CMD_SET_MESSAGE_INTERVAL, f"{kind} stream request", msg_id, 1e6 / rate_hz)
+        try:
+            rows: list[tuple[float, float, float]] = []
+            times: list[float] = []
+            while True:
+                try:
+                    msg = inbox.get(timeout=self.opts.stream_timeout_s)
+                except queue.Empty:
+                    raise DutError(f"no {kind} from the vehicle for {self.opts.stream_timeout_s:g} s: "
+                                   "link lost during acquisition") from None
+                rows.append((msg["xmag"], msg["ymag"], msg["zmag"]))
+                times.append(float(msg["time_boot_ms"]))
+                if len(rows) >= CHUNK:
+                    yield SampleChunk(mag_ut=np.array(rows, float) / MG_PER_UT, t_ms=np.array(times))
+                    rows, times = [], []
+        finally:
+            with contextlib.suppress(DutError):  # a lost link stops the stream by itself
+                self.link.command(MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, -1)
+            self.link.unsubscribe(handle)
+
+    # ------------------------------------------------------------------ parameters
+    def calibration_params(self, fit: FitResult) -> dict[str, ParamValue]:
+        return fit_to_params(fit, self.slot, self.device_id, self.prio, self.with_odiag)
+
+    def read_params(self, names: list[str]) -> dict[str, ParamValue]:
+        return {n: self.link.get(n, is_int_param(n)) for n in names}
+
+    def write_params(self, params: dict[str, ParamValue]) -> dict[str, ParamValue]:
+        return {n: self.link.set(n, v, is_int_param(n)) for n, v in params.items()}
+
+    def commit(self) -> None:
+        """Force the save: the echo only means "in RAM", and autosave may be held back 2 s."""
+        if self.opts.force_save:  # param1 = 1 saves; 3 would reset every calibration
+            self.link.require_accepted(MAV_CMD_PREFLIGHT_STORAGE, "forced parameter save", 1)
+
+    # ------------------------------------------------------------------ power cycle and proof
+    def power_cycle(self) -> dict[str, float | str]:
+        start = time.monotonic()
+        self.link.reboot()
+        # a fresh MAVSDK instance per try: nothing cached from the old boot can answer a read
+        reconnected, uptime = await_new_boot(self.link.reopen, self._uptime_s, start, self.opts.boot_timeout_s)
+        self.sensors = self._discover()
+        return {"method": "mavlink-reboot", "time_to_heartbeat_s": reconnected, "uptime_at_reconnect_s": uptime}
+
+    def _uptime_s(self) -> float | None:
+        inbox, handle = self.link.subscribe(SYSTEM_TIME[0])
+        try:
+            self.link.require_accepted(MAV_CMD_REQUEST_MESSAGE, "SYSTEM_TIME request", SYSTEM_TIME[1])
+            return inbox.get(timeout=2.0)["time_boot_ms"] / 1000.0
+        except queue.Empty:
+            return None
+        finally:
+            self.link.unsubscribe(handle)
+
+    def selected_sensor_present(self) -> bool:
+        return self.device_id in [d for d, _ in self.sensors]
+
+    def persistence_problems(self) -> list[str]:
+        """The firmware uses the *first* slot whose ID matches; it must be the one written."""
+        ids = [int(self.link.get(f"CAL_MAG{n}_ID", True)) for n in range(SLOTS)]
+        used = ids.index(self.device_id) if self.device_id in ids else None
+        if used == self.slot:
+            return []
+        where = "no slot" if used is None else f"CAL_MAG{used}"
+        return [f"magnetometer {self.device_id} is calibrated by {where}, not by the written CAL_MAG{self.slot}"]

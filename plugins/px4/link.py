@@ -1,0 +1,176 @@
+"""A MAVSDK (4.x, in-process) link to a PX4 vehicle, with what MAVSDK lacks done over its
+raw-MAVLink plugin (``MavlinkDirect``): SCALED_IMU2/3, PREFLIGHT_STORAGE, SET_MESSAGE_INTERVAL.
+
+Two MAVSDK behaviours matter for a factory tool:
+- its parameter client *caches* values; a read after a reboot can be answered from the cache of
+  the previous boot without a single packet on the link.  A read-back that proves persistence
+  therefore needs a fresh ``Mavsdk`` instance after the power cycle (:meth:`Px4Link.reopen`);
+- ``set_param_*`` already waits for an echo of the same type and value and retries, and a
+  PARAM_SET that PX4 drops (wrong type, unknown name) ends in ``TIMEOUT``.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import queue
+import threading
+import time
+from typing import Any
+
+from mavsdk import ComponentType, Configuration, ConnectionResult, Mavsdk, log_subscribe
+from mavsdk.autopilot import Autopilot
+from mavsdk.plugins.action.action import Action, ActionError
+from mavsdk.plugins.info.info import Info
+from mavsdk.plugins.mavlink_direct.mavlink_direct import MavlinkDirect, MavlinkDirectError, MavlinkMessage
+from mavsdk.plugins.param.param import Param, ParamError
+from mavsdk.plugins.shell.shell import Device, Shell
+
+from magline.core.dut import DutError
+
+log = logging.getLogger("magline.px4.mavsdk")
+GCS_SYSTEM, GCS_COMPONENT = 245, 190  # MAVSDK's ground-station identity
+RESULTS = {0: "ACCEPTED", 1: "TEMPORARILY_REJECTED", 2: "DENIED", 3: "UNSUPPORTED", 4: "FAILED",
+           5: "IN_PROGRESS", 6: "CANCELLED"}
+SHELL_PROMPT = "nsh> "
+
+_routed = False
+
+
+def _route_mavsdk_logs() -> None:
+    """MAVSDK prints to stdout; send it to Python logging instead (once per process)."""
+    global _routed
+    if not _routed:
+        levels = {0: logging.DEBUG, 1: logging.INFO, 2: logging.WARNING, 3: logging.ERROR}
+        log_subscribe(lambda level, message, *_: log.log(levels.get(int(level), logging.INFO), message) or True)
+        _routed = True
+
+
+class Px4Link:
+    def __init__(self, url: str, *, connect_timeout_s: float = 10.0) -> None:
+        self.url = url
+        self.connect_timeout_s = connect_timeout_s
+        self.mavsdk: Mavsdk | None = None
+        self.system: Any = None
+        self.target_system = 1
+        self._shell_out: queue.Queue[str] = queue.Queue()
+        self._shell_lock = threading.Lock()
+
+    # ------------------------------------------------------------------ connection
+    def open(self, timeout_s: float | None = None) -> None:
+        _route_mavsdk_logs()
+        timeout_s = self.connect_timeout_s if timeout_s is None else timeout_s
+        self.mavsdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
+        result = self.mavsdk.add_any_connection(self.url)
+        if result != ConnectionResult.SUCCESS:
+            self.close()
+            raise DutError(f"cannot open {self.url}: {ConnectionResult(result).name} "
+                           "(expected udpin://HOST:PORT, udpout://HOST:PORT, tcpout://HOST:PORT or serial://DEV:BAUD)")
+        self.system = self.mavsdk.first_autopilot(timeout_s)
+        if self.system is None:
+            self.close()
+            raise DutError(f"no PX4 vehicle answered on {self.url} within {timeout_s:g} s")
+        if self.system.autopilot_type() != Autopilot.PX4:
+            kind = Autopilot(self.system.autopilot_type()).name
+            self.close()
+            raise DutError(f"the vehicle on {self.url} is {kind}, not PX4; check the product's backend")
+        self.target_system = self.system.get_system_id()
+        self.param = Param(self.system)
+        self.action = Action(self.system)
+        self.info = Info(self.system)
+        self.direct = MavlinkDirect(self.system)
+        self.shell_plugin = Shell(self.system)
+        self.shell_plugin.subscribe_receive(lambda data, _: self._shell_out.put(data.data))
+
+    def reopen(self, timeout_s: float) -> None:
+        """A new MAVSDK instance: nothing cached from the previous boot can answer a read."""
+        self.close()
+        self.open(timeout_s)
+
+    def close(self) -> None:
+        if self.mavsdk is not None:
+            self.mavsdk.destroy()
+        self.mavsdk = None
+        self.system = None
+
+    @property
+    def is_open(self) -> bool:
+        return self.system is not None
+
+    def firmware(self) -> tuple[int, int, int] | None:
+        for _ in range(10):  # AUTOPILOT_VERSION arrives shortly after discovery
+            try:
+                v = self.info.get_version()
+                return v.flight_sw_major, v.flight_sw_minor, v.flight_sw_patch
+            except Exception:  # InfoError while the information is not in yet
+                time.sleep(0.1)
+        return None
+
+    # ------------------------------------------------------------------ parameters
+    def get(self, name: str, is_int: bool) -> int | float:
+        try:
+            return self.param.get_param_int(name) if is_int else self.param.get_param_float(name)
+        except ParamError as exc:
+            raise DutError(f"parameter {name} could not be read: {exc.result.name}") from exc
+
+    def set(self, name: str, value: int | float, is_int: bool) -> int | float:
+        """PARAM_SET with the exact type (INT32 byte-wise or REAL32); return the value read afterwards."""
+        try:
+            if is_int:
+                self.param.set_param_int(name, int(value))
+            else:
+                self.param.set_param_float(name, float(value))
+        except ParamError as exc:
+            hint = (" — PX4 drops a PARAM_SET of an unknown name or the wrong type without a reply"
+                    if exc.result.name == "TIMEOUT" else "")
+            raise DutError(f"PARAM_SET {name} = {value!r} not confirmed: {exc.result.name}{hint}") from exc
+        return self.get(name, is_int)
+
+    # ------------------------------------------------------------------ commands and raw messages
+    def command(self, command: int, *params: float) -> int:
+        p = [*params, *([0.0] * (7 - len(params)))]
+        fields = {"target_system": self.target_system, "target_component": 1, "command": command,
+                  "confirmation": 0, **{f"param{i + 1}": v for i, v in enumerate(p)}}
+        try:
+            ack = self.direct.send_command(MavlinkMessage("COMMAND_LONG", GCS_SYSTEM, GCS_COMPONENT,
+                                                          self.target_system, 1, json.dumps(fields)))
+        except MavlinkDirectError as exc:
+            raise DutError(f"command {command} got no COMMAND_ACK ({exc.result.name})") from exc
+        return int(json.loads(ack.fields_json)["result"])
+
+    def require_accepted(self, command: int, what: str, *params: float) -> None:
+        result = self.command(command, *params)
+        if result != 0:
+            raise DutError(f"{what} refused by the autopilot: {RESULTS.get(result, result)}")
+
+    def subscribe(self, message: str) -> tuple[queue.Queue[dict], Any]:
+        """Every ``message`` as a dict of its fields, into a queue; returns (queue, handle)."""
+        inbox: queue.Queue[dict] = queue.Queue()
+        handle = self.direct.subscribe_message(message, lambda msg, _: inbox.put(json.loads(msg.fields_json)))
+        return inbox, handle
+
+    def unsubscribe(self, handle: Any) -> None:
+        if self.is_open:
+            self.direct.unsubscribe_message(handle)
+
+    def reboot(self) -> None:
+        try:
+            self.action.reboot()
+        except ActionError as exc:
+            raise DutError(f"reboot refused by the autopilot: {exc}") from exc
+
+    # ------------------------------------------------------------------ MAVLink shell
+    def shell(self, command: str, timeout_s: float = 2.0) -> str:
+        """Run one nsh command; return its output up to the next prompt."""
+        with self._shell_lock:
+            while not self._shell_out.empty():
+                self._shell_out.get_nowait()
+            self.shell_plugin.send(command, Device.SHELL)
+            out = ""
+            deadline = time.monotonic() + timeout_s
+            while SHELL_PROMPT not in out:
+                try:
+                    out += self._shell_out.get(timeout=max(deadline - time.monotonic(), 0.01))
+                except queue.Empty:
+                    raise DutError(f"no answer from the PX4 shell to {command!r} within {timeout_s:g} s") from None
+            return out.split(SHELL_PROMPT)[0]

@@ -1,0 +1,163 @@
+"""The PX4 backend end to end against the simulated PX4 over UDP on loopback (MAVSDK client)."""
+
+from __future__ import annotations
+
+import json
+import socket
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from simstation import load_json, run_unit, stored_attempts, write_station
+
+from magline.core.dut import DutError
+from magline.core.record import Outcome
+from magline.plugins.mock.sim import SimFaults, SimMagnetometer, create_sim
+from magline.plugins.px4.calibration import choose_slot, fit_to_params
+
+OPTIONS = {"connect_timeout_s": 5.0, "boot_timeout_s": 10.0}
+STATION = "px4-sim.yaml"
+PART = "PX4-X500-100"
+
+
+def start_sim(tmp_path, mags: int = 1, faults: SimFaults | None = None, stored: dict | None = None, **kw):
+    workdir = tmp_path / "fc"
+    workdir.mkdir(parents=True)
+    if stored:
+        (workdir / "px4-parameters.json").write_text(json.dumps(stored), encoding="utf-8")
+    return create_sim("px4", "udp:127.0.0.1:0", workdir=workdir, mag_count=mags, seed=11, boot_time_s=0.3,
+                      speed=5.0, faults=faults, **kw).start()
+
+
+def station(tmp_path, sim, options: dict | None = None, product: dict | None = None):
+    _, host, port = sim.address.split(":")
+    return write_station(STATION, tmp_path, f"udpout://{host}:{port}", {**OPTIONS, **(options or {})},
+                         {"products": {PART: product or {}}})
+
+
+def test_units_sign_and_slot_rules_at_the_plugin_boundary():
+    fit = SimpleNamespace(hard_iron_ut=np.array([100.0, -50.0, 25.0]),
+                          soft_iron=np.array([[1.1, 0.01, 0.02], [0.01, 0.9, 0.03], [0.02, 0.03, 1.0]]))
+    p = fit_to_params(fit, 2, 396809, 75, with_odiag=True)
+    assert [p[f"CAL_MAG2_{a}OFF"] for a in "XYZ"] == pytest.approx([1.0, -0.5, 0.25])  # Gauss, subtracted
+    assert [p[f"CAL_MAG2_{a}SCALE"] for a in "XYZ"] == pytest.approx([1.1, 0.9, 1.0])
+    assert [p[f"CAL_MAG2_{a}ODIAG"] for a in "XYZ"] == pytest.approx([0.01, 0.02, 0.03])
+    assert p["CAL_MAG2_ID"] == 396809 and isinstance(p["CAL_MAG2_ID"], int) and p["CAL_MAG2_PRIO"] == 75
+    with pytest.raises(DutError, match="no CAL_MAGn_xODIAG"):
+        fit_to_params(fit, 0, 1, 50, with_odiag=False)
+    assert choose_slot([0, 5, 396809, 0], 396809, preferred=0) == 2  # reuse the slot holding the id
+    assert choose_slot([7, 0, 0, 0], 396809, preferred=2) == 2  # else the sensor's instance if free
+    assert choose_slot([7, 8, 0, 0], 396809, preferred=0) == 2  # else the first free one
+    with pytest.raises(DutError, match="no free CAL_MAG slot for magnetometer 396809: the slots hold 1, 2, 3, 4"):
+        choose_slot([1, 2, 3, 4], 396809, preferred=0)
+
+
+def test_end_to_end_pass_writes_the_fit_and_it_survives_the_reboot(tmp_path):
+    with start_sim(tmp_path) as sim:
+        record = run_unit(station(tmp_path, sim))
+        assert record.verdict is Outcome.PASS, record.cause
+        h = np.array(record.calibration["hard_iron_ut"])
+        s = np.array(record.calibration["soft_iron"])
+        stored = load_json(sim.storage_path)
+        slot = record.unit_info["cal_slot"]
+        p = f"CAL_MAG{slot}_"
+        assert stored[p + "ID"] == sim.magnetometers[0].device_id
+        assert [stored[f"{p}{a}OFF"] for a in "XYZ"] == pytest.approx(h / 100, abs=1e-5)
+        assert [stored[f"{p}{a}SCALE"] for a in "XYZ"] == pytest.approx(np.diag(s), abs=1e-5)
+        assert [stored[f"{p}{a}ODIAG"] for a in "XYZ"] == pytest.approx([s[0, 1], s[0, 2], s[1, 2]], abs=1e-5)
+        assert sim.boots == 2
+        radius = np.linalg.norm(sim.corrected_sphere(sim.magnetometers[0].device_id), axis=1)
+        assert abs(radius.mean() - sim.field_ut) < 0.3 and radius.std() < 0.6
+        assert record.params_before[p + "XOFF"] == 0.0
+        assert record.params_read_back == pytest.approx(record.params_written, rel=1e-6, abs=1e-7)
+        assert record.persistence["method"] == "mavlink-reboot"
+        assert sim.param("SENS_MAG_AUTOCAL") == 1  # switched off for the test, then restored
+
+
+def test_persistence_trap_is_caught_when_the_forced_save_is_disabled(tmp_path):
+    """With the autosave held back (its rate limit stretched), a reboot right after the writes loses them."""
+    with start_sim(tmp_path, autosave_interval_s=60.0) as sim:
+        record = run_unit(station(tmp_path, sim, {"force_save": False}))
+        assert record.verdict is Outcome.FAIL
+        assert [ph.name for ph in record.phases if ph.outcome is Outcome.FAIL] == ["verify"]
+        assert "did not survive the power cycle" in record.cause and "CAL_MAG0_XOFF" in record.cause
+    with start_sim(tmp_path / "shipped", autosave_interval_s=60.0) as sim:
+        assert run_unit(station(tmp_path / "shipped", sim)).verdict is Outcome.PASS  # the backend as shipped
+
+
+def test_old_firmware_without_odiag_gets_a_diagonal_fit(tmp_path):
+    with start_sim(tmp_path, firmware="1.11.3") as sim:
+        sim.magnetometers[0] = SimMagnetometer(396809, [30.0, -12.0, 44.0], np.diag([1.04, 0.97, 1.0]))
+        sim.detected = list(sim.magnetometers)
+        record = run_unit(station(tmp_path, sim))
+        assert record.verdict is Outcome.PASS, record.cause
+        assert record.unit_info["soft_iron_model"] == "diagonal" and record.calibration["model"] == "diagonal"
+        assert not any("ODIAG" in k for k in record.params_written)
+
+
+def test_sensors_keyed_by_id_when_enumeration_order_changes_at_reboot(tmp_path):
+    with start_sim(tmp_path, mags=2, faults=SimFaults(swap_mags_after_reboot=True)) as sim:
+        target = sim.magnetometers[1].device_id
+        record = run_unit(station(tmp_path, sim, product={"magnetometer": target}))
+        assert record.verdict is Outcome.PASS, record.cause
+        assert sim.detected[0].device_id == target  # it enumerates first now; its slot still matches
+        assert record.unit_info["sensor_instance"] == 1 and record.unit_info["cal_slot"] == 1
+        assert np.linalg.norm(np.array(record.calibration["hard_iron_ut"]) - sim.magnetometers[1].hard_iron_ut) < 1
+
+
+def test_no_free_slot_fails_with_the_ids_the_slots_hold(tmp_path):
+    stored = {f"CAL_MAG{n}_ID": 1000 + n for n in range(4)}
+    with start_sim(tmp_path, stored=stored) as sim:
+        record = run_unit(station(tmp_path, sim))
+        assert record.verdict is Outcome.FAIL
+        assert "no free CAL_MAG slot for magnetometer 396809: the slots hold 1000, 1001, 1002, 1003" in record.cause
+
+
+def test_unknown_magnetometer_fails_with_the_ids_present(tmp_path):
+    with start_sim(tmp_path, mags=2) as sim:
+        record = run_unit(station(tmp_path, sim, product={"magnetometer": 42}))
+        assert record.verdict is Outcome.FAIL
+        assert "magnetometer 42 is not on this unit; it has 396809, 458786" in record.cause
+
+
+def test_missing_sensor_after_reboot_fails(tmp_path):
+    with start_sim(tmp_path, faults=SimFaults(mag_missing_after_reboot=396809)) as sim:
+        record = run_unit(station(tmp_path, sim), "SN-GONE")
+        assert record.verdict is Outcome.FAIL
+        assert "magnetometer 396809 missing after power cycle" in record.cause
+        assert stored_attempts(tmp_path / "results.sqlite", "SN-GONE")
+
+
+def test_ignored_param_set_fails_names_it_and_rolls_back(tmp_path):
+    with start_sim(tmp_path, faults=SimFaults(ignore_param_set=["CAL_MAG0_YSCALE"])) as sim:
+        record = run_unit(station(tmp_path, sim), "SN-IGN")
+        assert record.verdict is Outcome.FAIL
+        assert "PARAM_SET CAL_MAG0_YSCALE" in record.cause and "previous values restored" in record.cause
+        assert sim.param("CAL_MAG0_XOFF") == 0.0 and sim.param("CAL_MAG0_ID") == 0  # nothing half-written
+        assert stored_attempts(tmp_path / "results.sqlite", "SN-IGN")[0][0] == 400
+
+
+def test_link_lost_mid_acquisition_fails_and_keeps_raw_data(tmp_path):
+    with start_sim(tmp_path, faults=SimFaults(link_loss_after_s=0.6)) as sim:
+        record = run_unit(station(tmp_path, sim, {"stream_timeout_s": 0.5}), "SN-LINK")
+        assert record.verdict is Outcome.FAIL
+        assert "link lost during acquisition" in record.cause
+        (samples, raw_csv), = stored_attempts(tmp_path / "results.sqlite", "SN-LINK")
+        assert samples > 10 and raw_csv.count("\n") == samples + 1
+
+
+def test_no_vehicle_at_the_address(tmp_path):
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    path = write_station(STATION, tmp_path, f"udpout://127.0.0.1:{port}", {**OPTIONS, "connect_timeout_s": 1.0})
+    record = run_unit(path)
+    assert record.verdict is Outcome.FAIL
+    assert f"no PX4 vehicle answered on udpout://127.0.0.1:{port} within 1 s" in record.cause
+
+
+def test_an_ardupilot_on_the_px4_station_is_named(tmp_path):
+    with create_sim("ardupilot", "udp:127.0.0.1:0", workdir=tmp_path / "ap", seed=1) as sim:
+        record = run_unit(station(tmp_path, sim))
+        assert record.verdict is Outcome.FAIL
+        assert "is ARDUPILOT, not PX4" in record.cause
