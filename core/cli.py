@@ -84,6 +84,10 @@ def _load(path: str | None, plugins: Plugins) -> tuple[Station, Path]:
             line = line_of(text, ("products", part, "backend"))
             problems.append(f"{name}:{line}: products.{part}.backend: unknown DUT backend "
                             f"{product.backend!r}; loaded: {', '.join(sorted(plugins.dut_backends))}")
+        if product.power.method not in plugins.power_controls:
+            line = line_of(text, ("products", part, "power", "method"))
+            problems.append(f"{name}:{line}: products.{part}.power.method: unknown power control "
+                            f"{product.power.method!r}; loaded: {', '.join(sorted(plugins.power_controls))}")
     for key, value, registry in (("field_source.type", station.field_source.type, plugins.field_sources),
                                  ("results.sink", station.results.sink, plugins.result_sinks)):
         if value not in registry:
@@ -196,7 +200,8 @@ def _plugins(args: argparse.Namespace) -> int:
         return 2
     print(json.dumps({"plugins": plugins.describe(), "dut_backends": sorted(plugins.dut_backends),
                       "field_sources": sorted(plugins.field_sources),
-                      "result_sinks": sorted(plugins.result_sinks)}, indent=2))
+                      "result_sinks": sorted(plugins.result_sinks),
+                      "power_controls": sorted(plugins.power_controls)}, indent=2))
     return 0
 
 

@@ -75,9 +75,15 @@ class DutBackend(Protocol):
     def commit(self) -> None:
         """Force the parameters to non-volatile storage."""
 
-    def power_cycle(self) -> dict[str, float | str]:
-        """Power-cycle (or reboot) and reconnect; return figures (off time, time to link) and
-        ``method`` (how the power was cycled)."""
+    def reboot(self) -> None:
+        """Command a reboot over the link (what the ``mavlink-reboot`` power method uses)."""
+
+    def release_link(self) -> None:
+        """Close the link: the power is about to be cut and the vehicle will vanish."""
+
+    def await_boot(self, since: float) -> dict[str, float]:
+        """Reconnect after a reboot or power-on at ``since`` (``time.monotonic()``) and prove it is a
+        new boot; return figures (``time_to_heartbeat_s``, ``uptime_at_reconnect_s``)."""
 
     def selected_sensor_present(self) -> bool:
         """After a power cycle: is the calibrated sensor still there with the same id?"""
@@ -113,8 +119,9 @@ def await_new_boot(reconnect: Callable[[float], None], uptime_s: Callable[[], fl
         time.sleep(poll_s)
         try:
             reconnect(max(deadline - time.monotonic(), 0.1))
-        except DutError:
-            raise DutError(f"the vehicle did not come back within {timeout_s:g} s of the power cycle") from None
+        except DutError as exc:
+            raise DutError(f"the vehicle did not come back within {timeout_s:g} s of the power cycle "
+                           f"(last attempt: {exc})") from None
         reconnected = time.monotonic() - started
         uptime = uptime_s()
         if uptime is not None and uptime < reconnected:
@@ -124,10 +131,10 @@ def await_new_boot(reconnect: Callable[[float], None], uptime_s: Callable[[], fl
                            "(reboot refused?)")
 
 
-def backend_options(model: type[OptionsModel], product: Product, backend: str) -> OptionsModel:
-    """Validate a product's ``options`` for a backend; the error names every bad key."""
+def validated_options(model: type[OptionsModel], options: dict[str, Any], owner: str) -> OptionsModel:
+    """Validate a plugin's ``options`` from the station file; the error names every bad key."""
     try:
-        return model.model_validate(product.options)
+        return model.model_validate(options)
     except ValidationError as exc:
         problems = "; ".join(f"options.{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())
-        raise ValueError(f"{backend} backend: {problems}") from exc
+        raise ValueError(f"{owner}: {problems}") from exc

@@ -69,6 +69,17 @@ def magline_register_result_sinks(register: Callable[[str, Callable[..., Any]], 
 
 
 @hookspec
+def magline_register_power_controls(register: Callable[[str, Callable[..., Any]], None]) -> None:
+    """Add power-control methods by name.  Called once at start-up.
+
+    :param register: call ``register(name, factory)``; ``factory(power_config, station_dir)``
+        receives the product's ``power`` entry (method and options) and returns a
+        :class:`~magline.core.power.PowerControl`.  The name is what a station file writes under
+        ``products.<part>.power.method``; the core registers ``mavlink-reboot``.
+    """
+
+
+@hookspec
 def magline_add_commands(subparsers: argparse._SubParsersAction) -> None:
     """Add sub-commands to the ``magline`` command line.  Called once, before arguments are parsed.
 

@@ -151,8 +151,9 @@ def _roll_back(run: RunContext, before: dict[str, ParamValue]) -> str:
 @hookimpl(trylast=True)
 def magline_verify_persistence(run: RunContext, persisted: PersistReport) -> VerifyReport:
     dut = run.require_dut()
-    figures = dict(dut.power_cycle())
-    method = str(figures.pop("method", "reboot"))
+    power = run.require_power()
+    figures = dict(power.cycle(dut))
+    method = str(figures.pop("method", power.method))
     present = dut.selected_sensor_present()
     read_back = dut.read_params(list(persisted.written))
     mismatches = [f"{k}: wrote {v!r}, read back {read_back.get(k)!r}" for k, v in persisted.written.items()

@@ -33,7 +33,7 @@ class PluginError(RuntimeError):
 
 
 class Plugins:
-    """The loaded plugins and their registries (DUT backends, field sources, result sinks)."""
+    """The loaded plugins and their registries (DUT backends, field sources, result sinks, power controls)."""
 
     def __init__(self, pm: pluggy.PluginManager) -> None:
         self.pm = pm
@@ -41,9 +41,11 @@ class Plugins:
         self.dut_backends: dict[str, DutFactory] = {}
         self.field_sources: dict[str, Callable[..., Any]] = {}
         self.result_sinks: dict[str, Callable[..., Any]] = {}
+        self.power_controls: dict[str, Callable[..., Any]] = {}
         self._collect("dut backend", self.dut_backends, self.hook.magline_register_dut_backends)
         self._collect("field source", self.field_sources, self.hook.magline_register_field_sources)
         self._collect("result sink", self.result_sinks, self.hook.magline_register_result_sinks)
+        self._collect("power control", self.power_controls, self.hook.magline_register_power_controls)
 
     @staticmethod
     def _collect(kind: str, registry: dict[str, Any], hook: Any) -> None:

@@ -15,6 +15,7 @@ from magline.core.fit.samples_csv import RawSamples
 if TYPE_CHECKING:
     from magline.core.dut import DutBackend, UnitInfo
     from magline.core.plugins import Plugins
+    from magline.core.power import PowerControl
     from magline.core.record import PhaseResult, RunRecord
     from magline.core.station.schema import Limit, Product, Station
 
@@ -54,6 +55,7 @@ class RunContext:
     limits: dict[str, Limit]
     reference_field_ut: float | None = None
     dut: DutBackend | None = None
+    power: PowerControl | None = None
     unit: UnitInfo | None = None
     attempts: list[Acquisition] = field(default_factory=list)
     state: dict[str, Any] = field(default_factory=dict)  # scratch space for plugins
@@ -71,6 +73,11 @@ class RunContext:
     def progress(self, attempt: int, samples: int, coverage: float, target: float) -> None:
         self.plugins.hook.magline_acquisition_progress(run=self, attempt=attempt, samples=samples,
                                                        coverage=coverage, target=target)
+
+    def require_power(self) -> PowerControl:
+        if self.power is None:
+            raise RuntimeError("no power control is set up")
+        return self.power
 
     def require_dut(self) -> DutBackend:
         if self.dut is None:

@@ -125,8 +125,13 @@ class Sequencer:
         factory = self.plugins.dut_backends.get(run.product.backend)
         if factory is None:
             raise ValueError(f"no DUT backend named {run.product.backend!r} is loaded")
+        power_factory = self.plugins.power_controls.get(run.product.power.method)
+        if power_factory is None:
+            raise ValueError(f"no power control named {run.product.power.method!r} is loaded")
         run.reference_field_ut = self.field_source.reference_field_ut()
         run.log(f"reference field {run.reference_field_ut:.2f} µT")
+        run.power = power_factory(run.product.power, self.station_dir)
+        run.power.power_up()
         run.dut = factory(run.product)
         run.unit = run.dut.connect()
         run.record.unit_info = {
@@ -210,11 +215,13 @@ class Sequencer:
         self.sink.finish(run.record)
 
     def _cleanup(self, run: RunContext) -> None:
-        if run.dut is None:
-            return
-        for action in ("restore", "close"):
+        """Always: put the DUT back as it was, release it, then leave the fixture in its final state."""
+        steps = [(run.dut, "restore"), (run.dut, "close"), (run.power, "finish"), (run.power, "close")]
+        for target, action in steps:
+            if target is None:
+                continue
             try:
-                getattr(run.dut, action)()
+                getattr(target, action)()
             except Exception as exc:
                 run.record.phases[-1].log.append(f"{action} failed: {type(exc).__name__}: {exc}")
 

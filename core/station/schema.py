@@ -68,6 +68,13 @@ def _known_measurement(name: str) -> str:
 LimitSet = dict[Annotated[str, AfterValidator(_known_measurement)], Limit]
 
 
+class PowerConfig(_Strict):
+    """How the verify phase cycles power: ``mavlink-reboot`` (default), ``scpi-supply``, ``command``."""
+
+    method: str = "mavlink-reboot"
+    options: dict[str, Any] = Field(default_factory=dict)
+
+
 class Product(_Strict):
     """What the station does for one part number."""
 
@@ -76,6 +83,7 @@ class Product(_Strict):
     magnetometer: str | int = "primary"
     soft_iron_model: Literal["auto", "full", "diagonal", "sphere"] = "auto"
     options: dict[str, Any] = Field(default_factory=dict)
+    power: PowerConfig = Field(default_factory=PowerConfig)
     limits: LimitSet = Field(default_factory=dict)
 
 

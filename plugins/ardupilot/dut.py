@@ -10,7 +10,6 @@ ids) → reboot and reconnect → read back, prearm check → restore COMPASS_LE
 from __future__ import annotations
 
 import contextlib
-import time
 from collections.abc import Iterator
 
 import numpy as np
@@ -159,20 +158,23 @@ class ArduPilotDut:
                                        0, 76)
 
     # ------------------------------------------------------------------ power cycle and proof
-    def power_cycle(self) -> dict[str, float | str]:
-        start = time.monotonic()
+    def reboot(self) -> None:
         self.link.require_accepted(ML.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, "reboot", 1)
         self.link.close()  # ArduPilot drops the connection; a fresh one proves the new boot
 
+    def release_link(self) -> None:
+        self.link.close()
+
+    def await_boot(self, since: float) -> dict[str, float]:
         def reconnect(remaining_s: float) -> None:
             self.link.close()
             self.link.open(remaining_s)
 
-        reconnected, uptime = await_new_boot(reconnect, self._uptime_s, start, self.opts.boot_timeout_s)
+        reconnected, uptime = await_new_boot(reconnect, self._uptime_s, since, self.opts.boot_timeout_s)
         self._read_ids()
         if self.device_id in self.ids.values():
             self.suffix = self._suffix_of(self.device_id)
-        return {"method": "mavlink-reboot", "time_to_heartbeat_s": reconnected, "uptime_at_reconnect_s": uptime}
+        return {"time_to_heartbeat_s": reconnected, "uptime_at_reconnect_s": uptime}
 
     def _uptime_s(self) -> float | None:
         msg = self.link.request_message(ML.MAVLINK_MSG_ID_SYSTEM_TIME, "SYSTEM_TIME")

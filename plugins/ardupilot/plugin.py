@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from magline.core.dut import backend_options
+from magline.core.dut import validated_options
 from magline.core.plugins import hookimpl
 from magline.core.station.schema import Product
 from magline.plugins.ardupilot.dut import ArduPilotDut
@@ -10,7 +10,7 @@ from magline.plugins.ardupilot.options import ArduPilotOptions
 
 
 def create_ardupilot_dut(product: Product) -> ArduPilotDut:
-    options = backend_options(ArduPilotOptions, product, "ardupilot")
+    options = validated_options(ArduPilotOptions, product.options, "ardupilot backend")
     return ArduPilotDut(product, options)
 
 

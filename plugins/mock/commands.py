@@ -33,6 +33,9 @@ def add_sim_command(subparsers: argparse._SubParsersAction) -> None:
                      help="inject a fault, e.g. drop_percent=5, ignore_param_set=CAL_MAG0_XOFF, "
                           "no_persist=NAME, reboot_fails, link_loss_after_s=3, mag_missing_after_reboot=ID, "
                           "swap_mags_after_reboot")
+    sim.add_argument("--supply", metavar="tcp:HOST:PORT",
+                     help="also run a simulated SCPI bench supply that powers this board (it starts off)")
+    sim.add_argument("--supply-fault", choices=["dead_board", "short", "output_error"])
     sim.set_defaults(handler=run_sim)
 
 
@@ -55,10 +58,17 @@ def run_sim(args: argparse.Namespace) -> int:
         for mag in sim.magnetometers:
             mag.truth.noise_ut = args.noise_ut
         sim.start()
+        supply = None
+        if args.supply:
+            from magline.plugins.mock.sim.supply import SupplySim
+            supply = SupplySim(args.supply, board=sim, fault=args.supply_fault).start()
+            sim.power_off()  # the supply's output starts off
     except (ValueError, OSError) as exc:
         print(f"magline sim: {exc}", file=sys.stderr)
         return 2
     print(f"listening on {sim.address}", flush=True)
+    if supply is not None:
+        print(f"supply listening on {supply.address} (VISA {supply.visa_resource}), output off", flush=True)
     print(f"{args.flavour} simulator, storage {sim.storage_path}, boot time {sim.boot_time_s:g} s", flush=True)
     for mag in sim.magnetometers:
         h = ", ".join(f"{v:.2f}" for v in mag.hard_iron_ut)
@@ -71,4 +81,6 @@ def run_sim(args: argparse.Namespace) -> int:
         pass
     finally:
         sim.stop()
+        if supply is not None:
+            supply.stop()
     return 0

@@ -125,14 +125,18 @@ class MockDut:
         if not self.opts.faults.skip_commit:
             self.storage.save(self.ram)
 
-    def power_cycle(self) -> dict[str, float | str]:
-        start = time.monotonic()
+    def reboot(self) -> None:
+        self.release_link()
+
+    def release_link(self) -> None:
         self.connected = False
         self.ram = {}
+
+    def await_boot(self, since: float) -> dict[str, float]:
         if self.opts.faults.sensor_missing_after_reboot:
             self.sensor_present = False
         self._boot()
-        return {"method": "mock power cycle", "time_to_link_s": time.monotonic() - start}
+        return {"time_to_heartbeat_s": time.monotonic() - since}
 
     def selected_sensor_present(self) -> bool:
         return self.sensor_present

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from magline.core.dut import backend_options
+from magline.core.dut import validated_options
 from magline.core.plugins import hookimpl
 from magline.core.station.schema import Product
 from magline.plugins.mock.commands import add_sim_command
@@ -11,7 +11,7 @@ from magline.plugins.mock.options import MockOptions
 
 
 def create_mock_dut(product: Product) -> MockDut:
-    options = backend_options(MockOptions, product, "mock")
+    options = validated_options(MockOptions, product.options, "mock backend")
     return MockDut(options)
 
 

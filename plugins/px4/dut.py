@@ -159,15 +159,20 @@ class Px4Dut:
         """Force the save: the echo only means "in RAM", and autosave may be held back 2 s."""
         if self.opts.force_save:  # param1 = 1 saves; 3 would reset every calibration
             self.link.require_accepted(MAV_CMD_PREFLIGHT_STORAGE, "forced parameter save", 1)
+            time.sleep(self.opts.save_settle_s)  # the ACK precedes the save; only the read-back proves it
 
     # ------------------------------------------------------------------ power cycle and proof
-    def power_cycle(self) -> dict[str, float | str]:
-        start = time.monotonic()
+    def reboot(self) -> None:
         self.link.reboot()
+
+    def release_link(self) -> None:
+        self.link.close()
+
+    def await_boot(self, since: float) -> dict[str, float]:
         # a fresh MAVSDK instance per try: nothing cached from the old boot can answer a read
-        reconnected, uptime = await_new_boot(self.link.reopen, self._uptime_s, start, self.opts.boot_timeout_s)
+        reconnected, uptime = await_new_boot(self.link.reopen, self._uptime_s, since, self.opts.boot_timeout_s)
         self.sensors = self._discover()
-        return {"method": "mavlink-reboot", "time_to_heartbeat_s": reconnected, "uptime_at_reconnect_s": uptime}
+        return {"time_to_heartbeat_s": reconnected, "uptime_at_reconnect_s": uptime}
 
     def _uptime_s(self) -> float | None:
         inbox, handle = self.link.subscribe(SYSTEM_TIME[0])

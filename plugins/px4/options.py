@@ -14,3 +14,6 @@ class Px4Options(BaseModel):
     stream_timeout_s: Annotated[float, Field(gt=0)] = 2.0  # no sample for this long = link lost
     # Production leaves this on; a test switches it off to show the reboot-before-autosave trap.
     force_save: bool = True
+    # PREFLIGHT_STORAGE is ACKed *before* the save runs and PX4 signals no completion: wait this long
+    # before anything may cut the power (a commanded reboot waits by itself; a supply does not).
+    save_settle_s: Annotated[float, Field(ge=0)] = 1.0

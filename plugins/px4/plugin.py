@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from magline.core.dut import backend_options
+from magline.core.dut import validated_options
 from magline.core.plugins import hookimpl
 from magline.core.station.schema import Product
 from magline.plugins.px4.dut import Px4Dut
@@ -10,7 +10,7 @@ from magline.plugins.px4.options import Px4Options
 
 
 def create_px4_dut(product: Product) -> Px4Dut:
-    return Px4Dut(product, backend_options(Px4Options, product, "px4"))
+    return Px4Dut(product, validated_options(Px4Options, product.options, "px4 backend"))
 
 
 @hookimpl

@@ -31,6 +31,7 @@ def parse_listen(address: str) -> tuple[str, str, int]:
 
 class ServerLink(Protocol):
     address: str
+    new_peer: bool
 
     def poll(self, timeout: float, up: bool) -> list[tuple[object, bytes]]:
         """Bytes received per peer within ``timeout``; while not ``up`` nothing is accepted."""
@@ -50,6 +51,7 @@ class UdpServerLink:
         self.sock.bind((host, port))
         self.address = f"udp:{host}:{self.sock.getsockname()[1]}"
         self.peers: set[tuple[str, int]] = set()
+        self.new_peer = False  # set when a peer appears; the board greets it with a heartbeat
 
     def poll(self, timeout: float, up: bool) -> list[tuple[object, bytes]]:
         out: list[tuple[object, bytes]] = []
@@ -60,6 +62,7 @@ class UdpServerLink:
             except OSError:
                 break
             if up:
+                self.new_peer |= peer not in self.peers
                 self.peers.add(peer)
                 out.append((peer, data))
             ready, _, _ = select.select([self.sock], [], [], 0)
@@ -85,6 +88,7 @@ class TcpServerLink:
         self.listener.listen(4)
         self.address = f"tcp:{host}:{self.listener.getsockname()[1]}"
         self.clients: list[socket.socket] = []
+        self.new_peer = False
 
     def poll(self, timeout: float, up: bool) -> list[tuple[object, bytes]]:
         watch = [*self.clients, self.listener] if up else list(self.clients)
@@ -98,6 +102,7 @@ class TcpServerLink:
                 client, _ = self.listener.accept()
                 client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
                 self.clients.append(client)
+                self.new_peer = True
                 continue
             try:
                 data = sock.recv(65535)

@@ -15,6 +15,7 @@ Power states::
 from __future__ import annotations
 
 import enum
+import queue
 import random
 import threading
 import time
@@ -108,6 +109,8 @@ class SimulatedAutopilot(ABC):
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._after_ack: Callable[[], None] | None = None
+        self._requests: queue.Queue[tuple[Callable[[], None], threading.Event]] = queue.Queue()
+        self.errors: list[str] = []  # exceptions the board's thread survived (tests assert it stays empty)
 
     # ------------------------------------------------------------------ flavour
     @abstractmethod
@@ -190,15 +193,33 @@ class SimulatedAutopilot(ABC):
     # ------------------------------------------------------------------ power (thread-safe)
     def power_off(self) -> None:
         """Cut power: link silent, RAM lost, an unfinished save lost."""
-        with self.lock:
-            self.on_power_loss()
-            self._go_dark(Power.OFF)
+        self._on_board_thread(self._power_off)
 
     def power_on(self) -> None:
-        with self.lock:
-            if self.power is Power.OFF:
-                self.power = Power.BOOTING
-                self._up_at = time.monotonic() + self.boot_time_s
+        self._on_board_thread(self._power_on)
+
+    def _on_board_thread(self, action: Callable[[], None]) -> None:
+        """Run ``action`` on the board's own thread (it owns the sockets) and wait until it has run.
+
+        Closing a socket from another thread while the board's thread waits on it in ``select``
+        would break that wait; so power changes from a test or the supply simulator are queued.
+        """
+        if self._thread is None or threading.current_thread() is self._thread or not self._thread.is_alive():
+            with self.lock:
+                action()
+            return
+        done = threading.Event()
+        self._requests.put((action, done))
+        done.wait(timeout=5)
+
+    def _power_off(self) -> None:
+        self.on_power_loss()
+        self._go_dark(Power.OFF)
+
+    def _power_on(self) -> None:
+        if self.power is Power.OFF:
+            self.power = Power.BOOTING
+            self._up_at = time.monotonic() + self.boot_time_s
 
     def request_reboot(self, delay_s: float) -> None:
         with self.lock:
@@ -261,13 +282,28 @@ class SimulatedAutopilot(ABC):
     # ------------------------------------------------------------------ main loop
     def _run(self) -> None:
         while not self._stop.is_set():
-            up = self.power is Power.UP and not self.link_dead
-            chunks = self.link.poll(0.002, up=up)
-            now = time.monotonic()
+            try:
+                self._step()
+            except Exception as exc:  # a simulator that dies silently would look like a dead board
+                self.errors.append(f"{type(exc).__name__}: {exc}")
+                time.sleep(0.01)
+
+    def _step(self) -> None:
+        while not self._requests.empty():
+            action, done = self._requests.get_nowait()
             with self.lock:
-                for peer, data in chunks:
-                    self._receive(peer, data)
-                self._advance(now)
+                action()
+            done.set()
+        up = self.power is Power.UP and not self.link_dead
+        chunks = self.link.poll(0.002, up=up)
+        now = time.monotonic()
+        with self.lock:
+            if self.link.new_peer:
+                self.link.new_peer = False
+                self._next_heartbeat = now  # greet a new peer at once, as a board's link does
+            for peer, data in chunks:
+                self._receive(peer, data)
+            self._advance(now)
 
     def _receive(self, peer: object, data: bytes) -> None:
         parser = self._parsers.get(peer)

@@ -1,0 +1,70 @@
+"""Power control: how the verify phase cycles the unit's power, chosen per product in the station file.
+
+Why a plugin point: a MAVLink reboot is not a power cycle — firmware flushes pending writes on a
+commanded reboot, not when power is cut — and some targets refuse the command.  Real lines cut
+power through the fixture (a programmable supply, a relay, a USB hub).  This module defines the
+protocol and the default method, ``mavlink-reboot``; ``plugins/power/`` adds ``scpi-supply`` and
+``command``.  A power control never talks MAVLink itself: it drives the DUT backend's
+``reboot`` / ``release_link`` / ``await_boot``.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Protocol, runtime_checkable
+
+from magline.core.dut import DutBackend
+from magline.core.plugins import hookimpl
+from magline.core.station.schema import PowerConfig
+
+
+class PowerError(RuntimeError):
+    """The fixture itself failed (supply error, command failed): the unit *errors*, it does not fail."""
+
+
+@runtime_checkable
+class PowerControl(Protocol):
+    method: str
+
+    def power_up(self) -> None:
+        """Before the DUT is connected: make sure the unit is powered."""
+
+    def cycle(self, dut: DutBackend) -> dict[str, float | str]:
+        """Cut and restore power (or reboot), wait for the new boot; return figures and ``method``."""
+
+    def finish(self) -> None:
+        """End of the unit, also after errors: leave the fixture in the station's final state."""
+
+    def close(self) -> None: ...
+
+
+class MavlinkReboot:
+    """MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN through the backend (the default; no fixture needed)."""
+
+    method = "mavlink-reboot"
+
+    def power_up(self) -> None:
+        return None
+
+    def cycle(self, dut: DutBackend) -> dict[str, float | str]:
+        start = time.monotonic()
+        dut.reboot()
+        return {"method": self.method, **dut.await_boot(start)}
+
+    def finish(self) -> None:
+        return None
+
+    def close(self) -> None:
+        return None
+
+
+def create_mavlink_reboot(config: PowerConfig, station_dir: Path) -> MavlinkReboot:
+    if config.options:
+        raise ValueError(f"mavlink-reboot takes no options (got {', '.join(config.options)})")
+    return MavlinkReboot()
+
+
+@hookimpl
+def magline_register_power_controls(register):
+    register("mavlink-reboot", create_mavlink_reboot)

@@ -1,0 +1,70 @@
+"""``command``: cut and restore power by running external programs (a USB hub switch, a relay
+tool, a simulator process).  Commands are argument lists run without a shell; a non-zero exit,
+a timeout or a missing program errors the unit with the program's own message."""
+
+from __future__ import annotations
+
+import subprocess
+import time
+from pathlib import Path
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from magline.core.dut import DutBackend, validated_options
+from magline.core.power import PowerError
+from magline.core.station.schema import PowerConfig
+
+
+class CommandOptions(BaseModel):
+    model_config = ConfigDict(extra="forbid", strict=True)
+    off: Annotated[list[str], Field(min_length=1)]
+    on: Annotated[list[str], Field(min_length=1)]
+    off_time_s: Annotated[float, Field(ge=0)] = 1.0
+    timeout_s: Annotated[float, Field(gt=0)] = 30.0
+    final_state: Literal["on", "as-is"] = "on"  # "on": power is restored if a unit stopped while off
+
+
+class CommandPower:
+    method = "command"
+
+    def __init__(self, options: CommandOptions, cwd: Path) -> None:
+        self.opts = options
+        self.cwd = cwd
+        self.is_off = False
+
+    def _run(self, which: str, argv: list[str]) -> None:
+        try:
+            done = subprocess.run(argv, cwd=self.cwd, capture_output=True, text=True, timeout=self.opts.timeout_s,
+                                  check=False)
+        except (OSError, subprocess.TimeoutExpired) as exc:
+            raise PowerError(f"power-{which} command {argv[0]!r} failed: {exc}") from exc
+        if done.returncode != 0:
+            tail = (done.stderr or done.stdout).strip().splitlines()[-1:] or [""]
+            raise PowerError(f"power-{which} command {argv[0]!r} exited with {done.returncode}: {tail[0]}")
+
+    def power_up(self) -> None:
+        return None
+
+    def cycle(self, dut: DutBackend) -> dict[str, float | str]:
+        dut.release_link()
+        self._run("off", self.opts.off)
+        self.is_off = True
+        off_at = time.monotonic()
+        time.sleep(self.opts.off_time_s)
+        on_at = time.monotonic()
+        self._run("on", self.opts.on)
+        self.is_off = False
+        return {"method": self.method, "off_time_s": on_at - off_at, **dut.await_boot(on_at)}
+
+    def finish(self) -> None:
+        if self.is_off and self.opts.final_state == "on":
+            self._run("on", self.opts.on)
+            self.is_off = False
+
+    def close(self) -> None:
+        return None
+
+
+def create_command_power(config: PowerConfig, station_dir: Path) -> CommandPower:
+    return CommandPower(validated_options(CommandOptions, config.options, "command power control"), station_dir)

@@ -1,0 +1,13 @@
+"""Registers the ``scpi-supply`` and ``command`` power controls."""
+
+from __future__ import annotations
+
+from magline.core.plugins import hookimpl
+from magline.plugins.power.command import create_command_power
+from magline.plugins.power.scpi_supply import create_scpi_supply
+
+
+@hookimpl
+def magline_register_power_controls(register):
+    register("scpi-supply", create_scpi_supply)
+    register("command", create_command_power)
