@@ -119,6 +119,9 @@ def _run(args: argparse.Namespace) -> int:
                 return code
             record = sequencer.run_unit(serial, args.part, args.operator)
             code = EXIT[record.verdict]
+            if sequencer.stopped is not None:
+                _err(f"batch stopped: {sequencer.stopped}")
+                return 2
             if not args.loop:
                 return code
             args.serial = None

@@ -1,31 +1,33 @@
 """The ``fixed`` field source: a magnitude written in the station file.
 
-For cells whose field was surveyed once (or for the mock station); the World Magnetic Model and
-a live fluxgate reference are separate sources.
+For cells whose field was surveyed once (or for the mock station); optionally checked against a
+live fluxgate (``options.reference``, see :mod:`.reference`).
 """
 
 from __future__ import annotations
 
 from typing import Any
 
+from magline.core.field.reference import CheckedField
 from magline.core.plugins import hookimpl
 
 
-class FixedField:
-    def __init__(self, field_ut: float) -> None:
+class FixedField(CheckedField):
+    def __init__(self, field_ut: float, reference: dict[str, Any] | None = None) -> None:
         if not (1.0 <= field_ut <= 1000.0):
             raise ValueError(f"field_source.options.field_ut must be between 1 and 1000 µT, got {field_ut}")
-        self.field_ut = float(field_ut)
-
-    def reference_field_ut(self) -> float:
-        return self.field_ut
+        super().__init__(field_ut, reference, "surveyed field")
 
 
 def _factory(station: Any) -> FixedField:
     options = station.field_source.options
     if "field_ut" not in options:
         raise ValueError("field_source.options.field_ut is required for the fixed field source")
-    return FixedField(options["field_ut"])
+    unknown = set(options) - {"field_ut", "reference"}
+    if unknown:
+        raise ValueError(f"field_source.options: unknown option(s) {', '.join(sorted(unknown))} for fixed "
+                         "(known: field_ut, reference)")
+    return FixedField(options["field_ut"], options.get("reference"))
 
 
 @hookimpl

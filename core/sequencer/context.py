@@ -14,6 +14,7 @@ from magline.core.fit.samples_csv import RawSamples
 
 if TYPE_CHECKING:
     from magline.core.dut import DutBackend, UnitInfo
+    from magline.core.field import FieldSource
     from magline.core.plugins import Plugins
     from magline.core.power import PowerControl
     from magline.core.record import PhaseResult, RunRecord
@@ -54,6 +55,7 @@ class RunContext:
     record: RunRecord
     limits: dict[str, Limit]
     reference_field_ut: float | None = None
+    field_source: FieldSource | None = None
     dut: DutBackend | None = None
     power: PowerControl | None = None
     unit: UnitInfo | None = None

@@ -18,6 +18,7 @@ from typing import Any
 
 from magline.core import __version__
 from magline.core.dut import DutError
+from magline.core.field import FieldSourceError
 from magline.core.fit import FitOptions, FitRefused, FitResult
 from magline.core.fit.samples_csv import format_samples
 from magline.core.measurements import Json, Verdict, verdicts
@@ -46,6 +47,7 @@ class Sequencer:
         self.sink = sink_factory(station, self.station_dir)
         source_factory = plugins.field_sources[station.field_source.type]
         self.field_source = source_factory(station)
+        self.stopped: str | None = None  # why the batch was stopped (the cell's field is not trusted)
 
     def close(self) -> None:
         for obj in (self.field_source, self.sink):
@@ -70,6 +72,8 @@ class Sequencer:
             ("verify", self._verify),
         ]
         failed = False
+        if self.stopped is not None:
+            steps = [("identify", self._identify), ("connect", self._refuse_stopped_batch)]
         try:
             for name, step in steps:
                 if failed:
@@ -100,6 +104,10 @@ class Sequencer:
         except (PhaseFailed, DutError, FitRefused) as exc:
             result.outcome = Outcome.FAIL
             result.message = str(exc)
+        except FieldSourceError as exc:  # the cell, not the unit: stop the batch
+            result.outcome = Outcome.ERROR
+            result.message = f"batch stopped: {exc}"
+            self.stopped = str(exc)
         except Exception as exc:  # a plugin bug must not crash the station
             result.outcome = Outcome.ERROR
             result.message = f"{type(exc).__name__}: {exc}"
@@ -121,6 +129,9 @@ class Sequencer:
         run.log(f"unit {run.serial}, part {run.part}, limit set {run.record.limit_hash}")
         self.sink.begin(run.record)
 
+    def _refuse_stopped_batch(self, run: RunContext) -> None:
+        raise FieldSourceError(self.stopped)
+
     def _connect(self, run: RunContext) -> None:
         factory = self.plugins.dut_backends.get(run.product.backend)
         if factory is None:
@@ -128,6 +139,7 @@ class Sequencer:
         power_factory = self.plugins.power_controls.get(run.product.power.method)
         if power_factory is None:
             raise ValueError(f"no power control named {run.product.power.method!r} is loaded")
+        run.field_source = self.field_source
         run.reference_field_ut = self.field_source.reference_field_ut()
         run.log(f"reference field {run.reference_field_ut:.2f} µT")
         run.power = power_factory(run.product.power, self.station_dir)
@@ -190,8 +202,12 @@ class Sequencer:
         for m in review:
             run.log(f"review: {m.name} = {m.value:.4g} is within the marginal band")
         if failed:
-            raise PhaseFailed("; ".join(f"{m.name} = {m.value:.4g} {m.unit} outside "
-                                        f"[{_fmt(m.low)}, {_fmt(m.high)}]" for m in failed))
+            message = "; ".join(f"{m.name} = {m.value:.4g} {m.unit} outside [{_fmt(m.low)}, {_fmt(m.high)}]"
+                                for m in failed)
+            if any(m.name == "field_error_pct" for m in failed):
+                message += (" — the field magnitude the unit measures does not match the reference: "
+                            "calibration has failed regardless of fit residual")
+            raise PhaseFailed(message)
 
     def _persist(self, run: RunContext) -> None:
         report: PersistReport = self.plugins.hook.magline_persist(run=run, fit=run.state["fit"])
@@ -216,7 +232,8 @@ class Sequencer:
 
     def _cleanup(self, run: RunContext) -> None:
         """Always: put the DUT back as it was, release it, then leave the fixture in its final state."""
-        steps = [(run.dut, "restore"), (run.dut, "close"), (run.power, "finish"), (run.power, "close")]
+        steps = [(run.dut, "restore"), (run.dut, "close"), (run.power, "finish"), (run.power, "close"),
+                 (run.field_source, "finish_unit")]
         for target, action in steps:
             if target is None:
                 continue

@@ -13,12 +13,7 @@ Faults: ``dead_board`` (draws nothing, never boots), ``short`` (draws the limit,
 
 from __future__ import annotations
 
-import contextlib
-import socket
-import threading
-from collections import deque
-
-from magline.plugins.mock.sim.transport import parse_listen
+from magline.plugins.mock.sim.scpi_server import ScpiServer
 from magline.plugins.mock.sim.vehicle import Power, SimulatedAutopilot
 
 MAX_VOLTAGE, MAX_CURRENT = 30.0, 5.0
@@ -26,14 +21,14 @@ BOARD_MIN_VOLTAGE = 4.5
 FAULTS = ("dead_board", "short", "output_error")
 
 
-class SupplySim:
+class SupplySim(ScpiServer):
+    identity = "magline,SIM-PSU-3005,0001,1.0"
+
     def __init__(self, listen: str = "tcp:127.0.0.1:5025", board: SimulatedAutopilot | None = None,
                  idle_current_a: float = 0.25, boot_current_a: float = 0.35, fault: str | None = None) -> None:
-        scheme, host, port = parse_listen(listen)
-        if scheme != "tcp":
-            raise ValueError("the supply simulator listens on tcp:HOST:PORT")
         if fault is not None and fault not in FAULTS:
             raise ValueError(f"unknown supply fault {fault!r}; choose from {', '.join(FAULTS)}")
+        super().__init__(listen)
         self.board = board
         self.idle_current_a = idle_current_a
         self.boot_current_a = boot_current_a
@@ -41,114 +36,36 @@ class SupplySim:
         self.voltage = 0.0
         self.current_limit = 0.1
         self.output = False
-        self.errors: deque[str] = deque(maxlen=20)
-        self.log: list[str] = []  # every command received, for tests
-        self.lock = threading.Lock()
-        self.listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-        self.listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        self.listener.bind((host, port))
-        self.listener.listen(4)
-        self.address = f"tcp:{host}:{self.listener.getsockname()[1]}"
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
 
-    @property
-    def visa_resource(self) -> str:
-        _, host, port = self.address.split(":")
-        return f"TCPIP0::{host}::{port}::SOCKET"
-
-    def start(self) -> SupplySim:
-        self._thread = threading.Thread(target=self._serve, name="sim-supply", daemon=True)
-        self._thread.start()
-        return self
-
-    def stop(self) -> None:
-        self._stop.set()
-        with contextlib.suppress(OSError):
-            self.listener.close()
-        if self._thread is not None:
-            self._thread.join(timeout=5)
-
-    def __enter__(self) -> SupplySim:
-        return self if self._thread is not None else self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
-
-    # ------------------------------------------------------------------ network
-    def _serve(self) -> None:
-        self.listener.settimeout(0.2)
-        while not self._stop.is_set():
-            try:
-                client, _ = self.listener.accept()
-            except (TimeoutError, OSError):
-                continue
-            threading.Thread(target=self._session, args=(client,), daemon=True).start()
-
-    def _session(self, client: socket.socket) -> None:
-        buffer = b""
-        with client:
-            client.settimeout(0.2)
-            while not self._stop.is_set():
-                try:
-                    data = client.recv(4096)
-                except TimeoutError:
-                    continue
-                except OSError:
-                    return
-                if not data:
-                    return
-                buffer += data
-                while b"\n" in buffer:
-                    line, _, buffer = buffer.partition(b"\n")
-                    for command in line.decode(errors="replace").split(";"):
-                        reply = self.handle(command.strip())
-                        if reply is not None:
-                            client.sendall(reply.encode() + b"\n")
-
-    # ------------------------------------------------------------------ SCPI
-    def handle(self, command: str) -> str | None:
-        if not command:
+    def command(self, head: str, arg: str) -> str | None:
+        head = head.removeprefix("SOUR:").removeprefix("SOURCE:")
+        if head == "*RST":
+            self._set_output(False)
+            self.voltage, self.current_limit = 0.0, 0.1
             return None
-        with self.lock:
-            self.log.append(command)
-            head, _, arg = command.partition(" ")
-            head = head.upper().removeprefix("SOUR:").removeprefix("SOURCE:")
-            if head == "*IDN?":
-                return "magline,SIM-PSU-3005,0001,1.0"
-            if head == "*RST":
-                self._set_output(False)
-                self.voltage, self.current_limit = 0.0, 0.1
-                return None
-            if head == "*CLS":
-                self.errors.clear()
-                return None
-            if head in ("SYST:ERR?", "SYSTEM:ERROR?", "SYST:ERR:NEXT?"):
-                return self.errors.popleft() if self.errors else '0,"No error"'
-            if head in ("VOLT?", "VOLTAGE?"):
-                return f"{self.voltage:.3f}"
-            if head in ("CURR?", "CURRENT?"):
-                return f"{self.current_limit:.3f}"
-            if head in ("OUTP?", "OUTPUT?"):
-                return "1" if self.output else "0"
-            if head in ("MEAS:VOLT?", "MEASURE:VOLTAGE?"):
-                return f"{self.voltage if self.output else 0.0:.3f}"
-            if head in ("MEAS:CURR?", "MEASURE:CURRENT?"):
-                return f"{self.measured_current():.4f}"
-            if head in ("VOLT", "VOLTAGE", "CURR", "CURRENT"):
-                self._set_level(head, arg)
-                return None
-            if head in ("OUTP", "OUTPUT"):
-                state = arg.strip().upper()
-                if state not in ("ON", "OFF", "1", "0"):
-                    self.errors.append('-224,"Illegal parameter value"')
-                elif state in ("ON", "1") and self.fault == "output_error":
-                    self.errors.append('-300,"Device-specific error; output protection tripped"')
-                else:
-                    self._set_output(state in ("ON", "1"))
-                return None
-            self.errors.append(f'-113,"Undefined header; {command[:30]}"')
+        if head in ("VOLT?", "VOLTAGE?"):
+            return f"{self.voltage:.3f}"
+        if head in ("CURR?", "CURRENT?"):
+            return f"{self.current_limit:.3f}"
+        if head in ("OUTP?", "OUTPUT?"):
+            return "1" if self.output else "0"
+        if head in ("MEAS:VOLT?", "MEASURE:VOLTAGE?"):
+            return f"{self.voltage if self.output else 0.0:.3f}"
+        if head in ("MEAS:CURR?", "MEASURE:CURRENT?"):
+            return f"{self.measured_current():.4f}"
+        if head in ("VOLT", "VOLTAGE", "CURR", "CURRENT"):
+            self._set_level(head, arg)
             return None
+        if head in ("OUTP", "OUTPUT"):
+            state = arg.upper()
+            if state not in ("ON", "OFF", "1", "0"):
+                self.errors.append('-224,"Illegal parameter value"')
+            elif state in ("ON", "1") and self.fault == "output_error":
+                self.errors.append('-300,"Device-specific error; output protection tripped"')
+            else:
+                self._set_output(state in ("ON", "1"))
+            return None
+        raise KeyError(head)
 
     def _set_level(self, head: str, arg: str) -> None:
         try:

@@ -1,0 +1,121 @@
+"""A reference magnetometer (three-axis fluxgate) read through a DMM / DAQ over SCPI, and the
+batch checks built on it.
+
+Why: a model (WMM) says what the field *should* be; steel racks, a forklift or a new bench supply
+change what it *is*.  The reference is read at the start of a batch and every N units.  The
+station refuses to calibrate when it disagrees with the model by more than the station's
+tolerance, or when it drifts during the shift — with the figures in the message.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from magline.core.field import FieldSourceError
+from magline.core.scpi import InstrumentError, ScpiInstrument
+
+
+class ReferenceOptions(BaseModel):
+    """``field_source.options.reference`` in a station file."""
+
+    model_config = ConfigDict(extra="forbid", strict=True)
+    resource: str  # e.g. TCPIP0::10.0.0.7::5025::SOCKET
+    channels: str = "(@101,102,103)"  # the fluxgate's X, Y, Z outputs on the DAQ
+    scale_ut_per_v: Annotated[float, Field(gt=0)] = 10.0  # ±10 V = ±100 µT is common
+    tolerance_ut: Annotated[float, Field(gt=0)] = 1.5  # |reference − model| allowed
+    drift_limit_ut: Annotated[float, Field(gt=0)] = 0.5  # change of the magnitude since the batch start
+    every_n_units: Annotated[int, Field(ge=1)] = 10
+    readings: Annotated[int, Field(ge=1)] = 5  # averaged per check
+    timeout_s: Annotated[float, Field(gt=0)] = 2.0
+
+
+class Fluxgate:
+    def __init__(self, options: ReferenceOptions) -> None:
+        self.opts = options
+        try:
+            self.inst = ScpiInstrument(options.resource, options.timeout_s)
+            self.identity = self.inst.query("*IDN?")
+        except InstrumentError as exc:
+            raise FieldSourceError(f"reference magnetometer: {exc}") from exc
+
+    def read_ut(self) -> np.ndarray:
+        """Field vector (µT), the average of ``readings`` DAQ scans."""
+        scans = []
+        try:
+            for _ in range(self.opts.readings):
+                answer = self.inst.query(f"MEAS:VOLT:DC? {self.opts.channels}")
+                volts = [float(v) for v in answer.split(",")]
+                if len(volts) != 3:
+                    raise InstrumentError(f"{self.inst.resource}: expected 3 channels, got {answer!r}")
+                scans.append(volts)
+            self.inst.check("fluxgate reading")
+        except (InstrumentError, ValueError) as exc:
+            raise FieldSourceError(f"reference magnetometer: {exc}") from exc
+        return np.mean(scans, axis=0) * self.opts.scale_ut_per_v
+
+    def close(self) -> None:
+        self.inst.close()
+
+
+class ReferenceMonitor:
+    """Checks the reference against the model at the batch start and every N units."""
+
+    def __init__(self, options: ReferenceOptions, model_ut: float, model_name: str) -> None:
+        self.opts = options
+        self.model_ut = model_ut
+        self.model_name = model_name
+        self.fluxgate = Fluxgate(options)
+        self.units = 0
+        self.first_ut: float | None = None
+        self.last_ut: float | None = None
+
+    def before_unit(self) -> None:
+        if self.units % self.opts.every_n_units == 0:
+            self.check()
+        self.units += 1
+
+    def check(self) -> float:
+        measured = float(np.linalg.norm(self.fluxgate.read_ut()))
+        self.last_ut = measured
+        if abs(measured - self.model_ut) > self.opts.tolerance_ut:
+            raise FieldSourceError(
+                f"reference magnetometer reads {measured:.2f} µT, the {self.model_name} expects "
+                f"{self.model_ut:.2f} µT (difference {measured - self.model_ut:+.2f} µT, "
+                f"tolerance ±{self.opts.tolerance_ut:g} µT): the cell's field is disturbed — "
+                "find the magnetic object or move the fixture before calibrating")
+        if self.first_ut is None:
+            self.first_ut = measured
+        elif abs(measured - self.first_ut) > self.opts.drift_limit_ut:
+            raise FieldSourceError(
+                f"reference magnetometer drifted from {self.first_ut:.2f} µT at the batch start to {measured:.2f} µT "
+                f"after {self.units} units (limit ±{self.opts.drift_limit_ut:g} µT): stop and find what changed")
+        return measured
+
+    def close(self) -> None:
+        self.fluxgate.close()
+
+
+class CheckedField:
+    """A field magnitude from a model or a survey, checked against an optional live reference."""
+
+    def __init__(self, field_ut: float, reference: dict | None, model_name: str) -> None:
+        from magline.core.dut import validated_options
+
+        self.field_ut = float(field_ut)
+        self.monitor = (ReferenceMonitor(validated_options(ReferenceOptions, reference, "field_source reference"),
+                                         self.field_ut, model_name) if reference is not None else None)
+
+    def reference_field_ut(self) -> float:
+        if self.monitor is not None:
+            self.monitor.before_unit()
+        return self.field_ut
+
+    def finish_unit(self) -> None:
+        return None
+
+    def close(self) -> None:
+        if self.monitor is not None:
+            self.monitor.close()

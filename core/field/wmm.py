@@ -1,0 +1,68 @@
+"""The ``wmm`` field source: the World Magnetic Model at the station's place and date.
+
+Computed with NOAA's ``wmm-calculator`` package (WMM2025 ships inside it, works offline).  The
+station's ``location.altitude_m`` is read as height above mean sea level (what a site survey
+gives).  A date outside the model's validity warns and uses the nearest valid date: the field
+changes by ~0.1 %/year, far less than a fit's tolerance, but the station should get a newer model.
+Options: ``date`` (ISO, default today), ``reference`` (a fluxgate, see :mod:`.reference`).
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import warnings
+from typing import Any
+
+from magline.core.field.reference import CheckedField
+from magline.core.plugins import hookimpl
+
+NT_PER_UT = 1000.0
+
+
+def decimal_year(day: dt.date) -> float:
+    start = dt.date(day.year, 1, 1)
+    length = (dt.date(day.year + 1, 1, 1) - start).days
+    return day.year + (day - start).days / length
+
+
+def wmm_field_nt(lat_deg: float, lon_deg: float, alt_m: float, day: dt.date, above: str = "msl") -> dict[str, float]:
+    """North, east, down and total field (nT) from WMM; warns and clamps outside the model's validity."""
+    from wmm import wmm_calc
+
+    model = wmm_calc()
+    when = decimal_year(day)
+    try:
+        model.setup_time(dyear=when)
+    except ValueError as exc:
+        valid_from, valid_to = 2024.87, 2029.999  # what the shipped WMM2025 accepts
+        clamped = min(max(when, valid_from), valid_to)
+        warnings.warn(f"{day.isoformat()} is outside the World Magnetic Model's validity ({exc}); "
+                      f"using decimal year {clamped:.3f} — update wmm-calculator", stacklevel=2)
+        model.setup_time(dyear=clamped)
+    model.setup_env(lat_deg, lon_deg, alt_m, unit="m", msl=(above == "msl"))
+    values = model.get_all()
+    return {k: float(values[k][0]) for k in ("x", "y", "z", "f")}
+
+
+class WmmField(CheckedField):
+    def __init__(self, station: Any, options: dict[str, Any]) -> None:
+        loc = station.station.location
+        when = options.get("date")
+        self.day = dt.date.fromisoformat(when) if when else dt.date.today()
+        self.components_nt = wmm_field_nt(loc.latitude_deg, loc.longitude_deg, loc.altitude_m, self.day)
+        super().__init__(self.components_nt["f"] / NT_PER_UT, options.get("reference"),
+                         f"World Magnetic Model ({self.day.isoformat()})")
+
+
+def _factory(station: Any) -> WmmField:
+    options = dict(station.field_source.options)
+    unknown = set(options) - {"date", "reference"}
+    if unknown:
+        raise ValueError(f"field_source.options: unknown option(s) {', '.join(sorted(unknown))} for wmm "
+                         "(known: date, reference)")
+    return WmmField(station, options)
+
+
+@hookimpl
+def magline_register_field_sources(register):
+    register("wmm", _factory)
