@@ -15,6 +15,7 @@ from pathlib import Path
 
 from magline.core import __version__
 from magline.core.fit import FitOptions, FitRefused, fit_calibration
+from magline.core.fit.affine import fit_affine
 from magline.core.fit.samples_csv import SampleFileError, read_samples
 from magline.core.plugins import PluginError, Plugins, load_plugins
 from magline.core.record import Outcome
@@ -108,8 +109,8 @@ def _run(args: argparse.Namespace) -> int:
         plugins = load_plugins(extra=[console])
         station, where = _load(args.station, plugins)
         sequencer = Sequencer(station, plugins, where)
-    except (StationError, PluginError, ValueError, KeyError) as exc:
-        _err(str(exc))
+    except (StationError, PluginError, ValueError, KeyError, RuntimeError, OSError) as exc:
+        _err(str(exc))  # includes instruments that do not answer at start-up
         return 2
     try:
         code = 0
@@ -158,7 +159,10 @@ def _fit(args: argparse.Namespace) -> int:
         samples = read_samples(args.csv)
         options = FitOptions(model=args.model, field_ut=args.field_ut, range_ut=args.range_ut,
                              coverage_bins=args.bins)
-        result = fit_calibration(samples.mag_ut, options, t_ms=samples.t_ms, temp_c=samples.temp_c)
+        if samples.applied_ut is not None:  # a coil applied known vectors: the full affine model
+            result = fit_affine(samples.mag_ut, samples.applied_ut, args.field_ut)
+        else:
+            result = fit_calibration(samples.mag_ut, options, t_ms=samples.t_ms, temp_c=samples.temp_c)
     except SampleFileError as exc:
         _err(str(exc))
         return 2

@@ -44,6 +44,7 @@ CATALOGUE: dict[str, tuple[str, str]] = {
     "direction_sigma_deg": ("°", "predicted 1σ heading error over the orientations seen"),
     "rejected_fraction": ("", "share of samples excluded (clipped, spikes)"),
     "attempts": ("", "acquisition attempts needed"),
+    "misalignment_deg": ("°", "sensor axes rotated against the coil frame (Helmholtz affine fit only)"),
 }
 ARRAY_MEASUREMENTS: dict[str, str] = {"residual_ut": "µT"}
 AGGREGATIONS = ("mean", "std", "ptp")

@@ -7,7 +7,7 @@ all read the same figures; a dataclass with unit-suffixed names is the contract 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -55,7 +55,7 @@ class FitOptions:
 class FitResult:
     """A calibration such that ``soft_iron @ (m − hard_iron_ut)`` lies on a sphere of ``field_ut``."""
 
-    model: SoftIronModel
+    model: SoftIronModel | Literal["affine"]
     hard_iron_ut: NDArray
     soft_iron: NDArray
     field_ut: float
@@ -131,4 +131,5 @@ class FitResult:
             "samples": {"total": self.samples_total, "used": self.samples_used,
                         "rejected": dict(self.rejected)},
             "drift": self.drift,
+            **({"affine": self.extra} if self.model == "affine" else {}),
         }

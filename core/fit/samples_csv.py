@@ -18,6 +18,7 @@ from numpy.typing import NDArray
 
 REQUIRED = ("mag_x_ut", "mag_y_ut", "mag_z_ut")
 OPTIONAL = ("t_ms", "temp_c")
+APPLIED = ("applied_x_ut", "applied_y_ut", "applied_z_ut")  # the known field a Helmholtz coil applied
 
 
 class SampleFileError(ValueError):
@@ -29,6 +30,7 @@ class RawSamples:
     mag_ut: NDArray
     t_ms: NDArray | None = None
     temp_c: NDArray | None = None
+    applied_ut: NDArray | None = None  # per sample, when the field was applied (coil), not rotated
 
     def __len__(self) -> int:
         return len(self.mag_ut)
@@ -51,7 +53,9 @@ def parse_samples(text: str, name: str = "<samples>") -> RawSamples:
     missing = [c for c in REQUIRED if c not in header]
     if missing:
         raise SampleFileError(f"{name}:1: missing column(s) {', '.join(missing)} (header: {', '.join(header)})")
-    cols = [c for c in (*REQUIRED, *OPTIONAL) if c in header]
+    if any(c in header for c in APPLIED) and not all(c in header for c in APPLIED):
+        raise SampleFileError(f"{name}:1: give all of {', '.join(APPLIED)} or none")
+    cols = [c for c in (*REQUIRED, *OPTIONAL, *APPLIED) if c in header]
     index = {c: header.index(c) for c in cols}
     data: dict[str, list[float]] = {c: [] for c in cols}
     for lineno, row in enumerate(rows[1:], start=2):
@@ -72,7 +76,8 @@ def parse_samples(text: str, name: str = "<samples>") -> RawSamples:
     mag = np.column_stack([data[c] for c in REQUIRED])
     return RawSamples(mag_ut=mag,
                       t_ms=np.asarray(data["t_ms"]) if "t_ms" in data else None,
-                      temp_c=np.asarray(data["temp_c"]) if "temp_c" in data else None)
+                      temp_c=np.asarray(data["temp_c"]) if "temp_c" in data else None,
+                      applied_ut=np.column_stack([data[c] for c in APPLIED]) if APPLIED[0] in data else None)
 
 
 def format_samples(samples: RawSamples) -> str:
@@ -81,10 +86,14 @@ def format_samples(samples: RawSamples) -> str:
     cols = list(REQUIRED)
     extra = [("t_ms", samples.t_ms), ("temp_c", samples.temp_c)]
     cols += [name for name, values in extra if values is not None]
+    if samples.applied_ut is not None:
+        cols += list(APPLIED)
     writer = csv.writer(out, lineterminator="\n")
     writer.writerow(cols)
     for i in range(len(samples)):
         row = [f"{v:.4f}" for v in samples.mag_ut[i]]
         row += [f"{values[i]:.3f}" for _, values in extra if values is not None]
+        if samples.applied_ut is not None:
+            row += [f"{v:.4f}" for v in samples.applied_ut[i]]
         writer.writerow(row)
     return out.getvalue()

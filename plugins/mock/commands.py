@@ -14,8 +14,10 @@ from typing import Any
 
 
 def add_sim_command(subparsers: argparse._SubParsersAction) -> None:
-    sim = subparsers.add_parser("sim", help="run a simulated PX4 or ArduPilot flight controller (MAVLink)")
-    sim.add_argument("flavour", choices=["px4", "ardupilot"])
+    sim = subparsers.add_parser("sim", help="run a simulated flight controller (MAVLink) or Helmholtz coil (SCPI)")
+    sim.add_argument("flavour", choices=["px4", "ardupilot", "coil"],
+                     help="coil: a 3-axis Helmholtz coil current source (default tcp:127.0.0.1:5026) with a "
+                          "fluxgate DAQ at its centre (--fluxgate, default tcp:127.0.0.1:5027)")
     sim.add_argument("--listen", help="udp:HOST:PORT or tcp:HOST:PORT (default: px4 udp:127.0.0.1:14550, "
                                       "ardupilot tcp:127.0.0.1:5760; port 0 picks a free one)")
     sim.add_argument("--workdir", default=".", help="where the parameter storage file lives (default: .)")
@@ -36,10 +38,14 @@ def add_sim_command(subparsers: argparse._SubParsersAction) -> None:
     sim.add_argument("--supply", metavar="tcp:HOST:PORT",
                      help="also run a simulated SCPI bench supply that powers this board (it starts off)")
     sim.add_argument("--supply-fault", choices=["dead_board", "short", "output_error"])
+    sim.add_argument("--fluxgate", default="tcp:127.0.0.1:5027", help="coil only: the fluxgate DAQ's address")
+    sim.add_argument("--coil-fault", choices=["output_off", "over_current", "scpi_error", "silent"])
     sim.set_defaults(handler=run_sim)
 
 
 def run_sim(args: argparse.Namespace) -> int:
+    if args.flavour == "coil":
+        return run_coil_sim(args)
     from magline.plugins.mock.sim import SimFaults, create_sim
     from magline.plugins.mock.sim.magnetometers import MOTIONS
 
@@ -83,4 +89,29 @@ def run_sim(args: argparse.Namespace) -> int:
         sim.stop()
         if supply is not None:
             supply.stop()
+    return 0
+
+
+def run_coil_sim(args: argparse.Namespace) -> int:
+    from magline.plugins.mock.sim.coil import CoilSim
+    from magline.plugins.mock.sim.fluxgate import FluxgateSim
+
+    try:
+        coil = CoilSim(args.listen or "tcp:127.0.0.1:5026", fault=args.coil_fault, seed=args.seed).start()
+        fluxgate = FluxgateSim(args.fluxgate, coil.true_field_ut, seed=args.seed).start()
+    except (ValueError, OSError) as exc:
+        print(f"magline sim: {exc}", file=sys.stderr)
+        return 2
+    print(f"listening on {coil.address}", flush=True)
+    print(f"coil current source (VISA {coil.visa_resource}); fluxgate DAQ at the centre on {fluxgate.address} "
+          f"(VISA {fluxgate.visa_resource}); ambient field {coil.ambient.tolist()} µT", flush=True)
+    signal.signal(signal.SIGTERM, lambda *_: coil._stop.set())
+    try:
+        while not coil._stop.wait(0.5):
+            pass
+    except KeyboardInterrupt:
+        pass
+    finally:
+        coil.stop()
+        fluxgate.stop()
     return 0

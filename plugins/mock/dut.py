@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import socket
 import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from magline.core.dut import DutError, ParamValue, SampleChunk, UnitInfo
 from magline.core.fit import FitResult
@@ -32,6 +34,8 @@ class MockDut:
         self.truth = SensorTruth(hard_iron_ut=np.array(options.hard_iron_ut),
                                  soft_iron=np.array(options.soft_iron), noise_ut=options.noise_ut)
         self.field_ned = earth_field_ned(options.field_ut, options.inclination_deg)
+        # sensor frame = body frame rotated by the misalignment: the sensor sees Rᵀ·b
+        self.to_sensor = Rotation.from_rotvec(np.deg2rad(options.misalignment_deg)).inv()
         self.storage = NvStorage(Path(options.storage))
         self.ram: dict[str, ParamValue] = {}
         self.acquisitions = 0
@@ -66,26 +70,43 @@ class MockDut:
 
     # ------------------------------------------------------------------ data
     def samples(self, rate_hz: float) -> Iterator[SampleChunk]:
-        """Raw samples while the simulated operator moves the unit (motion chosen per attempt)."""
-        motion = self.opts.motions[min(self.acquisitions, len(self.opts.motions) - 1)]
-        self.acquisitions += 1
+        """Raw samples while the simulated operator moves the unit (motion chosen per attempt), or,
+        in a coil, while it stands still in whatever field the coil makes."""
+        field_chunks = self._coil_field_chunks() if self.opts.coil_sim else self._motion_field_chunks()
         t0 = time.monotonic()
         sent = 0
+        for block in field_chunks:
+            if not self.connected:
+                raise DutError("link to mock DUT lost")
+            raw = self.truth.read(self.to_sensor.apply(block), self.rng)
+            t_ms = (sent + np.arange(len(raw))) * 1000.0 / rate_hz
+            sent += len(raw)
+            if self.opts.realtime:
+                delay = t0 + sent / rate_hz - time.monotonic()
+                if delay > 0:
+                    time.sleep(delay)
+            yield SampleChunk(mag_ut=raw, t_ms=t_ms)
+
+    def _motion_field_chunks(self) -> Iterator[np.ndarray]:
+        motion = self.opts.motions[min(self.acquisitions, len(self.opts.motions) - 1)]
+        self.acquisitions += 1
         while True:
-            directions = self._motion(motion)
-            fields = directions * self.opts.field_ut
+            fields = self._motion(motion) * self.opts.field_ut
             for start in range(0, len(fields), CHUNK):
-                if not self.connected:
-                    raise DutError("link to mock DUT lost")
-                block = fields[start:start + CHUNK]
-                raw = self.truth.read(block, self.rng)
-                t_ms = (sent + np.arange(len(raw))) * 1000.0 / rate_hz
-                sent += len(raw)
-                if self.opts.realtime:
-                    delay = t0 + sent / rate_hz - time.monotonic()
-                    if delay > 0:
-                        time.sleep(delay)
-                yield SampleChunk(mag_ut=raw, t_ms=t_ms)
+                yield fields[start:start + CHUNK]
+
+    def _coil_field_chunks(self) -> Iterator[np.ndarray]:
+        _, host, port = str(self.opts.coil_sim).split(":")
+        try:
+            link = socket.create_connection((host, int(port)), timeout=2.0)
+        except OSError as exc:
+            raise DutError(f"mock DUT: coil simulator {self.opts.coil_sim} not reachable: {exc}") from exc
+        with link, link.makefile("rw", encoding="ascii", newline="\n") as wire:
+            while True:
+                wire.write("SIM:FIELD?\n")
+                wire.flush()
+                field = np.array([float(v) for v in wire.readline().split(",")])
+                yield np.tile(field, (CHUNK, 1))
 
     def _motion(self, name: str) -> np.ndarray:
         n = self.opts.motion_samples

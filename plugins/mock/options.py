@@ -32,5 +32,11 @@ class MockOptions(BaseModel):
     motion_samples: Annotated[int, Field(ge=50)] = 600
     realtime: bool = True
     storage: str = "mock-dut-storage.json"
+    # The unit stands at the centre of a simulated Helmholtz coil (``magline sim coil``): its field is
+    # whatever the coil makes there, asked through the simulator's SIM:FIELD? channel.
+    coil_sim: str | None = None
+    # Sensor axes rotated against the body (fixture) frame: invisible to Earth-field tumbling,
+    # recovered by the coil's full affine fit.
+    misalignment_deg: Annotated[list[float], Field(min_length=3, max_length=3)] = [0.0, 0.0, 0.0]
     seed: int | None = None
     faults: MockFaults = Field(default_factory=MockFaults)

@@ -1,0 +1,80 @@
+"""The full affine calibration, possible when the applied field is known (a Helmholtz coil).
+
+With Earth-field tumbling only the field's *magnitude* is known, so only the symmetric part of
+the calibration matrix is determined.  When a coil applies known vectors ``b`` to a unit standing
+still, the sensor model ``m = A·b + h + noise`` is linear in (A, h) with the noise on the
+measured side, so ordinary least squares is the maximum-likelihood estimate: the offset and a full,
+non-symmetric matrix including the sensor's misalignment to the coil (fixture) frame.
+
+``M = A⁻¹`` is the full calibration (``b = M·(m − h)``); its polar decomposition ``M = R·P``
+splits it into what autopilots can hold — the symmetric ``P`` (magline's ``soft_iron``) — and a
+rotation ``R`` reported as the misalignment angle.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.linalg import polar
+from scipy.spatial.transform import Rotation
+
+from magline.core.fit.result import FitRefused, FitResult
+
+MIN_STEPS = 7  # distinct applied vectors; 12 unknowns need several well spread ones
+
+
+def fit_affine(mag_ut: NDArray, applied_ut: NDArray, field_ut: float | None = None) -> FitResult:
+    """Least-squares ``m = A·b + h``; returns the symmetric part as ``soft_iron`` and, in ``extra``,
+    the full matrix, the rotation and the misalignment angle (degrees)."""
+    m = np.asarray(mag_ut, float)
+    b = np.asarray(applied_ut, float)
+    if m.shape != b.shape or m.ndim != 2 or m.shape[1] != 3:
+        raise ValueError("mag_ut and applied_ut must both be N×3")
+    steps = np.unique(np.round(b, 3), axis=0)
+    spread = np.linalg.svd(steps - steps.mean(axis=0), compute_uv=False) if len(steps) > 1 else np.zeros(3)
+    if len(steps) < MIN_STEPS or spread[-1] < 1e-6 * max(spread[0], 1e-12):
+        raise FitRefused("degenerate_schedule",
+                         f"only {len(steps)} distinct applied field vectors, not spanning three axes",
+                         "check the coil schedule: it needs well spread directions on all three axes")
+    x = np.column_stack([b, np.ones(len(b))])
+    theta, *_ = np.linalg.lstsq(x, m, rcond=None)
+    a, h = theta[:3].T, theta[3]
+    predicted = x @ theta
+    dof = max(3 * (len(m) - 4), 1)
+    sigma2 = float(np.sum((m - predicted) ** 2) / dof)
+    xtx_inv = np.linalg.inv(x.T @ x)
+    h_sigma = np.sqrt(sigma2 * xtx_inv[3, 3]) * np.ones(3)
+    a_sigma = np.sqrt(sigma2 * np.diag(xtx_inv)[:3])
+    full = np.linalg.inv(a)
+    rotation, sym = _rotation_then_symmetric(full)
+    if np.linalg.det(rotation) < 0:
+        raise FitRefused("reflected_axes", "the fitted matrix reflects an axis (a sensor axis is wired reversed)",
+                         "check the sensor's orientation setting / wiring before calibrating")
+    rotvec = Rotation.from_matrix(rotation).as_rotvec(degrees=True)
+    magnitudes = np.linalg.norm(b, axis=1)
+    live = magnitudes > 1e-9
+    field = float(field_ut) if field_ut is not None else float(magnitudes[live].mean())
+    calibrated = (m - h) @ sym.T
+    residuals = np.linalg.norm(calibrated, axis=1) - magnitudes
+    soft_sigma = np.abs(sym) * float(np.sqrt(np.mean(a_sigma**2)))
+    return FitResult(
+        model="affine", hard_iron_ut=h, soft_iron=sym, field_ut=field,
+        field_estimate_ut=float(np.linalg.norm(calibrated[live], axis=1).mean()) if live.any() else field,
+        field_sigma_ut=float(np.sqrt(sigma2 / max(live.sum(), 1))), reference_field_ut=field_ut,
+        raw_to_reference_ratio=float(np.mean(np.linalg.norm(m[live] - h, axis=1) / magnitudes[live]))
+        if live.any() and field_ut is not None else None,
+        raw_to_reference_sigma=None, hard_iron_sigma_ut=h_sigma, soft_iron_sigma=soft_sigma,
+        residuals_ut=residuals, used=np.ones(len(m), bool), samples_total=len(m), rejected={},
+        coverage=1.0, coverage_bins=len(steps), planarity=float(spread[-1] / spread[0]),
+        condition_number=float(np.linalg.cond(x.T @ x)),
+        direction_sigma_deg=float(np.degrees(np.sqrt(sigma2) / field)), noise_ut=float(np.sqrt(sigma2)),
+        extra={"method": "affine (known applied field)", "full_matrix": full.tolist(),
+               "rotation": rotation.tolist(), "misalignment_deg": float(np.linalg.norm(rotvec)),
+               "misalignment_rotvec_deg": rotvec.tolist(), "steps": len(steps)},
+    )
+
+
+def _rotation_then_symmetric(full: NDArray) -> tuple[NDArray, NDArray]:
+    """``full = R·P`` with R a rotation and P symmetric positive definite."""
+    u, p = polar(full, side="right")  # full = u @ p
+    return u, p

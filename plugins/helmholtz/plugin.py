@@ -1,0 +1,76 @@
+"""Registers the ``helmholtz`` field source and takes over acquisition and fit on coil stations.
+
+The acquire and fit hooks answer only when the station's field source is the coil (or the
+samples carry the applied field); otherwise they return ``None`` and the core's tumble
+acquisition and ellipsoid fit run as usual.
+"""
+
+from __future__ import annotations
+
+import time
+from contextlib import closing
+
+import numpy as np
+
+from magline.core.dut import DutError
+from magline.core.fit import FitOptions, FitResult
+from magline.core.fit.affine import fit_affine
+from magline.core.fit.samples_csv import RawSamples
+from magline.core.measurements import Numeric
+from magline.core.plugins import hookimpl
+from magline.core.sequencer.context import Acquisition, RunContext
+from magline.plugins.helmholtz.source import HelmholtzField, create_helmholtz_field, schedule
+
+
+@hookimpl
+def magline_register_field_sources(register):
+    register("helmholtz", create_helmholtz_field)
+
+
+@hookimpl
+def magline_acquire(run: RunContext, attempt: int) -> Acquisition | None:
+    source = run.field_source
+    if not isinstance(source, HelmholtzField):
+        return None
+    opts = source.opts
+    steps = schedule(opts)
+    run.prompt("Place the unit at the coil centre and do not touch it")
+    mags, times, applied = [], [], []
+    dut = run.require_dut()
+    with closing(dut.samples(run.station.acquisition.rate_hz)) as stream:
+        for index, vector in enumerate(steps, start=1):
+            source.coil.apply(vector)
+            time.sleep(opts.settle_s)
+            next(stream)  # samples already in flight were taken in the previous field
+            got = 0
+            while got < opts.samples_per_step:
+                chunk = next(stream, None)
+                if chunk is None:
+                    raise DutError("the DUT stopped sending samples during the coil schedule")
+                take = np.atleast_2d(chunk.mag_ut)[: opts.samples_per_step - got]
+                mags.append(take)
+                times.append(np.atleast_1d(chunk.t_ms)[: len(take)])
+                applied.append(np.tile(vector, (len(take), 1)))
+                got += len(take)
+            target = run.station.acquisition.coverage_target
+            run.progress(attempt, sum(len(m) for m in mags), index / len(steps), target)
+    source.coil.apply(np.zeros(3))
+    samples = RawSamples(mag_ut=np.vstack(mags), t_ms=np.concatenate(times), applied_ut=np.vstack(applied))
+    return Acquisition(attempt=attempt, samples=samples, coverage=1.0, target=run.station.acquisition.coverage_target)
+
+
+@hookimpl
+def magline_fit(run: RunContext, samples: RawSamples, options: FitOptions) -> FitResult | None:
+    if samples.applied_ut is None:
+        return None
+    fit = fit_affine(samples.mag_ut, samples.applied_ut, options.field_ut)
+    run.log(f"misalignment {fit.extra['misalignment_deg']:.3f}° to the coil frame "
+            f"(rotation vector {np.round(fit.extra['misalignment_rotvec_deg'], 3).tolist()}°)")
+    return fit
+
+
+@hookimpl
+def magline_validate(run: RunContext, fit: FitResult) -> list | None:
+    if fit.model != "affine":
+        return []
+    return [Numeric.of("misalignment_deg", fit.extra["misalignment_deg"], run.limits)]

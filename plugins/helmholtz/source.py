@@ -1,0 +1,128 @@
+"""The ``helmholtz`` field source: a 3-axis coil that applies known field vectors to a unit standing still.
+
+Before the shift (the first unit): the coil is energised at full field and must be stable over
+``warmup_s`` (warm-up check), the ambient field is nulled in closed loop with the fluxgate at the
+centre, and each axis is verified against the fluxgate at ``field_ut``.  A failed check stops the
+batch with the figures; an instrument that fails errors the unit with its own message.  The coil
+is switched off at the end of every unit, also after errors.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from magline.core.dut import validated_options
+from magline.core.field import FieldSourceError
+from magline.core.field.reference import Fluxgate
+from magline.core.fit.coverage import fibonacci_sphere
+from magline.plugins.helmholtz.coil import CoilDriver
+from magline.plugins.helmholtz.options import HelmholtzOptions
+
+AXES = np.eye(3)
+
+
+def schedule(options: HelmholtzOptions) -> NDArray:
+    """Applied vectors: well spread directions at ``field_ut``, then the zero-field steps."""
+    return np.vstack([fibonacci_sphere(options.directions) * options.field_ut, np.zeros((options.zero_steps, 3))])
+
+
+class HelmholtzField:
+    def __init__(self, options: HelmholtzOptions, sleep=time.sleep) -> None:
+        self.opts = options
+        self.sleep = sleep
+        self._coil: CoilDriver | None = None
+        self._fluxgate: Fluxgate | None = None
+        self.ready = False
+        self.shift_report: dict[str, Any] = {}
+
+    @property
+    def coil(self) -> CoilDriver:
+        """Opened on first use, so an instrument that does not answer errors a unit, not the start-up."""
+        if self._coil is None:
+            self._coil = CoilDriver(self.opts)
+        return self._coil
+
+    @property
+    def fluxgate(self) -> Fluxgate:
+        if self._fluxgate is None:
+            self._fluxgate = Fluxgate(self.opts.reference)
+        return self._fluxgate
+
+    def reference_field_ut(self) -> float:
+        if not self.ready:
+            self.prepare_shift()
+        return self.opts.field_ut
+
+    # ------------------------------------------------------------------ before the shift
+    def prepare_shift(self) -> None:
+        self._warm_up()
+        self._null_ambient()
+        self._verify_axes()
+        self.ready = True
+
+    def _warm_up(self) -> None:
+        self.coil.apply(AXES[0] * self.opts.field_ut)
+        self.sleep(self.opts.settle_s)
+        first = self.fluxgate.read_ut()
+        self.sleep(self.opts.warmup_s)
+        second = self.fluxgate.read_ut()
+        change = float(np.linalg.norm(second - first))
+        self.shift_report["warmup_change_ut"] = change
+        if change > self.opts.warmup_limit_ut:
+            raise FieldSourceError(f"coil not warmed up: the field at {self.opts.field_ut:g} µT changed by "
+                                   f"{change:.3f} µT in {self.opts.warmup_s:g} s "
+                                   f"(limit {self.opts.warmup_limit_ut:g} µT) — keep it energised longer "
+                                   "before the shift")
+
+    def _null_ambient(self) -> None:
+        """Closed loop: command zero field, read what is left, fold it into the ambient estimate."""
+        self.coil.ambient_ut = np.zeros(3)
+        residual = np.full(3, np.inf)
+        for _ in range(self.opts.null_iterations):
+            self.coil.apply(np.zeros(3))
+            self.sleep(self.opts.settle_s)
+            residual = self.fluxgate.read_ut()
+            if np.linalg.norm(residual) <= self.opts.null_tolerance_ut:
+                break
+            self.coil.ambient_ut = self.coil.ambient_ut + residual
+        left = float(np.linalg.norm(residual))
+        self.shift_report |= {"ambient_ut": self.coil.ambient_ut.tolist(), "null_residual_ut": left}
+        if left > self.opts.null_tolerance_ut:
+            raise FieldSourceError(f"ambient field not nulled: {left:.3f} µT left after {self.opts.null_iterations} "
+                                   f"iterations (tolerance {self.opts.null_tolerance_ut:g} µT)")
+
+    def _verify_axes(self) -> None:
+        errors = []
+        for axis, name in zip(AXES, "xyz", strict=True):
+            self.coil.apply(axis * self.opts.field_ut)
+            self.sleep(self.opts.settle_s)
+            got = float(self.fluxgate.read_ut() @ axis)
+            pct = (got / self.opts.field_ut - 1.0) * 100.0
+            self.shift_report[f"verify_{name}_pct"] = pct
+            if abs(pct) > self.opts.verify_tolerance_pct:
+                errors.append(f"axis {name} gives {got:.2f} µT for {self.opts.field_ut:g} µT ({pct:+.2f} %)")
+        if errors:
+            raise FieldSourceError("coil field verification failed: " + "; ".join(errors) +
+                                   f" (tolerance ±{self.opts.verify_tolerance_pct:g} %) — check the coil constants")
+
+    # ------------------------------------------------------------------ per unit
+    def finish_unit(self) -> None:
+        if self._coil is not None:
+            self._coil.off()
+
+    def close(self) -> None:
+        try:
+            self.finish_unit()
+        finally:
+            for instrument in (self._coil, self._fluxgate):
+                if instrument is not None:
+                    instrument.close()
+
+
+def create_helmholtz_field(station: Any) -> HelmholtzField:
+    options = validated_options(HelmholtzOptions, dict(station.field_source.options), "helmholtz field source")
+    return HelmholtzField(options)

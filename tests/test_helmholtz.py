@@ -1,0 +1,121 @@
+"""The Helmholtz coil field source end to end on the simulated coil, fluxgate and mock DUT."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import yaml
+from conftest import REPO
+from scipy.spatial.transform import Rotation
+from simstation import run_unit
+
+from magline.core.cli import main
+from magline.core.fit.samples_csv import RawSamples, format_samples
+from magline.core.plugins import load_plugins
+from magline.core.record import Outcome
+from magline.core.sequencer import Sequencer
+from magline.core.station import load_station
+from magline.plugins.mock.options import MockOptions
+from magline.plugins.mock.sim.coil import CoilSim
+from magline.plugins.mock.sim.fluxgate import FluxgateSim
+
+MISALIGNMENT = [1.2, -1.0, 1.2]  # rotation vector, degrees: 1.97° in all
+
+
+class Cell:
+    """A coil with its fluxgate, on free loopback ports."""
+
+    def __init__(self, **coil_options) -> None:
+        self.coil = CoilSim("tcp:127.0.0.1:0", seed=1, **coil_options).start()
+        self.fluxgate = FluxgateSim("tcp:127.0.0.1:0", self.coil.true_field_ut, noise_ut=0.005, seed=2).start()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.coil.stop()
+        self.fluxgate.stop()
+
+    def station(self, tmp_path, source: dict | None = None, seed: int = 3):
+        cfg = yaml.safe_load((REPO / "stations" / "helmholtz-sim.yaml").read_text(encoding="utf-8"))
+        product = cfg["products"]["MOCK-COIL-100"]
+        product["options"] |= {"coil_sim": self.coil.address, "realtime": False, "seed": seed,
+                               "storage": str(tmp_path / "dut.json"), "misalignment_deg": MISALIGNMENT}
+        options = cfg["field_source"]["options"]
+        options["resource"] = self.coil.visa_resource
+        options["reference"]["resource"] = self.fluxgate.visa_resource
+        options["warmup_s"] = 0.3
+        options |= source or {}
+        cfg["results"]["path"] = str(tmp_path / "results.sqlite")
+        path = tmp_path / "station.yaml"
+        path.write_text(yaml.safe_dump(cfg, sort_keys=False), encoding="utf-8")
+        return path
+
+
+def test_coil_station_recovers_offset_and_full_matrix_with_misalignment(tmp_path):
+    with Cell() as cell:
+        record = run_unit(cell.station(tmp_path))
+        assert record.verdict is Outcome.PASS, record.cause
+        assert cell.coil.output is False and not cell.coil.current.any()  # switched off at the end
+    truth = MockOptions()
+    s_true = np.array(truth.soft_iron)
+    r_true = Rotation.from_rotvec(np.deg2rad(MISALIGNMENT)).as_matrix()
+    cal = record.calibration
+    h, h_sigma = np.array(cal["hard_iron_ut"]), np.array(cal["hard_iron_sigma_ut"])
+    assert np.all(np.abs(h - truth.hard_iron_ut) < 4 * h_sigma + 1e-3), (h, h_sigma)
+    full = np.array(cal["affine"]["full_matrix"])
+    assert np.abs(full - r_true @ s_true).max() < 3e-3  # the full 3×3, rotation included
+    assert np.abs(np.array(cal["soft_iron"]) - s_true).max() < 3e-3  # its symmetric part is what the DUT gets
+    assert cal["affine"]["misalignment_deg"] == pytest.approx(np.linalg.norm(MISALIGNMENT), abs=0.1)
+    mis = next(m for m in record.measurements if m.name == "misalignment_deg")
+    assert mis.verdict.value == "pass" and mis.high == 3.0
+
+
+@pytest.mark.parametrize("fault,message", [
+    ("silent", "no answer to '*IDN?'"),
+    ("output_off", "coil channel 1 set to"),
+    ("over_current", "over-current on channel"),
+    ("scpi_error", "-350,\"Queue overflow"),
+])
+def test_coil_faults_error_the_unit_with_the_instruments_message_and_leave_it_off(tmp_path, fault, message):
+    with Cell(fault=fault) as cell:
+        path = cell.station(tmp_path, {"timeout_s": 0.5})
+        seq = Sequencer(load_station(path), load_plugins(), tmp_path, sleep=lambda s: None)
+        record = seq.run_unit("SN-F")
+        seq.close()
+        assert record.verdict is Outcome.ERROR
+        assert message in record.cause
+        assert cell.coil.output is False
+
+
+def test_a_coil_that_is_not_warmed_up_stops_the_batch(tmp_path):
+    with Cell(warmup_drop=0.05, warmup_tau_s=0.5) as cell:
+        record = run_unit(cell.station(tmp_path))
+        assert record.verdict is Outcome.ERROR
+        assert "batch stopped: coil not warmed up" in record.cause
+
+
+def test_wrong_coil_constants_fail_the_field_verification(tmp_path):
+    with Cell() as cell:
+        record = run_unit(cell.station(tmp_path, {"constants_ut_per_a": [103.0, 102.0, 98.5]}))
+        assert record.verdict is Outcome.ERROR
+        assert "coil field verification failed: axis x gives" in record.cause
+        assert "check the coil constants" in record.cause
+
+
+def test_magline_fit_uses_the_affine_model_when_the_csv_has_the_applied_field(tmp_path, capsys, rng):
+    r = Rotation.from_rotvec(np.deg2rad([0.0, 0.0, 2.0])).as_matrix()
+    s = np.diag([1.03, 0.98, 1.0])
+    h = np.array([12.0, -7.0, 30.0])
+    steps = np.vstack([rng.normal(size=(30, 3)), np.zeros((1, 3))])
+    steps[:30] *= 50 / np.linalg.norm(steps[:30], axis=1, keepdims=True)
+    applied = np.repeat(steps, 5, axis=0)
+    mag = np.linalg.solve(r @ s, applied.T).T + h + rng.normal(scale=0.2, size=applied.shape)
+    path = tmp_path / "coil.csv"
+    path.write_text(format_samples(RawSamples(mag_ut=mag, applied_ut=applied)), encoding="utf-8")
+    assert main(["fit", str(path), "--json", "--field-ut", "50"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["model"] == "affine" and doc["affine"]["misalignment_deg"] == pytest.approx(2.0, abs=0.1)
+    assert doc["hard_iron_ut"] == pytest.approx(h, abs=0.1)
