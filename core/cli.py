@@ -13,6 +13,8 @@ import sys
 from importlib.resources import as_file, files
 from pathlib import Path
 
+from pydantic import ValidationError
+
 from magline.core import __version__
 from magline.core.fit import FitOptions, FitRefused, fit_calibration
 from magline.core.fit.affine import fit_affine
@@ -85,6 +87,10 @@ def _load(path: str | None, plugins: Plugins) -> tuple[Station, Path]:
             line = line_of(text, ("products", part, "backend"))
             problems.append(f"{name}:{line}: products.{part}.backend: unknown DUT backend "
                             f"{product.backend!r}; loaded: {', '.join(sorted(plugins.dut_backends))}")
+        problems += _option_problems(plugins, ("dut backend", product.backend), product.options,
+                                     ("products", part, "options"), text, name)
+        problems += _option_problems(plugins, ("power control", product.power.method), product.power.options,
+                                     ("products", part, "power", "options"), text, name)
         if product.power.method not in plugins.power_controls:
             line = line_of(text, ("products", part, "power", "method"))
             problems.append(f"{name}:{line}: products.{part}.power.method: unknown power control "
@@ -98,6 +104,20 @@ def _load(path: str | None, plugins: Plugins) -> tuple[Station, Path]:
     if problems:
         raise StationError(problems)
     return station, where
+
+
+def _option_problems(plugins: Plugins, key: tuple[str, str], options: dict, where: tuple, text: str,
+                     name: str) -> list[str]:
+    """A plugin's declared options model applied to the station file's options, one line per problem."""
+    model = plugins.option_models.get(key)
+    if model is None:
+        return []
+    try:
+        model.model_validate(options)
+    except ValidationError as exc:
+        return [f"{name}:{line_of(text, (*where, *err['loc']))}: {'.'.join(map(str, (*where, *err['loc'])))}: "
+                f"{err['msg']}" for err in exc.errors()]
+    return []
 
 
 def _run(args: argparse.Namespace) -> int:

@@ -42,9 +42,11 @@ hookspec = pluggy.HookspecMarker("magline")
 def magline_register_dut_backends(register: Callable[[str, DutFactory], None]) -> None:
     """Add DUT backends by name.  Called once when the plugin manager starts.
 
-    :param register: call ``register(name, factory)`` once per backend; ``factory(product)``
-        receives the station file's product entry and returns a :class:`~magline.core.dut.DutBackend`.
-        The name is what a station file writes under ``products.<part>.backend``.
+    :param register: call ``register(name, factory, options=Model)`` once per backend;
+        ``factory(product)`` receives the station file's product entry and returns a
+        :class:`~magline.core.dut.DutBackend`.  The name is what a station file writes under
+        ``products.<part>.backend``; the optional pydantic ``Model`` lets ``magline check`` validate
+        ``products.<part>.options`` (with file and line) before any unit is connected.
     """
 
 
@@ -75,7 +77,8 @@ def magline_register_power_controls(register: Callable[[str, Callable[..., Any]]
     :param register: call ``register(name, factory)``; ``factory(power_config, station_dir)``
         receives the product's ``power`` entry (method and options) and returns a
         :class:`~magline.core.power.PowerControl`.  The name is what a station file writes under
-        ``products.<part>.power.method``; the core registers ``mavlink-reboot``.
+        ``products.<part>.power.method``; the core registers ``mavlink-reboot``.  As for backends,
+        ``options=Model`` lets ``magline check`` validate ``products.<part>.power.options``.
     """
 
 

@@ -42,19 +42,23 @@ class Plugins:
         self.field_sources: dict[str, Callable[..., Any]] = {}
         self.result_sinks: dict[str, Callable[..., Any]] = {}
         self.power_controls: dict[str, Callable[..., Any]] = {}
+        # options models a plugin declared at registration (``register(name, factory, options=Model)``),
+        # so ``magline check`` validates a product's options before any unit is connected
+        self.option_models: dict[tuple[str, str], type] = {}
         self._collect("dut backend", self.dut_backends, self.hook.magline_register_dut_backends)
         self._collect("field source", self.field_sources, self.hook.magline_register_field_sources)
         self._collect("result sink", self.result_sinks, self.hook.magline_register_result_sinks)
         self._collect("power control", self.power_controls, self.hook.magline_register_power_controls)
 
-    @staticmethod
-    def _collect(kind: str, registry: dict[str, Any], hook: Any) -> None:
-        def register(name: str, factory: Any) -> None:
+    def _collect(self, kind: str, registry: dict[str, Any], hook: Any) -> None:
+        def register(name: str, factory: Any, options: type | None = None) -> None:
             if not isinstance(name, str) or not name:
                 raise PluginError(f"a {kind} must be registered under a non-empty name")
             if name in registry:
                 raise PluginError(f"{kind} {name!r} is registered twice")
             registry[name] = factory
+            if options is not None:
+                self.option_models[(kind, name)] = options
 
         hook(register=register)
 

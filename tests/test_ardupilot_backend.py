@@ -175,3 +175,19 @@ def test_compass_learn_is_switched_off_during_the_test_and_restored(tmp_path):
         seq.close()
         assert record.verdict is Outcome.PASS, record.cause
         assert seen == [0] and sim.param("COMPASS_LEARN") == 3
+
+
+def test_firmware_limits_name_the_limit_before_anything_is_written():
+    from magline.core.dut import DutError
+    from magline.plugins.ardupilot.calibration import check_firmware_limits
+
+    good = {"COMPASS_OFS2_X": -300.0, "COMPASS_OFS2_Y": 100.0, "COMPASS_OFS2_Z": 50.0,
+            "COMPASS_DIA2_X": 1.0, "COMPASS_DIA2_Y": 1.1, "COMPASS_DIA2_Z": 0.9,
+            "COMPASS_ODI2_X": 0.05, "COMPASS_ODI2_Y": -0.02, "COMPASS_ODI2_Z": 0.0, "COMPASS_SCALE2": 1.0}
+    check_firmware_limits(good, "2", 1800.0)
+    with pytest.raises(DutError, match=r"COMPASS_DIA2_Y = 5.5000 outside ArduPilot's diagonal limits 0.2–5"):
+        check_firmware_limits(good | {"COMPASS_DIA2_Y": 5.5}, "2", 1800.0)
+    with pytest.raises(DutError, match=r"COMPASS_ODI2_X = 1.2000 outside ArduPilot's off-diagonal limit ±1"):
+        check_firmware_limits(good | {"COMPASS_ODI2_X": 1.2}, "2", 1800.0)
+    with pytest.raises(DutError, match=r"exceeds COMPASS_OFFS_MAX = 300 mG"):
+        check_firmware_limits(good, "2", 300.0)

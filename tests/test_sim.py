@@ -443,3 +443,25 @@ def test_magline_sim_rejects_a_bad_fault_name(tmp_path):
     out = subprocess.run([sys.executable, "-m", "magline.core.cli", "sim", "px4", "--fault", "melt",
                           "--workdir", str(tmp_path)], capture_output=True, text=True, timeout=30)
     assert out.returncode == 2 and "unknown fault 'melt'" in out.stderr
+
+
+def test_dropped_packets_fault_loses_a_share_of_the_frames(tmp_path):
+    with create_sim("px4", "udp:127.0.0.1:0", workdir=tmp_path, seed=9, boot_time_s=0.2,
+                    faults=SimFaults(drop_percent=40.0)) as sim:
+        gcs = Gcs(sim.address, timeout=10.0)
+        acked = None
+        for _ in range(10):  # the request or its ACK may be lost too: ask again, as a client must
+            acked = gcs.command(ML.MAV_CMD_SET_MESSAGE_INTERVAL, ML.MAVLINK_MSG_ID_SCALED_IMU, 5_000, timeout=0.5)
+            if acked is not None:
+                break
+        assert acked is not None
+        first = gcs.recv("SCALED_IMU", timeout=2.0)
+        got = [first]
+        while len(got) < 150:
+            msg = gcs.recv("SCALED_IMU", timeout=2.0)
+            assert msg is not None
+            got.append(msg)
+        # consecutive time stamps are 5 ms apart when nothing is lost
+        span_ms = got[-1].time_boot_ms - got[0].time_boot_ms
+        sent = span_ms / 5.0 + 1
+        assert 0.45 < len(got) / sent < 0.75  # about 60 % arrive

@@ -100,3 +100,19 @@ def test_run_with_bad_station_exits_2_and_runs_nothing(tmp_path, capsys):
     assert main(["run", str(path), "--serial", "X1"]) == 2
     assert "station.line: required key is missing" in capsys.readouterr().err
     assert not (tmp_path / "magline-results.sqlite").exists()
+
+
+def test_check_validates_backend_and_power_options_with_lines(make_station, capsys):
+    """Options declared by the plugins are checked by ``magline check``, before any unit is connected."""
+    from magline.core.cli import main
+
+    path = make_station({"products": {"MOCK-100": {
+        "options": {"noise_ut": -1.0, "colour": "red"},
+        "power": {"method": "scpi-supply", "options": {"voltage_v": 5.0}}}}})
+    assert main(["check", str(path)]) == 2
+    err = capsys.readouterr().err
+    text = path.read_text(encoding="utf-8").splitlines()
+    noise_line = next(i for i, line in enumerate(text, 1) if "noise_ut" in line)
+    assert f"{path}:{noise_line}: products.MOCK-100.options.noise_ut: Input should be greater than or equal to 0" in err
+    assert "products.MOCK-100.options.colour: Extra inputs are not permitted" in err
+    assert "products.MOCK-100.power.options.resource: Field required" in err

@@ -16,4 +16,4 @@ def create_ardupilot_dut(product: Product) -> ArduPilotDut:
 
 @hookimpl
 def magline_register_dut_backends(register):
-    register("ardupilot", create_ardupilot_dut)
+    register("ardupilot", create_ardupilot_dut, options=ArduPilotOptions)

@@ -59,6 +59,8 @@ class CoilDriver:
             for n in (1, 2, 3):
                 self.inst.write(f"SOUR{n}:CURR 0")
             self.inst.write("OUTP OFF")
+            if self.inst.query("OUTP?") not in ("0", "OFF"):  # the query also waits for the writes
+                raise InstrumentError(f"{self.inst.resource}: the coil output did not switch off")
         finally:
             self.on = False
 

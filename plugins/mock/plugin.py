@@ -17,7 +17,7 @@ def create_mock_dut(product: Product) -> MockDut:
 
 @hookimpl
 def magline_register_dut_backends(register):
-    register("mock", create_mock_dut)
+    register("mock", create_mock_dut, options=MockOptions)
 
 
 @hookimpl

@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 from magline.core.plugins import hookimpl
-from magline.plugins.power.command import create_command_power
-from magline.plugins.power.scpi_supply import create_scpi_supply
+from magline.plugins.power.command import CommandOptions, create_command_power
+from magline.plugins.power.scpi_supply import ScpiSupplyOptions, create_scpi_supply
 
 
 @hookimpl
 def magline_register_power_controls(register):
-    register("scpi-supply", create_scpi_supply)
-    register("command", create_command_power)
+    register("scpi-supply", create_scpi_supply, options=ScpiSupplyOptions)
+    register("command", create_command_power, options=CommandOptions)

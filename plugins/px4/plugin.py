@@ -15,4 +15,4 @@ def create_px4_dut(product: Product) -> Px4Dut:
 
 @hookimpl
 def magline_register_dut_backends(register):
-    register("px4", create_px4_dut)
+    register("px4", create_px4_dut, options=Px4Options)
