@@ -73,6 +73,23 @@ def test_coil_station_recovers_offset_and_full_matrix_with_misalignment(tmp_path
     assert mis.verdict.value == "pass" and mis.high == 3.0
 
 
+def test_three_separate_current_sources_drive_the_coil(tmp_path):
+    from magline.plugins.mock.sim.coil import CoilChannelSim
+
+    with Cell() as cell:
+        sources = [CoilChannelSim("tcp:127.0.0.1:0", cell.coil, axis).start() for axis in range(3)]
+        try:
+            path = cell.station(tmp_path, {"resource": None, "resources": [s.visa_resource for s in sources]})
+            record = run_unit(path)
+            assert record.verdict is Outcome.PASS, record.cause
+            assert all(s.output is False for s in sources)  # each switched off at the end
+            assert record.calibration["affine"]["misalignment_deg"] == pytest.approx(
+                np.linalg.norm(MISALIGNMENT), abs=0.1)
+        finally:
+            for s in sources:
+                s.stop()
+
+
 @pytest.mark.parametrize("fault,message", [
     ("silent", "no answer to '*IDN?'"),
     ("output_off", "coil channel 1 set to"),

@@ -4,14 +4,17 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from magline.core.field.reference import ReferenceOptions
 
 
 class HelmholtzOptions(BaseModel):
     model_config = ConfigDict(extra="forbid", strict=True)
-    resource: str  # the three-channel coil current source, e.g. TCPIP0::10.0.0.9::5025::SOCKET
+    # Either one three-channel controller (``resource``) or three bipolar single-channel sources,
+    # one per axis x, y, z (``resources``), e.g. TCPIP0::10.0.0.9::5025::SOCKET
+    resource: str | None = None
+    resources: Annotated[list[str], Field(min_length=3, max_length=3)] | None = None
     constants_ut_per_a: Annotated[list[float], Field(min_length=3, max_length=3)]  # per axis, from the coil's data
     max_current_a: Annotated[float, Field(gt=0)] = 1.0
     field_ut: Annotated[float, Field(gt=0, le=500)] = 50.0  # magnitude of the applied vectors
@@ -27,3 +30,9 @@ class HelmholtzOptions(BaseModel):
     warmup_limit_ut: Annotated[float, Field(gt=0)] = 0.2
     verify_tolerance_pct: Annotated[float, Field(gt=0)] = 1.0  # each axis at field_ut against the fluxgate
     timeout_s: Annotated[float, Field(gt=0)] = 2.0
+
+    @model_validator(mode="after")
+    def _one_kind_of_source(self) -> HelmholtzOptions:
+        if (self.resource is None) == (self.resources is None):
+            raise ValueError("give either resource (one 3-channel controller) or resources (three sources, x y z)")
+        return self

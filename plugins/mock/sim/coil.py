@@ -113,3 +113,47 @@ class CoilSim(ScpiServer):
         if not on:
             self.on_since = None
         self.output = on
+
+
+class CoilChannelSim(ScpiServer):
+    """One bipolar single-channel current source driving one axis of a :class:`CoilSim`
+    (``CURR <A>``, ``CURR?``, ``MEAS:CURR?``, ``OUTP ON|OFF``, ``OUTP?``): for coils wired to three
+    separate supplies instead of one controller.  The coil is passive here: its field on this
+    axis follows this source's output."""
+
+    identity = "magline,SIM-BIPOLAR-1CH,0001,1.0"
+
+    def __init__(self, listen: str, coil: CoilSim, axis: int, max_current_a: float = 1.5) -> None:
+        super().__init__(listen)
+        self.coil = coil
+        self.axis = axis
+        self.max_current_a = max_current_a
+        self.setpoint = 0.0
+        self.output = False
+
+    def _drive(self) -> None:
+        with self.coil.lock:
+            self.coil.current[self.axis] = self.setpoint if self.output else 0.0
+            if not self.coil.output:
+                self.coil._output(True)
+
+    def command(self, head: str, arg: str) -> str | None:
+        if head in ("OUTP", "OUTPUT"):
+            self.output = arg.upper() in ("ON", "1")
+            self._drive()
+            return None
+        if head in ("OUTP?", "OUTPUT?"):
+            return "1" if self.output else "0"
+        if head == "CURR":
+            value = float(arg)
+            if abs(value) > self.max_current_a:
+                self.errors.append('-222,"Data out of range"')
+                return None
+            self.setpoint = value
+            self._drive()
+            return None
+        if head == "CURR?":
+            return f"{self.setpoint:.5f}"
+        if head in ("MEAS:CURR?", "MEASURE:CURRENT?"):
+            return f"{self.setpoint if self.output else 0.0:.5f}"
+        raise KeyError(head)
