@@ -136,3 +136,39 @@ def test_magline_fit_uses_the_affine_model_when_the_csv_has_the_applied_field(tm
     doc = json.loads(capsys.readouterr().out)
     assert doc["model"] == "affine" and doc["affine"]["misalignment_deg"] == pytest.approx(2.0, abs=0.1)
     assert doc["hard_iron_ut"] == pytest.approx(h, abs=0.1)
+
+
+def test_coil_station_writes_px4_custom_rotation_and_the_board_then_reports_the_true_vector(tmp_path):
+    """PX4 ≥ 1.15 holds R·S·(raw − OFF): the affine fit's rotation goes into CAL_MAGn_ROLL/PITCH/YAW,
+    so the simulated board's corrected field equals the applied vector, direction included."""
+    from magline.plugins.mock.sim import SimMagnetometer, create_sim
+
+    sensor = SimMagnetometer(396809, [25.0, -40.0, 12.0], [[1.04, 0.02, 0.0], [0.02, 0.97, -0.01], [0.0, -0.01, 1.0]],
+                             misalignment_deg=(1.2, -1.0, 1.2), noise_ut=0.3)
+    with Cell() as cell, create_sim("px4", "udp:127.0.0.1:0", workdir=tmp_path / "fc", magnetometers=[sensor],
+                                    boot_time_s=0.3, seed=4, field_provider=cell.coil.true_field_ut) as sim:
+        path = cell.station(tmp_path)
+        cfg = yaml.safe_load(path.read_text(encoding="utf-8"))
+        _, host, port = sim.address.split(":")
+        cfg["products"]["MOCK-COIL-100"] = {
+            "backend": "px4", "connection": f"udpout://{host}:{port}", "magnetometer": 396809,
+            "options": {"connect_timeout_s": 5.0, "boot_timeout_s": 10.0}}
+        path.write_text(yaml.safe_dump(cfg, sort_keys=False), encoding="utf-8")
+        record = run_unit(path)
+        assert record.verdict is Outcome.PASS, record.cause
+        stored = json.loads(sim.storage_path.read_text(encoding="utf-8"))
+        assert stored["CAL_MAG0_ROT"] == 100
+        yaw, pitch, roll = sensor.rotation.as_euler("ZYX", degrees=True)
+        assert [stored["CAL_MAG0_ROLL"], stored["CAL_MAG0_PITCH"], stored["CAL_MAG0_YAW"]] == pytest.approx(
+            [roll, pitch, yaw], abs=0.1)
+        applied = fibonacci_vectors(40) * 48.0
+        corrected = np.array([sim.corrected_ut(sensor, sensor.read_ut(b, sim.rng)) for b in applied])
+        angles = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", corrected, applied)
+                                              / np.linalg.norm(corrected, axis=1) / 48.0, -1, 1)))
+        assert angles.max() < 1.5 and np.median(angles) < 0.6  # noise 0.3 µT ≈ 0.36° per reading
+        assert cell.coil.output is False
+
+
+def fibonacci_vectors(n: int) -> np.ndarray:
+    from magline.core.fit.coverage import fibonacci_sphere
+    return fibonacci_sphere(n)

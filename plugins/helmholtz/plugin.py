@@ -40,8 +40,10 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition | None:
     with closing(dut.samples(run.station.acquisition.rate_hz)) as stream:
         for index, vector in enumerate(steps, start=1):
             source.coil.apply(vector)
-            time.sleep(opts.settle_s)
-            next(stream)  # samples already in flight were taken in the previous field
+            settled = time.monotonic() + opts.settle_s
+            next(stream)  # samples in flight (queued by the link) were taken in the previous field
+            while time.monotonic() < settled:
+                next(stream)
             got = 0
             while got < opts.samples_per_step:
                 chunk = next(stream, None)

@@ -8,6 +8,8 @@ OFF = h/100, SCALE = diag(S), XODIAG = S12, YODIAG = S13, ZODIAG = S23 (ODIAG fr
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
 
 from magline.core.dut import DutError, ParamValue
 from magline.core.fit import FitResult
@@ -18,6 +20,8 @@ UT_PER_GAUSS = 100.0
 INT_SUFFIXES = ("_ID", "_PRIO", "_ROT")
 INT_PARAMS = {"SENS_MAG_AUTOCAL", "MBE_ENABLE", "SENS_MAG_MODE", "SENS_MAG_SIDES", "SENS_BOARD_ROT"}
 ODIAG_SINCE = (1, 12, 0)
+EULER_SINCE = (1, 15, 0)  # CAL_MAGn_ROLL/PITCH/YAW with CAL_MAGn_ROT = 100 (custom Euler angles)
+ROT_CUSTOM_EULER = 100
 PRIO_EXTERNAL, PRIO_INTERNAL = 75, 50
 
 
@@ -52,3 +56,11 @@ def fit_to_params(fit: FitResult, slot: int, device_id: int, prio: int, with_odi
     if with_odiag:
         params |= {p + "XODIAG": float(s[0, 1]), p + "YODIAG": float(s[0, 2]), p + "ZODIAG": float(s[1, 2])}
     return params
+
+
+def rotation_params(rotation: NDArray, slot: int) -> dict[str, ParamValue]:
+    """A coil-measured misalignment as PX4's custom rotation: ``m_body = R·S·(raw − OFF)`` with
+    R = Rz(yaw)·Ry(pitch)·Rx(roll), degrees — exactly the polar factor of the affine fit."""
+    yaw, pitch, roll = Rotation.from_matrix(np.asarray(rotation)).as_euler("ZYX", degrees=True)
+    p = f"CAL_MAG{slot}_"
+    return {p + "ROT": ROT_CUSTOM_EULER, p + "ROLL": float(roll), p + "PITCH": float(pitch), p + "YAW": float(yaw)}

@@ -13,6 +13,7 @@ change would need a reboot to take effect.
 from __future__ import annotations
 
 import contextlib
+import logging
 import queue
 import re
 import time
@@ -24,6 +25,7 @@ from magline.core.dut import DutError, ParamValue, SampleChunk, UnitInfo, await_
 from magline.core.fit import FitResult
 from magline.core.station.schema import Product
 from magline.plugins.px4.calibration import (
+    EULER_SINCE,
     ODIAG_SINCE,
     PRIO_EXTERNAL,
     PRIO_INTERNAL,
@@ -31,6 +33,7 @@ from magline.plugins.px4.calibration import (
     choose_slot,
     fit_to_params,
     is_int_param,
+    rotation_params,
 )
 from magline.plugins.px4.link import Px4Link
 from magline.plugins.px4.options import Px4Options
@@ -39,6 +42,7 @@ STREAMS = (("SCALED_IMU", 26), ("SCALED_IMU2", 116), ("SCALED_IMU3", 129))  # uO
 MAV_CMD_SET_MESSAGE_INTERVAL, MAV_CMD_REQUEST_MESSAGE, MAV_CMD_PREFLIGHT_STORAGE = 511, 512, 245
 SYSTEM_TIME = ("SYSTEM_TIME", 2)
 MG_PER_UT = 10.0
+log = logging.getLogger("magline.px4")
 CHUNK = 10
 DEVICE_ID = re.compile(r"device_id:\s*(\d+)")
 EXTERNAL = re.compile(r"is_external:\s*(\w+)")
@@ -54,6 +58,7 @@ class Px4Dut:
         self.instance = 0
         self.slot = 0
         self.with_odiag = True
+        self.with_euler = False
         self._saved_autocal: int | None = None
 
     # ------------------------------------------------------------------ link
@@ -62,6 +67,7 @@ class Px4Dut:
         version = self.link.firmware()
         firmware = ".".join(map(str, version)) if version else "unknown"
         self.with_odiag = version >= ODIAG_SINCE if version else self._has_param("CAL_MAG0_XODIAG")
+        self.with_euler = version >= EULER_SINCE if version else self._has_param("CAL_MAG0_ROLL")
         self.sensors = self._discover()
         if not self.sensors:
             raise DutError("the PX4 shell lists no sensor_mag instance: no magnetometer detected")
@@ -147,7 +153,14 @@ class Px4Dut:
 
     # ------------------------------------------------------------------ parameters
     def calibration_params(self, fit: FitResult) -> dict[str, ParamValue]:
-        return fit_to_params(fit, self.slot, self.device_id, self.prio, self.with_odiag)
+        params = fit_to_params(fit, self.slot, self.device_id, self.prio, self.with_odiag)
+        if fit.model == "affine":  # a coil measured the misalignment too: hold it where PX4 can
+            if self.with_euler and self.sensors[self.instance][1]:
+                params |= rotation_params(np.array(fit.extra["rotation"]), self.slot)
+            else:
+                log.warning("misalignment of %.2f° not written: PX4 holds a custom rotation only for external "
+                            "magnetometers from firmware 1.15", fit.extra.get("misalignment_deg", 0.0))
+        return params
 
     def read_params(self, names: list[str]) -> dict[str, ParamValue]:
         return {n: self.link.get(n, is_int_param(n)) for n in names}

@@ -38,6 +38,7 @@ class SimMagnetometer:
     noise_ut: float = 0.3
     range_ut: float = 1600.0
     external: bool = True
+    misalignment_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)  # sensor axes vs body, rotation vector
     truth: SensorTruth = field(init=False)
 
     def __post_init__(self) -> None:
@@ -45,9 +46,15 @@ class SimMagnetometer:
         self.soft_iron = np.asarray(self.soft_iron, float)
         self.truth = SensorTruth(hard_iron_ut=self.hard_iron_ut, soft_iron=self.soft_iron,
                                  noise_ut=self.noise_ut, range_ut=self.range_ut)
+        self.rotation = Rotation.from_rotvec(np.deg2rad(self.misalignment_deg))  # sensor → body
+
+    @property
+    def full_calibration(self) -> NDArray:
+        """The matrix M with ``b_body = M·(m − h)``: misalignment times soft iron."""
+        return self.rotation.as_matrix() @ self.soft_iron
 
     def read_ut(self, b_body_ut: NDArray, rng: np.random.Generator) -> NDArray:
-        return self.truth.read(np.atleast_2d(b_body_ut), rng)[0]
+        return self.truth.read(np.atleast_2d(self.rotation.inv().apply(b_body_ut)), rng)[0]
 
 
 def default_magnetometers(count: int, rng: np.random.Generator) -> list[SimMagnetometer]:

@@ -22,6 +22,7 @@ from typing import Any, ClassVar
 import numpy as np
 from numpy.typing import NDArray
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
+from scipy.spatial.transform import Rotation
 
 from magline.plugins.mock.sim.magnetometers import SimMagnetometer, attitude
 from magline.plugins.mock.sim.params import INT32, REAL32, ParamSpec, ParamValue, bytewise_from_wire, bytewise_to_wire
@@ -33,7 +34,7 @@ SHELL_DEVICE = mavlink.SERIAL_CONTROL_DEV_SHELL
 SHELL_REPLY = mavlink.SERIAL_CONTROL_FLAG_REPLY
 
 
-def slot_params(n: int, with_odiag: bool) -> list[ParamSpec]:
+def slot_params(n: int, with_odiag: bool, with_euler: bool = False) -> list[ParamSpec]:
     p = f"CAL_MAG{n}_"
     specs = [ParamSpec(p + "ID", INT32, 0), ParamSpec(p + "PRIO", INT32, -1), ParamSpec(p + "ROT", INT32, -1)]
     specs += [ParamSpec(f"{p}{a}OFF", REAL32, 0.0) for a in AXES]
@@ -41,6 +42,8 @@ def slot_params(n: int, with_odiag: bool) -> list[ParamSpec]:
     if with_odiag:
         specs += [ParamSpec(f"{p}{a}ODIAG", REAL32, 0.0) for a in AXES]
     specs += [ParamSpec(f"{p}{a}COMP", REAL32, 0.0) for a in AXES]
+    if with_euler:
+        specs += [ParamSpec(p + angle, REAL32, 0.0) for angle in ("ROLL", "PITCH", "YAW")]
     return specs
 
 
@@ -73,8 +76,12 @@ class Px4Sim(SimulatedAutopilot):
     def has_odiag(self) -> bool:
         return self.firmware_version >= (1, 12, 0)
 
+    @property
+    def has_euler(self) -> bool:
+        return self.firmware_version >= (1, 15, 0)
+
     def param_specs(self) -> list[ParamSpec]:
-        specs = [s for n in range(SLOTS) for s in slot_params(n, self.has_odiag)]
+        specs = [s for n in range(SLOTS) for s in slot_params(n, self.has_odiag, self.has_euler)]
         specs += [ParamSpec("CAL_MAG_COMP_TYP", INT32, 0), ParamSpec("CAL_MAG_SIDES", INT32, 63),
                   ParamSpec("SENS_MAG_AUTOCAL", INT32, 1), ParamSpec("SENS_MAG_AUTOROT", INT32, 1),
                   ParamSpec("SENS_MAG_MODE", INT32, 1), ParamSpec("SENS_MAG_RATE", REAL32, 15.0),
@@ -150,7 +157,16 @@ class Px4Sim(SimulatedAutopilot):
         if n is None:
             return raw_ut  # no matching slot: calibration reset, raw data used
         off_g, s = self.calibration(n)
-        return s @ (raw_ut / 100.0 - off_g) * 100.0
+        return self.rotation(n, sensor) @ s @ (raw_ut / 100.0 - off_g) * 100.0
+
+    def rotation(self, n: int, sensor: SimMagnetometer) -> NDArray:
+        """R of ``R·S·(raw − OFF)``: the custom Euler angles (ROT = 100) for an external sensor;
+        internal sensors follow the board rotation (identity here)."""
+        v = self.table.values
+        p = f"CAL_MAG{n}_"
+        if not (self.has_euler and sensor.external and v[p + "ROT"] == 100):
+            return np.eye(3)
+        return Rotation.from_euler("ZYX", [v[p + "YAW"], v[p + "PITCH"], v[p + "ROLL"]], degrees=True).as_matrix()
 
     def _autocal(self, now: float) -> None:
         """SENS_MAG_AUTOCAL: an uncalibrated sensor gets the firmware's own offset estimate."""

@@ -74,7 +74,7 @@ class SimulatedAutopilot(ABC):
                  field_ut: float = 48.0, inclination_deg: float = 62.0,
                  motions: tuple[str, ...] = ("tumble",), speed: float = 1.0, boot_time_s: float = 2.0,
                  faults: SimFaults | None = None, seed: int | None = None, system_id: int = 1,
-                 save_duration_s: float = 0.05) -> None:
+                 save_duration_s: float = 0.05, field_provider: Callable[[], NDArray] | None = None) -> None:
         self.listen = listen or self.default_listen
         self.workdir = Path(workdir)
         self.rng = np.random.default_rng(seed)
@@ -88,6 +88,7 @@ class SimulatedAutopilot(ABC):
         self.faults = faults or SimFaults()
         self.system_id = system_id
         self.save_duration_s = save_duration_s
+        self.field_provider = field_provider  # the board stands in a coil: its field, not a tumble
         self.table = ParamTable(self.param_specs())
         self.mav = mavlink.MAVLink(_Wire(self), srcSystem=system_id, srcComponent=mavlink.MAV_COMP_ID_AUTOPILOT1)
         self.lock = threading.RLock()
@@ -363,6 +364,8 @@ class SimulatedAutopilot(ABC):
         return int((now - self._booted_at) * 1000) & 0xFFFFFFFF
 
     def body_field_ut(self, now: float) -> NDArray:
+        if self.field_provider is not None:
+            return np.asarray(self.field_provider(), float)
         motion = self.motions[min(max(self._motion_index, 0), len(self.motions) - 1)]
         return body_field(self.field_ned, motion, now - self._t0, self.speed)
 
