@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from magline.plugins.mock.sim.magnetometers import SimMagnetometer, attitude
+from magline.plugins.mock.sim.magnetometers import SimMagnetometer
 from magline.plugins.mock.sim.params import INT8, INT16, INT32, REAL32, ParamSpec, ParamValue, ccast_from_wire
 from magline.plugins.mock.sim.vehicle import ACCEPTED, UNSUPPORTED, SimulatedAutopilot
 
@@ -199,8 +199,7 @@ class ArduPilotSim(SimulatedAutopilot):
             return None
         raw_ut = sensor.read_ut(self.body_field_ut(now), self.rng)
         mg = np.clip(np.round(self.correct_mg(i, raw_ut * 10.0)), -32768, 32767).astype(int)
-        motion = self.motions[min(max(self._motion_index, 0), len(self.motions) - 1)]
-        acc = attitude(motion, now - self._t0, self.speed).inv().apply([0.0, 0.0, -1000.0]).astype(int)
+        acc = self.accel_mg(now).astype(int)
         t_ms = self.time_boot_ms(now)
         mag = [int(x) for x in mg]
         if msg_id == mavlink.MAVLINK_MSG_ID_RAW_IMU:

@@ -106,8 +106,3 @@ def attitude(motion: str, t: float, speed: float = 1.0, field_dir: NDArray | Non
     body_dir = _spiral(t, stepped=motion == "gimbal")
     view, _ = Rotation.align_vectors([body_dir], [f])  # maps the NED field direction into the body
     return view.inv()
-
-
-def body_field(field_ned_ut: NDArray, motion: str, t: float, speed: float = 1.0) -> NDArray:
-    """The local field as the body sees it at ``t``."""
-    return attitude(motion, t, speed, field_ned_ut).inv().apply(field_ned_ut)

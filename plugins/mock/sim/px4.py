@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from scipy.spatial.transform import Rotation
 
-from magline.plugins.mock.sim.magnetometers import SimMagnetometer, attitude
+from magline.plugins.mock.sim.magnetometers import SimMagnetometer
 from magline.plugins.mock.sim.params import INT32, REAL32, ParamSpec, ParamValue, bytewise_from_wire, bytewise_to_wire
 from magline.plugins.mock.sim.vehicle import ACCEPTED, DENIED, UNSUPPORTED, Power, SimulatedAutopilot
 
@@ -192,7 +192,7 @@ class Px4Sim(SimulatedAutopilot):
         if reading is None:
             return None
         sensor, raw_ut = reading
-        acc = self._accel_mg(now)
+        acc = self.accel_mg(now)
         t_ms = self.time_boot_ms(now)
         if msg_id == mavlink.MAVLINK_MSG_ID_HIGHRES_IMU:
             cal_g = self.corrected_ut(sensor, raw_ut) / 100.0
@@ -203,10 +203,6 @@ class Px4Sim(SimulatedAutopilot):
                   mavlink.MAVLINK_MSG_ID_SCALED_IMU2: self.mav.scaled_imu2_encode,
                   mavlink.MAVLINK_MSG_ID_SCALED_IMU3: self.mav.scaled_imu3_encode}[msg_id]
         return encode(t_ms, *acc.astype(int), 0, 0, 0, *(int(x) for x in mg), 2500)
-
-    def _accel_mg(self, now: float) -> NDArray:
-        motion = self.motions[min(max(self._motion_index, 0), len(self.motions) - 1)]
-        return attitude(motion, now - self._t0, self.speed).inv().apply([0.0, 0.0, -1000.0])
 
     # ------------------------------------------------------------------ commands
     def extra_commands(self) -> dict:

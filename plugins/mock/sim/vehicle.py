@@ -27,10 +27,11 @@ from typing import Any, ClassVar
 import numpy as np
 from numpy.typing import NDArray
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
+from scipy.spatial.transform import Rotation
 
 from magline.core.synthetic import earth_field_ned
 from magline.plugins.mock.sim.faults import SimFaults
-from magline.plugins.mock.sim.magnetometers import SimMagnetometer, body_field, default_magnetometers
+from magline.plugins.mock.sim.magnetometers import SimMagnetometer, attitude, default_magnetometers
 from magline.plugins.mock.sim.params import ParamSpec, ParamTable, ParamValue
 from magline.plugins.mock.sim.transport import open_server
 from magline.plugins.mock.storage import NvStorage
@@ -363,11 +364,18 @@ class SimulatedAutopilot(ABC):
     def time_boot_ms(self, now: float) -> int:
         return int((now - self._booted_at) * 1000) & 0xFFFFFFFF
 
+    def attitude_at(self, now: float) -> Rotation:
+        motion = self.motions[min(max(self._motion_index, 0), len(self.motions) - 1)]
+        return attitude(motion, now - self._t0, self.speed, self.field_ned)
+
     def body_field_ut(self, now: float) -> NDArray:
         if self.field_provider is not None:
             return np.asarray(self.field_provider(), float)
-        motion = self.motions[min(max(self._motion_index, 0), len(self.motions) - 1)]
-        return body_field(self.field_ned, motion, now - self._t0, self.speed)
+        return self.attitude_at(now).inv().apply(self.field_ned)
+
+    def accel_mg(self, now: float) -> NDArray:
+        """Gravity in the body frame (mG), for the IMU fields of the streamed messages."""
+        return self.attitude_at(now).inv().apply([0.0, 0.0, -1000.0])
 
     def raw_reading_ut(self, index: int, now: float) -> tuple[SimMagnetometer, NDArray] | None:
         if index >= len(self.detected):
@@ -480,9 +488,3 @@ class SimulatedAutopilot(ABC):
         sw = (major << 24) | (minor << 16) | (patch << 8) | mavlink.FIRMWARE_VERSION_TYPE_OFFICIAL
         self.mav.autopilot_version_send(self.capabilities, sw, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8,
                                         0x1209, 0x5741, 0x4D41474C494E45)
-
-    def describe(self) -> dict[str, Any]:
-        """What is simulated, for the command line's start-up lines."""
-        return {"flavour": self.flavour, "listen": self.address, "storage": str(self.storage_path),
-                "sensors": [m.device_id for m in self.magnetometers], "boot_time_s": self.boot_time_s}
-
