@@ -55,8 +55,12 @@ def magline_register_field_sources(register: Callable[[str, Callable[..., Any]],
     """Add field sources (the expected local field) by name.  Called once at start-up.
 
     :param register: call ``register(name, factory)``; ``factory(station)`` receives the whole
-        station and returns an object with ``reference_field_ut() -> float`` (and, optionally,
-        ``close()``).  The name is the station file's ``field_source.type``.
+        station and returns a :class:`~magline.core.field.FieldSource`: ``reference_field_ut()``
+        (called as each unit connects; raise :class:`~magline.core.field.FieldSourceError` to stop
+        the batch when the cell's field cannot be trusted), ``finish_unit()`` (after every unit,
+        also after errors) and ``close()``.  The name is the station file's ``field_source.type``.
+        A source that generates the field itself (a coil) also implements the acquire and fit
+        hooks for its stations (see ``plugins/helmholtz``).
     """
 
 

@@ -161,3 +161,12 @@ def test_an_ardupilot_on_the_px4_station_is_named(tmp_path):
         record = run_unit(station(tmp_path, sim))
         assert record.verdict is Outcome.FAIL
         assert "is ARDUPILOT, not PX4" in record.cause
+
+
+def test_tcpout_connection_string_reaches_a_vehicle_on_tcp(tmp_path):
+    workdir = tmp_path / "fc"
+    with create_sim("px4", "tcp:127.0.0.1:0", workdir=workdir, seed=11, boot_time_s=0.3, speed=5.0) as sim:
+        _, host, port = sim.address.split(":")
+        record = run_unit(write_station(STATION, tmp_path, f"tcpout://{host}:{port}", OPTIONS))
+        assert record.verdict is Outcome.PASS, record.cause
+        assert record.unit_info["autopilot"] == "PX4" and record.unit_info["firmware"] == "1.15.0"
