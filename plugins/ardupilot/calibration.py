@@ -77,6 +77,8 @@ class HeldCalibration:
     has passed anything; a run that stops early (link lost, operator abort, failed fit) would leave
     the unit uncalibrated.  Inverting touches nothing.  The inverse follows the firmware's rules
     exactly: SCALE only when inside [1/1.5, 1.5], the matrix only when some DIA is non-zero.
+    Motor compensation (COMPASS_MOT·throttle or current) is not inverted: on the bench the unit is
+    disarmed with zero throttle and no motor current.
     """
 
     ofs_mg: NDArray
