@@ -58,15 +58,16 @@ def main(argv: list[str] | None = None) -> int:
     hist.add_argument("--station", help="station file naming the results store (default: demo)")
 
     try:
-        load_plugins().hook.magline_add_commands(subparsers=sub)
+        plugins = load_plugins()  # once: its commands are needed before the arguments are parsed
     except PluginError as exc:
         _err(str(exc))
         return 2
+    plugins.hook.magline_add_commands(subparsers=sub)
     args = parser.parse_args(argv)
     if hasattr(args, "handler"):
         return args.handler(args)
     handler = {"run": _run, "check": _check, "fit": _fit, "plugins": _plugins, "history": _history}
-    return handler[args.command](args)
+    return handler[args.command](args, plugins)
 
 
 def _err(message: str) -> None:
@@ -120,13 +121,12 @@ def _option_problems(plugins: Plugins, key: tuple[str, str], options: dict, wher
     return []
 
 
-def _run(args: argparse.Namespace) -> int:
+def _run(args: argparse.Namespace, plugins: Plugins) -> int:
     from magline.core.console import OperatorConsole
     from magline.core.sequencer import Sequencer
 
-    console = OperatorConsole()
+    plugins.pm.register(OperatorConsole())
     try:
-        plugins = load_plugins(extra=[console])
         station, where = _load(args.station, plugins)
         sequencer = Sequencer(station, plugins, where)
     except (StationError, PluginError, ValueError, KeyError, RuntimeError, OSError) as exc:
@@ -161,9 +161,8 @@ def _ask_serial(station: Station, demo: bool) -> str | None:
     return serial or None
 
 
-def _check(args: argparse.Namespace) -> int:
+def _check(args: argparse.Namespace, plugins: Plugins) -> int:
     try:
-        plugins = load_plugins()
         station, _ = _load(args.station, plugins)
     except (StationError, PluginError) as exc:
         _err(str(exc))
@@ -174,7 +173,7 @@ def _check(args: argparse.Namespace) -> int:
     return 0
 
 
-def _fit(args: argparse.Namespace) -> int:
+def _fit(args: argparse.Namespace, plugins: Plugins) -> int:
     try:
         samples = read_samples(args.csv)
         options = FitOptions(model=args.model, field_ut=args.field_ut, range_ut=args.range_ut,
@@ -219,12 +218,7 @@ def _fit_summary(doc: dict) -> str:
     return "\n".join(lines)
 
 
-def _plugins(args: argparse.Namespace) -> int:
-    try:
-        plugins = load_plugins()
-    except PluginError as exc:
-        _err(str(exc))
-        return 2
+def _plugins(args: argparse.Namespace, plugins: Plugins) -> int:
     print(json.dumps({"plugins": plugins.describe(), "dut_backends": sorted(plugins.dut_backends),
                       "field_sources": sorted(plugins.field_sources),
                       "result_sinks": sorted(plugins.result_sinks),
@@ -232,9 +226,8 @@ def _plugins(args: argparse.Namespace) -> int:
     return 0
 
 
-def _history(args: argparse.Namespace) -> int:
+def _history(args: argparse.Namespace, plugins: Plugins) -> int:
     try:
-        plugins = load_plugins()
         station, where = _load(args.station, plugins)
         sink = plugins.result_sinks[station.results.sink](station, where)
     except (StationError, PluginError) as exc:
