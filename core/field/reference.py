@@ -70,7 +70,6 @@ class ReferenceMonitor:
         self.fluxgate = Fluxgate(options)
         self.units = 0
         self.first_ut: float | None = None
-        self.last_ut: float | None = None
 
     def before_unit(self) -> None:
         if self.units % self.opts.every_n_units == 0:
@@ -79,7 +78,6 @@ class ReferenceMonitor:
 
     def check(self) -> float:
         measured = float(np.linalg.norm(self.fluxgate.read_ut()))
-        self.last_ut = measured
         if abs(measured - self.model_ut) > self.opts.tolerance_ut:
             raise FieldSourceError(
                 f"reference magnetometer reads {measured:.2f} µT, the {self.model_name} expects "

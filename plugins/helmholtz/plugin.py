@@ -34,6 +34,9 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition | None:
         return None
     opts = source.opts
     steps = schedule(opts)
+    if source.shift_report:  # the shift checks' figures travel with the unit that triggered them
+        run.log("coil shift checks: " + ", ".join(f"{k} {v}" for k, v in source.shift_report.items()))
+        source.shift_report = {}
     run.prompt("Place the unit at the coil centre and do not touch it")
     mags, times, applied = [], [], []
     dut = run.require_dut()

@@ -25,13 +25,13 @@ from mavsdk.plugins.info.info import Info
 from mavsdk.plugins.mavlink_direct.mavlink_direct import MavlinkDirect, MavlinkDirectError, MavlinkMessage
 from mavsdk.plugins.param.param import Param, ParamError
 from mavsdk.plugins.shell.shell import Device, Shell
+from pymavlink.dialects.v20 import common as mavlink
 
 from magline.core.dut import DutError
 
 log = logging.getLogger("magline.px4.mavsdk")
 GCS_SYSTEM, GCS_COMPONENT = 245, 190  # MAVSDK's ground-station identity
-RESULTS = {0: "ACCEPTED", 1: "TEMPORARILY_REJECTED", 2: "DENIED", 3: "UNSUPPORTED", 4: "FAILED",
-           5: "IN_PROGRESS", 6: "CANCELLED"}
+RESULTS = {n: e.name.removeprefix("MAV_RESULT_") for n, e in mavlink.enums["MAV_RESULT"].items()}
 SHELL_PROMPT = "nsh> "
 
 _routed = False

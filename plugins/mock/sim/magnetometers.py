@@ -16,7 +16,7 @@ from scipy.spatial.transform import Rotation
 
 from magline.core.synthetic import SensorTruth
 
-BUS_I2C, BUS_SPI, BUS_SIMULATION = 1, 2, 4
+BUS_I2C, BUS_SPI = 1, 2
 
 
 def device_id(bus_type: int, bus: int, address: int, devtype: int) -> int:
@@ -47,11 +47,6 @@ class SimMagnetometer:
         self.truth = SensorTruth(hard_iron_ut=self.hard_iron_ut, soft_iron=self.soft_iron,
                                  noise_ut=self.noise_ut, range_ut=self.range_ut)
         self.rotation = Rotation.from_rotvec(np.deg2rad(self.misalignment_deg))  # sensor → body
-
-    @property
-    def full_calibration(self) -> NDArray:
-        """The matrix M with ``b_body = M·(m − h)``: misalignment times soft iron."""
-        return self.rotation.as_matrix() @ self.soft_iron
 
     def read_ut(self, b_body_ut: NDArray, rng: np.random.Generator) -> NDArray:
         return self.truth.read(np.atleast_2d(self.rotation.inv().apply(b_body_ut)), rng)[0]

@@ -15,8 +15,6 @@ from dataclasses import dataclass
 # MAV_PARAM_TYPE values (common.xml)
 UINT8, INT8, UINT16, INT16, UINT32, INT32, REAL32 = 1, 2, 3, 4, 5, 6, 9
 INT_TYPES = {UINT8: "<B", INT8: "<b", UINT16: "<H", INT16: "<h", UINT32: "<I", INT32: "<i"}
-TYPE_NAMES = {UINT8: "UINT8", INT8: "INT8", UINT16: "UINT16", INT16: "INT16", UINT32: "UINT32",
-              INT32: "INT32", REAL32: "REAL32"}
 
 ParamValue = int | float
 

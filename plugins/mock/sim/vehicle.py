@@ -36,8 +36,8 @@ from magline.plugins.mock.sim.params import ParamSpec, ParamTable, ParamValue
 from magline.plugins.mock.sim.transport import open_server
 from magline.plugins.mock.storage import NvStorage
 
-ACCEPTED, TEMPORARILY_REJECTED, DENIED, UNSUPPORTED, FAILED = (
-    mavlink.MAV_RESULT_ACCEPTED, mavlink.MAV_RESULT_TEMPORARILY_REJECTED, mavlink.MAV_RESULT_DENIED,
+ACCEPTED, DENIED, UNSUPPORTED, FAILED = (
+    mavlink.MAV_RESULT_ACCEPTED, mavlink.MAV_RESULT_DENIED,
     mavlink.MAV_RESULT_UNSUPPORTED, mavlink.MAV_RESULT_FAILED)
 MAX_STREAM_HZ = 1000.0
 
@@ -67,7 +67,6 @@ class SimulatedAutopilot(ABC):
     capabilities: int
     default_listen: str
     storage_name: str
-    shutdown_delay_s: float
     stream_sensor: ClassVar[dict[int, int]]  # message id → index into the detected sensors
 
     def __init__(self, listen: str | None = None, *, workdir: str | Path = ".",
