@@ -50,6 +50,8 @@ def main(argv: list[str] | None = None) -> int:
     fit.add_argument("--model", choices=["full", "diagonal", "sphere"], default="full")
     fit.add_argument("--range-ut", type=float, help="sensor range (µT); samples at it are clipped")
     fit.add_argument("--bins", type=int, default=100, help="coverage bins (Fibonacci sphere)")
+    fit.add_argument("--gain-sigma", type=float, default=FitOptions.gain_sigma,
+                     help="1σ spread of the raw-to-reference field ratio (with --field-ut)")
 
     sub.add_parser("plugins", help="list loaded plugins and their hooks (JSON)")
 
@@ -177,7 +179,7 @@ def _fit(args: argparse.Namespace, plugins: Plugins) -> int:
     try:
         samples = read_samples(args.csv)
         options = FitOptions(model=args.model, field_ut=args.field_ut, range_ut=args.range_ut,
-                             coverage_bins=args.bins)
+                             coverage_bins=args.bins, gain_sigma=args.gain_sigma)
         if samples.applied_ut is not None:  # a coil applied known vectors: the full affine model
             result = fit_affine(samples.mag_ut, samples.applied_ut, args.field_ut)
         else:
@@ -239,7 +241,8 @@ def _history(args: argparse.Namespace, plugins: Plugins) -> int:
         print(f"no runs for {args.serial}")
         return 1
     for run in runs:
-        cov = ", ".join(f"{a['coverage']:.0%}" for a in run["attempts"])
+        cov = ", ".join(f"{a['coverage']:.0%}" + (" refused" if a.get("refused") else "")
+                        for a in run["attempts"])
         print(f"#{run['id']} {run['started']} {run['part']} {run['verdict'].upper()} "
               f"attempts [{cov}] {run['cause'] or ''}".rstrip())
         for f in run["failed"]:

@@ -102,9 +102,12 @@ def magline_add_commands(subparsers: argparse._SubParsersAction) -> None:
 
 @hookspec(firstresult=True)
 def magline_acquire(run: RunContext, attempt: int) -> Acquisition | None:
-    """Acquire raw samples for one attempt.  Called once per attempt until coverage is reached.
+    """Acquire raw samples for one attempt.  Called once per attempt until the samples reach the
+    coverage target and the fit accepts them.
 
     :param run: the unit's run context (station, product, connected DUT, listeners).
+        ``run.retry_advice`` says why a retry is needed when the fit refused the last attempt
+        (None when coverage was too low): show it to the operator.
     :param attempt: 1 for the first acquisition, 2 for the first retry, ...
     :return: the samples with their live coverage figure.  The sequencer keeps every attempt
         and stores its raw data before anything is fitted.
@@ -113,12 +116,15 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition | None:
 
 @hookspec(firstresult=True)
 def magline_fit(run: RunContext, samples: RawSamples, options: FitOptions) -> FitResult | None:
-    """Fit hard and soft iron.  Called once, on the attempt that reached coverage.
+    """Fit hard and soft iron.  Called on every attempt that reached coverage, right after its raw
+    data are stored, until one is accepted.
 
     :param samples: raw samples (µT), with time and temperature where the DUT gives them.
-    :param options: model (full/diagonal/sphere as the DUT can hold), reference field, range.
+    :param options: model (full/diagonal/sphere as the DUT can hold), reference field, range,
+        the station's ``fit`` settings.
     :return: a :class:`~magline.core.fit.FitResult`; raise
-        :class:`~magline.core.fit.FitRefused` when the data cannot determine the calibration.
+        :class:`~magline.core.fit.FitRefused` when the data cannot determine the calibration:
+        the sequencer then retries the acquisition with the refusal's advice as the prompt.
     """
 
 

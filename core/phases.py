@@ -26,7 +26,7 @@ from magline.core.sequencer.context import Acquisition, AcquisitionAborted, RunC
 def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
     cfg = run.station.acquisition
     dut = run.require_dut()
-    run.prompt(run.station.prompts.tumble if attempt == 1 else run.station.prompts.retry)
+    run.prompt(run.station.prompts.tumble if attempt == 1 else run.retry_advice or run.station.prompts.retry)
     tracker = CoverageTracker(cfg.coverage_bins)
     mags, times, temps = [], [], []
     count = 0

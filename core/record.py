@@ -43,6 +43,7 @@ class AttemptRecord:
     target: float
     raw_csv: str
     accepted: bool = False
+    refused: str | None = None  # why the fit could not use these samples, when it could not
 
 
 @dataclass

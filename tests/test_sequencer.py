@@ -16,6 +16,7 @@ from magline.core.cli import main
 from magline.core.fit.samples_csv import parse_samples
 from magline.core.plugins import hookimpl, load_plugins
 from magline.core.record import Outcome
+from magline.core.results.sqlite_sink import SqliteSink
 from magline.core.sequencer import Sequencer
 from magline.core.station import load_station
 
@@ -115,6 +116,46 @@ def test_low_coverage_every_attempt_fails_and_keeps_all_attempts(make_station, t
     assert len(rows(tmp_path / "magline-demo-results.sqlite", "SELECT * FROM attempts")) == 3
 
 
+class PromptLog:
+    def __init__(self):
+        self.prompts = []
+
+    @hookimpl
+    def magline_operator_prompt(self, run, message):
+        self.prompts.append(message)
+
+
+def test_fit_refusal_retries_with_its_advice_and_keeps_the_refused_samples(make_station, tmp_path):
+    """Coverage alone is not enough: one ring clears a low coverage target but cannot determine the
+    calibration, so the fit refuses it and the operator is told what to do differently."""
+    path = make_station({"products": {"MOCK-100": {"options": {"motions": ["single_axis", "hand_tumble"]}}},
+                         "acquisition": {"coverage_target": 0.05, "retries": 1}})
+    log = PromptLog()
+    record = run_station(path, extra=[log])
+    assert record.verdict is Outcome.PASS, record.cause
+    assert len(log.prompts) == 2 and "tumble about all three axes" in log.prompts[1]
+    (first_coverage, first_acc, first_refused, first_raw), (_, second_acc, second_refused, _) = rows(
+        tmp_path / "magline-demo-results.sqlite", "SELECT coverage, accepted, refused, raw_csv FROM attempts "
+        "ORDER BY attempt")
+    assert first_coverage >= 0.05 and first_acc == 0
+    assert first_refused.split(":")[0] in {"single_plane", "undetermined"}
+    assert len(parse_samples(first_raw)) == 600
+    assert second_acc == 1 and second_refused is None
+
+
+def test_fit_refusing_every_attempt_fails_the_unit_with_the_advice(make_station, tmp_path):
+    path = make_station({"products": {"MOCK-100": {"options": {"motions": ["single_axis"]}}},
+                         "acquisition": {"coverage_target": 0.05, "retries": 1}})
+    record = run_station(path)
+    assert record.verdict is Outcome.FAIL
+    assert phase(record, "acquire").outcome is Outcome.FAIL
+    assert "after 2 attempts" in record.cause and "tumble about all three axes" in record.cause
+    assert phase(record, "persist").outcome is Outcome.SKIPPED
+    refused = rows(tmp_path / "magline-demo-results.sqlite", "SELECT accepted, refused FROM attempts")
+    assert [a for a, _ in refused] == [0, 0]
+    assert all(r.split(":")[0] in {"single_plane", "undetermined"} for _, r in refused)
+
+
 class Raiser:
     @hookimpl
     def magline_validate(self, run, fit):
@@ -173,3 +214,15 @@ def test_run_exit_codes(make_station):
     assert main(["run", str(make_station()), "--serial", "E1"]) == 0
     assert main(["run", str(make_station({"limits": {"coverage": {"ge": 0.99}}}, name="s2.yaml")),
                  "--serial", "E2"]) == 1
+
+
+def test_results_file_from_before_fit_refusals_gains_the_column_and_keeps_its_rows(tmp_path):
+    db = tmp_path / "old.sqlite"
+    con = sqlite3.connect(db)
+    con.executescript("CREATE TABLE attempts (run_id INTEGER, attempt INTEGER, samples INTEGER, coverage REAL,"
+                      " target REAL, accepted INTEGER, raw_csv TEXT);"
+                      "INSERT INTO attempts VALUES (1, 1, 600, 0.9, 0.5, 1, 'mag_x_ut');")
+    con.commit()
+    con.close()
+    SqliteSink(db).close()
+    assert rows(db, "SELECT attempt, accepted, refused FROM attempts") == [(1, 1, None)]

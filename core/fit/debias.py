@@ -2,12 +2,21 @@
 
 Why: the maximum-likelihood ellipsoid fit is unbiased only to first order.  Its O(σ²) bias is
 negligible on a full tumble but, on partial coverage, it is amplified along the poorly determined
-direction (offset along the axis of a hemisphere or cap) to the size of the 1σ uncertainty.  The
-bias is estimated by refitting data simulated from the fitted model: noise is drawn in antithetic
-pairs (n, −n), so first-order errors cancel exactly and a handful of refits measures the σ² term.
+direction (offset along the axis of a hemisphere or cap) to the size of the 1σ uncertainty or
+beyond.  The bias is estimated by refitting data simulated from a model: noise is drawn in
+antithetic pairs (n, −n), so first-order errors cancel exactly and a handful of refits measures
+the σ² term.
+
+Why iterate: the bias is a function of the *true* parameters, and one bootstrap evaluates it at the
+biased estimate.  Where the problem is strongly non-linear (a 30 % cap with a reference field) that
+difference matters, so the correction is the fixed point ``p* + b(p*) = p̂`` (the parameters whose
+expected estimate is what was observed), found by substitution.  A correction that does not settle
+means the data do not determine the calibration, and the caller refuses.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -15,7 +24,22 @@ from scipy import optimize
 
 from magline.core.fit import model as mdl
 
-PAIRS = 2
+PAIRS = 2  # antithetic pairs for one bias estimate where the bias is small
+ITERATION_PAIRS = 6  # pairs per estimate once the bias is large enough to iterate on
+LINEAR_BIAS_SIGMAS = 0.5  # below this (in σ), one estimate is enough: the problem is locally linear
+MAX_ITERATIONS = 8
+SETTLED_SIGMAS = 0.15  # fixed-point step (in σ) below which the correction has converged
+GIVE_UP_SIGMAS = 20.0  # a bias this far beyond σ has no nearby fixed point worth searching for
+
+
+@dataclass(frozen=True)
+class BiasCorrection:
+    """The estimated bias of the fit and how it was found (reported with the fit)."""
+
+    bias: NDArray
+    iterations: int  # 1: a single estimate; >1: fixed-point iterations
+    settled: bool
+    largest_sigmas: float  # largest |bias| / σ over the parameters
 
 
 def project_onto_model(layout: mdl.Layout, p: NDArray, x: NDArray, tau: NDArray | None) -> NDArray:
@@ -27,23 +51,50 @@ def project_onto_model(layout: mdl.Layout, p: NDArray, x: NDArray, tau: NDArray 
     return x - ((rho - 1.0) / g2)[:, None] * grad
 
 
-def bootstrap_bias(layout: mdl.Layout, p: NDArray, x: NDArray, tau: NDArray | None, sigma: float,
-                   residual_fn, rng: np.random.Generator) -> NDArray:
-    """Mean of antithetic refits minus the fit: the estimated bias of ``p``.
+def bootstrap_bias(layout: mdl.Layout, p: NDArray, x: NDArray, tau: NDArray | None, residual_fn,
+                   noise: NDArray) -> NDArray:
+    """Mean of antithetic refits of data simulated at ``p``, minus ``p``: the bias at ``p``.
 
     ``residual_fn(q, x, weights)`` returns (residuals, jacobian) for parameters ``q`` on data ``x``
-    (the same objective the fit minimised, including any prior row).
+    (the same objective the fit minimised, including any prior row).  ``noise`` holds one
+    (n, 3) draw per antithetic pair.
     """
     truth = project_onto_model(layout, p, x, tau)
     weights = mdl.gradient_norm(layout, p, truth, tau)
     acc = np.zeros_like(p)
-    for _ in range(PAIRS):
-        noise = rng.normal(scale=sigma, size=x.shape)
+    for draw in noise:
         for sign in (1.0, -1.0):
-            xs = truth + sign * noise
+            xs = truth + sign * draw
             sol = optimize.least_squares(
                 lambda q, xs=xs: residual_fn(q, xs, weights)[0], p,
                 jac=lambda q, xs=xs: residual_fn(q, xs, weights)[1],
                 method="lm", xtol=1e-10, ftol=1e-10)
             acc += sol.x
-    return acc / (2 * PAIRS) - p
+    return acc / (2 * len(noise)) - p
+
+
+def estimate_bias(layout: mdl.Layout, p_hat: NDArray, x: NDArray, tau: NDArray | None, sigma: float,
+                  residual_fn, rng: np.random.Generator, param_sigma: NDArray) -> BiasCorrection:
+    """Bias of ``p_hat``: one estimate where it is small, the fixed point where it is not.
+
+    ``param_sigma`` (per parameter) is the yardstick: "small" and "settled" are judged against it.
+    """
+    noise = rng.normal(scale=sigma, size=(ITERATION_PAIRS, *x.shape))
+    bias = bootstrap_bias(layout, p_hat, x, tau, residual_fn, noise[:PAIRS])
+    ratio = float(np.max(np.abs(bias) / param_sigma))
+    if ratio <= LINEAR_BIAS_SIGMAS:
+        return BiasCorrection(bias, 1, True, ratio)
+    if not ratio <= GIVE_UP_SIGMAS:
+        return BiasCorrection(bias, 1, False, ratio)
+    for iteration in range(2, MAX_ITERATIONS + 1):
+        # the same noise draws at every step: the bias becomes a smooth function of the
+        # parameters, so the substitution converges instead of wandering with Monte Carlo noise
+        new = bootstrap_bias(layout, p_hat - bias, x, tau, residual_fn, noise)
+        step = float(np.max(np.abs(new - bias) / param_sigma))
+        bias = new
+        largest = float(np.max(np.abs(bias) / param_sigma)) if np.all(np.isfinite(bias)) else np.inf
+        if largest > GIVE_UP_SIGMAS:
+            break  # running away: no fixed point near the data, stop spending time on it
+        if step <= SETTLED_SIGMAS:
+            return BiasCorrection(bias, iteration, True, largest)
+    return BiasCorrection(bias, iteration, False, largest)

@@ -21,7 +21,7 @@ from scipy import optimize, stats
 from magline.core.fit import model as mdl
 from magline.core.fit.algebraic import AlgebraicFitError, fit_ellipsoid, fit_sphere
 from magline.core.fit.coverage import coverage_fraction
-from magline.core.fit.debias import bootstrap_bias
+from magline.core.fit.debias import estimate_bias
 from magline.core.fit.result import FitOptions, FitRefused, FitResult
 from magline.core.fit.screening import planarity, screen_samples
 
@@ -29,6 +29,7 @@ MIN_SAMPLES = {"full": 30, "diagonal": 20, "sphere": 12}
 MAD_TO_SIGMA = 1.4826
 BIAS_REFERENCE_SAMPLES = 600  # acquisition size at which bias is compared with σ
 BOOTSTRAP_MAX_SAMPLES = 5000  # the bias bootstrap refits at most this many samples
+MAX_BIAS_SIGMAS = 10.0  # a settled bias beyond this many σ is not trusted to second order
 ROTATE_MORE = "rotate the unit through more orientations (tumble about all three axes) and acquire again"
 
 
@@ -88,6 +89,7 @@ def fit_calibration(
                          "keep motors off and magnets away during acquisition, then acquire again")
 
     x, tau_in = x_all[inliers], (tau[inliers] if tau is not None else None)
+    applied = None
     if opts.debias:
         # seeded from the data so that the same samples always give the same calibration
         rng = np.random.default_rng(zlib.crc32(x.tobytes()))
@@ -102,21 +104,26 @@ def fit_calibration(
         def objective(q, xs, w):
             return _residuals_and_jac(layout, q, xs, tau_boot, w, sigma, log_ref, opts)
 
-        bias = bootstrap_bias(layout, p, x_boot, tau_boot, sigma, objective, rng)
         cov, _, _ = _covariance(layout, p, x, tau_in, sigma, log_ref, opts)
         # The σ² bias does not shrink with the sample count while σ does (1/√N), so "bias versus σ"
         # is judged at a standard acquisition size: a 100 000-sample tumble is not undetermined just
         # because its σ is tiny (the bias is removed below either way).
         sigma_ref = np.sqrt(np.clip(np.diag(cov), 1e-30, None) * max(1.0, len(x) / BIAS_REFERENCE_SAMPLES))
-        if np.any(np.abs(bias) > 2.0 * sigma_ref):
-            # A second-order term as large as the uncertainty: the problem is not locally linear,
-            # i.e. the orientations seen do not determine the calibration.
+        correction = estimate_bias(layout, p, x_boot, tau_boot, sigma, objective, rng, sigma_ref)
+        if not correction.settled or correction.largest_sigmas > MAX_BIAS_SIGMAS:
+            # A second-order term that does not settle, or dwarfs the uncertainty: the problem is
+            # not close to linear, i.e. the orientations seen do not determine the calibration.
             raise FitRefused("undetermined", "the orientations covered do not determine the calibration "
-                             "(the estimate is dominated by its own bias)", ROTATE_MORE)
-        p = p - bias
+                             f"(the estimate is dominated by its own bias, {correction.largest_sigmas:.1f}σ)",
+                             ROTATE_MORE)
+        p = p - correction.bias
+        applied = {"iterations": correction.iterations, "largest_sigmas": round(correction.largest_sigmas, 3),
+                   "hard_iron_ut": [float(v) for v in -scale * correction.bias[:3]]}
     cov, jac, _ = _covariance(layout, p, x, tau_in, sigma, log_ref, opts)
-    return _assemble(layout, p, cov, jac, x, tau_in, centre, scale, keep, inliers, rejected, flat,
-                     drift_info, opts, len(m))
+    result = _assemble(layout, p, cov, jac, x, tau_in, centre, scale, keep, inliers, rejected, flat,
+                       drift_info, opts, len(m))
+    result.bias_correction = applied
+    return result
 
 
 # --------------------------------------------------------------------------- initialisation

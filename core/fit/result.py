@@ -43,7 +43,7 @@ class FitOptions:
     outlier_sigmas: float = 5.0
     max_outlier_fraction: float = 0.3
     max_offset_sigma_fraction: float = 0.25
-    max_direction_sigma_deg: float = 0.5
+    max_direction_sigma_deg: float = 1.0
     max_residual_fraction: float = 0.05
     min_planarity: float = 0.15
     max_axis_ratio: float = 2.0
@@ -77,6 +77,7 @@ class FitResult:
     direction_sigma_deg: float
     drift: dict[str, Any] | None = None
     noise_ut: float = 0.0
+    bias_correction: dict[str, Any] | None = None  # what the second-order correction did, if it ran
     extra: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -131,5 +132,6 @@ class FitResult:
             "samples": {"total": self.samples_total, "used": self.samples_used,
                         "rejected": dict(self.rejected)},
             "drift": self.drift,
+            "bias_correction": self.bias_correction,
             **({"affine": self.extra} if self.model == "affine" else {}),
         }

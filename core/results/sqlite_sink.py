@@ -28,7 +28,7 @@ CREATE TABLE IF NOT EXISTS phases (
     message TEXT, log TEXT);
 CREATE TABLE IF NOT EXISTS attempts (
     run_id INTEGER REFERENCES runs(id), attempt INTEGER, samples INTEGER, coverage REAL,
-    target REAL, accepted INTEGER, raw_csv TEXT);
+    target REAL, accepted INTEGER, raw_csv TEXT, refused TEXT);
 CREATE TABLE IF NOT EXISTS measurements (
     run_id INTEGER REFERENCES runs(id), name TEXT, kind TEXT, value REAL, unit TEXT, low REAL,
     high REAL, verdict TEXT, data TEXT);
@@ -45,6 +45,9 @@ class SqliteSink:
         path.parent.mkdir(parents=True, exist_ok=True)
         self.db = sqlite3.connect(path)
         self.db.executescript(SCHEMA)
+        columns = {row[1] for row in self.db.execute("PRAGMA table_info(attempts)")}
+        if "refused" not in columns:  # results files from before fit refusals were recorded
+            self.db.execute("ALTER TABLE attempts ADD COLUMN refused TEXT")
         self.db.commit()
 
     def close(self) -> None:
@@ -63,9 +66,10 @@ class SqliteSink:
         if record.run_id is None:
             self.begin(record)
         with self.db:
-            self.db.execute("INSERT INTO attempts VALUES (?,?,?,?,?,?,?)",
+            self.db.execute("INSERT INTO attempts (run_id, attempt, samples, coverage, target, accepted,"
+                            " raw_csv, refused) VALUES (?,?,?,?,?,?,?,?)",
                             (record.run_id, attempt.attempt, attempt.samples, attempt.coverage,
-                             attempt.target, int(attempt.accepted), attempt.raw_csv))
+                             attempt.target, int(attempt.accepted), attempt.raw_csv, attempt.refused))
 
     def finish(self, record: RunRecord) -> None:
         if record.run_id is None:
@@ -78,6 +82,9 @@ class SqliteSink:
                 (record.finished, str(record.verdict), record.cause, json.dumps(record.unit_info),
                  json.dumps(record.calibration) if record.calibration else None,
                  json.dumps(record.persistence), rid))
+            # the fit may refuse an attempt after its raw data were saved: final verdicts per attempt
+            self.db.executemany("UPDATE attempts SET accepted=?, refused=? WHERE run_id=? AND attempt=?",
+                                [(int(a.accepted), a.refused, rid, a.attempt) for a in record.attempts])
             self.db.executemany("INSERT INTO phases VALUES (?,?,?,?,?,?,?)", [
                 (rid, i, p.name, str(p.outcome), p.duration_s, p.message, "\n".join(p.log))
                 for i, p in enumerate(record.phases)])
@@ -99,7 +106,8 @@ class SqliteSink:
                 " limit_hash, calibration FROM runs WHERE serial=? ORDER BY id", (serial,))]
             for run in runs:
                 run["attempts"] = [dict(r) for r in self.db.execute(
-                    "SELECT attempt, samples, coverage, accepted FROM attempts WHERE run_id=? ORDER BY attempt",
+                    "SELECT attempt, samples, coverage, accepted, refused FROM attempts"
+                    " WHERE run_id=? ORDER BY attempt",
                     (run["id"],))]
                 run["failed"] = [dict(r) for r in self.db.execute(
                     "SELECT name, value, unit, low, high FROM measurements WHERE run_id=? AND verdict='fail'",

@@ -60,6 +60,8 @@ class RunContext:
     power: PowerControl | None = None
     unit: UnitInfo | None = None
     attempts: list[Acquisition] = field(default_factory=list)
+    # why the next acquisition attempt is needed, in the operator's terms (None: low coverage)
+    retry_advice: str | None = None
     state: dict[str, Any] = field(default_factory=dict)  # scratch space for plugins
     _phase: PhaseResult | None = None
 

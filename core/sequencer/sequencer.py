@@ -155,7 +155,14 @@ class Sequencer:
         run.dut.prepare()
 
     def _acquire(self, run: RunContext) -> None:
+        """Acquire until the samples determine the calibration, or the retries run out.
+
+        Coverage decides whether an attempt is worth fitting; the fit itself decides whether the
+        samples determine the calibration (its refusal is the stronger check), and its advice
+        becomes the operator's prompt for the next attempt.
+        """
         acq = self.station.acquisition
+        refusal: FitRefused | None = None
         for attempt in range(1, acq.retries + 2):
             if attempt > 1:
                 self.sleep(acq.retry_delay_s)
@@ -165,33 +172,53 @@ class Sequencer:
                 self._store_attempt(run, exc.partial, accepted=False)  # keep what arrived before the failure
                 raise DutError(f"{exc} (after {len(exc.partial.samples)} samples; raw data kept)") from exc
             run.attempts.append(result)
-            self._store_attempt(run, result, accepted=result.sufficient)
+            stored = self._store_attempt(run, result, accepted=result.sufficient)
             run.log(f"attempt {attempt}: {len(result.samples)} samples, coverage {result.coverage:.0%} "
                     f"(target {result.target:.0%})")
-            if result.sufficient:
+            if not result.sufficient:
+                run.retry_advice, refusal = None, None
+                continue
+            try:
+                run.state["fit"] = self.plugins.hook.magline_fit(run=run, samples=result.samples,
+                                                                 options=self._fit_options(run))
                 return
+            except FitRefused as exc:
+                refusal = exc
+                stored.accepted, stored.refused = False, f"{exc.reason}: {exc.message}"
+                run.retry_advice = exc.advice[:1].upper() + exc.advice[1:]
+                run.log(f"attempt {attempt}: calibration refused: {exc.message}")
+        if refusal is not None:
+            raise FitRefused(refusal.reason, f"{refusal.message} (after {len(run.attempts)} attempts)",
+                             refusal.advice)
         raise PhaseFailed(f"coverage {run.attempts[-1].coverage:.0%} below target "
                           f"{acq.coverage_target:.0%} after {len(run.attempts)} attempts")
 
-    def _store_attempt(self, run: RunContext, result: Acquisition, accepted: bool) -> None:
+    def _store_attempt(self, run: RunContext, result: Acquisition, accepted: bool) -> AttemptRecord:
         stored = AttemptRecord(attempt=result.attempt, samples=len(result.samples), coverage=result.coverage,
                                target=result.target, raw_csv=format_samples(result.samples), accepted=accepted)
         run.record.attempts.append(stored)
         self.sink.save_attempt(run.record, stored)  # raw data safe before any fitting
+        return stored
 
-    def _fit(self, run: RunContext) -> None:
-        acq = run.attempts[-1]
+    def _fit_options(self, run: RunContext) -> FitOptions:
         model = run.product.soft_iron_model
         if model == "auto":
             model = run.unit.soft_iron_model if run.unit else "full"
-        options = FitOptions(model=model, field_ut=run.reference_field_ut,
-                             range_ut=self.station.acquisition.range_ut,
-                             coverage_bins=self.station.acquisition.coverage_bins)
-        fit: FitResult = self.plugins.hook.magline_fit(run=run, samples=acq.samples, options=options)
-        run.state["fit"] = fit
+        return FitOptions(model=model, field_ut=run.reference_field_ut,
+                          range_ut=self.station.acquisition.range_ut,
+                          coverage_bins=self.station.acquisition.coverage_bins,
+                          gain_sigma=self.station.fit.gain_sigma,
+                          max_direction_sigma_deg=self.station.fit.max_direction_sigma_deg)
+
+    def _fit(self, run: RunContext) -> None:
+        """Record the fit that the accepted attempt produced (the acquire phase ran it)."""
+        fit: FitResult = run.state["fit"]
         run.record.calibration = fit.to_dict()
         run.log(f"offset {fit.hard_iron_ut.round(2).tolist()} µT, field {fit.field_ut:.2f} µT, "
                 f"residual rms {fit.residual_rms_ut:.3f} µT")
+        if fit.bias_correction and fit.bias_correction["iterations"] > 1:
+            run.log(f"second-order bias removed in {fit.bias_correction['iterations']} steps "
+                    f"({fit.bias_correction['largest_sigmas']:.1f}σ): partial coverage")
 
     def _validate(self, run: RunContext) -> None:
         fit = run.state["fit"]

@@ -103,6 +103,18 @@ class Acquisition(_Strict):
     range_ut: Annotated[float, Field(gt=0)] | None = None
 
 
+class FitSettings(_Strict):
+    """How strictly the fit judges what it was given (see :class:`magline.core.fit.FitOptions`).
+
+    ``gain_sigma`` is the spread of the raw-to-reference field ratio on this line's units; the
+    batch history of ``raw_to_reference_ratio`` in the results shows it.  A tight, true value is
+    what lets a unit that cannot be turned over (a 30 % cap) still be calibrated.
+    """
+
+    gain_sigma: Annotated[float, Field(gt=0, le=1)] = 0.05
+    max_direction_sigma_deg: Annotated[float, Field(gt=0, le=45)] = 1.0
+
+
 class Results(_Strict):
     sink: str = "sqlite"
     path: str = "magline-results.sqlite"
@@ -120,6 +132,7 @@ class Station(_Strict):
     default_part: str | None = None
     field_source: FieldSource = Field(default_factory=FieldSource)
     acquisition: Acquisition = Field(default_factory=Acquisition)
+    fit: FitSettings = Field(default_factory=FitSettings)
     limits: LimitSet = Field(default_factory=dict)
     results: Results = Field(default_factory=Results)
     prompts: Prompts = Field(default_factory=Prompts)
