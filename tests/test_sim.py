@@ -412,6 +412,17 @@ def test_mavsdk_client_params_reboot_and_streams(tmp_path, flavour, url):
 # --------------------------------------------------------------------------- command line
 
 
+def stopped_by_sigterm(proc: subprocess.Popen) -> int | None:
+    """Exit status after SIGTERM; a process that hangs is killed (never left holding its port)."""
+    proc.send_signal(signal.SIGTERM)
+    try:
+        return proc.wait(timeout=10)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+        return None
+
+
 def test_magline_sim_command_prints_address_and_stops_on_sigterm(tmp_path):
     proc = subprocess.Popen([sys.executable, "-m", "magline.core.cli", "sim", "px4", "--listen", "udp:127.0.0.1:0",
                              "--workdir", str(tmp_path), "--boot-time", "0.2"],
@@ -424,8 +435,7 @@ def test_magline_sim_command_prints_address_and_stops_on_sigterm(tmp_path):
         assert gcs.wait_heartbeat().autopilot == ML.MAV_AUTOPILOT_PX4
         gcs.close()
     finally:
-        proc.send_signal(signal.SIGTERM)
-        assert proc.wait(timeout=10) == 0
+        assert stopped_by_sigterm(proc) == 0
 
 
 @pytest.mark.parametrize("flavour,address", [("px4", "udp:127.0.0.1:14550"), ("ardupilot", "tcp:127.0.0.1:5760")])
@@ -435,8 +445,7 @@ def test_magline_sim_defaults_to_the_example_station_address(tmp_path, flavour, 
     try:
         assert proc.stdout.readline().strip() == f"listening on {address}"
     finally:
-        proc.send_signal(signal.SIGTERM)
-        proc.wait(timeout=10)
+        assert stopped_by_sigterm(proc) == 0
 
 
 def test_magline_sim_rejects_a_bad_fault_name(tmp_path):

@@ -20,9 +20,9 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import optimize
 
 from magline.core.fit import model as mdl
+from magline.core.fit.solver import levenberg_marquardt
 
 PAIRS = 2  # antithetic pairs for one bias estimate where the bias is small
 ITERATION_PAIRS = 6  # pairs per estimate once the bias is large enough to iterate on
@@ -55,8 +55,9 @@ def bootstrap_bias(layout: mdl.Layout, p: NDArray, x: NDArray, tau: NDArray | No
                    noise: NDArray) -> NDArray:
     """Mean of antithetic refits of data simulated at ``p``, minus ``p``: the bias at ``p``.
 
-    ``residual_fn(q, x, weights)`` returns (residuals, jacobian) for parameters ``q`` on data ``x``
-    (the same objective the fit minimised, including any prior row).  ``noise`` holds one
+    ``residual_fn(q, x, weights, with_jacobian)`` returns (residuals, Jacobian or None) for
+    parameters ``q`` on data ``x`` with frozen Sampson ``weights``: the objective the fit minimised
+    (with its prior rows), so that the refits measure the bias of the estimator actually used.  ``noise`` holds one
     (n, 3) draw per antithetic pair.
     """
     truth = project_onto_model(layout, p, x, tau)
@@ -65,11 +66,7 @@ def bootstrap_bias(layout: mdl.Layout, p: NDArray, x: NDArray, tau: NDArray | No
     for draw in noise:
         for sign in (1.0, -1.0):
             xs = truth + sign * draw
-            sol = optimize.least_squares(
-                lambda q, xs=xs: residual_fn(q, xs, weights)[0], p,
-                jac=lambda q, xs=xs: residual_fn(q, xs, weights)[1],
-                method="lm", xtol=1e-10, ftol=1e-10)
-            acc += sol.x
+            acc += levenberg_marquardt(lambda q, jac, xs=xs: residual_fn(q, xs, weights, jac), p, 1e-10)
     return acc / (2 * len(noise)) - p
 
 

@@ -16,7 +16,7 @@ import zlib
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import optimize, stats
+from scipy import stats
 
 from magline.core.fit import model as mdl
 from magline.core.fit.algebraic import AlgebraicFitError, fit_ellipsoid, fit_sphere
@@ -24,11 +24,13 @@ from magline.core.fit.coverage import coverage_fraction
 from magline.core.fit.debias import estimate_bias
 from magline.core.fit.result import FitOptions, FitRefused, FitResult
 from magline.core.fit.screening import planarity, screen_samples
+from magline.core.fit.solver import levenberg_marquardt
 
 MIN_SAMPLES = {"full": 30, "diagonal": 20, "sphere": 12}
 MAD_TO_SIGMA = 1.4826
 BIAS_REFERENCE_SAMPLES = 600  # acquisition size at which bias is compared with σ
 BOOTSTRAP_MAX_SAMPLES = 5000  # the bias bootstrap refits at most this many samples
+REFINE_SUBSET_SAMPLES = 5000  # larger inputs are solved on a subset first, then polished on all
 MAX_BIAS_SIGMAS = 10.0  # a settled bias beyond this many σ is not trusted to second order
 ROTATE_MORE = "rotate the unit through more orientations (tumble about all three axes) and acquire again"
 
@@ -68,8 +70,11 @@ def fit_calibration(
     regressor, drift_name = _drift_regressor(t_ms, temp_c, keep)
     layout = mdl.Layout(opts.model, drift=False)
     log_ref = None if opts.field_ut is None else float(np.log(opts.field_ut / scale))
-    p0 = _initial_params(layout, x_all[inliers], log_ref, opts)
-    p, inliers, sigma = _robust_refine(layout, p0, x_all, None, inliers, log_ref, opts)
+    if len(x_all) > REFINE_SUBSET_SAMPLES:
+        p, inliers, sigma = _refine_large(layout, x_all, inliers, log_ref, opts)
+    else:
+        p0 = _initial_params(layout, x_all[inliers], log_ref, opts)
+        p, inliers, sigma = _robust_refine(layout, p0, x_all, None, inliers, log_ref, opts)
 
     drift_info = None
     if regressor is not None:
@@ -101,14 +106,14 @@ def fit_calibration(
             subset = np.sort(rng.choice(len(x), BOOTSTRAP_MAX_SAMPLES, replace=False))
             x_boot, tau_boot = x[subset], (tau_in[subset] if tau_in is not None else None)
 
-        def objective(q, xs, w):
-            return _residuals_and_jac(layout, q, xs, tau_boot, w, sigma, log_ref, opts)
+        def objective(q, xs, w, with_jacobian):
+            return _residuals_and_jac(layout, q, xs, tau_boot, w, sigma, log_ref, opts, with_jacobian)
 
-        cov, _, _ = _covariance(layout, p, x, tau_in, sigma, log_ref, opts)
+        cov, _, _ = _covariance(layout, p, x_boot, tau_boot, sigma, log_ref, opts)
         # The σ² bias does not shrink with the sample count while σ does (1/√N), so "bias versus σ"
         # is judged at a standard acquisition size: a 100 000-sample tumble is not undetermined just
         # because its σ is tiny (the bias is removed below either way).
-        sigma_ref = np.sqrt(np.clip(np.diag(cov), 1e-30, None) * max(1.0, len(x) / BIAS_REFERENCE_SAMPLES))
+        sigma_ref = np.sqrt(np.clip(np.diag(cov), 1e-30, None) * max(1.0, len(x_boot) / BIAS_REFERENCE_SAMPLES))
         correction = estimate_bias(layout, p, x_boot, tau_boot, sigma, objective, rng, sigma_ref)
         if not correction.settled or correction.largest_sigmas > MAX_BIAS_SIGMAS:
             # A second-order term that does not settle, or dwarfs the uncertainty: the problem is
@@ -134,7 +139,8 @@ def _robust_sphere(m: NDArray, k: float) -> tuple[NDArray, float, NDArray]:
     centre, radius = np.median(m, axis=0), 1.0
     for _ in range(4):
         try:
-            centre, radius = fit_sphere(m[inl])
+            used = m[inl]
+            centre, radius = fit_sphere(used[:: max(1, len(used) // REFINE_SUBSET_SAMPLES)])  # a start only
         except AlgebraicFitError:
             break
         dist = np.linalg.norm(m - centre, axis=1) - radius
@@ -173,41 +179,52 @@ def _initial_params(layout: mdl.Layout, x: NDArray, log_ref: float | None, opts:
 
 # --------------------------------------------------------------------------- refinement
 
-def _residuals_and_jac(layout, p, x, tau, weights, sigma, log_ref, opts):
-    rho, jac = mdl.radial_jacobian(layout, p, x, tau)
+def _residuals_and_jac(layout, p, x, tau, weights, sigma, log_ref, opts, with_jacobian=True):
+    """Sampson residuals (geometric distances, plus any prior rows) and, if asked, their Jacobian.
+
+    ``weights`` are the Sampson weights |∇ρ|, frozen by the caller.
+    """
+    if with_jacobian:
+        rho, jac = mdl.radial_jacobian(layout, p, x, tau)
+        jac = jac / weights[:, None]
+    else:
+        rho, _, _ = mdl.radial(layout, p, x, tau)
+        jac = None
     r = (rho - 1.0) / weights
-    jac = jac / weights[:, None]
     if log_ref is not None:
         k = sigma / opts.gain_sigma
         r = np.append(r, k * (mdl.log_raw_radius(layout, p) - log_ref))
-        jac = np.vstack([jac, k * mdl.log_gain_gradient(layout, p)])
+        if jac is not None:
+            jac = np.vstack([jac, k * mdl.log_gain_gradient(layout, p)])
         if opts.shape_sigma and layout.model != "sphere":
             # soft iron near identity: entries of S·F_ref (raw units) with prior 1σ shape_sigma
             ks = sigma / opts.shape_sigma * np.exp(log_ref)
             ident = np.array([1.0, 1.0, 1.0, 0.0, 0.0, 0.0][: layout.n_soft])
             r = np.concatenate([r, ks * (p[layout.soft_slice] - ident * np.exp(-log_ref))])
-            rows = np.zeros((layout.n_soft, layout.size))
-            rows[:, layout.soft_slice] = np.eye(layout.n_soft) * ks
-            jac = np.vstack([jac, rows])
+            if jac is not None:
+                rows = np.zeros((layout.n_soft, layout.size))
+                rows[:, layout.soft_slice] = np.eye(layout.n_soft) * ks
+                jac = np.vstack([jac, rows])
     return r, jac
 
 
 def _solve(layout, p0, x, tau, sigma, log_ref, opts) -> NDArray:
+    """Gradient-weighted least squares with the Sampson weights frozen per pass, re-weighted
+    until they stop moving: the estimator whose O(σ²) bias the bootstrap reproduces (letting the
+    weights vary inside one run minimises a different, more biased objective on partial coverage).
+    """
     p = p0
-    for _ in range(3):  # Sampson weights depend (weakly) on p; two or three passes converge
+    for _ in range(3):  # the weights depend (weakly) on p; two or three passes converge
         weights = mdl.gradient_norm(layout, p, x, tau)
         if not np.all(np.isfinite(weights)) or np.any(weights <= 0):
             raise FitRefused("not_ellipsoid", "the fit diverged", ROTATE_MORE)
 
-        def fun(q, w=weights):
-            return _residuals_and_jac(layout, q, x, tau, w, sigma, log_ref, opts)[0]
+        def objective(q, with_jacobian, w=weights):
+            return _residuals_and_jac(layout, q, x, tau, w, sigma, log_ref, opts, with_jacobian)
 
-        def jac(q, w=weights):
-            return _residuals_and_jac(layout, q, x, tau, w, sigma, log_ref, opts)[1]
-
-        sol = optimize.least_squares(fun, p, jac=jac, method="lm", xtol=1e-12, ftol=1e-12, gtol=1e-12)
-        step = np.max(np.abs(sol.x - p))
-        p = sol.x
+        new = levenberg_marquardt(objective, p, 1e-12)
+        step = np.max(np.abs(new - p))
+        p = new
         if step < 1e-9:
             break
     _, s, _ = mdl.unpack(layout, p)
@@ -217,8 +234,10 @@ def _solve(layout, p0, x, tau, sigma, log_ref, opts) -> NDArray:
 
 
 def _geometric_residuals(layout, p, x, tau) -> NDArray:
-    rho, _, _ = mdl.radial(layout, p, x, tau)
-    return (rho - 1.0) / mdl.gradient_norm(layout, p, x, tau)
+    rho, v, _ = mdl.radial(layout, p, x, tau)
+    _, s, _ = mdl.unpack(layout, p)
+    grad = (v @ s) / rho[:, None]  # ∇ρ, as mdl.gradient_norm computes it, without a second pass
+    return (rho - 1.0) / np.sqrt(np.einsum("ij,ij->i", grad, grad))
 
 
 def _robust_refine(layout, p, x_all, tau_all, inliers, log_ref, opts):
@@ -235,6 +254,43 @@ def _robust_refine(layout, p, x_all, tau_all, inliers, log_ref, opts):
         inliers = new
     sigma = float(np.std(_geometric_residuals(layout, p, x_all[inliers], _take(tau_all, inliers))))
     return p, inliers, max(sigma, 1e-12)
+
+
+def _refine_large(layout, x_all, inliers, log_ref, opts):
+    """The robust fit of a large acquisition: solved on a random subset, then polished on all.
+
+    The subset's solution is within its (larger) uncertainty of the full-data one, where the
+    problem is linear to far below the noise; Gauss–Newton steps on the normal equations (12
+    unknowns, however many samples) then finish it at a fraction of the cost of a QR-based
+    Levenberg–Marquardt run over every sample.
+    """
+    pick = np.sort(np.random.default_rng(zlib.crc32(x_all[:64].tobytes())).choice(
+        len(x_all), REFINE_SUBSET_SAMPLES, replace=False))
+    p = _initial_params(layout, x_all[pick][inliers[pick]], log_ref, opts)
+    p, _, sigma = _robust_refine(layout, p, x_all[pick], None, inliers[pick], log_ref, opts)
+    for _ in range(2):  # outliers judged on all samples with the polished model, then once more
+        inliers = np.abs(_geometric_residuals(layout, p, x_all, None)) <= opts.outlier_sigmas * sigma
+        if inliers.sum() < MIN_SAMPLES[layout.model]:
+            raise FitRefused("not_ellipsoid", "too few samples agree on one ellipsoid", ROTATE_MORE)
+        p = _gauss_newton_polish(layout, p, x_all[inliers], sigma, log_ref, opts)
+        sigma = _robust_sigma(_geometric_residuals(layout, p, x_all[inliers], None))
+    sigma = float(np.std(_geometric_residuals(layout, p, x_all[inliers], None)))
+    return p, inliers, max(sigma, 1e-12)
+
+
+def _gauss_newton_polish(layout, p, x, sigma, log_ref, opts, max_steps: int = 4) -> NDArray:
+    """Gauss–Newton steps with the Sampson weights frozen at each step's start (as :func:`_solve`)."""
+    for _ in range(max_steps):
+        weights = mdl.gradient_norm(layout, p, x, None)
+        r, jac = _residuals_and_jac(layout, p, x, None, weights, sigma, log_ref, opts)
+        step = np.linalg.solve(jac.T @ jac, jac.T @ r)
+        r_t, _ = _residuals_and_jac(layout, p - step, x, None, weights, sigma, log_ref, opts, False)
+        if not np.all(np.isfinite(r_t)) or r_t @ r_t > r @ r:
+            break  # no further decrease: at the minimum to rounding
+        p = p - step
+        if np.max(np.abs(step)) < 1e-11:
+            break
+    return p
 
 
 def _robust_sigma(r: NDArray) -> float:
@@ -341,7 +397,7 @@ def _assemble(layout, p, cov, jac, x, tau, centre, scale, keep, inliers, rejecte
     # where it will be used — the calibrated field *direction* over the orientations seen.
     jn = jac / np.linalg.norm(jac, axis=0)
     cond = float(np.linalg.cond(jn))
-    dir_sigma = _direction_sigma_deg(layout, p, cov, x)
+    dir_sigma = _direction_sigma_deg(layout, p, cov, x[:: max(1, len(x) // REFINE_SUBSET_SAMPLES)])
     if not np.isfinite(cond) or not np.isfinite(dir_sigma) or dir_sigma > opts.max_direction_sigma_deg \
             or np.linalg.norm(h_sigma) > opts.max_offset_sigma_fraction * field_est:
         raise FitRefused("undetermined",

@@ -43,6 +43,16 @@ def add_sim_command(subparsers: argparse._SubParsersAction) -> None:
     sim.set_defaults(handler=run_sim)
 
 
+class _Terminated(Exception):
+    """SIGTERM arrived: leave the wait, then stop the simulator in ``finally``."""
+
+
+def _terminate(signum: int, frame: object) -> None:
+    # Raise rather than stop here: the handler runs on the main thread, possibly inside
+    # Event.wait() holding the event's lock, and Event.set() from here would deadlock on it.
+    raise _Terminated
+
+
 def run_sim(args: argparse.Namespace) -> int:
     if args.flavour == "coil":
         return run_coil_sim(args)
@@ -80,10 +90,10 @@ def run_sim(args: argparse.Namespace) -> int:
         h = ", ".join(f"{v:.2f}" for v in mag.hard_iron_ut)
         s = "; ".join(", ".join(f"{v:.4f}" for v in row) for row in mag.soft_iron)
         print(f"  magnetometer {mag.device_id}: hard iron [{h}] µT, soft iron [{s}]", flush=True)
-    signal.signal(signal.SIGTERM, lambda *_: sim.stop())
+    signal.signal(signal.SIGTERM, _terminate)
     try:
         sim.wait_stopped()
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, _Terminated):
         pass
     finally:
         sim.stop()
@@ -105,11 +115,11 @@ def run_coil_sim(args: argparse.Namespace) -> int:
     print(f"listening on {coil.address}", flush=True)
     print(f"coil current source (VISA {coil.visa_resource}); fluxgate DAQ at the centre on {fluxgate.address} "
           f"(VISA {fluxgate.visa_resource}); ambient field {coil.ambient.tolist()} µT", flush=True)
-    signal.signal(signal.SIGTERM, lambda *_: coil._stop.set())
+    signal.signal(signal.SIGTERM, _terminate)
     try:
         while not coil._stop.wait(0.5):
             pass
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, _Terminated):
         pass
     finally:
         coil.stop()

@@ -1,0 +1,57 @@
+"""One Levenberg–Marquardt entry point for every least-squares fit in ``magline.core.fit``.
+
+Why a wrapper: scipy/MINPACK asks for residuals and Jacobian in separate calls, often twice at the
+same point, and most of its calls are residual-only trial steps.  The objectives here can give
+residuals alone (cheap) or both in one pass (sharing the calibrated vectors); this wrapper asks for
+exactly what MINPACK needs and never evaluates the same point twice.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import optimize
+
+# objective(p, with_jacobian) -> (residuals, Jacobian or None)
+Objective = Callable[[NDArray, bool], tuple[NDArray, NDArray | None]]
+
+
+class _PointCache:
+    """The last point's residuals (and Jacobian, once asked for)."""
+
+    def __init__(self, objective: Objective) -> None:
+        self.objective = objective
+        self.point: NDArray | None = None
+        self.r: NDArray | None = None
+        self.jac: NDArray | None = None
+
+    def _at(self, q: NDArray) -> bool:
+        return self.point is not None and np.array_equal(q, self.point)
+
+    def residuals(self, q: NDArray) -> NDArray:
+        if not self._at(q):
+            self.point, self.jac = np.array(q, copy=True), None
+            self.r, _ = self.objective(q, False)
+        assert self.r is not None
+        return self.r
+
+    def jacobian(self, q: NDArray) -> NDArray:
+        if not self._at(q) or self.jac is None:
+            self.point = np.array(q, copy=True)
+            self.r, self.jac = self.objective(q, True)
+        assert self.jac is not None
+        return self.jac
+
+
+def levenberg_marquardt(objective: Objective, p0: NDArray, tol: float) -> NDArray:
+    """Minimise ‖r(p)‖² from ``p0`` with MINPACK's LM (``xtol = ftol = gtol = tol``)."""
+    cache = _PointCache(objective)
+    # leastsq is the thin MINPACK binding (least_squares(method="lm") wraps the same lmder with
+    # more set-up per call, which is most of the cost of a 600-sample refit)
+    # full_output: a run that stops on its evaluation budget is judged by the caller's own checks
+    # (divergence, refusal), not reported as a warning
+    p, *_ = optimize.leastsq(cache.residuals, p0, Dfun=cache.jacobian, xtol=tol, ftol=tol, gtol=tol,
+                             full_output=True)
+    return np.asarray(p, dtype=float)
