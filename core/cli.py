@@ -217,6 +217,12 @@ def _fit_summary(doc: dict) -> str:
     ]
     if doc["raw_to_reference_ratio"] is not None:
         lines.append(f"raw/ref      {doc['raw_to_reference_ratio']:.4f}")
+    if doc.get("model_misfit"):
+        mis = doc["model_misfit"]
+        lines.append(f"WARNING      the soft iron is not axis-aligned: the {mis['model']} model leaves "
+                     f"{mis['residual_ut']:.2f} µT (full matrix {mis['full_model_residual_ut']:.2f} µT) and "
+                     f"costs up to {mis['direction_error_deg']:.2f}° of heading; use --model full if the "
+                     "autopilot holds a full matrix")
     return "\n".join(lines)
 
 

@@ -45,6 +45,8 @@ CATALOGUE: dict[str, tuple[str, str]] = {
     "rejected_fraction": ("", "share of samples excluded (clipped, spikes)"),
     "attempts": ("", "acquisition attempts needed"),
     "misalignment_deg": ("°", "sensor axes rotated against the coil frame (Helmholtz affine fit only)"),
+    "model_misfit_deg": ("°", "heading cost of the diagonal / sphere model the autopilot holds, against "
+                              "the full soft iron (only when the full model fits significantly better)"),
 }
 ARRAY_MEASUREMENTS: dict[str, str] = {"residual_ut": "µT"}
 AGGREGATIONS = ("mean", "std", "ptp")

@@ -94,6 +94,8 @@ def magline_validate(run: RunContext, fit: FitResult) -> list[Measurement]:
     ]
     if fit.raw_to_reference_ratio is not None:
         out.append(Numeric.of("field_error_pct", (fit.raw_to_reference_ratio - 1.0) * 100.0, lim))
+    if fit.model_misfit is not None:
+        out.append(Numeric.of("model_misfit_deg", fit.model_misfit["direction_error_deg"], lim))
     return out
 
 

@@ -142,9 +142,27 @@ def test_diagonal_and_sphere_models(rng):
     diag = fit_calibration(m, FitOptions(model="diagonal"))
     assert np.count_nonzero(diag.soft_iron - np.diag(np.diag(diag.soft_iron))) == 0
     assert np.all(np.abs(diag.hard_iron_ut - truth.hard_iron_ut) < 5 * diag.hard_iron_sigma_ut)
+    assert diag.model_misfit is None  # the truth is axis-aligned: nothing lost
     truth.soft_iron = np.eye(3)
     sphere = fit_calibration(truth.read(d * FIELD, rng), FitOptions(model="sphere"))
     assert np.allclose(sphere.soft_iron, np.eye(3) * sphere.soft_iron[0, 0])
+
+
+@pytest.mark.parametrize("motion", ["hand_tumble", "hemisphere", "two_rings"])
+def test_diagonal_model_on_rotated_soft_iron_is_fitted_and_its_cost_reported(rng, motion):
+    """Not refused (no motion would help) but flagged, with the heading the restriction costs."""
+    truth, _, m = draw(rng, motion=motion)
+    fit = fit_calibration(m, FitOptions(model="diagonal"))
+    full = fit_calibration(m)
+    misfit = fit.model_misfit
+    assert misfit is not None and misfit["model"] == "diagonal"
+    assert misfit["full_model_residual_ut"] == pytest.approx(truth.noise_ut, rel=0.2)
+    assert misfit["residual_ut"] > 1.5 * misfit["full_model_residual_ut"]
+    # the reported cost is the angle between what the two calibrations make of the samples seen
+    cal_d = fit.apply(m[fit.used])
+    cal_f = full.apply(m[fit.used])
+    cos = np.einsum("ij,ij->i", cal_d, cal_f) / np.linalg.norm(cal_d, axis=1) / np.linalg.norm(cal_f, axis=1)
+    assert misfit["direction_error_deg"] == pytest.approx(np.degrees(np.arccos(cos.min())), rel=0.1)
 
 
 @pytest.mark.parametrize("seed", range(5))

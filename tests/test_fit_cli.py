@@ -71,3 +71,14 @@ def test_csv_errors_are_clear(tmp_path, capsys, content, expected):
 def test_missing_file(tmp_path, capsys):
     assert main(["fit", str(tmp_path / "nope.csv")]) == 2
     assert "cannot read" in capsys.readouterr().err
+
+
+def test_diagonal_model_on_rotated_soft_iron_warns_instead_of_blaming_the_operator(tmp_path, capsys):
+    """An autopilot that holds only a diagonal still gets its best diagonal fit; the summary says
+    why it is poor (the board's soft iron is rotated), not "rotate more"."""
+    write_csv(tmp_path / "raw.csv", seed=4)  # random_truth rotates the soft-iron axes
+    assert main(["fit", str(tmp_path / "raw.csv"), "--model", "diagonal"]) == 0
+    out = capsys.readouterr().out
+    assert "not axis-aligned" in out and "--model full" in out
+    assert main(["fit", str(tmp_path / "raw.csv"), "--model", "full"]) == 0
+    assert "not axis-aligned" not in capsys.readouterr().out

@@ -31,6 +31,7 @@ MAD_TO_SIGMA = 1.4826
 BIAS_REFERENCE_SAMPLES = 600  # acquisition size at which bias is compared with σ
 BOOTSTRAP_MAX_SAMPLES = 5000  # the bias bootstrap refits at most this many samples
 REFINE_SUBSET_SAMPLES = 5000  # larger inputs are solved on a subset first, then polished on all
+MISFIT_P_VALUE = 1e-3  # F test: the full soft iron fits better than a diagonal (or sphere) model
 MAX_BIAS_SIGMAS = 10.0  # a settled bias beyond this many σ is not trusted to second order
 ROTATE_MORE = "rotate the unit through more orientations (tumble about all three axes) and acquire again"
 
@@ -77,7 +78,10 @@ def fit_calibration(
         p, inliers, sigma = _robust_refine(layout, p0, x_all, None, inliers, log_ref, opts)
 
     drift_info = None
-    if regressor is not None:
+    if regressor is not None and layout.model != "full":
+        drift_info, p, inliers, sigma, layout = _drift_judged_with_full_model(
+            layout, p, x_all, regressor, inliers, sigma, log_ref, opts, drift_name)
+    elif regressor is not None:
         drift_info, p, inliers, sigma, layout = _maybe_drift(
             layout, p, x_all, regressor, inliers, sigma, log_ref, opts, drift_name)
 
@@ -125,8 +129,9 @@ def fit_calibration(
         applied = {"iterations": correction.iterations, "largest_sigmas": round(correction.largest_sigmas, 3),
                    "hard_iron_ut": [float(v) for v in -scale * correction.bias[:3]]}
     cov, jac, _ = _covariance(layout, p, x, tau_in, sigma, log_ref, opts)
+    misfit = _restricted_model_cost(layout, p, x, sigma, scale, log_ref, opts)
     result = _assemble(layout, p, cov, jac, x, tau_in, centre, scale, keep, inliers, rejected, flat,
-                       drift_info, opts, len(m))
+                       drift_info, opts, len(m), misfit)
     result.bias_correction = applied
     return result
 
@@ -336,6 +341,7 @@ def _maybe_drift(layout, p, x_all, tau_all, inliers, sigma, log_ref, opts, name)
             except FitRefused:
                 break
             info["warm_up_excluded"] = int((~window).sum())
+            info["cut"] = cut
         try:
             pd, inl_d, sigma_d = _fit_window(drift_layout, np.concatenate([p, np.zeros(3)]),
                                              x_all, tau_all, inliers, window, log_ref, opts)
@@ -350,6 +356,31 @@ def _maybe_drift(layout, p, x_all, tau_all, inliers, sigma, log_ref, opts, name)
         if cut == 0.5:
             info["modelled"] = True
             return info, pd, inl_d, sigma_d, drift_layout
+    return info, p, inliers, sigma, layout
+
+
+def _drift_judged_with_full_model(layout, p, x_all, tau_all, inliers, sigma, log_ref, opts, name):
+    """Drift handling for a diagonal / sphere model: decided with the full soft iron, applied to
+    the restricted model.
+
+    Why: a restricted model's misfit is smooth along the operator's motion, hence correlated with
+    time, and a drift term would "explain" it; the full model has no such misfit to explain.
+    """
+    full = mdl.Layout("full", drift=False)
+    h, s_n, _ = mdl.unpack(layout, p)
+    try:
+        pf = _solve(full, mdl.pack(full, h, s_n), x_all[inliers], None, sigma, log_ref, opts)
+    except FitRefused:
+        return _maybe_drift(layout, p, x_all, tau_all, inliers, sigma, log_ref, opts, name)
+    info, _, _, _, _ = _maybe_drift(full, pf, x_all, tau_all, inliers, sigma, log_ref, opts, name)
+    cut = info.get("cut", 0.0)
+    if cut == 0.0 and not info["modelled"]:
+        return info, p, inliers, sigma, layout
+    window = tau_all >= -1.0 + cut - 1e-12
+    if info["modelled"]:
+        layout, p = mdl.Layout(layout.model, drift=True), np.concatenate([p, np.zeros(3)])
+    p, inliers, sigma = _fit_window(layout, p, x_all, tau_all if layout.drift else None, inliers, window,
+                                    log_ref, opts)
     return info, p, inliers, sigma, layout
 
 
@@ -380,8 +411,44 @@ def _covariance(layout, p, x, tau, sigma, log_ref, opts):
     return cov, jac, rss
 
 
+def _restricted_model_cost(layout, p, x, sigma, scale, log_ref, opts) -> dict | None:
+    """What a diagonal (or sphere) model loses against the full symmetric soft iron, or None.
+
+    Why: an autopilot that holds only a diagonal gets the best axis-aligned fit, but a board whose
+    soft iron is rotated leaves a systematic residual that is no fault of the operator's motion.
+    Detected by an F test of the full model against the restricted one on the same samples; the
+    cost is the largest angle between the two calibrations' field directions over those samples.
+    """
+    if layout.model == "full" or layout.drift:
+        return None
+    full = mdl.Layout("full", drift=False)
+    h, s_n, _ = mdl.unpack(layout, p)
+    try:
+        pf = _solve(full, mdl.pack(full, h, s_n), x, None, sigma, log_ref, opts)
+        cov_f, _, _ = _covariance(full, pf, x, None, sigma, log_ref, opts)
+    except FitRefused:
+        return None
+    r_restricted = _geometric_residuals(layout, p, x, None)
+    r_full = _geometric_residuals(full, pf, x, None)
+    extra, dof = full.size - layout.size, len(x) - full.size
+    f_stat = ((r_restricted @ r_restricted - r_full @ r_full) / extra) / (r_full @ r_full / dof)
+    if not f_stat > stats.f.ppf(1.0 - MISFIT_P_VALUE, extra, dof):
+        return None
+
+    def directions(lay, q):
+        hq, sq, _ = mdl.unpack(lay, q)
+        c = (x - hq) @ sq
+        return c / np.linalg.norm(c, axis=1, keepdims=True)
+
+    cos = np.clip(np.einsum("ij,ij->i", directions(layout, p), directions(full, pf)), -1.0, 1.0)
+    return {"model": layout.model, "residual_ut": float(np.std(r_restricted) * scale),
+            "full_model_residual_ut": float(np.std(r_full) * scale),
+            "direction_error_deg": float(np.degrees(np.arccos(cos.min()))),
+            "full_model_direction_sigma_deg": _direction_sigma_deg(full, pf, cov_f, x)}
+
+
 def _assemble(layout, p, cov, jac, x, tau, centre, scale, keep, inliers, rejected, flat, drift_info,
-              opts, n_total) -> FitResult:
+              opts, n_total, misfit=None) -> FitResult:
     h_n, s_n, drift = mdl.unpack(layout, p)
     log_r = mdl.log_raw_radius(layout, p)
     field_est = float(scale * np.exp(log_r))
@@ -398,8 +465,11 @@ def _assemble(layout, p, cov, jac, x, tau, centre, scale, keep, inliers, rejecte
     jn = jac / np.linalg.norm(jac, axis=0)
     cond = float(np.linalg.cond(jn))
     dir_sigma = _direction_sigma_deg(layout, p, cov, x[:: max(1, len(x) // REFINE_SUBSET_SAMPLES)])
-    if not np.isfinite(cond) or not np.isfinite(dir_sigma) or dir_sigma > opts.max_direction_sigma_deg \
-            or np.linalg.norm(h_sigma) > opts.max_offset_sigma_fraction * field_est:
+    # A restricted model's misfit inflates its own σ; whether the motion determined the calibration
+    # is then judged with the full model, which the misfit does not touch.
+    judged_sigma = misfit["full_model_direction_sigma_deg"] if misfit else dir_sigma
+    if not np.isfinite(cond) or not np.isfinite(judged_sigma) or judged_sigma > opts.max_direction_sigma_deg \
+            or (misfit is None and np.linalg.norm(h_sigma) > opts.max_offset_sigma_fraction * field_est):
         raise FitRefused("undetermined",
                          f"the orientations covered do not determine the calibration (heading 1σ up to "
                          f"{dir_sigma:.2f}°, offset 1σ {np.linalg.norm(h_sigma):.2f} µT)", ROTATE_MORE)
@@ -413,9 +483,10 @@ def _assemble(layout, p, cov, jac, x, tau, centre, scale, keep, inliers, rejecte
     residuals = np.linalg.norm(cal, axis=1) - field_out
     geo = _geometric_residuals(layout, p, x, tau) * scale
     noise = float(np.std(geo))
-    if np.sqrt(np.mean(geo**2)) > opts.max_residual_fraction * field_est:
+    fit_residual = misfit["full_model_residual_ut"] if misfit else np.sqrt(np.mean(geo**2))
+    if fit_residual > opts.max_residual_fraction * field_est:
         raise FitRefused("not_ellipsoid",
-                         f"residual {np.sqrt(np.mean(geo**2)):.2f} µT is too large for an ellipsoid of "
+                         f"residual {fit_residual:.2f} µT is too large for an ellipsoid of "
                          f"{field_est:.1f} µT", "keep motors off and magnets away, then acquire again")
     used = np.zeros(n_total, dtype=bool)
     used[np.flatnonzero(keep)[inliers]] = True
@@ -433,7 +504,7 @@ def _assemble(layout, p, cov, jac, x, tau, centre, scale, keep, inliers, rejecte
         samples_total=n_total, rejected=rejected,
         coverage=coverage_fraction(cal, opts.coverage_bins), coverage_bins=opts.coverage_bins,
         planarity=flat, condition_number=cond, direction_sigma_deg=dir_sigma, drift=drift_info,
-        noise_ut=noise,
+        noise_ut=noise, model_misfit=misfit,
     )
 
 

@@ -78,6 +78,8 @@ class FitResult:
     drift: dict[str, Any] | None = None
     noise_ut: float = 0.0
     bias_correction: dict[str, Any] | None = None  # what the second-order correction did, if it ran
+    # set when a diagonal / sphere model cannot represent the unit's soft iron (see geometric.py)
+    model_misfit: dict[str, Any] | None = None
     extra: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -133,5 +135,6 @@ class FitResult:
                         "rejected": dict(self.rejected)},
             "drift": self.drift,
             "bias_correction": self.bias_correction,
+            "model_misfit": self.model_misfit,
             **({"affine": self.extra} if self.model == "affine" else {}),
         }

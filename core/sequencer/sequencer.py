@@ -216,6 +216,11 @@ class Sequencer:
         run.record.calibration = fit.to_dict()
         run.log(f"offset {fit.hard_iron_ut.round(2).tolist()} µT, field {fit.field_ut:.2f} µT, "
                 f"residual rms {fit.residual_rms_ut:.3f} µT")
+        if fit.model_misfit:
+            mis = fit.model_misfit
+            run.log(f"soft iron not representable by the {mis['model']} model this autopilot holds: residual "
+                    f"{mis['residual_ut']:.2f} µT against {mis['full_model_residual_ut']:.2f} µT for the full "
+                    f"matrix, heading cost up to {mis['direction_error_deg']:.2f}°")
         if fit.bias_correction and fit.bias_correction["iterations"] > 1:
             run.log(f"second-order bias removed in {fit.bias_correction['iterations']} steps "
                     f"({fit.bias_correction['largest_sigmas']:.1f}σ): partial coverage")
