@@ -31,6 +31,7 @@ MAD_TO_SIGMA = 1.4826
 BIAS_REFERENCE_SAMPLES = 600  # acquisition size at which bias is compared with σ
 BOOTSTRAP_MAX_SAMPLES = 5000  # the bias bootstrap refits at most this many samples
 REFINE_SUBSET_SAMPLES = 5000  # larger inputs are solved on a subset first, then polished on all
+MAX_CENTRE_RADII = 10.0  # a centre this many field radii from the data's is a run-away, not a fit
 MISFIT_P_VALUE = 1e-3  # F test: the full soft iron fits better than a diagonal (or sphere) model
 MAX_BIAS_SIGMAS = 10.0  # a settled bias beyond this many σ is not trusted to second order
 ROTATE_MORE = "rotate the unit through more orientations (tumble about all three axes) and acquire again"
@@ -62,6 +63,7 @@ def fit_calibration(
 
     centre, scale, inliers = _robust_sphere(m[keep], opts.outlier_sigmas)
     x_all = (m[keep] - centre) / scale
+    inliers = _ellipsoid_screen(x_all, inliers, opts.outlier_sigmas)
     flat = planarity(x_all[inliers])
     if flat < opts.min_planarity:
         raise FitRefused("single_plane",
@@ -160,6 +162,35 @@ def _robust_sphere(m: NDArray, k: float) -> tuple[NDArray, float, NDArray]:
     return centre, float(radius), inl
 
 
+def _ellipsoid_screen(x: NDArray, inliers: NDArray, k: float) -> NDArray:
+    """Tighten the sphere's generous first cut with an algebraic ellipsoid.
+
+    The sphere cannot follow soft iron, so its cut must tolerate a few µT and lets through
+    motor spikes of that size, which can lead the geometric fit astray.  The algebraic ellipsoid
+    follows soft iron, leaving only noise, so the same k·σ cut then removes them.  Where the
+    quadric is not an ellipsoid (too little coverage to tell), the sphere's cut stands.
+    """
+    # The first quadric is fitted to the 90 % of samples nearest the sphere: a few large spikes
+    # can tip an ordinary least-squares quadric into a non-ellipsoid, a trimmed one they cannot.
+    off_sphere = np.abs(np.linalg.norm(x, axis=1) - 1.0)
+    subset = inliers & (off_sphere <= np.quantile(off_sphere[inliers], 0.9))
+    for _ in range(3):
+        try:
+            h, s = fit_ellipsoid(x[subset])
+        except AlgebraicFitError:
+            return inliers
+        dist = np.linalg.norm((x - h) @ s, axis=1) - 1.0
+        centre = np.median(dist[inliers])
+        sigma = MAD_TO_SIGMA * np.median(np.abs(dist[inliers] - centre))
+        new = np.abs(dist - centre) <= k * sigma
+        if new.sum() < 0.5 * len(x):
+            return inliers
+        if np.array_equal(new, subset):
+            return new
+        subset = new
+    return subset
+
+
 def _initial_params(layout: mdl.Layout, x: NDArray, log_ref: float | None, opts: FitOptions) -> NDArray:
     """Start from the algebraic quadric when it is sane, else from a geometric sphere fit.
 
@@ -232,8 +263,8 @@ def _solve(layout, p0, x, tau, sigma, log_ref, opts) -> NDArray:
         p = new
         if step < 1e-9:
             break
-    _, s, _ = mdl.unpack(layout, p)
-    if not np.all(np.isfinite(p)) or np.any(np.linalg.eigvalsh(s) <= 0):
+    h, s, _ = mdl.unpack(layout, p)
+    if not np.all(np.isfinite(p)) or np.any(np.linalg.eigvalsh(s) <= 0) or np.linalg.norm(h) > MAX_CENTRE_RADII:
         raise FitRefused("not_ellipsoid", "the samples do not describe an ellipsoid", ROTATE_MORE)
     return p
 

@@ -52,6 +52,8 @@ def levenberg_marquardt(objective: Objective, p0: NDArray, tol: float) -> NDArra
     # more set-up per call, which is most of the cost of a 600-sample refit)
     # full_output: a run that stops on its evaluation budget is judged by the caller's own checks
     # (divergence, refusal), not reported as a warning
+    # diag = 1: fixed, unit variable scaling (least_squares' default for "lm"); MINPACK's own
+    # Jacobian-based scaling lets a start with outliers run off to a degenerate ellipsoid
     p, *_ = optimize.leastsq(cache.residuals, p0, Dfun=cache.jacobian, xtol=tol, ftol=tol, gtol=tol,
-                             full_output=True)
+                             diag=np.ones(len(p0)), full_output=True)
     return np.asarray(p, dtype=float)
