@@ -226,3 +226,11 @@ def test_results_file_from_before_fit_refusals_gains_the_column_and_keeps_its_ro
     con.close()
     SqliteSink(db).close()
     assert rows(db, "SELECT attempt, accepted, refused FROM attempts") == [(1, 1, None)]
+
+
+def test_station_fit_settings_reach_the_fit(make_station):
+    """A line that demands a heading 1σ no tumble can give sees every attempt refused, with the figure."""
+    path = make_station({"fit": {"max_direction_sigma_deg": 0.001}, "acquisition": {"retries": 0},
+                         "products": {"MOCK-100": {"options": {"motions": ["hand_tumble"]}}}})
+    record = run_station(path)
+    assert record.verdict is Outcome.FAIL and "heading 1σ up to" in record.cause

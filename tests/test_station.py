@@ -116,3 +116,10 @@ def test_check_validates_backend_and_power_options_with_lines(make_station, caps
     assert f"{path}:{noise_line}: products.MOCK-100.options.noise_ut: Input should be greater than or equal to 0" in err
     assert "products.MOCK-100.options.colour: Extra inputs are not permitted" in err
     assert "products.MOCK-100.power.options.resource: Field required" in err
+
+
+def test_fit_settings_are_checked_with_their_line():
+    out = problems(GOOD + "fit:\n  gain_sigma: 0\n  max_direction_sigma_deg: 0.5\n")
+    assert len(out) == 1 and out[0].startswith("line7.yaml:15: fit.gain_sigma:")
+    station = load_station_text(GOOD + "fit:\n  gain_sigma: 0.01\n", "ok.yaml")
+    assert station.fit.gain_sigma == 0.01 and station.fit.max_direction_sigma_deg == 1.0

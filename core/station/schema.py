@@ -107,7 +107,7 @@ class FitSettings(_Strict):
     """How strictly the fit judges what it was given (see :class:`magline.core.fit.FitOptions`).
 
     ``gain_sigma`` is the spread of the raw-to-reference field ratio on this line's units; the
-    batch history of ``raw_to_reference_ratio`` in the results shows it.  A tight, true value is
+    per-unit ``field_error_pct`` measurement in the results shows it.  A tight, true value is
     what lets a unit that cannot be turned over (a 30 % cap) still be calibrated.
     """
 
