@@ -45,6 +45,7 @@ class BiasCorrection:
     iterations: int  # 1: a single estimate; >1: fixed-point iterations
     settled: bool
     largest_sigmas: float  # largest |bias| / σ over the parameters
+    noise: NDArray | None = None  # the common random numbers of the iteration (for bias_slopes)
 
 
 def project_onto_model(layout: mdl.Layout, p: NDArray, x: NDArray, tau: NDArray | None) -> NDArray:
@@ -99,5 +100,28 @@ def estimate_bias(layout: mdl.Layout, p_hat: NDArray, x: NDArray, tau: NDArray |
         if largest > GIVE_UP_SIGMAS:
             break  # running away: no fixed point near the data, stop spending time on it
         if step <= SETTLED_SIGMAS:
-            return BiasCorrection(bias, iteration, True, largest)
+            return BiasCorrection(bias, iteration, True, largest, noise)
     return BiasCorrection(bias, iteration, False, largest)
+
+
+def corrected_covariance(layout: mdl.Layout, p_hat: NDArray, correction: BiasCorrection, x: NDArray,
+                         tau: NDArray | None, residual_fn, cov_hat: NDArray, directions: int = 2) -> NDArray:
+    """Covariance of the corrected estimate ``p* = p̂ − b(p*)``: (I + B′)⁻¹ Σ̂ (I + B′)⁻ᵀ.
+
+    Why: where the bias had to be iterated away it also depends on the parameters (B′ = ∂b/∂p),
+    and the correction then scales the estimate's scatter along the poorly determined directions
+    by 1/(1 + B′), which the covariance at a single point misses.  B′ is measured, with the same
+    noise draws, along the ``directions`` largest principal axes of Σ̂ (where it matters).
+    """
+    assert correction.noise is not None
+    p_star = p_hat - correction.bias
+    w, vecs = np.linalg.eigh(cov_hat)
+    j = np.eye(len(p_hat))
+    for lam, v in list(zip(w, vecs.T, strict=True))[::-1][:directions]:
+        eps = 0.5 * np.sqrt(max(lam, 0.0))
+        if eps <= 0:
+            continue
+        shifted = bootstrap_bias(layout, p_star + eps * v, x, tau, residual_fn, correction.noise)
+        j += np.outer((shifted - correction.bias) / eps, v)
+    j_inv = np.linalg.inv(j)
+    return j_inv @ cov_hat @ j_inv.T

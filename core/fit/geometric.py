@@ -21,7 +21,7 @@ from scipy import stats
 from magline.core.fit import model as mdl
 from magline.core.fit.algebraic import AlgebraicFitError, fit_ellipsoid, fit_sphere
 from magline.core.fit.coverage import coverage_fraction
-from magline.core.fit.debias import estimate_bias
+from magline.core.fit.debias import corrected_covariance, estimate_bias
 from magline.core.fit.result import FitOptions, FitRefused, FitResult
 from magline.core.fit.screening import planarity, screen_samples
 from magline.core.fit.solver import levenberg_marquardt
@@ -127,10 +127,16 @@ def fit_calibration(
             raise FitRefused("undetermined", "the orientations covered do not determine the calibration "
                              f"(the estimate is dominated by its own bias, {correction.largest_sigmas:.1f}σ)",
                              ROTATE_MORE)
+        cov_corrected = None
+        if correction.iterations > 1:  # the bias depends on the parameters: propagate that too
+            cov_corrected = corrected_covariance(layout, p, correction, x_boot, tau_boot, objective, cov)
+            cov_corrected *= len(x_boot) / len(x)
         p = p - correction.bias
         applied = {"iterations": correction.iterations, "largest_sigmas": round(correction.largest_sigmas, 3),
                    "hard_iron_ut": [float(v) for v in -scale * correction.bias[:3]]}
     cov, jac, _ = _covariance(layout, p, x, tau_in, sigma, log_ref, opts)
+    if opts.debias and cov_corrected is not None:
+        cov = cov_corrected
     misfit = _restricted_model_cost(layout, p, x, sigma, scale, log_ref, opts)
     result = _assemble(layout, p, cov, jac, x, tau_in, centre, scale, keep, inliers, rejected, flat,
                        drift_info, opts, len(m), misfit)
