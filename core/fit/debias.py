@@ -28,6 +28,7 @@ from magline.core.fit.solver import levenberg_marquardt
 
 PAIRS = 2  # antithetic pairs for one bias estimate where the bias is small
 ITERATION_PAIRS = 6  # pairs per estimate once the bias is large enough to iterate on
+NEGLIGIBLE_BIAS_SIGMAS = 0.2  # one antithetic pair showing less than this (in σ) is enough
 LINEAR_BIAS_SIGMAS = 0.5  # below this (in σ), one estimate is enough: the problem is locally linear
 MAX_ITERATIONS = 12
 # The substitution map's slope is negative on caps (the iterates overshoot and oscillate); taking
@@ -83,7 +84,13 @@ def estimate_bias(layout: mdl.Layout, p_hat: NDArray, x: NDArray, tau: NDArray |
     ``param_sigma`` (per parameter) is the yardstick: "small" and "settled" are judged against it.
     """
     noise = rng.normal(scale=sigma, size=(ITERATION_PAIRS, *x.shape))
-    bias = bootstrap_bias(layout, p_hat, x, tau, residual_fn, noise[:PAIRS])
+    # One pair first: on a full tumble the bias is a few hundredths of σ, and a second pair
+    # would only refine a correction too small to matter.
+    bias = bootstrap_bias(layout, p_hat, x, tau, residual_fn, noise[:1])
+    ratio = float(np.max(np.abs(bias) / param_sigma))
+    if ratio <= NEGLIGIBLE_BIAS_SIGMAS:
+        return BiasCorrection(bias, 1, True, ratio)
+    bias = 0.5 * (bias + bootstrap_bias(layout, p_hat, x, tau, residual_fn, noise[1:PAIRS]))
     ratio = float(np.max(np.abs(bias) / param_sigma))
     if ratio <= LINEAR_BIAS_SIGMAS:
         return BiasCorrection(bias, 1, True, ratio)

@@ -11,6 +11,7 @@ radius is 1 and every parameter is of order one, which keeps the least-squares p
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Literal
 
 import numpy as np
@@ -21,6 +22,8 @@ SoftIronModel = Literal["full", "diagonal", "sphere"]
 N_SOFT: dict[str, int] = {"full": 6, "diagonal": 3, "sphere": 1}
 # Index pairs of the six independent entries of a symmetric 3×3 matrix, in parameter order.
 FULL_INDEX = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
+# For each entry of the 3×3 matrix (row-major), which of the six parameters it holds.
+_FULL_ENTRY = np.array([0, 3, 4, 3, 1, 5, 4, 5, 2])
 
 
 @dataclass(frozen=True)
@@ -30,19 +33,19 @@ class Layout:
     model: SoftIronModel
     drift: bool
 
-    @property
+    @cached_property
     def n_soft(self) -> int:
         return N_SOFT[self.model]
 
-    @property
+    @cached_property
     def size(self) -> int:
         return 3 + self.n_soft + (3 if self.drift else 0)
 
-    @property
+    @cached_property
     def soft_slice(self) -> slice:
         return slice(3, 3 + self.n_soft)
 
-    @property
+    @cached_property
     def drift_slice(self) -> slice:
         return slice(3 + self.n_soft, 3 + self.n_soft + 3)
 
@@ -53,10 +56,7 @@ def soft_matrix(model: SoftIronModel, s: NDArray[np.float64]) -> NDArray[np.floa
         return np.eye(3) * s[0]
     if model == "diagonal":
         return np.diag(s)
-    m = np.empty((3, 3))
-    for value, (i, j) in zip(s, FULL_INDEX, strict=True):
-        m[i, j] = m[j, i] = value
-    return m
+    return np.asarray(s)[_FULL_ENTRY].reshape(3, 3)
 
 
 def soft_params(model: SoftIronModel, m: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -82,16 +82,16 @@ def run_sim(args: argparse.Namespace) -> int:
     except (ValueError, OSError) as exc:
         print(f"magline sim: {exc}", file=sys.stderr)
         return 2
-    print(f"listening on {sim.address}", flush=True)
-    if supply is not None:
-        print(f"supply listening on {supply.address} (VISA {supply.visa_resource}), output off", flush=True)
-    print(f"{args.flavour} simulator, storage {sim.storage_path}, boot time {sim.boot_time_s:g} s", flush=True)
-    for mag in sim.magnetometers:
-        h = ", ".join(f"{v:.2f}" for v in mag.hard_iron_ut)
-        s = "; ".join(", ".join(f"{v:.4f}" for v in row) for row in mag.soft_iron)
-        print(f"  magnetometer {mag.device_id}: hard iron [{h}] µT, soft iron [{s}]", flush=True)
-    signal.signal(signal.SIGTERM, _terminate)
+    signal.signal(signal.SIGTERM, _terminate)  # before "listening on": a caller may stop us at once
     try:
+        print(f"listening on {sim.address}", flush=True)
+        if supply is not None:
+            print(f"supply listening on {supply.address} (VISA {supply.visa_resource}), output off", flush=True)
+        print(f"{args.flavour} simulator, storage {sim.storage_path}, boot time {sim.boot_time_s:g} s", flush=True)
+        for mag in sim.magnetometers:
+            h = ", ".join(f"{v:.2f}" for v in mag.hard_iron_ut)
+            s = "; ".join(", ".join(f"{v:.4f}" for v in row) for row in mag.soft_iron)
+            print(f"  magnetometer {mag.device_id}: hard iron [{h}] µT, soft iron [{s}]", flush=True)
         sim.wait_stopped()
     except (KeyboardInterrupt, _Terminated):
         pass
@@ -112,11 +112,11 @@ def run_coil_sim(args: argparse.Namespace) -> int:
     except (ValueError, OSError) as exc:
         print(f"magline sim: {exc}", file=sys.stderr)
         return 2
-    print(f"listening on {coil.address}", flush=True)
-    print(f"coil current source (VISA {coil.visa_resource}); fluxgate DAQ at the centre on {fluxgate.address} "
-          f"(VISA {fluxgate.visa_resource}); ambient field {coil.ambient.tolist()} µT", flush=True)
-    signal.signal(signal.SIGTERM, _terminate)
+    signal.signal(signal.SIGTERM, _terminate)  # before "listening on": a caller may stop us at once
     try:
+        print(f"listening on {coil.address}", flush=True)
+        print(f"coil current source (VISA {coil.visa_resource}); fluxgate DAQ at the centre on {fluxgate.address} "
+              f"(VISA {fluxgate.visa_resource}); ambient field {coil.ambient.tolist()} µT", flush=True)
         while not coil._stop.wait(0.5):
             pass
     except (KeyboardInterrupt, _Terminated):
