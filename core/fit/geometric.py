@@ -276,10 +276,8 @@ def _solve(layout, p0, x, tau, sigma, log_ref, opts) -> NDArray:
 
 
 def _geometric_residuals(layout, p, x, tau) -> NDArray:
-    rho, v, _ = mdl.radial(layout, p, x, tau)
-    _, s, _ = mdl.unpack(layout, p)
-    grad = (v @ s) / rho[:, None]  # ∇ρ, as mdl.gradient_norm computes it, without a second pass
-    return (rho - 1.0) / np.sqrt(np.einsum("ij,ij->i", grad, grad))
+    rho, grad_norm = mdl.radial_with_gradient_norm(layout, p, x, tau)
+    return (rho - 1.0) / grad_norm
 
 
 def _robust_refine(layout, p, x_all, tau_all, inliers, log_ref, opts):
@@ -396,6 +394,12 @@ def _maybe_drift(layout, p, x_all, tau_all, inliers, sigma, log_ref, opts, name)
     return info, p, inliers, sigma, layout
 
 
+def _as_full(layout: mdl.Layout, p: NDArray) -> NDArray:
+    """A restricted model's parameters as a full (drift-free) model's starting point."""
+    h, s, _ = mdl.unpack(layout, p)
+    return mdl.pack(mdl.Layout("full", drift=False), h, s)
+
+
 def _drift_judged_with_full_model(layout, p, x_all, tau_all, inliers, sigma, log_ref, opts, name):
     """Drift handling for a diagonal / sphere model: decided with the full soft iron, applied to
     the restricted model.
@@ -404,9 +408,8 @@ def _drift_judged_with_full_model(layout, p, x_all, tau_all, inliers, sigma, log
     time, and a drift term would "explain" it; the full model has no such misfit to explain.
     """
     full = mdl.Layout("full", drift=False)
-    h, s_n, _ = mdl.unpack(layout, p)
     try:
-        pf = _solve(full, mdl.pack(full, h, s_n), x_all[inliers], None, sigma, log_ref, opts)
+        pf = _solve(full, _as_full(layout, p), x_all[inliers], None, sigma, log_ref, opts)
     except FitRefused:
         return _maybe_drift(layout, p, x_all, tau_all, inliers, sigma, log_ref, opts, name)
     info, _, _, _, _ = _maybe_drift(full, pf, x_all, tau_all, inliers, sigma, log_ref, opts, name)
@@ -459,9 +462,8 @@ def _restricted_model_cost(layout, p, x, sigma, scale, log_ref, opts) -> dict | 
     if layout.model == "full" or layout.drift:
         return None
     full = mdl.Layout("full", drift=False)
-    h, s_n, _ = mdl.unpack(layout, p)
     try:
-        pf = _solve(full, mdl.pack(full, h, s_n), x, None, sigma, log_ref, opts)
+        pf = _solve(full, _as_full(layout, p), x, None, sigma, log_ref, opts)
         cov_f, _, _ = _covariance(full, pf, x, None, sigma, log_ref, opts)
     except FitRefused:
         return None

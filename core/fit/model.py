@@ -100,10 +100,15 @@ def gradient_norm(layout: Layout, p: NDArray, x: NDArray, tau: NDArray | None) -
     Dividing by it turns the algebraic radial residual into the Sampson approximation of the
     orthogonal distance to the ellipsoid, which is what isotropic raw-sensor noise makes Gaussian.
     """
+    return radial_with_gradient_norm(layout, p, x, tau)[1]
+
+
+def radial_with_gradient_norm(layout: Layout, p: NDArray, x: NDArray, tau: NDArray | None):
+    """(ρ, |∇ρ|) per sample in one pass: what a geometric residual (ρ − 1)/|∇ρ| needs."""
     rho, v, _ = radial(layout, p, x, tau)
     _, s, _ = unpack(layout, p)
     g = (v @ s) / rho[:, None]
-    return np.sqrt(np.einsum("ij,ij->i", g, g))
+    return rho, np.sqrt(np.einsum("ij,ij->i", g, g))
 
 
 def radial_jacobian(layout: Layout, p: NDArray, x: NDArray, tau: NDArray | None) -> tuple[NDArray, NDArray]:
