@@ -12,7 +12,7 @@ gain spread 2 %), 600 samples of the scenario's motion with σ = 0.3 µT noise, 
 * heading error after calibration: per draw, the largest error over 120 attitudes (every 15° of
   yaw, roll and pitch up to ±30°); then the median, 95th percentile and maximum of that over the
   draws.  The same for estimates drawn from the CRB (an ideal efficient estimator) and the
-  median for the algebraic fit, with its median offset error (µT; it can be far off where the
+  median for the algebraic fit, with its offset error RMS (µT; it can be far off where the
   heading happens not to show it);
 * for the defect scenarios, the offset error RMS relative to fits of the same draws without the
   defect;
@@ -191,7 +191,7 @@ def row(name: str, f: Figures) -> str:
     med, p95, mx = _stats(f.hd)
     bmed, bp95, bmx = _stats(f.bound_hd)
     vs_clean = (f.off_rms() / np.sqrt(np.mean(np.square(f.clean_off)))) if f.clean_off else np.nan
-    alg_off = float(np.median(f.alg_off)) if f.alg_off else np.nan
+    alg_off = float(np.sqrt(np.mean(np.square(f.alg_off)))) if f.alg_off else np.nan
     return (f"{name:<15} {f.off_rms():7.3f} {f.bound_rms():7.3f} {np.mean(f.soft) if f.soft else np.nan:8.4f} "
             f"{np.mean(f.field_err) if f.field_err else np.nan:+8.4f}  {med:5.2f} {p95:5.2f} {mx:5.2f}   "
             f"{bmed:5.2f} {bp95:5.2f} {bmx:5.2f}  {alg_off:7.3f} {_stats(f.alg_hd)[0]:6.2f} {vs_clean:6.2f}  "
@@ -253,7 +253,7 @@ def main() -> None:
     print(f"{'':<15} {'offset':>7} {'CRB':>7} {'S shape':>8} {'field':>8}  {'heading max, fit':>17}   "
           f"{'heading max, CRB':>17}  {'algebraic fit':>14} {'vs':>6}")
     print(f"{'scenario':<15} {'RMS µT':>7} {'RMS µT':>7} {'error':>8} {'err µT':>8}  {'med':>5} {'p95':>5} "
-          f"{'max':>5}   {'med':>5} {'p95':>5} {'max':>5}  {'off med':>7} {'hd med':>6} {'clean':>6}  refused")
+          f"{'max':>5}   {'med':>5} {'p95':>5} {'max':>5}  {'off RMS':>7} {'hd med':>6} {'clean':>6}  refused")
     results = {}
     for name in names:
         results[name] = run(SCENARIOS[name], args.draws, rng)
