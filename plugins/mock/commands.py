@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import signal
 import sys
+from collections.abc import Callable
 from typing import Any
 
 
@@ -53,6 +54,20 @@ def _terminate(signum: int, frame: object) -> None:
     raise _Terminated
 
 
+def _serve(lines: list[str], wait: Callable[[], None], stop: Callable[[], None]) -> int:
+    """Announce (first line: ``listening on …``), run until Ctrl-C or SIGTERM, then stop; exit 0."""
+    signal.signal(signal.SIGTERM, _terminate)  # before "listening on": a caller may stop us at once
+    try:
+        for line in lines:
+            print(line, flush=True)
+        wait()
+    except (KeyboardInterrupt, _Terminated):
+        pass
+    finally:
+        stop()
+    return 0
+
+
 def run_sim(args: argparse.Namespace) -> int:
     if args.flavour == "coil":
         return run_coil_sim(args)
@@ -82,24 +97,21 @@ def run_sim(args: argparse.Namespace) -> int:
     except (ValueError, OSError) as exc:
         print(f"magline sim: {exc}", file=sys.stderr)
         return 2
-    signal.signal(signal.SIGTERM, _terminate)  # before "listening on": a caller may stop us at once
-    try:
-        print(f"listening on {sim.address}", flush=True)
-        if supply is not None:
-            print(f"supply listening on {supply.address} (VISA {supply.visa_resource}), output off", flush=True)
-        print(f"{args.flavour} simulator, storage {sim.storage_path}, boot time {sim.boot_time_s:g} s", flush=True)
-        for mag in sim.magnetometers:
-            h = ", ".join(f"{v:.2f}" for v in mag.hard_iron_ut)
-            s = "; ".join(", ".join(f"{v:.4f}" for v in row) for row in mag.soft_iron)
-            print(f"  magnetometer {mag.device_id}: hard iron [{h}] µT, soft iron [{s}]", flush=True)
-        sim.wait_stopped()
-    except (KeyboardInterrupt, _Terminated):
-        pass
-    finally:
+    lines = [f"listening on {sim.address}"]
+    if supply is not None:
+        lines.append(f"supply listening on {supply.address} (VISA {supply.visa_resource}), output off")
+    lines.append(f"{args.flavour} simulator, storage {sim.storage_path}, boot time {sim.boot_time_s:g} s")
+    for mag in sim.magnetometers:
+        h = ", ".join(f"{v:.2f}" for v in mag.hard_iron_ut)
+        s = "; ".join(", ".join(f"{v:.4f}" for v in row) for row in mag.soft_iron)
+        lines.append(f"  magnetometer {mag.device_id}: hard iron [{h}] µT, soft iron [{s}]")
+
+    def stop() -> None:
         sim.stop()
         if supply is not None:
             supply.stop()
-    return 0
+
+    return _serve(lines, sim.wait_stopped, stop)
 
 
 def run_coil_sim(args: argparse.Namespace) -> int:
@@ -112,16 +124,16 @@ def run_coil_sim(args: argparse.Namespace) -> int:
     except (ValueError, OSError) as exc:
         print(f"magline sim: {exc}", file=sys.stderr)
         return 2
-    signal.signal(signal.SIGTERM, _terminate)  # before "listening on": a caller may stop us at once
-    try:
-        print(f"listening on {coil.address}", flush=True)
-        print(f"coil current source (VISA {coil.visa_resource}); fluxgate DAQ at the centre on {fluxgate.address} "
-              f"(VISA {fluxgate.visa_resource}); ambient field {coil.ambient.tolist()} µT", flush=True)
+    lines = [f"listening on {coil.address}",
+             f"coil current source (VISA {coil.visa_resource}); fluxgate DAQ at the centre on {fluxgate.address} "
+             f"(VISA {fluxgate.visa_resource}); ambient field {coil.ambient.tolist()} µT"]
+
+    def wait() -> None:
         while not coil._stop.wait(0.5):
             pass
-    except (KeyboardInterrupt, _Terminated):
-        pass
-    finally:
+
+    def stop() -> None:
         coil.stop()
         fluxgate.stop()
-    return 0
+
+    return _serve(lines, wait, stop)
