@@ -222,7 +222,7 @@ def targets(res: dict[str, Figures]) -> list[str]:
             f = res[name]
             ratio = f.off_rms() / float(np.sqrt(np.mean(np.square(f.clean_off))))
             check(f"{name} offset RMS / same data without the defect ≤ 1.5", ratio, ratio <= 1.5 and f.refused == 0)
-    if "single axis" in res:
+    if "single axis" in res and res["single axis"].draws:
         f = res["single axis"]
         check("single axis refused (fraction)", f.refused / f.draws, f.refused == f.draws)
     return lines
