@@ -100,48 +100,56 @@ def fit_calibration(
                          "keep motors off and magnets away during acquisition, then acquire again")
 
     x, tau_in = x_all[inliers], (tau[inliers] if tau is not None else None)
-    applied = None
+    applied, cov_corrected = None, None
     if opts.debias:
-        # seeded from the data so that the same samples always give the same calibration
-        rng = np.random.default_rng(zlib.crc32(x.tobytes()))
-
-        x_boot, tau_boot = x, tau_in
-        if len(x) > BOOTSTRAP_MAX_SAMPLES:
-            # The σ² bias depends on the geometry and the noise, not on the count: a random subset
-            # estimates it as well as all samples, at a fraction of the cost of refitting everything.
-            subset = np.sort(rng.choice(len(x), BOOTSTRAP_MAX_SAMPLES, replace=False))
-            x_boot, tau_boot = x[subset], (tau_in[subset] if tau_in is not None else None)
-
-        def objective(q, xs, w, with_jacobian):
-            return _residuals_and_jac(layout, q, xs, tau_boot, w, sigma, log_ref, opts, with_jacobian)
-
-        cov, _, _ = _covariance(layout, p, x_boot, tau_boot, sigma, log_ref, opts)
-        # The σ² bias does not shrink with the sample count while σ does (1/√N), so "bias versus σ"
-        # is judged at a standard acquisition size: a 100 000-sample tumble is not undetermined just
-        # because its σ is tiny (the bias is removed below either way).
-        sigma_ref = np.sqrt(np.clip(np.diag(cov), 1e-30, None) * max(1.0, len(x_boot) / BIAS_REFERENCE_SAMPLES))
-        correction = estimate_bias(layout, p, x_boot, tau_boot, sigma, objective, rng, sigma_ref)
-        if not correction.settled or correction.largest_sigmas > MAX_BIAS_SIGMAS:
-            # A second-order term that does not settle, or dwarfs the uncertainty: the problem is
-            # not close to linear, i.e. the orientations seen do not determine the calibration.
-            raise FitRefused("undetermined", "the orientations covered do not determine the calibration "
-                             f"(the estimate is dominated by its own bias, {correction.largest_sigmas:.1f}σ)",
-                             ROTATE_MORE)
-        cov_corrected = None
-        if correction.iterations > 1:  # the bias depends on the parameters: propagate that too
-            cov_corrected = corrected_covariance(layout, p, correction, x_boot, tau_boot, objective, cov)
-            cov_corrected *= len(x_boot) / len(x)
-        p = p - correction.bias
-        applied = {"iterations": correction.iterations, "largest_sigmas": round(correction.largest_sigmas, 3),
-                   "hard_iron_ut": [float(v) for v in -scale * correction.bias[:3]]}
+        p, cov_corrected, applied = _remove_bias(layout, p, x, tau_in, sigma, scale, log_ref, opts)
     cov, jac, _ = _covariance(layout, p, x, tau_in, sigma, log_ref, opts)
-    if opts.debias and cov_corrected is not None:
+    if cov_corrected is not None:
         cov = cov_corrected
     misfit = _restricted_model_cost(layout, p, x, sigma, scale, log_ref, opts)
     result = _assemble(layout, p, cov, jac, x, tau_in, centre, scale, keep, inliers, rejected, flat,
                        drift_info, opts, len(m), misfit)
     result.bias_correction = applied
     return result
+
+
+def _remove_bias(layout, p, x, tau, sigma, scale, log_ref, opts):
+    """Remove the fit's O(σ²) bias, or refuse data whose estimate it dominates.
+
+    Returns the corrected parameters, the covariance to report when the correction had to be
+    iterated (else None: the covariance at the corrected point stands) and what was done.
+    """
+    # seeded from the data so that the same samples always give the same calibration
+    rng = np.random.default_rng(zlib.crc32(x.tobytes()))
+    x_boot, tau_boot = x, tau
+    if len(x) > BOOTSTRAP_MAX_SAMPLES:
+        # The σ² bias depends on the geometry and the noise, not on the count: a random subset
+        # estimates it as well as all samples, at a fraction of the cost of refitting everything.
+        subset = np.sort(rng.choice(len(x), BOOTSTRAP_MAX_SAMPLES, replace=False))
+        x_boot, tau_boot = x[subset], (tau[subset] if tau is not None else None)
+
+    def objective(q, xs, w, with_jacobian):
+        return _residuals_and_jac(layout, q, xs, tau_boot, w, sigma, log_ref, opts, with_jacobian)
+
+    cov, _, _ = _covariance(layout, p, x_boot, tau_boot, sigma, log_ref, opts)
+    # The σ² bias does not shrink with the sample count while σ does (1/√N), so "bias versus σ"
+    # is judged at a standard acquisition size: a 100 000-sample tumble is not undetermined just
+    # because its σ is tiny (the bias is removed below either way).
+    sigma_ref = np.sqrt(np.clip(np.diag(cov), 1e-30, None) * max(1.0, len(x_boot) / BIAS_REFERENCE_SAMPLES))
+    correction = estimate_bias(layout, p, x_boot, tau_boot, sigma, objective, rng, sigma_ref)
+    if not correction.settled or correction.largest_sigmas > MAX_BIAS_SIGMAS:
+        # A second-order term that does not settle, or dwarfs the uncertainty: the problem is
+        # not close to linear, i.e. the orientations seen do not determine the calibration.
+        raise FitRefused("undetermined", "the orientations covered do not determine the calibration "
+                         f"(the estimate is dominated by its own bias, {correction.largest_sigmas:.1f}σ)",
+                         ROTATE_MORE)
+    cov_corrected = None
+    if correction.iterations > 1:  # the bias depends on the parameters: propagate that too
+        cov_corrected = corrected_covariance(layout, p, correction, x_boot, tau_boot, objective, cov)
+        cov_corrected *= len(x_boot) / len(x)
+    applied = {"iterations": correction.iterations, "largest_sigmas": round(correction.largest_sigmas, 3),
+               "hard_iron_ut": [float(v) for v in -scale * correction.bias[:3]]}
+    return p - correction.bias, cov_corrected, applied
 
 
 # --------------------------------------------------------------------------- initialisation
