@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from magline.core.fit import model as mdl
-from magline.core.fit.solver import levenberg_marquardt
+from magline.core.fit.solver import gauss_newton, levenberg_marquardt
 
 PAIRS = 2  # antithetic pairs for one bias estimate where the bias is small
 ITERATION_PAIRS = 6  # pairs per estimate once the bias is large enough to iterate on
@@ -73,7 +73,11 @@ def bootstrap_bias(layout: mdl.Layout, p: NDArray, x: NDArray, tau: NDArray | No
     for draw in noise:
         for sign in (1.0, -1.0):
             xs = truth + sign * draw
-            acc += levenberg_marquardt(lambda q, jac, xs=xs: residual_fn(q, xs, weights, jac), p, 1e-10)
+            def objective(q, jac, xs=xs):
+                return residual_fn(q, xs, weights, jac)
+
+            refit = gauss_newton(objective, p, 1e-10)
+            acc += refit if refit is not None else levenberg_marquardt(objective, p, 1e-10)
     return acc / (2 * len(noise)) - p
 
 
