@@ -46,7 +46,7 @@ class BiasCorrection:
     iterations: int  # 1: a single estimate; >1: fixed-point iterations
     settled: bool
     largest_sigmas: float  # largest |bias| / σ over the parameters
-    noise: NDArray | None = None  # the common random numbers of the iteration (for bias_slopes)
+    noise: NDArray | None = None  # the iteration's common random numbers (for corrected_covariance)
 
 
 def project_onto_model(layout: mdl.Layout, p: NDArray, x: NDArray, tau: NDArray | None) -> NDArray:
@@ -64,8 +64,8 @@ def bootstrap_bias(layout: mdl.Layout, p: NDArray, x: NDArray, tau: NDArray | No
 
     ``residual_fn(q, x, weights, with_jacobian)`` returns (residuals, Jacobian or None) for
     parameters ``q`` on data ``x`` with frozen Sampson ``weights``: the objective the fit minimised
-    (with its prior rows), so that the refits measure the bias of the estimator actually used.  ``noise`` holds one
-    (n, 3) draw per antithetic pair.
+    (with its prior rows), so that the refits measure the bias of the estimator actually used.
+    ``noise`` holds one (n, 3) draw per antithetic pair.
     """
     truth = project_onto_model(layout, p, x, tau)
     weights = mdl.gradient_norm(layout, p, truth, tau)
