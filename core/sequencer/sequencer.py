@@ -178,9 +178,11 @@ class Sequencer:
             if not result.sufficient:
                 run.retry_advice, refusal = None, None
                 continue
+            started = time.monotonic()
             try:
                 run.state["fit"] = self.plugins.hook.magline_fit(run=run, samples=result.samples,
                                                                  options=self._fit_options(run))
+                run.state["fit_s"] = time.monotonic() - started
                 return
             except FitRefused as exc:
                 refusal = exc
@@ -215,7 +217,8 @@ class Sequencer:
         fit: FitResult = run.state["fit"]
         run.record.calibration = fit.to_dict()
         run.log(f"offset {fit.hard_iron_ut.round(2).tolist()} µT, field {fit.field_ut:.2f} µT, "
-                f"residual rms {fit.residual_rms_ut:.3f} µT")
+                f"residual rms {fit.residual_rms_ut:.3f} µT (fitted in {run.state['fit_s'] * 1e3:.0f} ms, "
+                "during acquisition)")
         if fit.model_misfit:
             mis = fit.model_misfit
             run.log(f"soft iron not representable by the {mis['model']} model this autopilot holds: residual "
