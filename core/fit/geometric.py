@@ -63,7 +63,7 @@ def fit_calibration(
 
     centre, scale, inliers = _robust_sphere(m[keep], opts.outlier_sigmas)
     x_all = (m[keep] - centre) / scale
-    inliers = _ellipsoid_screen(x_all, inliers, opts.outlier_sigmas)
+    inliers, quadric = _ellipsoid_screen(x_all, inliers, opts.outlier_sigmas)
     flat = planarity(x_all[inliers])
     if flat < opts.min_planarity:
         raise FitRefused("single_plane",
@@ -76,7 +76,7 @@ def fit_calibration(
     if len(x_all) > REFINE_SUBSET_SAMPLES:
         p, inliers, sigma = _refine_large(layout, x_all, inliers, log_ref, opts)
     else:
-        p0 = _initial_params(layout, x_all[inliers], log_ref, opts)
+        p0 = _initial_params(layout, x_all[inliers], log_ref, opts, quadric)
         p, inliers, sigma = _robust_refine(layout, p0, x_all, None, inliers, log_ref, opts)
 
     drift_info = None
@@ -176,13 +176,14 @@ def _robust_sphere(m: NDArray, k: float) -> tuple[NDArray, float, NDArray]:
     return centre, float(radius), inl
 
 
-def _ellipsoid_screen(x: NDArray, inliers: NDArray, k: float) -> NDArray:
+def _ellipsoid_screen(x: NDArray, inliers: NDArray, k: float) -> tuple[NDArray, tuple | None]:
     """Tighten the sphere's generous first cut with an algebraic ellipsoid.
 
     The sphere cannot follow soft iron, so its cut must tolerate a few µT and lets through
     motor spikes of that size, which can lead the geometric fit astray.  The algebraic ellipsoid
     follows soft iron, leaving only noise, so the same k·σ cut then removes them.  Where the
     quadric is not an ellipsoid (too little coverage to tell), the sphere's cut stands.
+    Returns the inliers and, when it was fitted to exactly those, the quadric (a starting point).
     """
     # The first quadric is fitted to the 90 % of samples nearest the sphere: a few large spikes
     # can tip an ordinary least-squares quadric into a non-ellipsoid, a trimmed one they cannot.
@@ -192,28 +193,30 @@ def _ellipsoid_screen(x: NDArray, inliers: NDArray, k: float) -> NDArray:
         try:
             h, s = fit_ellipsoid(x[subset])
         except AlgebraicFitError:
-            return inliers
+            return inliers, None
         dist = np.linalg.norm((x - h) @ s, axis=1) - 1.0
         centre = np.median(dist[inliers])
         sigma = MAD_TO_SIGMA * np.median(np.abs(dist[inliers] - centre))
         new = np.abs(dist - centre) <= k * sigma
         if new.sum() < 0.5 * len(x):
-            return inliers
+            return inliers, None
         if np.array_equal(new, subset):
-            return new
+            return new, (h, s)
         subset = new
-    return subset
+    return subset, None
 
 
-def _initial_params(layout: mdl.Layout, x: NDArray, log_ref: float | None, opts: FitOptions) -> NDArray:
+def _initial_params(layout: mdl.Layout, x: NDArray, log_ref: float | None, opts: FitOptions,
+                    quadric: tuple | None = None) -> NDArray:
     """Start from the algebraic quadric when it is sane, else from a geometric sphere fit.
 
     The algebraic ellipsoid is excellent on a full tumble but wild on a cap or with outliers; the
     sphere fit is always sane and leads the geometric refinement into the right basin.
+    ``quadric`` is the algebraic fit to exactly ``x`` when the caller already has it.
     """
     if layout.model != "sphere":
         try:
-            h_alg, s_alg = fit_ellipsoid(x)
+            h_alg, s_alg = quadric if quadric is not None else fit_ellipsoid(x)
             if np.all(np.abs(h_alg) < 0.5) and np.linalg.cond(s_alg) < 2.0:
                 return mdl.pack(layout, h_alg, s_alg)
         except AlgebraicFitError:
