@@ -51,11 +51,9 @@ class BiasCorrection:
 
 def project_onto_model(layout: mdl.Layout, p: NDArray, x: NDArray, tau: NDArray | None) -> NDArray:
     """First-order projection of each sample onto the fitted ellipsoid (the 'true' points)."""
-    rho, v, _ = mdl.radial(layout, p, x, tau)
-    _, s, _ = mdl.unpack(layout, p)
-    grad = (v @ s) / rho[:, None]
-    g2 = np.einsum("ij,ij->i", grad, grad)
-    return x - ((rho - 1.0) / g2)[:, None] * grad
+    rho, grad = mdl.radial_gradient(layout, p, x, tau)
+    g2 = np.einsum("ij,ij->j", grad, grad)
+    return x - (((rho - 1.0) / g2) * grad).T
 
 
 def bootstrap_bias(layout: mdl.Layout, p: NDArray, x: NDArray, tau: NDArray | None, residual_fn,
@@ -76,7 +74,7 @@ def bootstrap_bias(layout: mdl.Layout, p: NDArray, x: NDArray, tau: NDArray | No
             def objective(q, jac, xs=xs):
                 return residual_fn(q, xs, weights, jac)
 
-            refit = gauss_newton(objective, p, 1e-10)
+            refit = gauss_newton(objective, p)
             acc += refit if refit is not None else levenberg_marquardt(objective, p, 1e-10)
     return acc / (2 * len(noise)) - p
 

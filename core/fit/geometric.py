@@ -24,15 +24,22 @@ from magline.core.fit.coverage import coverage_fraction
 from magline.core.fit.debias import corrected_covariance, estimate_bias
 from magline.core.fit.result import FitOptions, FitRefused, FitResult
 from magline.core.fit.screening import planarity, screen_samples
-from magline.core.fit.solver import levenberg_marquardt
+from magline.core.fit.solver import SETTLED_STEP, gauss_newton, levenberg_marquardt
 
 MIN_SAMPLES = {"full": 30, "diagonal": 20, "sphere": 12}
 MAD_TO_SIGMA = 1.4826
 BIAS_REFERENCE_SAMPLES = 600  # acquisition size at which bias is compared with σ
 BOOTSTRAP_MAX_SAMPLES = 5000  # the bias bootstrap refits at most this many samples
 REFINE_SUBSET_SAMPLES = 5000  # larger inputs are solved on a subset first, then polished on all
+# Samples per block when the normal equations of a large input are accumulated: the block's
+# Jacobian (a few hundred kB) stays in cache, where one over 100 000 samples (7 MB, and its
+# temporaries) is fetched from memory, and page-faulted in, several times over.
+NORMAL_EQUATIONS_BLOCK = 8192
 MAX_CENTRE_RADII = 10.0  # a centre this many field radii from the data's is a run-away, not a fit
 MISFIT_P_VALUE = 1e-3  # F test: the full soft iron fits better than a diagonal (or sphere) model
+# A re-weighting pass that moved the (normalised) parameters less than this is the last: the next
+# one would move them about a thousand times less (the weights' sensitivity), far below 1e-4σ.
+REWEIGHT_SETTLED = 1e-6
 MAX_BIAS_SIGMAS = 10.0  # a settled bias beyond this many σ is not trusted to second order
 ROTATE_MORE = "rotate the unit through more orientations (tumble about all three axes) and acquire again"
 
@@ -100,24 +107,25 @@ def fit_calibration(
                          "keep motors off and magnets away during acquisition, then acquire again")
 
     x, tau_in = x_all[inliers], (tau[inliers] if tau is not None else None)
-    applied, cov_corrected = None, None
+    cov, gram = _covariance(layout, p, x, tau_in, sigma, log_ref, opts)
+    applied = None
     if opts.debias:
-        p, cov_corrected, applied = _remove_bias(layout, p, x, tau_in, sigma, scale, log_ref, opts)
-    cov, jac, _ = _covariance(layout, p, x, tau_in, sigma, log_ref, opts)
-    if cov_corrected is not None:
-        cov = cov_corrected
+        p, cov, applied = _remove_bias(layout, p, x, tau_in, sigma, scale, log_ref, opts, cov)
     misfit = _restricted_model_cost(layout, p, x, sigma, scale, log_ref, opts)
-    result = _assemble(layout, p, cov, jac, x, tau_in, centre, scale, keep, inliers, rejected, flat,
+    result = _assemble(layout, p, cov, gram, x, tau_in, centre, scale, keep, inliers, rejected, flat,
                        drift_info, opts, len(m), misfit)
     result.bias_correction = applied
     return result
 
 
-def _remove_bias(layout, p, x, tau, sigma, scale, log_ref, opts):
+def _remove_bias(layout, p, x, tau, sigma, scale, log_ref, opts, cov):
     """Remove the fit's O(σ²) bias, or refuse data whose estimate it dominates.
 
-    Returns the corrected parameters, the covariance to report when the correction had to be
-    iterated (else None: the covariance at the corrected point stands) and what was done.
+    ``cov`` is the covariance at ``p``.  Returns the corrected parameters, the covariance to
+    report and what was done.  Where one estimate of the bias was enough (under half a σ) the
+    covariance at ``p`` stands: at the corrected point it differs by far less than its own
+    uncertainty.  Where the correction had to be iterated, its dependence on the parameters is
+    propagated into the covariance.
     """
     # seeded from the data so that the same samples always give the same calibration
     rng = np.random.default_rng(zlib.crc32(x.tobytes()))
@@ -127,15 +135,15 @@ def _remove_bias(layout, p, x, tau, sigma, scale, log_ref, opts):
         # estimates it as well as all samples, at a fraction of the cost of refitting everything.
         subset = np.sort(rng.choice(len(x), BOOTSTRAP_MAX_SAMPLES, replace=False))
         x_boot, tau_boot = x[subset], (tau[subset] if tau is not None else None)
+    cov_boot = cov * (len(x) / len(x_boot))  # the subset's covariance, to first order
 
     def objective(q, xs, w, with_jacobian):
         return _residuals_and_jac(layout, q, xs, tau_boot, w, sigma, log_ref, opts, with_jacobian)
 
-    cov, _, _ = _covariance(layout, p, x_boot, tau_boot, sigma, log_ref, opts)
     # The σ² bias does not shrink with the sample count while σ does (1/√N), so "bias versus σ"
     # is judged at a standard acquisition size: a 100 000-sample tumble is not undetermined just
     # because its σ is tiny (the bias is removed below either way).
-    sigma_ref = np.sqrt(np.clip(np.diag(cov), 1e-30, None) * max(1.0, len(x_boot) / BIAS_REFERENCE_SAMPLES))
+    sigma_ref = np.sqrt(np.clip(np.diag(cov_boot), 1e-30, None) * max(1.0, len(x_boot) / BIAS_REFERENCE_SAMPLES))
     correction = estimate_bias(layout, p, x_boot, tau_boot, sigma, objective, rng, sigma_ref)
     if not correction.settled or correction.largest_sigmas > MAX_BIAS_SIGMAS:
         # A second-order term that does not settle, or dwarfs the uncertainty: the problem is
@@ -143,13 +151,12 @@ def _remove_bias(layout, p, x, tau, sigma, scale, log_ref, opts):
         raise FitRefused("undetermined", "the orientations covered do not determine the calibration "
                          f"(the estimate is dominated by its own bias, {correction.largest_sigmas:.1f}σ)",
                          ROTATE_MORE)
-    cov_corrected = None
     if correction.iterations > 1:  # the bias depends on the parameters: propagate that too
-        cov_corrected = corrected_covariance(layout, p, correction, x_boot, tau_boot, objective, cov)
-        cov_corrected *= len(x_boot) / len(x)
+        cov = corrected_covariance(layout, p, correction, x_boot, tau_boot, objective, cov_boot)
+        cov *= len(x_boot) / len(x)
     applied = {"iterations": correction.iterations, "largest_sigmas": round(correction.largest_sigmas, 3),
                "hard_iron_ut": [float(v) for v in -scale * correction.bias[:3]]}
-    return p - correction.bias, cov_corrected, applied
+    return p - correction.bias, cov, applied
 
 
 # --------------------------------------------------------------------------- initialisation
@@ -189,9 +196,12 @@ def _ellipsoid_screen(x: NDArray, inliers: NDArray, k: float) -> tuple[NDArray, 
     # can tip an ordinary least-squares quadric into a non-ellipsoid, a trimmed one they cannot.
     off_sphere = np.abs(np.linalg.norm(x, axis=1) - 1.0)
     subset = inliers & (off_sphere <= np.quantile(off_sphere[inliers], 0.9))
+    # a screen needs the quadric to a fraction of σ, which a few thousand samples give: larger
+    # inputs are fitted on an even spread of them (and the quadric is then not a starting point)
+    stride = max(1, len(x) // REFINE_SUBSET_SAMPLES)
     for _ in range(3):
         try:
-            h, s = fit_ellipsoid(x[subset])
+            h, s = fit_ellipsoid(x[subset][::stride])
         except AlgebraicFitError:
             return inliers, None
         dist = np.linalg.norm((x - h) @ s, axis=1) - 1.0
@@ -201,7 +211,7 @@ def _ellipsoid_screen(x: NDArray, inliers: NDArray, k: float) -> tuple[NDArray, 
         if new.sum() < 0.5 * len(x):
             return inliers, None
         if np.array_equal(new, subset):
-            return new, (h, s)
+            return new, ((h, s) if stride == 1 else None)
         subset = new
     return subset, None
 
@@ -239,26 +249,45 @@ def _residuals_and_jac(layout, p, x, tau, weights, sigma, log_ref, opts, with_ja
     """
     if with_jacobian:
         rho, jac = mdl.radial_jacobian(layout, p, x, tau)
-        jac = jac / weights[:, None]
     else:
-        rho, _, _ = mdl.radial(layout, p, x, tau)
+        rho = mdl.radial(layout, p, x, tau)
         jac = None
+    return _weighted_with_priors(layout, p, rho, jac, weights, sigma, log_ref, opts)
+
+
+def _sampson_weights(jac: NDArray) -> NDArray:
+    """|∇ρ| per sample, read off the radial Jacobian: its offset columns are −∂ρ/∂x."""
+    return np.sqrt(np.einsum("ij,ij->i", jac[:, :3], jac[:, :3]))
+
+
+def _weighted_with_priors(layout, p, rho, jac, weights, sigma, log_ref, opts):
+    """Residuals (and Jacobian, when ``jac`` is given) from ρ and ∂ρ/∂p: Sampson-weighted sample
+    rows, then the rows of the reference-field and shape priors."""
     r = (rho - 1.0) / weights
-    if log_ref is not None:
-        k = sigma / opts.gain_sigma
-        r = np.append(r, k * (mdl.log_raw_radius(layout, p) - log_ref))
-        if jac is not None:
-            jac = np.vstack([jac, k * mdl.log_gain_gradient(layout, p)])
-        if opts.shape_sigma and layout.model != "sphere":
-            # soft iron near identity: entries of S·F_ref (raw units) with prior 1σ shape_sigma
-            ks = sigma / opts.shape_sigma * np.exp(log_ref)
-            ident = np.array([1.0, 1.0, 1.0, 0.0, 0.0, 0.0][: layout.n_soft])
-            r = np.concatenate([r, ks * (p[layout.soft_slice] - ident * np.exp(-log_ref))])
-            if jac is not None:
-                rows = np.zeros((layout.n_soft, layout.size))
-                rows[:, layout.soft_slice] = np.eye(layout.n_soft) * ks
-                jac = np.vstack([jac, rows])
-    return r, jac
+    if jac is not None:
+        jac = jac / weights[:, None]
+    if log_ref is None:
+        return r, jac
+    r_prior, jac_prior = _prior_rows(layout, p, sigma, log_ref, opts)
+    return np.concatenate([r, r_prior]), (None if jac is None else np.vstack([jac, jac_prior]))
+
+
+def _prior_rows(layout, p, sigma, log_ref, opts) -> tuple[NDArray, NDArray]:
+    """Residual rows (and their Jacobian) of the priors a reference field brings, in units of σ:
+    the raw field radius near the reference (1σ ``gain_sigma``) and, if set, the soft iron near
+    the identity (1σ ``shape_sigma``)."""
+    k = sigma / opts.gain_sigma
+    r = [np.array([k * (mdl.log_raw_radius(layout, p) - log_ref)])]
+    jac = [k * mdl.log_gain_gradient(layout, p)[None, :]]
+    if opts.shape_sigma and layout.model != "sphere":
+        # soft iron near identity: entries of S·F_ref (raw units) with prior 1σ shape_sigma
+        ks = sigma / opts.shape_sigma * np.exp(log_ref)
+        ident = np.array([1.0, 1.0, 1.0, 0.0, 0.0, 0.0][: layout.n_soft])
+        r.append(ks * (p[layout.soft_slice] - ident * np.exp(-log_ref)))
+        rows = np.zeros((layout.n_soft, layout.size))
+        rows[:, layout.soft_slice] = np.eye(layout.n_soft) * ks
+        jac.append(rows)
+    return np.concatenate(r), np.vstack(jac)
 
 
 def _solve(layout, p0, x, tau, sigma, log_ref, opts) -> NDArray:
@@ -275,10 +304,14 @@ def _solve(layout, p0, x, tau, sigma, log_ref, opts) -> NDArray:
         def objective(q, with_jacobian, w=weights):
             return _residuals_and_jac(layout, q, x, tau, w, sigma, log_ref, opts, with_jacobian)
 
-        new = levenberg_marquardt(objective, p, 1e-12)
+        # Gauss–Newton settles in two or three steps from an O(σ)-close start (the algebraic
+        # quadric on a good tumble, the previous pass); LM takes over from a far one (caps).
+        new = gauss_newton(objective, p)
+        if new is None:
+            new = levenberg_marquardt(objective, p, 1e-12)
         step = np.max(np.abs(new - p))
         p = new
-        if step < 1e-9:
+        if step < REWEIGHT_SETTLED:
             break
     h, s, _ = mdl.unpack(layout, p)
     if not np.all(np.isfinite(p)) or np.any(np.linalg.eigvalsh(s) <= 0) or np.linalg.norm(h) > MAX_CENTRE_RADII:
@@ -329,19 +362,57 @@ def _refine_large(layout, x_all, inliers, log_ref, opts):
     return p, inliers, max(sigma, 1e-12)
 
 
-def _gauss_newton_polish(layout, p, x, sigma, log_ref, opts, max_steps: int = 4) -> NDArray:
-    """Gauss–Newton steps with the Sampson weights frozen at each step's start (as :func:`_solve`)."""
+def _gauss_newton_polish(layout, p, x, sigma, log_ref, opts, max_steps: int = 6) -> NDArray:
+    """Gauss–Newton steps with the Sampson weights frozen at each step's start (as :func:`_solve`).
+
+    Each step takes the normal equations at its start (:func:`_normal_equations`, which also
+    gives the step's weights) and the trial point's ρ to decide whether the step is taken.
+    """
+
+    def normal_equations(q):
+        jtj, jtr, cost, w = _normal_equations(layout, q, x, None)
+        if log_ref is not None:
+            r_prior, jac_prior = _prior_rows(layout, q, sigma, log_ref, opts)
+            jtj, jtr = jtj + jac_prior.T @ jac_prior, jtr + jac_prior.T @ r_prior
+            cost += float(r_prior @ r_prior)
+        return jtj, jtr, cost, w
+
+    jtj, jtr, cost, weights = normal_equations(p)
     for _ in range(max_steps):
-        weights = mdl.gradient_norm(layout, p, x, None)
-        r, jac = _residuals_and_jac(layout, p, x, None, weights, sigma, log_ref, opts)
-        step = np.linalg.solve(jac.T @ jac, jac.T @ r)
-        r_t, _ = _residuals_and_jac(layout, p - step, x, None, weights, sigma, log_ref, opts, False)
-        if not np.all(np.isfinite(r_t)) or r_t @ r_t > r @ r:
+        step = np.linalg.solve(jtj, jtr)
+        q = p - step
+        r_q = (mdl.radial(layout, q, x, None) - 1.0) / weights
+        cost_q = float(r_q @ r_q)
+        if log_ref is not None:
+            r_prior, _ = _prior_rows(layout, q, sigma, log_ref, opts)
+            cost_q += float(r_prior @ r_prior)
+        if not np.isfinite(cost_q) or cost_q > cost:
             break  # no further decrease: at the minimum to rounding
-        p = p - step
-        if np.max(np.abs(step)) < 1e-11:
+        p = q
+        if float(np.max(np.abs(step))) <= SETTLED_STEP:
             break
+        jtj, jtr, cost, weights = normal_equations(p)
     return p
+
+
+def _normal_equations(layout, p, x, tau):
+    """JᵀJ, Jᵀr and rᵀr of the Sampson residuals of the samples at ``p`` (weights frozen there),
+    and the weights (|∇ρ| per sample) themselves.  Prior rows are the caller's to add.
+    """
+    jtj = np.zeros((layout.size, layout.size))
+    jtr = np.zeros(layout.size)
+    cost = 0.0
+    weights = np.empty(len(x))
+    for start in range(0, len(x), NORMAL_EQUATIONS_BLOCK):
+        block = slice(start, start + NORMAL_EQUATIONS_BLOCK)
+        rho, jac = mdl.radial_jacobian(layout, p, x[block], None if tau is None else tau[block])
+        weights[block] = w = _sampson_weights(jac)
+        jac = jac / w[:, None]
+        r = (rho - 1.0) / w
+        jtj += jac.T @ jac
+        jtr += jac.T @ r
+        cost += float(r @ r)
+    return jtj, jtr, cost, weights
 
 
 def _robust_sigma(r: NDArray) -> float:
@@ -447,19 +518,17 @@ def _fit_window(layout, p, x_all, tau_all, inliers, window, log_ref, opts):
 # --------------------------------------------------------------------------- uncertainty & output
 
 def _covariance(layout, p, x, tau, sigma, log_ref, opts):
-    weights = mdl.gradient_norm(layout, p, x, tau)
-    r, jac = _residuals_and_jac(layout, p, x, tau, weights, sigma, log_ref, opts)
-    n_data = len(x)
-    rss = float(np.sum(r[:n_data] ** 2))
-    dof = max(n_data - layout.size, 1)
-    s2 = rss / dof
-    if log_ref is not None:  # re-scale the prior row to the final noise estimate
-        r, jac = _residuals_and_jac(layout, p, x, tau, weights, np.sqrt(s2), log_ref, opts)
+    """Parameter covariance σ̂²·(JᵀJ)⁻¹ (σ̂ from the residuals) and the JᵀJ it came from."""
+    gram, _, rss, _ = _normal_equations(layout, p, x, tau)
+    s2 = rss / max(len(x) - layout.size, 1)
+    if log_ref is not None:  # prior rows, in units of the final noise estimate
+        _, jac_prior = _prior_rows(layout, p, np.sqrt(s2), log_ref, opts)
+        gram = gram + jac_prior.T @ jac_prior
     try:
-        cov = s2 * np.linalg.inv(jac.T @ jac)
+        cov = s2 * np.linalg.inv(gram)
     except np.linalg.LinAlgError as exc:
         raise FitRefused("undetermined", "the samples do not determine the calibration", ROTATE_MORE) from exc
-    return cov, jac, rss
+    return cov, gram
 
 
 def _restricted_model_cost(layout, p, x, sigma, scale, log_ref, opts) -> dict | None:
@@ -475,7 +544,7 @@ def _restricted_model_cost(layout, p, x, sigma, scale, log_ref, opts) -> dict | 
     full = mdl.Layout("full", drift=False)
     try:
         pf = _solve(full, _as_full(layout, p), x, None, sigma, log_ref, opts)
-        cov_f, _, _ = _covariance(full, pf, x, None, sigma, log_ref, opts)
+        cov_f, _ = _covariance(full, pf, x, None, sigma, log_ref, opts)
     except FitRefused:
         return None
     r_restricted = _geometric_residuals(layout, p, x, None)
@@ -497,7 +566,7 @@ def _restricted_model_cost(layout, p, x, sigma, scale, log_ref, opts) -> dict | 
             "full_model_direction_sigma_deg": _direction_sigma_deg(full, pf, cov_f, x)}
 
 
-def _assemble(layout, p, cov, jac, x, tau, centre, scale, keep, inliers, rejected, flat, drift_info,
+def _assemble(layout, p, cov, gram, x, tau, centre, scale, keep, inliers, rejected, flat, drift_info,
               opts, n_total, misfit=None) -> FitResult:
     h_n, s_n, drift = mdl.unpack(layout, p)
     log_r = mdl.log_raw_radius(layout, p)
@@ -512,8 +581,7 @@ def _assemble(layout, p, cov, jac, x, tau, centre, scale, keep, inliers, rejecte
 
     # Determinability: the reported uncertainty itself says whether the data pin the calibration
     # where it will be used — the calibrated field *direction* over the orientations seen.
-    jn = jac / np.linalg.norm(jac, axis=0)
-    cond = float(np.linalg.cond(jn))
+    cond = _condition_number(gram)
     dir_sigma = _direction_sigma_deg(layout, p, cov, x[:: max(1, len(x) // REFINE_SUBSET_SAMPLES)])
     # A restricted model's misfit inflates its own σ; whether the motion determined the calibration
     # is then judged with the full model, which the misfit does not touch.
@@ -558,29 +626,30 @@ def _assemble(layout, p, cov, jac, x, tau, centre, scale, keep, inliers, rejecte
     )
 
 
+def _condition_number(gram: NDArray) -> float:
+    """Condition number of the column-normalised Jacobian, from its Gram matrix JᵀJ (at most
+    12×12, where an SVD of the tall Jacobian would cost as much as a 100 000-sample fit); NaN when
+    singular.  The squared condition it works with is exact enough for a figure whose use is
+    "finite, and how large"."""
+    norms = np.sqrt(np.diag(gram))
+    if not np.all(np.isfinite(gram)) or np.any(norms <= 0):
+        return float("nan")
+    eig = np.linalg.eigvalsh(gram / np.outer(norms, norms))
+    return float(np.sqrt(eig[-1] / eig[0])) if eig[0] > 0 else float("nan")
+
+
 def _direction_sigma_deg(layout: mdl.Layout, p: NDArray, cov: NDArray, x: NDArray) -> float:
     """Largest 1σ error (degrees) of the calibrated field direction over the samples seen.
 
-    First-order propagation of the parameter covariance, by finite differences of the calibrated
-    directions along the covariance's principal axes (drift terms excluded: end state).
+    First-order propagation of the parameter covariance (drift terms excluded: end state):
+    the variance of each sample's direction is |∂u/∂p · L|² with Σ = L·Lᵀ.
     """
-    w, vecs = np.linalg.eigh(cov)
-    w = np.clip(w, 0, None)
-
-    def directions(q):
-        h, s, _ = mdl.unpack(layout, q)
-        c = (x - h) @ s
-        return c / np.linalg.norm(c, axis=1, keepdims=True)
-
-    base = directions(p)
-    var = np.zeros(len(x))
-    for lam, vec in zip(w, vecs.T, strict=True):
-        if lam <= 0:
-            continue
-        step = 1e-3 * np.sqrt(lam)
-        delta = (directions(p + step * vec) - base) / 1e-3
-        var += np.einsum("ij,ij->i", delta, delta)
-    return float(np.degrees(np.sqrt(var.max())))
+    core = 3 + layout.n_soft
+    w, vecs = np.linalg.eigh(cov[:core, :core])
+    root = vecs * np.sqrt(np.clip(w, 0, None))  # Σ = root·rootᵀ, also when Σ is only semi-definite
+    _, du = mdl.direction_jacobian(layout, p, x)
+    spread = root.T @ du.reshape(core, -1)  # (core, 3·n): one product for all samples
+    return float(np.degrees(np.sqrt(np.square(spread).sum(axis=0).reshape(3, -1).sum(axis=0).max())))
 
 
 def _soft_sigma(layout: mdl.Layout, cov: NDArray, factor: float) -> NDArray:

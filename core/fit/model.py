@@ -83,15 +83,31 @@ def unpack(layout: Layout, p: NDArray) -> tuple[NDArray, NDArray, NDArray]:
     return h, s, d
 
 
-def radial(layout: Layout, p: NDArray, x: NDArray, tau: NDArray | None):
-    """Return (ρ, v, d): calibrated radius, calibrated vector and centred sample per row."""
+# The functions below work with the samples along the last axis (3 × n): numpy then runs along
+# long contiguous rows instead of rows of three, several times faster on a 600-sample fit.
+
+def _centred(layout: Layout, p: NDArray, x: NDArray, tau: NDArray | None) -> tuple[NDArray, NDArray, NDArray]:
+    """(S, drift, d): the soft-iron matrix, the drift and the centred samples x − h − drift·τ (3 × n)."""
     h, s, drift = unpack(layout, p)
-    d = x - h
+    d = x.T - h[:, None]
     if layout.drift and tau is not None:
-        d = d - np.outer(tau, drift)
-    v = d @ s  # s symmetric: row-wise S·d
-    rho = np.sqrt(np.einsum("ij,ij->i", v, v))
-    return rho, v, d
+        d = d - np.outer(drift, tau)
+    return s, drift, d
+
+
+def radial(layout: Layout, p: NDArray, x: NDArray, tau: NDArray | None) -> NDArray:
+    """ρ = |S·(x − h − drift·τ)| per sample: the calibrated radius (1 on the model)."""
+    s, _, d = _centred(layout, p, x, tau)
+    v = s @ d
+    return np.sqrt(np.einsum("ij,ij->j", v, v))
+
+
+def radial_gradient(layout: Layout, p: NDArray, x: NDArray, tau: NDArray | None) -> tuple[NDArray, NDArray]:
+    """(ρ, ∇ρ) per sample; ∇ρ = ∂ρ/∂x = S·S·d/ρ is returned as a 3 × n array."""
+    s, _, d = _centred(layout, p, x, tau)
+    v = s @ d
+    rho = np.sqrt(np.einsum("ij,ij->j", v, v))
+    return rho, (s @ v) / rho
 
 
 def gradient_norm(layout: Layout, p: NDArray, x: NDArray, tau: NDArray | None) -> NDArray:
@@ -105,35 +121,77 @@ def gradient_norm(layout: Layout, p: NDArray, x: NDArray, tau: NDArray | None) -
 
 def radial_with_gradient_norm(layout: Layout, p: NDArray, x: NDArray, tau: NDArray | None):
     """(ρ, |∇ρ|) per sample in one pass: what a geometric residual (ρ − 1)/|∇ρ| needs."""
-    rho, v, _ = radial(layout, p, x, tau)
-    _, s, _ = unpack(layout, p)
-    g = (v @ s) / rho[:, None]
-    return rho, np.sqrt(np.einsum("ij,ij->i", g, g))
+    rho, g = radial_gradient(layout, p, x, tau)
+    return rho, np.sqrt(np.einsum("ij,ij->j", g, g))
+
+
+_FULL_I = np.array([i for i, _ in FULL_INDEX])
+_FULL_J = np.array([j for _, j in FULL_INDEX])
 
 
 def radial_jacobian(layout: Layout, p: NDArray, x: NDArray, tau: NDArray | None) -> tuple[NDArray, NDArray]:
-    """ρ and ∂ρ/∂p for every sample (analytic; S symmetric)."""
-    rho, v, d = radial(layout, p, x, tau)
-    _, s, _ = unpack(layout, p)
+    """ρ and ∂ρ/∂p for every sample (analytic; S symmetric).
+
+    Computed with the samples along the last axis (3 × n, parameters × n), where numpy works on
+    long contiguous rows; the (n, parameters) Jacobian returned is a transposed view of that.
+    """
+    s, _, d = _centred(layout, p, x, tau)
+    v = s @ d
+    rho = np.sqrt(np.einsum("ij,ij->j", v, v))
     inv_rho = 1.0 / rho
-    g = (v @ s) * inv_rho[:, None]  # ∂ρ/∂x
-    jac = np.empty((x.shape[0], layout.size))
-    jac[:, :3] = -g
-    soft = jac[:, layout.soft_slice]
+    g = (s @ v) * inv_rho  # ∂ρ/∂x
+    jac = np.empty((layout.size, x.shape[0]))
+    jac[:3] = -g
+    soft = layout.soft_slice
     if layout.model == "sphere":
-        soft[:, 0] = rho / p[3]
+        jac[soft] = rho / p[3]
     elif layout.model == "diagonal":
-        soft[:] = v * d * inv_rho[:, None]
+        jac[soft] = v * d * inv_rho
     else:
-        for k, (i, j) in enumerate(FULL_INDEX):
-            if i == j:
-                soft[:, k] = v[:, i] * d[:, i] * inv_rho
-            else:
-                soft[:, k] = (v[:, i] * d[:, j] + v[:, j] * d[:, i]) * inv_rho
-    jac[:, layout.soft_slice] = soft
+        # ∂ρ/∂S_ij = (v_i·d_j + v_j·d_i)/ρ off the diagonal, v_i·d_i/ρ on it
+        both = v[_FULL_I] * d[_FULL_J]
+        both[3:] += v[_FULL_J[3:]] * d[_FULL_I[3:]]
+        jac[soft] = both * inv_rho
     if layout.drift:
-        jac[:, layout.drift_slice] = -g * (tau[:, None] if tau is not None else 0.0)
-    return rho, jac
+        jac[layout.drift_slice] = -g * (tau if tau is not None else 0.0)
+    return rho, jac.T
+
+
+def _soft_basis(model: SoftIronModel) -> NDArray[np.float64]:
+    """∂S/∂s_k for each soft-iron parameter: an (n_soft, 3, 3) stack of constant matrices."""
+    if model == "sphere":
+        return np.eye(3)[None]
+    if model == "diagonal":
+        return np.stack([np.diag(e) for e in np.eye(3)])
+    basis = np.zeros((6, 3, 3))
+    for k, (i, j) in enumerate(FULL_INDEX):
+        basis[k, i, j] = basis[k, j, i] = 1.0
+    return basis
+
+
+_SOFT_BASIS = {model: _soft_basis(model) for model in N_SOFT}
+
+
+def direction_jacobian(layout: Layout, p: NDArray, x: NDArray) -> tuple[NDArray, NDArray]:
+    """Calibrated unit directions u = S·(x − h)/|S·(x − h)| and ∂u/∂(h, s) for every sample.
+
+    Returns u (3, n) and the Jacobian (3 + n_soft, 3, n): ``[k, :, i]`` is ∂u_i/∂p_k (samples
+    along the last axis, where numpy works on long contiguous rows).  Drift terms have no row:
+    the direction that matters is the end state (τ = 0), which they do not move.  Why analytic:
+    propagating the covariance into heading error is done on every fit, and this is one pass over
+    the samples where finite differences take one per parameter.
+    """
+    h, s, _ = unpack(layout, p)
+    d = x.T - h[:, None]
+    c = s @ d
+    norm = np.sqrt(np.einsum("ij,ij->j", c, c))
+    u = c / norm
+    dc = np.empty((3 + layout.n_soft, 3, len(x)))
+    dc[:3] = -s[:, :, None]  # ∂c/∂h_k = −S·e_k, the k-th row of the symmetric S
+    dc[3:] = (_SOFT_BASIS[layout.model].reshape(-1, 3) @ d).reshape(layout.n_soft, 3, -1)  # E_k·d
+    # a unit vector moves only across itself: (I − u·uᵀ)·∂c / |c|
+    along = np.einsum("kan,an->kn", dc, u)
+    return u, (dc - along[:, None, :] * u) / norm
 
 
 def log_gain_gradient(layout: Layout, p: NDArray) -> NDArray:

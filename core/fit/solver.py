@@ -14,6 +14,11 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import optimize
 
+# Steps (in normalised parameters, of order one) below this end Gauss–Newton: the parameters' 1σ is
+# about 1e-3 for a 600-sample tumble and 1e-4 for 100 000 samples, so the solution is then known to
+# 1e-4σ or better, far below the O(σ²) bias the bootstrap measures.
+SETTLED_STEP = 1e-8
+
 # objective(p, with_jacobian) -> (residuals, Jacobian or None)
 Objective = Callable[[NDArray, bool], tuple[NDArray, NDArray | None]]
 
@@ -59,7 +64,8 @@ def levenberg_marquardt(objective: Objective, p0: NDArray, tol: float) -> NDArra
     return np.asarray(p, dtype=float)
 
 
-def gauss_newton(objective: Objective, p0: NDArray, step_tol: float, max_steps: int = 8) -> NDArray | None:
+def gauss_newton(objective: Objective, p0: NDArray, step_tol: float = SETTLED_STEP,
+                 max_steps: int = 8) -> NDArray | None:
     """Gauss–Newton from a start already near the minimum, or None when it does not settle.
 
     Why: a bootstrap refit starts within O(σ) of its solution, where the problem is linear to far
@@ -77,11 +83,12 @@ def gauss_newton(objective: Objective, p0: NDArray, step_tol: float, max_steps: 
         except np.linalg.LinAlgError:
             return None
         small = float(np.max(np.abs(step))) <= step_tol
-        r_t, jac_t = objective(p - step, True)
+        # a step this small is the last: only its cost is needed, not another Jacobian
+        r_t, jac_t = objective(p - step, not small)
         cost_t = float(r_t @ r_t)
         if not np.isfinite(cost_t) or cost_t > cost:
             return p if small else None  # settled to rounding, or not converging
-        p, r, jac, cost = p - step, r_t, jac_t, cost_t
         if small:
-            return p
+            return p - step
+        p, r, jac, cost = p - step, r_t, jac_t, cost_t
     return None
