@@ -14,6 +14,14 @@ expected estimate is what was observed), found by substitution.  A correction th
 means the data do not determine the calibration, and the caller refuses.  The same noise draws
 are used at every step, so the bias is a smooth function of the parameters and the substitution
 converges instead of wandering with Monte Carlo noise.
+
+Why the priors are simulated too: the reference field enters the fit as prior rows (raw field
+radius near the reference, soft iron near the identity), which are observations with their own
+error, just as the samples are.  Were they held fixed in the simulation, the refits would measure
+the prior's pull towards its own centre as "bias" (wherever the prior, not the data, pins a
+direction, as on a cap) and the correction would undo exactly the information the reference
+adds.  Drawn around the simulated truth with their own σ, they leave the non-linearity bias alone
+to be measured.
 """
 
 from __future__ import annotations
@@ -39,6 +47,21 @@ GIVE_UP_SIGMAS = 20.0  # a bias this far beyond σ has no nearby fixed point wor
 
 
 @dataclass(frozen=True)
+class NoiseDraws:
+    """One antithetic pair's noise per row: for the samples and for the prior rows (both in the
+    residuals' units, σ)."""
+
+    samples: NDArray  # (pairs, n, 3)
+    priors: NDArray  # (pairs, number of prior rows)
+
+    def __len__(self) -> int:
+        return len(self.samples)
+
+    def take(self, pairs: slice) -> NoiseDraws:
+        return NoiseDraws(self.samples[pairs], self.priors[pairs])
+
+
+@dataclass(frozen=True)
 class BiasCorrection:
     """The estimated bias of the fit and how it was found (reported with the fit)."""
 
@@ -46,7 +69,7 @@ class BiasCorrection:
     iterations: int  # 1: a single estimate; >1: fixed-point iterations
     settled: bool
     largest_sigmas: float  # largest |bias| / σ over the parameters
-    noise: NDArray | None = None  # the iteration's common random numbers (for corrected_covariance)
+    noise: NoiseDraws | None = None  # the iteration's common random numbers (for corrected_covariance)
 
 
 def project_onto_model(layout: mdl.Layout, p: NDArray, x: NDArray, tau: NDArray | None) -> NDArray:
@@ -57,22 +80,29 @@ def project_onto_model(layout: mdl.Layout, p: NDArray, x: NDArray, tau: NDArray 
 
 
 def bootstrap_bias(layout: mdl.Layout, p: NDArray, x: NDArray, tau: NDArray | None, residual_fn,
-                   noise: NDArray) -> NDArray:
+                   noise: NoiseDraws) -> NDArray:
     """Mean of antithetic refits of data simulated at ``p``, minus ``p``: the bias at ``p``.
 
     ``residual_fn(q, x, weights, with_jacobian)`` returns (residuals, Jacobian or None) for
     parameters ``q`` on data ``x`` with frozen Sampson ``weights``: the objective the fit minimised
-    (with its prior rows), so that the refits measure the bias of the estimator actually used.
-    ``noise`` holds one (n, 3) draw per antithetic pair.
+    (one row per sample, then its prior rows), so that the refits measure the bias of the
+    estimator actually used.  ``noise`` holds one draw per antithetic pair.
     """
     truth = project_onto_model(layout, p, x, tau)
     weights = mdl.gradient_norm(layout, p, truth, tau)
+    n = len(x)
+    # the prior rows re-centred on the simulated truth: R(q) − R(p) is zero at p
+    prior_at_truth = residual_fn(p, truth, weights, False)[0][n:]
     acc = np.zeros_like(p)
-    for draw in noise:
+    for sample_noise, prior_noise in zip(noise.samples, noise.priors, strict=True):
         for sign in (1.0, -1.0):
-            xs = truth + sign * draw
-            def objective(q, jac, xs=xs):
-                return residual_fn(q, xs, weights, jac)
+            xs = truth + sign * sample_noise
+            shift = sign * prior_noise - prior_at_truth
+
+            def objective(q, jac, xs=xs, shift=shift):
+                r, j = residual_fn(q, xs, weights, jac)
+                r[n:] += shift
+                return r, j
 
             refit = gauss_newton(objective, p)
             acc += refit if refit is not None else levenberg_marquardt(objective, p, 1e-10)
@@ -85,14 +115,16 @@ def estimate_bias(layout: mdl.Layout, p_hat: NDArray, x: NDArray, tau: NDArray |
 
     ``param_sigma`` (per parameter) is the yardstick: "small" and "settled" are judged against it.
     """
-    noise = rng.normal(scale=sigma, size=(ITERATION_PAIRS, *x.shape))
+    prior_rows = len(residual_fn(p_hat, x, np.ones(len(x)), False)[0]) - len(x)
+    noise = NoiseDraws(rng.normal(scale=sigma, size=(ITERATION_PAIRS, *x.shape)),
+                       rng.normal(scale=sigma, size=(ITERATION_PAIRS, prior_rows)))
     # One pair first: on a full tumble the bias is a few hundredths of σ, and a second pair
     # would only refine a correction too small to matter.
-    bias = bootstrap_bias(layout, p_hat, x, tau, residual_fn, noise[:1])
+    bias = bootstrap_bias(layout, p_hat, x, tau, residual_fn, noise.take(slice(0, 1)))
     ratio = float(np.max(np.abs(bias) / param_sigma))
     if ratio <= NEGLIGIBLE_BIAS_SIGMAS:
         return BiasCorrection(bias, 1, True, ratio)
-    bias = 0.5 * (bias + bootstrap_bias(layout, p_hat, x, tau, residual_fn, noise[1:PAIRS]))
+    bias = 0.5 * (bias + bootstrap_bias(layout, p_hat, x, tau, residual_fn, noise.take(slice(1, PAIRS))))
     ratio = float(np.max(np.abs(bias) / param_sigma))
     if ratio <= LINEAR_BIAS_SIGMAS:
         return BiasCorrection(bias, 1, True, ratio)

@@ -63,8 +63,10 @@ def _fibonacci(k: int) -> NDArray:
 def cap(fraction: float) -> Motion:
     """Directions within a spherical cap holding ``fraction`` of the sphere's area.
 
-    The cap is centred on the field direction of the level unit: the motion of an operator who
-    spins the unit in yaw but tilts it only so far (never upside down, for a hemisphere).
+    The cap is centred on the body's vertical axis (z), on the side the field dips to: the field
+    directions seen by an operator who spins the unit in yaw but tilts it only so far.  Yaw turns
+    the field about the body's vertical, so limited tilting leaves unseen a cap around the
+    opposite end of that axis, whatever the field's inclination.
     """
     cos_max = 1.0 - 2.0 * fraction
 
@@ -72,9 +74,8 @@ def cap(fraction: float) -> Motion:
         z = rng.uniform(cos_max, 1.0, size=n)
         phi = rng.uniform(0, 2 * np.pi, size=n)
         r = np.sqrt(1 - z * z)
-        local = np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
-        align, _ = Rotation.align_vectors([field_dir], [[0.0, 0.0, 1.0]])
-        return align.apply(local)
+        dips = 1.0 if field_dir[2] >= 0 else -1.0  # NED: positive down (northern hemisphere)
+        return np.column_stack([r * np.cos(phi), r * np.sin(phi), dips * z])
 
     return motion
 
