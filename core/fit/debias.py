@@ -70,6 +70,9 @@ class BiasCorrection:
     settled: bool
     largest_sigmas: float  # largest |bias| / σ over the parameters
     noise: NoiseDraws | None = None  # the iteration's common random numbers (for corrected_covariance)
+    # covariance of the pairs' mean refits around their mean: the second-order part of the
+    # estimate's own scatter (see corrected_covariance)
+    pair_cov: NDArray | None = None
 
 
 def project_onto_model(layout: mdl.Layout, p: NDArray, x: NDArray, tau: NDArray | None) -> NDArray:
@@ -81,7 +84,13 @@ def project_onto_model(layout: mdl.Layout, p: NDArray, x: NDArray, tau: NDArray 
 
 def bootstrap_bias(layout: mdl.Layout, p: NDArray, x: NDArray, tau: NDArray | None, residual_fn,
                    noise: NoiseDraws) -> NDArray:
-    """Mean of antithetic refits of data simulated at ``p``, minus ``p``: the bias at ``p``.
+    """Mean of antithetic refits of data simulated at ``p``, minus ``p``: the bias at ``p``."""
+    return pair_means(layout, p, x, tau, residual_fn, noise).mean(axis=0) - p
+
+
+def pair_means(layout: mdl.Layout, p: NDArray, x: NDArray, tau: NDArray | None, residual_fn,
+               noise: NoiseDraws) -> NDArray:
+    """Each antithetic pair's mean refit of data simulated at ``p`` (one row per pair).
 
     ``residual_fn(q, x, weights, with_jacobian)`` returns (residuals, Jacobian or None) for
     parameters ``q`` on data ``x`` with frozen Sampson ``weights``: the objective the fit minimised
@@ -93,8 +102,8 @@ def bootstrap_bias(layout: mdl.Layout, p: NDArray, x: NDArray, tau: NDArray | No
     n = len(x)
     # the prior rows re-centred on the simulated truth: R(q) − R(p) is zero at p
     prior_at_truth = residual_fn(p, truth, weights, False)[0][n:]
-    acc = np.zeros_like(p)
-    for sample_noise, prior_noise in zip(noise.samples, noise.priors, strict=True):
+    means = np.zeros((len(noise), len(p)))
+    for pair, (sample_noise, prior_noise) in enumerate(zip(noise.samples, noise.priors, strict=True)):
         for sign in (1.0, -1.0):
             xs = truth + sign * sample_noise
             shift = sign * prior_noise - prior_at_truth
@@ -105,8 +114,8 @@ def bootstrap_bias(layout: mdl.Layout, p: NDArray, x: NDArray, tau: NDArray | No
                 return r, j
 
             refit = gauss_newton(objective, p)
-            acc += refit if refit is not None else levenberg_marquardt(objective, p, 1e-10)
-    return acc / (2 * len(noise)) - p
+            means[pair] += 0.5 * (refit if refit is not None else levenberg_marquardt(objective, p, 1e-10))
+    return means
 
 
 def estimate_bias(layout: mdl.Layout, p_hat: NDArray, x: NDArray, tau: NDArray | None, sigma: float,
@@ -133,26 +142,32 @@ def estimate_bias(layout: mdl.Layout, p_hat: NDArray, x: NDArray, tau: NDArray |
     for iteration in range(2, MAX_ITERATIONS + 1):
         # the same noise draws at every step: the bias becomes a smooth function of the
         # parameters, so the substitution converges instead of wandering with Monte Carlo noise
-        new = bootstrap_bias(layout, p_hat - bias, x, tau, residual_fn, noise)
-        new = bias + RELAXATION * (new - bias)
+        means = pair_means(layout, p_hat - bias, x, tau, residual_fn, noise)
+        new = bias + RELAXATION * (means.mean(axis=0) - (p_hat - bias) - bias)
         step = float(np.max(np.abs(new - bias) / param_sigma))
         bias = new
         largest = float(np.max(np.abs(bias) / param_sigma)) if np.all(np.isfinite(bias)) else np.inf
         if largest > GIVE_UP_SIGMAS:
             break  # running away: no fixed point near the data, stop spending time on it
         if step <= SETTLED_SIGMAS:
-            return BiasCorrection(bias, iteration, True, largest, noise)
+            return BiasCorrection(bias, iteration, True, largest, noise, np.cov(means.T))
     return BiasCorrection(bias, iteration, False, largest)
 
 
 def corrected_covariance(layout: mdl.Layout, p_hat: NDArray, correction: BiasCorrection, x: NDArray,
                          tau: NDArray | None, residual_fn, cov_hat: NDArray, directions: int = 2) -> NDArray:
-    """Covariance of the corrected estimate ``p* = p̂ − b(p*)``: (I + B′)⁻¹ Σ̂ (I + B′)⁻ᵀ.
+    """Covariance of the corrected estimate ``p* = p̂ − b(p*)``: (I + B′)⁻¹ Σ (I + B′)⁻ᵀ.
 
-    Why: where the bias had to be iterated away it also depends on the parameters (B′ = ∂b/∂p),
-    and the correction then scales the estimate's scatter along the poorly determined directions
-    by 1/(1 + B′), which the covariance at a single point misses.  B′ is measured, with the same
-    noise draws, along the ``directions`` largest principal axes of Σ̂ (where it matters).
+    Why: where the bias had to be iterated away the problem is far from linear, and two things
+    the covariance at a single point misses matter:
+
+    * the bias depends on the parameters (B′ = ∂b/∂p), so the correction scales the estimate's
+      scatter along the poorly determined directions by 1/(1 + B′).  B′ is measured, with the
+      same noise draws, along the ``directions`` largest principal axes of Σ̂;
+    * the estimate scatters more than its linearisation Σ̂ says: to second order p̂ = p + L·n +
+      Q(n, n), and the quadratic term adds its own variance.  An antithetic pair's mean refit is
+      p + Q(n, n), so the spread of the pairs' means measures it: Σ = Σ̂ + Σ_Q·(1 + 1/pairs), the
+      last term being the Monte Carlo error of the bias estimated from those pairs.
     """
     assert correction.noise is not None
     p_star = p_hat - correction.bias
@@ -165,4 +180,7 @@ def corrected_covariance(layout: mdl.Layout, p_hat: NDArray, correction: BiasCor
         shifted = bootstrap_bias(layout, p_star + eps * v, x, tau, residual_fn, correction.noise)
         j += np.outer((shifted - correction.bias) / eps, v)
     j_inv = np.linalg.inv(j)
-    return j_inv @ cov_hat @ j_inv.T
+    total = cov_hat
+    if correction.pair_cov is not None:
+        total = cov_hat + correction.pair_cov * (1.0 + 1.0 / len(correction.noise))
+    return j_inv @ total @ j_inv.T

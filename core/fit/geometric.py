@@ -243,33 +243,25 @@ def _initial_params(layout: mdl.Layout, x: NDArray, log_ref: float | None, opts:
 # --------------------------------------------------------------------------- refinement
 
 def _residuals_and_jac(layout, p, x, tau, weights, sigma, log_ref, opts, with_jacobian=True):
-    """Sampson residuals (geometric distances, plus any prior rows) and, if asked, their Jacobian.
+    """Sampson residuals (geometric distances), then any prior rows; and, if asked, their Jacobian.
 
     ``weights`` are the Sampson weights |∇ρ|, frozen by the caller.
     """
     if with_jacobian:
         rho, jac = mdl.radial_jacobian(layout, p, x, tau)
+        jac = jac / weights[:, None]
     else:
-        rho = mdl.radial(layout, p, x, tau)
-        jac = None
-    return _weighted_with_priors(layout, p, rho, jac, weights, sigma, log_ref, opts)
+        rho, jac = mdl.radial(layout, p, x, tau), None
+    r = (rho - 1.0) / weights
+    if log_ref is None:
+        return r, jac
+    r_prior, jac_prior = _prior_rows(layout, p, sigma, log_ref, opts)
+    return np.concatenate([r, r_prior]), (None if jac is None else np.vstack([jac, jac_prior]))
 
 
 def _sampson_weights(jac: NDArray) -> NDArray:
     """|∇ρ| per sample, read off the radial Jacobian: its offset columns are −∂ρ/∂x."""
     return np.sqrt(np.einsum("ij,ij->i", jac[:, :3], jac[:, :3]))
-
-
-def _weighted_with_priors(layout, p, rho, jac, weights, sigma, log_ref, opts):
-    """Residuals (and Jacobian, when ``jac`` is given) from ρ and ∂ρ/∂p: Sampson-weighted sample
-    rows, then the rows of the reference-field and shape priors."""
-    r = (rho - 1.0) / weights
-    if jac is not None:
-        jac = jac / weights[:, None]
-    if log_ref is None:
-        return r, jac
-    r_prior, jac_prior = _prior_rows(layout, p, sigma, log_ref, opts)
-    return np.concatenate([r, r_prior]), (None if jac is None else np.vstack([jac, jac_prior]))
 
 
 def _prior_rows(layout, p, sigma, log_ref, opts) -> tuple[NDArray, NDArray]:
