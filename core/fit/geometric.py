@@ -22,19 +22,22 @@ from magline.core.fit import model as mdl
 from magline.core.fit.algebraic import AlgebraicFitError, fit_ellipsoid, fit_sphere
 from magline.core.fit.coverage import coverage_fraction
 from magline.core.fit.debias import corrected_covariance, estimate_bias
+from magline.core.fit.objective import (
+    geometric_residuals,
+    normal_equations,
+    prior_rows,
+    residuals_and_jacobian,
+)
 from magline.core.fit.result import FitOptions, FitRefused, FitResult
 from magline.core.fit.screening import planarity, screen_samples
 from magline.core.fit.solver import SETTLED_STEP, gauss_newton, levenberg_marquardt
+from magline.core.fit.uncertainty import condition_number, direction_sigma_deg, soft_sigma
 
 MIN_SAMPLES = {"full": 30, "diagonal": 20, "sphere": 12}
 MAD_TO_SIGMA = 1.4826
 BIAS_REFERENCE_SAMPLES = 600  # acquisition size at which bias is compared with σ
 BOOTSTRAP_MAX_SAMPLES = 5000  # the bias bootstrap refits at most this many samples
 REFINE_SUBSET_SAMPLES = 5000  # larger inputs are solved on a subset first, then polished on all
-# Samples per block when the normal equations of a large input are accumulated: the block's
-# Jacobian (a few hundred kB) stays in cache, where one over 100 000 samples (7 MB, and its
-# temporaries) is fetched from memory, and page-faulted in, several times over.
-NORMAL_EQUATIONS_BLOCK = 8192
 MAX_CENTRE_RADII = 10.0  # a centre this many field radii from the data's is a run-away, not a fit
 MISFIT_P_VALUE = 1e-3  # F test: the full soft iron fits better than a diagonal (or sphere) model
 # A re-weighting pass that moved the (normalised) parameters less than this is the last: the next
@@ -138,7 +141,7 @@ def _remove_bias(layout, p, x, tau, sigma, scale, log_ref, opts, cov):
     cov_boot = cov * (len(x) / len(x_boot))  # the subset's covariance, to first order
 
     def objective(q, xs, w, with_jacobian):
-        return _residuals_and_jac(layout, q, xs, tau_boot, w, sigma, log_ref, opts, with_jacobian)
+        return residuals_and_jacobian(layout, q, xs, tau_boot, w, sigma, log_ref, opts, with_jacobian)
 
     # The σ² bias does not shrink with the sample count while σ does (1/√N), so "bias versus σ"
     # is judged at a standard acquisition size: a 100 000-sample tumble is not undetermined just
@@ -242,46 +245,6 @@ def _initial_params(layout: mdl.Layout, x: NDArray, log_ref: float | None, opts:
 
 # --------------------------------------------------------------------------- refinement
 
-def _residuals_and_jac(layout, p, x, tau, weights, sigma, log_ref, opts, with_jacobian=True):
-    """Sampson residuals (geometric distances), then any prior rows; and, if asked, their Jacobian.
-
-    ``weights`` are the Sampson weights |∇ρ|, frozen by the caller.
-    """
-    if with_jacobian:
-        rho, jac = mdl.radial_jacobian(layout, p, x, tau)
-        jac = jac / weights[:, None]
-    else:
-        rho, jac = mdl.radial(layout, p, x, tau), None
-    r = (rho - 1.0) / weights
-    if log_ref is None:
-        return r, jac
-    r_prior, jac_prior = _prior_rows(layout, p, sigma, log_ref, opts)
-    return np.concatenate([r, r_prior]), (None if jac is None else np.vstack([jac, jac_prior]))
-
-
-def _sampson_weights(jac: NDArray) -> NDArray:
-    """|∇ρ| per sample, read off the radial Jacobian: its offset columns are −∂ρ/∂x."""
-    return np.sqrt(np.einsum("ij,ij->i", jac[:, :3], jac[:, :3]))
-
-
-def _prior_rows(layout, p, sigma, log_ref, opts) -> tuple[NDArray, NDArray]:
-    """Residual rows (and their Jacobian) of the priors a reference field brings, in units of σ:
-    the raw field radius near the reference (1σ ``gain_sigma``) and, if set, the soft iron near
-    the identity (1σ ``shape_sigma``)."""
-    k = sigma / opts.gain_sigma
-    r = [np.array([k * (mdl.log_raw_radius(layout, p) - log_ref)])]
-    jac = [k * mdl.log_gain_gradient(layout, p)[None, :]]
-    if opts.shape_sigma and layout.model != "sphere":
-        # soft iron near identity: entries of S·F_ref (raw units) with prior 1σ shape_sigma
-        ks = sigma / opts.shape_sigma * np.exp(log_ref)
-        ident = np.array([1.0, 1.0, 1.0, 0.0, 0.0, 0.0][: layout.n_soft])
-        r.append(ks * (p[layout.soft_slice] - ident * np.exp(-log_ref)))
-        rows = np.zeros((layout.n_soft, layout.size))
-        rows[:, layout.soft_slice] = np.eye(layout.n_soft) * ks
-        jac.append(rows)
-    return np.concatenate(r), np.vstack(jac)
-
-
 def _solve(layout, p0, x, tau, sigma, log_ref, opts) -> NDArray:
     """Gradient-weighted least squares with the Sampson weights frozen per pass, re-weighted
     until they stop moving: the estimator whose O(σ²) bias the bootstrap reproduces (letting the
@@ -294,7 +257,7 @@ def _solve(layout, p0, x, tau, sigma, log_ref, opts) -> NDArray:
             raise FitRefused("not_ellipsoid", "the fit diverged", ROTATE_MORE)
 
         def objective(q, with_jacobian, w=weights):
-            return _residuals_and_jac(layout, q, x, tau, w, sigma, log_ref, opts, with_jacobian)
+            return residuals_and_jacobian(layout, q, x, tau, w, sigma, log_ref, opts, with_jacobian)
 
         # Gauss–Newton settles in two or three steps from an O(σ)-close start (the algebraic
         # quadric on a good tumble, the previous pass); LM takes over from a far one (caps).
@@ -311,16 +274,11 @@ def _solve(layout, p0, x, tau, sigma, log_ref, opts) -> NDArray:
     return p
 
 
-def _geometric_residuals(layout, p, x, tau) -> NDArray:
-    rho, grad_norm = mdl.radial_with_gradient_norm(layout, p, x, tau)
-    return (rho - 1.0) / grad_norm
-
-
 def _robust_refine(layout, p, x_all, tau_all, inliers, log_ref, opts):
-    sigma = _robust_sigma(_geometric_residuals(layout, p, x_all[inliers], _take(tau_all, inliers)))
+    sigma = _robust_sigma(geometric_residuals(layout, p, x_all[inliers], _take(tau_all, inliers)))
     for _ in range(5):
         p = _solve(layout, p, x_all[inliers], _take(tau_all, inliers), sigma, log_ref, opts)
-        r = _geometric_residuals(layout, p, x_all, tau_all)
+        r = geometric_residuals(layout, p, x_all, tau_all)
         sigma = _robust_sigma(r[inliers])
         new = np.abs(r) <= opts.outlier_sigmas * sigma
         if np.array_equal(new, inliers):
@@ -328,7 +286,7 @@ def _robust_refine(layout, p, x_all, tau_all, inliers, log_ref, opts):
         if new.sum() < MIN_SAMPLES[layout.model]:
             raise FitRefused("not_ellipsoid", "too few samples agree on one ellipsoid", ROTATE_MORE)
         inliers = new
-    sigma = float(np.std(_geometric_residuals(layout, p, x_all[inliers], _take(tau_all, inliers))))
+    sigma = float(np.std(geometric_residuals(layout, p, x_all[inliers], _take(tau_all, inliers))))
     return p, inliers, max(sigma, 1e-12)
 
 
@@ -345,66 +303,46 @@ def _refine_large(layout, x_all, inliers, log_ref, opts):
     p = _initial_params(layout, x_all[pick][inliers[pick]], log_ref, opts)
     p, _, sigma = _robust_refine(layout, p, x_all[pick], None, inliers[pick], log_ref, opts)
     for _ in range(2):  # outliers judged on all samples with the polished model, then once more
-        inliers = np.abs(_geometric_residuals(layout, p, x_all, None)) <= opts.outlier_sigmas * sigma
+        inliers = np.abs(geometric_residuals(layout, p, x_all, None)) <= opts.outlier_sigmas * sigma
         if inliers.sum() < MIN_SAMPLES[layout.model]:
             raise FitRefused("not_ellipsoid", "too few samples agree on one ellipsoid", ROTATE_MORE)
         p = _gauss_newton_polish(layout, p, x_all[inliers], sigma, log_ref, opts)
-        sigma = _robust_sigma(_geometric_residuals(layout, p, x_all[inliers], None))
-    sigma = float(np.std(_geometric_residuals(layout, p, x_all[inliers], None)))
+        sigma = _robust_sigma(geometric_residuals(layout, p, x_all[inliers], None))
+    sigma = float(np.std(geometric_residuals(layout, p, x_all[inliers], None)))
     return p, inliers, max(sigma, 1e-12)
 
 
 def _gauss_newton_polish(layout, p, x, sigma, log_ref, opts, max_steps: int = 6) -> NDArray:
     """Gauss–Newton steps with the Sampson weights frozen at each step's start (as :func:`_solve`).
 
-    Each step takes the normal equations at its start (:func:`_normal_equations`, which also
-    gives the step's weights) and the trial point's ρ to decide whether the step is taken.
+    Each step takes the normal equations at its start (which also give the step's weights) and
+    the trial point's ρ to decide whether the step is taken.
     """
 
-    def normal_equations(q):
-        jtj, jtr, cost, w = _normal_equations(layout, q, x, None)
+    def with_priors(q):
+        jtj, jtr, cost, w = normal_equations(layout, q, x, None)
         if log_ref is not None:
-            r_prior, jac_prior = _prior_rows(layout, q, sigma, log_ref, opts)
+            r_prior, jac_prior = prior_rows(layout, q, sigma, log_ref, opts)
             jtj, jtr = jtj + jac_prior.T @ jac_prior, jtr + jac_prior.T @ r_prior
             cost += float(r_prior @ r_prior)
         return jtj, jtr, cost, w
 
-    jtj, jtr, cost, weights = normal_equations(p)
+    jtj, jtr, cost, weights = with_priors(p)
     for _ in range(max_steps):
         step = np.linalg.solve(jtj, jtr)
         q = p - step
         r_q = (mdl.radial(layout, q, x, None) - 1.0) / weights
         cost_q = float(r_q @ r_q)
         if log_ref is not None:
-            r_prior, _ = _prior_rows(layout, q, sigma, log_ref, opts)
+            r_prior, _ = prior_rows(layout, q, sigma, log_ref, opts)
             cost_q += float(r_prior @ r_prior)
         if not np.isfinite(cost_q) or cost_q > cost:
             break  # no further decrease: at the minimum to rounding
         p = q
         if float(np.max(np.abs(step))) <= SETTLED_STEP:
             break
-        jtj, jtr, cost, weights = normal_equations(p)
+        jtj, jtr, cost, weights = with_priors(p)
     return p
-
-
-def _normal_equations(layout, p, x, tau):
-    """JᵀJ, Jᵀr and rᵀr of the Sampson residuals of the samples at ``p`` (weights frozen there),
-    and the weights (|∇ρ| per sample) themselves.  Prior rows are the caller's to add.
-    """
-    jtj = np.zeros((layout.size, layout.size))
-    jtr = np.zeros(layout.size)
-    cost = 0.0
-    weights = np.empty(len(x))
-    for start in range(0, len(x), NORMAL_EQUATIONS_BLOCK):
-        block = slice(start, start + NORMAL_EQUATIONS_BLOCK)
-        rho, jac = mdl.radial_jacobian(layout, p, x[block], None if tau is None else tau[block])
-        weights[block] = w = _sampson_weights(jac)
-        jac = jac / w[:, None]
-        r = (rho - 1.0) / w
-        jtj += jac.T @ jac
-        jtr += jac.T @ r
-        cost += float(r @ r)
-    return jtj, jtr, cost, weights
 
 
 def _robust_sigma(r: NDArray) -> float:
@@ -457,8 +395,8 @@ def _maybe_drift(layout, p, x_all, tau_all, inliers, sigma, log_ref, opts, name)
         except FitRefused:
             break
         both = inliers & inl_d
-        rss0 = float(np.sum(_geometric_residuals(layout, p, x_all[both], None) ** 2))
-        rss1 = float(np.sum(_geometric_residuals(drift_layout, pd, x_all[both], tau_all[both]) ** 2))
+        rss0 = float(np.sum(geometric_residuals(layout, p, x_all[both], None) ** 2))
+        rss1 = float(np.sum(geometric_residuals(drift_layout, pd, x_all[both], tau_all[both]) ** 2))
         info["statistic"] = (rss0 - rss1) / sigma_d**2
         if info["statistic"] <= threshold:
             return info, p, inliers, sigma, layout
@@ -511,10 +449,10 @@ def _fit_window(layout, p, x_all, tau_all, inliers, window, log_ref, opts):
 
 def _covariance(layout, p, x, tau, sigma, log_ref, opts):
     """Parameter covariance σ̂²·(JᵀJ)⁻¹ (σ̂ from the residuals) and the JᵀJ it came from."""
-    gram, _, rss, _ = _normal_equations(layout, p, x, tau)
+    gram, _, rss, _ = normal_equations(layout, p, x, tau)
     s2 = rss / max(len(x) - layout.size, 1)
     if log_ref is not None:  # prior rows, in units of the final noise estimate
-        _, jac_prior = _prior_rows(layout, p, np.sqrt(s2), log_ref, opts)
+        _, jac_prior = prior_rows(layout, p, np.sqrt(s2), log_ref, opts)
         gram = gram + jac_prior.T @ jac_prior
     try:
         cov = s2 * np.linalg.inv(gram)
@@ -539,8 +477,8 @@ def _restricted_model_cost(layout, p, x, sigma, scale, log_ref, opts) -> dict | 
         cov_f, _ = _covariance(full, pf, x, None, sigma, log_ref, opts)
     except FitRefused:
         return None
-    r_restricted = _geometric_residuals(layout, p, x, None)
-    r_full = _geometric_residuals(full, pf, x, None)
+    r_restricted = geometric_residuals(layout, p, x, None)
+    r_full = geometric_residuals(full, pf, x, None)
     extra, dof = full.size - layout.size, len(x) - full.size
     f_stat = ((r_restricted @ r_restricted - r_full @ r_full) / extra) / (r_full @ r_full / dof)
     if not f_stat > stats.f.ppf(1.0 - MISFIT_P_VALUE, extra, dof):
@@ -555,7 +493,7 @@ def _restricted_model_cost(layout, p, x, sigma, scale, log_ref, opts) -> dict | 
     return {"model": layout.model, "residual_ut": float(np.std(r_restricted) * scale),
             "full_model_residual_ut": float(np.std(r_full) * scale),
             "direction_error_deg": float(np.degrees(np.arccos(cos.min()))),
-            "full_model_direction_sigma_deg": _direction_sigma_deg(full, pf, cov_f, x)}
+            "full_model_direction_sigma_deg": direction_sigma_deg(full, pf, cov_f, x)}
 
 
 def _assemble(layout, p, cov, gram, x, tau, centre, scale, keep, inliers, rejected, flat, drift_info,
@@ -569,12 +507,12 @@ def _assemble(layout, p, cov, gram, x, tau, centre, scale, keep, inliers, reject
     s_out = s_n / scale * field_out
     h_out = centre + scale * h_n
     h_sigma = scale * np.sqrt(np.clip(np.diag(cov)[:3], 0, None))
-    soft_sigma = _soft_sigma(layout, cov, field_out / scale)
+    s_sigma = soft_sigma(layout, cov, field_out / scale)
 
     # Determinability: the reported uncertainty itself says whether the data pin the calibration
     # where it will be used — the calibrated field *direction* over the orientations seen.
-    cond = _condition_number(gram)
-    dir_sigma = _direction_sigma_deg(layout, p, cov, x[:: max(1, len(x) // REFINE_SUBSET_SAMPLES)])
+    cond = condition_number(gram)
+    dir_sigma = direction_sigma_deg(layout, p, cov, x[:: max(1, len(x) // REFINE_SUBSET_SAMPLES)])
     # A restricted model's misfit inflates its own σ; whether the motion determined the calibration
     # is then judged with the full model, which the misfit does not touch.
     judged_sigma = misfit["full_model_direction_sigma_deg"] if misfit else dir_sigma
@@ -591,7 +529,7 @@ def _assemble(layout, p, cov, gram, x, tau, centre, scale, keep, inliers, reject
 
     cal = (x - h_n - (np.outer(tau, drift) if tau is not None else 0.0)) @ s_n * field_out
     residuals = np.linalg.norm(cal, axis=1) - field_out
-    geo = _geometric_residuals(layout, p, x, tau) * scale
+    geo = geometric_residuals(layout, p, x, tau) * scale
     noise = float(np.std(geo))
     fit_residual = misfit["full_model_residual_ut"] if misfit else np.sqrt(np.mean(geo**2))
     if fit_residual > opts.max_residual_fraction * field_est:
@@ -610,45 +548,9 @@ def _assemble(layout, p, cov, gram, x, tau, centre, scale, keep, inliers, reject
         model=layout.model, hard_iron_ut=h_out, soft_iron=s_out, field_ut=field_out,
         field_estimate_ut=field_est, field_sigma_ut=field_sigma, reference_field_ut=opts.field_ut,
         raw_to_reference_ratio=ratio, raw_to_reference_sigma=ratio_sigma,
-        hard_iron_sigma_ut=h_sigma, soft_iron_sigma=soft_sigma, residuals_ut=residuals, used=used,
+        hard_iron_sigma_ut=h_sigma, soft_iron_sigma=s_sigma, residuals_ut=residuals, used=used,
         samples_total=n_total, rejected=rejected,
         coverage=coverage_fraction(cal, opts.coverage_bins), coverage_bins=opts.coverage_bins,
         planarity=flat, condition_number=cond, direction_sigma_deg=dir_sigma, drift=drift_info,
         noise_ut=noise, model_misfit=misfit,
     )
-
-
-def _condition_number(gram: NDArray) -> float:
-    """Condition number of the column-normalised Jacobian, from its Gram matrix JᵀJ (at most
-    12×12, where an SVD of the tall Jacobian would cost as much as a 100 000-sample fit); NaN when
-    singular.  The squared condition it works with is exact enough for a figure whose use is
-    "finite, and how large"."""
-    norms = np.sqrt(np.diag(gram))
-    if not np.all(np.isfinite(gram)) or np.any(norms <= 0):
-        return float("nan")
-    eig = np.linalg.eigvalsh(gram / np.outer(norms, norms))
-    return float(np.sqrt(eig[-1] / eig[0])) if eig[0] > 0 else float("nan")
-
-
-def _direction_sigma_deg(layout: mdl.Layout, p: NDArray, cov: NDArray, x: NDArray) -> float:
-    """Largest 1σ error (degrees) of the calibrated field direction over the samples seen.
-
-    First-order propagation of the parameter covariance (drift terms excluded: end state):
-    the variance of each sample's direction is |∂u/∂p · L|² with Σ = L·Lᵀ.
-    """
-    core = 3 + layout.n_soft
-    w, vecs = np.linalg.eigh(cov[:core, :core])
-    root = vecs * np.sqrt(np.clip(w, 0, None))  # Σ = root·rootᵀ, also when Σ is only semi-definite
-    _, du = mdl.direction_jacobian(layout, p, x)
-    spread = root.T @ du.reshape(core, -1)  # (core, 3·n): one product for all samples
-    return float(np.degrees(np.sqrt(np.square(spread).sum(axis=0).reshape(3, -1).sum(axis=0).max())))
-
-
-def _soft_sigma(layout: mdl.Layout, cov: NDArray, factor: float) -> NDArray:
-    var = np.clip(np.diag(cov)[layout.soft_slice], 0, None)
-    sig = np.sqrt(var) * factor
-    if layout.model == "sphere":
-        return np.eye(3) * sig[0]
-    if layout.model == "diagonal":
-        return np.diag(sig)
-    return mdl.soft_matrix("full", sig)
