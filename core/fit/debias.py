@@ -142,8 +142,9 @@ def estimate_bias(layout: mdl.Layout, p_hat: NDArray, x: NDArray, tau: NDArray |
     for iteration in range(2, MAX_ITERATIONS + 1):
         # the same noise draws at every step: the bias becomes a smooth function of the
         # parameters, so the substitution converges instead of wandering with Monte Carlo noise
-        means = pair_means(layout, p_hat - bias, x, tau, residual_fn, noise)
-        new = bias + RELAXATION * (means.mean(axis=0) - (p_hat - bias) - bias)
+        candidate = p_hat - bias
+        means = pair_means(layout, candidate, x, tau, residual_fn, noise)
+        new = bias + RELAXATION * ((means.mean(axis=0) - candidate) - bias)  # the bias at the candidate
         step = float(np.max(np.abs(new - bias) / param_sigma))
         bias = new
         largest = float(np.max(np.abs(bias) / param_sigma)) if np.all(np.isfinite(bias)) else np.inf

@@ -86,25 +86,25 @@ def unpack(layout: Layout, p: NDArray) -> tuple[NDArray, NDArray, NDArray]:
 # The functions below work with the samples along the last axis (3 × n): numpy then runs along
 # long contiguous rows instead of rows of three, several times faster on a 600-sample fit.
 
-def _centred(layout: Layout, p: NDArray, x: NDArray, tau: NDArray | None) -> tuple[NDArray, NDArray, NDArray]:
-    """(S, drift, d): the soft-iron matrix, the drift and the centred samples x − h − drift·τ (3 × n)."""
+def _centred(layout: Layout, p: NDArray, x: NDArray, tau: NDArray | None) -> tuple[NDArray, NDArray]:
+    """(S, d): the soft-iron matrix and the centred samples d = x − h − drift·τ (3 × n)."""
     h, s, drift = unpack(layout, p)
     d = x.T - h[:, None]
     if layout.drift and tau is not None:
         d = d - np.outer(drift, tau)
-    return s, drift, d
+    return s, d
 
 
 def radial(layout: Layout, p: NDArray, x: NDArray, tau: NDArray | None) -> NDArray:
     """ρ = |S·(x − h − drift·τ)| per sample: the calibrated radius (1 on the model)."""
-    s, _, d = _centred(layout, p, x, tau)
+    s, d = _centred(layout, p, x, tau)
     v = s @ d
     return np.sqrt(np.einsum("ij,ij->j", v, v))
 
 
 def radial_gradient(layout: Layout, p: NDArray, x: NDArray, tau: NDArray | None) -> tuple[NDArray, NDArray]:
     """(ρ, ∇ρ) per sample; ∇ρ = ∂ρ/∂x = S·S·d/ρ is returned as a 3 × n array."""
-    s, _, d = _centred(layout, p, x, tau)
+    s, d = _centred(layout, p, x, tau)
     v = s @ d
     rho = np.sqrt(np.einsum("ij,ij->j", v, v))
     return rho, (s @ v) / rho
@@ -135,7 +135,7 @@ def radial_jacobian(layout: Layout, p: NDArray, x: NDArray, tau: NDArray | None)
     Computed with the samples along the last axis (3 × n, parameters × n), where numpy works on
     long contiguous rows; the (n, parameters) Jacobian returned is a transposed view of that.
     """
-    s, _, d = _centred(layout, p, x, tau)
+    s, d = _centred(layout, p, x, tau)
     v = s @ d
     rho = np.sqrt(np.einsum("ij,ij->j", v, v))
     inv_rho = 1.0 / rho
