@@ -286,7 +286,8 @@ def _robust_refine(layout, p, x_all, tau_all, inliers, log_ref, opts):
         if new.sum() < MIN_SAMPLES[layout.model]:
             raise FitRefused("not_ellipsoid", "too few samples agree on one ellipsoid", ROTATE_MORE)
         inliers = new
-    sigma = float(np.std(geometric_residuals(layout, p, x_all[inliers], _take(tau_all, inliers))))
+    # r is at the final p over all samples (a last re-judging does not move p)
+    sigma = float(np.std(r[inliers]))
     return p, inliers, max(sigma, 1e-12)
 
 
@@ -307,8 +308,9 @@ def _refine_large(layout, x_all, inliers, log_ref, opts):
         if inliers.sum() < MIN_SAMPLES[layout.model]:
             raise FitRefused("not_ellipsoid", "too few samples agree on one ellipsoid", ROTATE_MORE)
         p = _gauss_newton_polish(layout, p, x_all[inliers], sigma, log_ref, opts)
-        sigma = _robust_sigma(geometric_residuals(layout, p, x_all[inliers], None))
-    sigma = float(np.std(geometric_residuals(layout, p, x_all[inliers], None)))
+        r = geometric_residuals(layout, p, x_all[inliers], None)
+        sigma = _robust_sigma(r)
+    sigma = float(np.std(r))
     return p, inliers, max(sigma, 1e-12)
 
 
