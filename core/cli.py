@@ -78,9 +78,9 @@ def _err(message: str) -> None:
 
 def _load(path: str | None, plugins: Plugins) -> tuple[Station, Path]:
     """Load a station file (or the embedded demo) and check the names it uses against the plugins."""
-    if path is None:
+    if path is None:  # the embedded demo keeps its files in the directory magline runs in
         with as_file(files("magline.stations") / DEMO) as demo:
-            text, name, where = read_station_text(demo), str(demo), demo.parent
+            text, name, where = read_station_text(demo), str(demo), Path.cwd()
     else:
         text, name, where = read_station_text(path), path, Path(path).parent
     station = load_station_text(text, name)

@@ -20,6 +20,8 @@ from typing import TYPE_CHECKING, Any, Literal, Protocol, TypeVar, runtime_check
 from numpy.typing import NDArray
 from pydantic import BaseModel, ValidationError
 
+from magline.core.faults import StationFault
+
 if TYPE_CHECKING:
     from magline.core.fit import FitResult
     from magline.core.station.schema import Product
@@ -28,7 +30,30 @@ ParamValue = int | float
 
 
 class DutError(RuntimeError):
-    """A DUT-side failure (link lost, parameter refused, sensor missing) with its cause."""
+    """The unit itself failed: its firmware refused the calibration, its magnetometer is missing, the
+    calibration did not survive the power cycle.  The sequencer books the unit as FAIL."""
+
+
+class LinkError(DutError, StationFault):
+    """The station could not talk to the unit: nothing answers, the link was lost or closed, a
+    deadline of the station's own link passed.  The sequencer books the unit as ERROR (it was not
+    judged).  A subclass of :class:`DutError` so that code which only cleans up after any DUT
+    problem (``except DutError``) keeps working."""
+
+
+class NotRestored(DutError):
+    """:meth:`DutBackend.restore` could not put back what :meth:`DutBackend.prepare` changed.
+
+    ``left_changed`` names each parameter with the value it is left at and the one it should have
+    (``{"COMPASS_LEARN": "0 (was 3)"}``); ``cause`` is the real reason (usually the link).  The unit
+    must not ship: the sequencer tells the record and the operator to re-test it.
+    """
+
+    def __init__(self, cause: str, left_changed: dict[str, str]) -> None:
+        changed = ", ".join(f"{k} left at {v}" for k, v in left_changed.items())
+        super().__init__(f"the unit could not be restored ({cause}): {changed}")
+        self.cause = cause
+        self.left_changed = left_changed
 
 
 @dataclass
@@ -45,11 +70,16 @@ class UnitInfo:
 
 @dataclass
 class SampleChunk:
-    """Raw samples of the selected magnetometer, µT, with their time stamps (ms)."""
+    """Distinct raw readings of the selected magnetometer, µT, with their time stamps (ms).
+
+    A backend whose stream repeats readings (a stream faster than the sensor) passes each reading
+    once and says in ``repeats`` how many copies it dropped since the previous chunk.
+    """
 
     mag_ut: NDArray
     t_ms: NDArray
     temp_c: NDArray | None = None
+    repeats: int = 0
 
 
 @runtime_checkable
@@ -61,7 +91,8 @@ class DutBackend(Protocol):
         """Stop the firmware rewriting calibration during the test; remember what to restore."""
 
     def samples(self, rate_hz: float) -> Iterator[SampleChunk]:
-        """Stream raw (uncalibrated) samples until the caller stops iterating."""
+        """Stream raw (uncalibrated) readings until the caller stops iterating, each reading once
+        (copies a fast stream repeats are dropped and counted in ``SampleChunk.repeats``)."""
 
     def calibration_params(self, fit: FitResult) -> dict[str, ParamValue]:
         """Map a fit to this autopilot's parameters (units and sign convention applied here)."""
@@ -93,7 +124,8 @@ class DutBackend(Protocol):
         (ArduPilot: "Compass not calibrated" when the device id was not saved); empty when fine."""
 
     def restore(self) -> None:
-        """Put back what :meth:`prepare` changed (called at the end of every run, also on errors)."""
+        """Put back what :meth:`prepare` changed, in RAM *and* storage (called at the end of every run,
+        also on errors); raise :class:`NotRestored` naming what is left changed when it cannot."""
 
     def close(self) -> None:
         """Release the link."""
@@ -120,8 +152,8 @@ def await_new_boot(reconnect: Callable[[float], None], uptime_s: Callable[[], fl
         try:
             reconnect(max(deadline - time.monotonic(), 0.1))
         except DutError as exc:
-            raise DutError(f"the vehicle did not come back within {timeout_s:g} s of the power cycle "
-                           f"(last attempt: {exc})") from None
+            raise LinkError(f"the vehicle did not come back within {timeout_s:g} s of the power cycle "
+                            f"(last attempt: {exc})") from None
         reconnected = time.monotonic() - started
         uptime = uptime_s()
         if uptime is not None and uptime < reconnected:

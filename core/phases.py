@@ -13,8 +13,9 @@ from contextlib import closing
 
 import numpy as np
 
-from magline.core.dut import DutError, ParamValue
-from magline.core.fit import CoverageTracker, FitOptions, FitResult, fit_calibration
+from magline.core.dut import DutError, ParamValue, SampleChunk
+from magline.core.faults import StationFault, UnitAborted
+from magline.core.fit import CoverageTracker, FitOptions, FitResult, coverage_of, fit_calibration
 from magline.core.fit.samples_csv import RawSamples
 from magline.core.measurements import Array, Json, Measurement, Numeric
 from magline.core.plugins import hookimpl
@@ -24,42 +25,82 @@ from magline.core.sequencer.context import Acquisition, AcquisitionAborted, RunC
 
 @hookimpl(trylast=True)
 def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
+    """Read distinct readings until ``acquisition.samples`` arrived (the count is of readings, not
+    of stream messages: a stream faster than the sensor repeats readings, which the backend drops)."""
     cfg = run.station.acquisition
     dut = run.require_dut()
     run.prompt(run.station.prompts.tumble if attempt == 1 else run.retry_advice or run.station.prompts.retry)
     tracker = CoverageTracker(cfg.coverage_bins)
-    mags, times, temps = [], [], []
-    count = 0
-    deadline = time.monotonic() + cfg.timeout_s
+    got = _Readings()
+    started = time.monotonic()
+    deadline = started + cfg.timeout_s
     try:
         with closing(dut.samples(cfg.rate_hz)) as stream:
             for chunk in stream:
-                mags.append(np.atleast_2d(chunk.mag_ut))
-                times.append(np.atleast_1d(chunk.t_ms))
-                if chunk.temp_c is not None:
-                    temps.append(np.atleast_1d(chunk.temp_c))
-                count += len(mags[-1])
-                coverage = tracker.add(mags[-1])
-                run.progress(attempt, count, coverage, cfg.coverage_target)
-                if count >= cfg.samples:
+                taken = got.add(chunk, room=cfg.samples - got.count)
+                coverage = tracker.add(taken)
+                run.progress(attempt, got.count, coverage, cfg.coverage_target)
+                if got.count >= cfg.samples:
                     break
                 if time.monotonic() > deadline:
-                    raise DutError(f"only {count} of {cfg.samples} samples within {cfg.timeout_s:.0f} s")
-    except DutError as exc:
-        partial = _acquisition(attempt, mags, times, temps, cfg.samples, cfg.coverage_bins, cfg.coverage_target)
-        raise AcquisitionAborted(str(exc), partial) from exc
-    if count == 0:
+                    raise StationFault(_too_slow(got, cfg.samples, cfg.timeout_s, time.monotonic() - started))
+                run.check_abort()
+    except (Exception, UnitAborted) as exc:
+        raise AcquisitionAborted(got.acquisition(attempt, cfg.coverage_bins, cfg.coverage_target), exc) from exc
+    if got.count == 0:
         raise DutError("the DUT sent no samples")
-    return _acquisition(attempt, mags, times, temps, cfg.samples, cfg.coverage_bins, cfg.coverage_target)
+    result = got.acquisition(attempt, cfg.coverage_bins, cfg.coverage_target)
+    run.progress(attempt, got.count, result.coverage, cfg.coverage_target)  # the end adds its own checkpoint
+    return result
 
 
-def _acquisition(attempt: int, mags: list, times: list, temps: list, limit: int, bins: int,
-                 target: float) -> Acquisition:
-    mag = np.vstack(mags)[:limit] if mags else np.empty((0, 3))
-    samples = RawSamples(mag_ut=mag, t_ms=np.concatenate(times)[: len(mag)] if times else np.empty(0),
-                         temp_c=np.concatenate(temps)[: len(mag)] if temps and len(temps) == len(mags) else None)
-    coverage = CoverageTracker(bins, refit_every=1).add(mag) if len(mag) else 0.0
-    return Acquisition(attempt=attempt, samples=samples, coverage=coverage, target=target)
+class _Readings:
+    """What an attempt received so far: readings, times, temperatures, repeats dropped."""
+
+    def __init__(self) -> None:
+        self.mags: list[np.ndarray] = []
+        self.times: list[np.ndarray] = []
+        self.temps: list[np.ndarray] = []
+        self.count = 0
+        self.repeats = 0
+
+    def add(self, chunk: SampleChunk, room: int) -> np.ndarray:
+        """Keep at most ``room`` readings of the chunk (an attempt is exactly the samples asked for)."""
+        mag = np.atleast_2d(chunk.mag_ut)[:room]
+        self.mags.append(mag)
+        self.times.append(np.atleast_1d(chunk.t_ms)[: len(mag)])
+        if chunk.temp_c is not None:
+            self.temps.append(np.atleast_1d(chunk.temp_c)[: len(mag)])
+        self.count += len(mag)
+        self.repeats += chunk.repeats
+        return mag
+
+    def acquisition(self, attempt: int, bins: int, target: float) -> Acquisition:
+        mag = np.vstack(self.mags) if self.mags else np.empty((0, 3))
+        t_ms = np.concatenate(self.times) if self.times else np.empty(0)
+        temps = self.temps if self.temps and len(self.temps) == len(self.mags) else None
+        samples = RawSamples(mag_ut=mag, t_ms=t_ms, temp_c=np.concatenate(temps) if temps else None)
+        return Acquisition(attempt=attempt, samples=samples, coverage=coverage_of(mag, bins), target=target,
+                           repeats=self.repeats, sensor_rate_hz=_rate_hz(t_ms))
+
+
+def _rate_hz(t_ms: np.ndarray) -> float | None:
+    """Distinct readings per second over the attempt (None below two readings or without time)."""
+    if len(t_ms) < 2 or not np.all(np.isfinite(t_ms)) or t_ms[-1] <= t_ms[0]:
+        return None
+    return float((len(t_ms) - 1) / ((t_ms[-1] - t_ms[0]) / 1000.0))
+
+
+def _too_slow(got: _Readings, wanted: int, timeout_s: float, elapsed_s: float) -> str:
+    """The station's configuration asks more of the sensor than it delivers within the timeout."""
+    if got.count == 0:
+        return f"no readings within {timeout_s:g} s"
+    rate = got.count / elapsed_s
+    copies = f"; the stream carried each about {(got.count + got.repeats) / got.count:.0f} times" \
+        if got.repeats else ""
+    return (f"only {got.count} of {wanted} readings within {timeout_s:g} s: the sensor delivers about "
+            f"{rate:.0f} readings/s{copies}, so {wanted} readings take about {wanted / rate:.0f} s — raise "
+            "acquisition.timeout_s or lower acquisition.samples")
 
 
 @hookimpl(trylast=True)

@@ -15,11 +15,12 @@ from pathlib import Path
 from typing import Protocol, runtime_checkable
 
 from magline.core.dut import DutBackend
+from magline.core.faults import StationFault
 from magline.core.plugins import hookimpl
 from magline.core.station.schema import PowerConfig
 
 
-class PowerError(RuntimeError):
+class PowerError(StationFault):
     """The fixture itself failed (supply error, command failed): the unit *errors*, it does not fail."""
 
 

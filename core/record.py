@@ -16,10 +16,16 @@ from magline.core.measurements import Attachment, Measurement
 
 
 class Outcome(StrEnum):
+    """A phase's or a unit's outcome.  FAIL: the unit was judged bad.  ERROR: the station could not
+    judge it.  ABORTED: the operator stopped it.  INCOMPLETE: only in a store — the process writing
+    the record died before it finished (see :mod:`magline.core.faults`)."""
+
     PASS = "pass"
     FAIL = "fail"
     ERROR = "error"
+    ABORTED = "aborted"
     SKIPPED = "skipped"
+    INCOMPLETE = "incomplete"
 
 
 def now_iso() -> str:
@@ -43,7 +49,9 @@ class AttemptRecord:
     target: float
     raw_csv: str
     accepted: bool = False
-    refused: str | None = None  # why the fit could not use these samples, when it could not
+    refused: str | None = None  # why these samples were not used: low coverage, the fit's refusal, interrupted
+    repeats: int = 0  # copies of readings the stream carried and the backend dropped
+    sensor_rate_hz: float | None = None  # distinct readings per second actually received
 
 
 @dataclass
@@ -90,3 +98,9 @@ class RunRecord:
     persistence: dict[str, Any] = field(default_factory=dict)
     attachments: list[Attachment] = field(default_factory=list)
     run_id: int | None = None
+    store: str = ""  # where the record is kept (the sink's own words: a file, a server)
+    aborted_phase: str | None = None  # the phase the operator stopped the unit in
+    left_changed: dict[str, str] = field(default_factory=dict)  # DUT parameters not restored: name → state
+    unverified_params: list[str] = field(default_factory=list)  # written, but the power cycle was not proven
+    earlier_runs: int = 0  # runs of this serial already in the store (0: first test)
+    earlier_passes: int = 0  # of those, how many passed (a re-test of a passed unit is said)

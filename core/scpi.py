@@ -11,8 +11,10 @@ from __future__ import annotations
 
 from typing import Any
 
+from magline.core.faults import StationFault
 
-class InstrumentError(RuntimeError):
+
+class InstrumentError(StationFault):
     """The instrument is unreachable, silent, or reported an error in its queue."""
 
 

@@ -15,6 +15,9 @@ from magline.core.sequencer import Sequencer
 from magline.core.station import load_station
 
 FAST_ACQUISITION = {"samples": 400, "rate_hz": 200.0, "retry_delay_s": 0.0, "timeout_s": 30.0}
+# The simulated sensors publish at this rate in the backend tests: slower than the 200 Hz stream, so
+# every test sees repeated readings as a real vehicle sends them, yet 400 readings take 4 s, not 40.
+FAST_SENSOR_HZ = 100.0
 
 
 def write_station(example: str, tmp_path: Path, address: str, options: dict | None = None,

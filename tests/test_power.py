@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from simstation import run_unit, write_station
+from simstation import FAST_SENSOR_HZ, run_unit, write_station
 
 from magline.core.cli import main
 from magline.core.plugins import load_plugins
@@ -36,7 +36,8 @@ def px4_station(tmp_path, sim, options=None, power=None):
 
 def px4_sim(workdir, save_duration_s: float = 1.5):
     # the autosave is due 300 ms after the writes and then runs 1.5 s (a slow flash)
-    return create_sim("px4", "udp:127.0.0.1:0", workdir=workdir, seed=5, boot_time_s=0.3, speed=5.0,
+    return create_sim("px4", "udp:127.0.0.1:0", mag_rate_hz=FAST_SENSOR_HZ,
+                      workdir=workdir, seed=5, boot_time_s=0.3, speed=5.0,
                       save_duration_s=save_duration_s, autosave_interval_s=0.0)
 
 
@@ -113,7 +114,7 @@ def test_command_method_drives_a_simulator_process_off_and_on(tmp_path):
     fc.mkdir()
     pidfile = str(tmp_path / "sim.pid")
     sim_args = ["ardupilot", "--listen", f"tcp:127.0.0.1:{port}", "--workdir", str(fc), "--boot-time", "0.2",
-                "--speed", "5", "--seed", "3"]
+                "--speed", "5", "--seed", "3", "--mag-rate", str(FAST_SENSOR_HZ)]
     switch = [sys.executable, str(HERE / "power_switch.py")]
     on = [*switch, "on", pidfile, "--", *sim_args]
     assert subprocess.run(on, timeout=30).returncode == 0  # the fixture powers the unit up
@@ -132,7 +133,8 @@ def test_command_method_drives_a_simulator_process_off_and_on(tmp_path):
 
 
 def test_a_failing_power_command_errors_the_unit_and_final_state_is_restored(tmp_path):
-    with create_sim("ardupilot", "tcp:127.0.0.1:0", workdir=tmp_path / "fc", seed=5, boot_time_s=0.2,
+    with create_sim("ardupilot", "tcp:127.0.0.1:0", mag_rate_hz=FAST_SENSOR_HZ,
+                      workdir=tmp_path / "fc", seed=5, boot_time_s=0.2,
                     speed=5.0) as sim:
         marker = tmp_path / "powered-on-again"
         power = {"method": "command", "options": {
@@ -161,7 +163,8 @@ def test_a_third_party_power_control_plugs_in(tmp_path):
     from magline.core.sequencer import Sequencer
     from magline.core.station import load_station
 
-    with create_sim("ardupilot", "tcp:127.0.0.1:0", workdir=tmp_path / "fc", seed=5, boot_time_s=0.2,
+    with create_sim("ardupilot", "tcp:127.0.0.1:0", mag_rate_hz=FAST_SENSOR_HZ,
+                      workdir=tmp_path / "fc", seed=5, boot_time_s=0.2,
                     speed=5.0) as sim:
         class Relay:
             method = "acme-relay"

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import sqlite3
 import subprocess
 import sys
@@ -30,14 +31,19 @@ def rows(db: Path, sql: str, *args) -> list[tuple]:
 
 
 def test_demo_command_passes_after_exactly_one_retry(tmp_path):
-    """The README's first command, as a user runs it: real process, real files."""
+    """The README's first command, as a user runs it: real process, real files.  The station file
+    lives elsewhere than the shell's directory: its relative results path is relative to the file."""
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    proc = subprocess.run([sys.executable, "-m", "magline.core.cli", "run", str(REPO / "stations" / "demo.yaml"),
+    line = tmp_path / "line"
+    line.mkdir()
+    shutil.copy(REPO / "stations" / "demo.yaml", line / "demo.yaml")
+    proc = subprocess.run([sys.executable, "-m", "magline.core.cli", "run", str(line / "demo.yaml"),
                            "--serial", "SN-0001"], cwd=tmp_path, capture_output=True, text=True, timeout=120,
                           env=env, stdin=subprocess.DEVNULL)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "PASS" in proc.stdout and "\x1b[" not in proc.stdout  # plain text when not a terminal
-    db = tmp_path / "magline-demo-results.sqlite"
+    assert not (tmp_path / "magline-demo-results.sqlite").exists()
+    db = line / "magline-demo-results.sqlite"
     (verdict, calibration), = rows(db, "SELECT verdict, calibration FROM runs WHERE serial='SN-0001'")
     assert verdict == "pass"
     attempts = rows(db, "SELECT attempt, coverage, accepted, raw_csv FROM attempts ORDER BY attempt")
@@ -195,10 +201,11 @@ def test_loop_mode_prompts_for_serials_until_eof(make_station, monkeypatch, caps
     assert "PASS" in capsys.readouterr().out
 
 
-def test_connect_failure_is_a_fail_with_cause(make_station):
+def test_a_unit_that_does_not_answer_is_an_error_not_a_fail(make_station):
+    """Nothing answering is the station's problem (cable, supply): the unit was never judged."""
     path = make_station({"products": {"MOCK-100": {"options": {"faults": {"fail_connect": True}}}}})
     record = run_station(path)
-    assert record.verdict is Outcome.FAIL and "does not answer" in record.cause
+    assert record.verdict is Outcome.ERROR and "does not answer" in record.cause
 
 
 def test_unknown_part_is_an_error(make_station):

@@ -10,8 +10,10 @@ from __future__ import annotations
 
 from typing import Protocol, runtime_checkable
 
+from magline.core.faults import StationFault
 
-class FieldSourceError(RuntimeError):
+
+class FieldSourceError(StationFault):
     """The cell's field cannot be trusted (reference disagrees with the model, drifts, coil fault).
 
     The sequencer stops the batch: no further unit is calibrated until the station is restarted

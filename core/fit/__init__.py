@@ -4,7 +4,7 @@ The sequencer's default fit hook calls :func:`fit_calibration`; a plugin can rep
 the ``magline_fit`` hook.
 """
 
-from magline.core.fit.coverage import CoverageTracker, coverage_fraction, fibonacci_sphere
+from magline.core.fit.coverage import CoverageTracker, coverage_fraction, coverage_of, fibonacci_sphere
 from magline.core.fit.geometric import fit_calibration
 from magline.core.fit.result import FitOptions, FitRefused, FitResult
 
@@ -14,6 +14,7 @@ __all__ = [
     "FitRefused",
     "FitResult",
     "coverage_fraction",
+    "coverage_of",
     "fibonacci_sphere",
     "fit_calibration",
 ]

@@ -1,7 +1,18 @@
-"""Direction coverage on Fibonacci-sphere bins.
+"""Direction coverage: the one definition used everywhere (live bar, phase log, the ``coverage``
+measurement, ``magline fit``).
 
 Why Fibonacci bins: they split the sphere into cells of (nearly) equal area for any count, so
 "fraction of bins hit" means "fraction of the sphere seen" whatever bin count a station chooses.
+
+The definition, :func:`coverage_of`, is a function of the samples *in the order they arrived*:
+every :data:`CHECK_EVERY` samples (and at the end) the centre of the readings is estimated by an
+algebraic sphere fit of all samples so far; the samples are binned by their direction about that
+centre (all of them again when the centre moved by more than :data:`RECENTRE_TOL` of the radius
+since the last binning, else only the new ones), and the coverage is the highest fraction reached
+at any checkpoint.  So the figure never decreases while an attempt's samples arrive, and the live
+bar's last value, the attempt's figure and the fit's measurement are the same number: no
+calibration is needed to compute it (hard iron dominates the raw offset; soft iron only tilts
+directions a little).
 """
 
 from __future__ import annotations
@@ -11,7 +22,8 @@ from functools import lru_cache
 import numpy as np
 from numpy.typing import NDArray
 
-from magline.core.fit.algebraic import AlgebraicFitError, fit_sphere
+CHECK_EVERY = 25  # samples between checkpoints of the centre estimate
+RECENTRE_TOL = 0.01  # re-bin every sample when the centre moved by more than this share of the radius
 
 
 @lru_cache(maxsize=16)
@@ -39,39 +51,84 @@ def bin_index(directions: NDArray, n_bins: int) -> NDArray:
 
 
 def coverage_fraction(directions: NDArray, n_bins: int) -> float:
-    """Fraction of the ``n_bins`` bins that hold at least one direction."""
+    """Fraction of the ``n_bins`` bins that hold at least one direction (about a known centre)."""
     if len(directions) == 0:
         return 0.0
     return float(np.unique(bin_index(directions, n_bins)).size / n_bins)
 
 
-class CoverageTracker:
-    """Live coverage while samples arrive, before any calibration exists.
+def coverage_of(samples_ut: NDArray, n_bins: int, *, final: bool = True) -> float:
+    """The coverage of raw samples in arrival order (see the module docstring).
 
-    The centre is re-estimated with a linear sphere fit as data accumulates (hard iron dominates
-    the raw offset, soft iron only tilts directions a little), so the operator sees a figure that
-    converges to the post-fit coverage.
+    ``final=False`` evaluates only the checkpoints reached so far, not the end: what the live bar
+    shows while more samples are coming (the end of the attempt adds the last evaluation).
+    """
+    x = np.atleast_2d(np.asarray(samples_ut, float)) if len(samples_ut) else np.empty((0, 3))
+    n = len(x)
+    checkpoints = list(range(CHECK_EVERY, n + 1, CHECK_EVERY))
+    if final and n and (not checkpoints or checkpoints[-1] != n):
+        checkpoints.append(n)
+    if not checkpoints:
+        return 0.0
+    centres, radii = _prefix_sphere_centres(x, np.array(checkpoints))
+    hits = np.zeros(n_bins, dtype=bool)
+    best, binned, centre = 0.0, 0, None
+    for k, c, r in zip(checkpoints, centres, radii, strict=True):
+        if centre is None or np.linalg.norm(c - centre) > RECENTRE_TOL * r:
+            centre, binned = c, 0
+            hits[:] = False
+        hits[bin_index(x[binned:k] - centre, n_bins)] = True
+        binned = k
+        best = max(best, float(hits.mean()))
+    return best
+
+
+def _prefix_sphere_centres(x: NDArray, ends: NDArray) -> tuple[NDArray, NDArray]:
+    """Centre and radius of the algebraic sphere fit of ``x[:k]`` for every ``k`` in ``ends``.
+
+    ``|x|² = 2c·x + d`` solved by least squares for each prefix at once from cumulative normal
+    equations; a prefix that cannot determine a sphere (too few or coplanar points) takes the
+    mean as its centre.
+    """
+    shift = x[: ends[0]].mean(axis=0)  # conditioning only: the fit is shift-invariant
+    y = x - shift
+    rows = np.column_stack([2.0 * y, np.ones(len(y))])
+    rhs = np.einsum("ij,ij->i", y, y)
+    gram = np.cumsum(rows[:, :, None] * rows[:, None, :], axis=0)[ends - 1]
+    moment = np.cumsum(rows * rhs[:, None], axis=0)[ends - 1]
+    centres = np.empty((len(ends), 3))
+    radii = np.empty(len(ends))
+    for i, (g, m, k) in enumerate(zip(gram, moment, ends, strict=True)):
+        if k >= 4 and np.linalg.cond(g) < 1e12:
+            sol = np.linalg.solve(g, m)
+            c, d = sol[:3], sol[3]
+            r2 = d + c @ c
+        else:
+            c, r2 = y[:k].mean(axis=0), 0.0
+        if r2 <= 0:
+            r2 = float(np.mean(np.sum((y[:k] - c) ** 2, axis=1)))
+        centres[i], radii[i] = c + shift, np.sqrt(max(r2, 1e-12))
+    return centres, radii
+
+
+class CoverageTracker:
+    """Live coverage while samples arrive: :func:`coverage_of` at each checkpoint reached.
+
+    The value only changes when a checkpoint is crossed, never decreases, and the attempt's own
+    figure (``coverage_of`` of all its samples) is at least the last value shown.
     """
 
-    def __init__(self, n_bins: int, refit_every: int = 25) -> None:
+    def __init__(self, n_bins: int) -> None:
         self.n_bins = n_bins
-        self.refit_every = refit_every
         self._samples: list[NDArray] = []
-        self._centre: NDArray | None = None
-        self._since_fit = 0
+        self._count = 0
         self.fraction = 0.0
 
     def add(self, samples_ut: NDArray) -> float:
         samples_ut = np.atleast_2d(np.asarray(samples_ut, float))
+        before = self._count // CHECK_EVERY
         self._samples.append(samples_ut)
-        self._since_fit += len(samples_ut)
-        if self._centre is None or self._since_fit >= self.refit_every:
-            self._since_fit = 0
-            data = np.vstack(self._samples)
-            if len(data) >= 10:
-                try:
-                    self._centre, _ = fit_sphere(data)
-                except AlgebraicFitError:
-                    self._centre = data.mean(axis=0)
-                self.fraction = coverage_fraction(data - self._centre, self.n_bins)
+        self._count += len(samples_ut)
+        if self._count // CHECK_EVERY > before:
+            self.fraction = coverage_of(np.vstack(self._samples), self.n_bins, final=False)
         return self.fraction

@@ -20,7 +20,7 @@ from scipy import stats
 
 from magline.core.fit import model as mdl
 from magline.core.fit.algebraic import AlgebraicFitError, fit_ellipsoid, fit_sphere
-from magline.core.fit.coverage import coverage_fraction
+from magline.core.fit.coverage import coverage_of
 from magline.core.fit.debias import corrected_covariance, estimate_bias
 from magline.core.fit.objective import (
     geometric_residuals,
@@ -116,7 +116,7 @@ def fit_calibration(
         p, cov, applied = _remove_bias(layout, p, x, tau_in, sigma, scale, log_ref, opts, cov)
     misfit = _restricted_model_cost(layout, p, x, sigma, scale, log_ref, opts)
     result = _assemble(layout, p, cov, gram, x, tau_in, centre, scale, keep, inliers, rejected, flat,
-                       drift_info, opts, len(m), misfit)
+                       drift_info, opts, len(m), coverage_of(m, opts.coverage_bins), misfit)
     result.bias_correction = applied
     return result
 
@@ -499,7 +499,7 @@ def _restricted_model_cost(layout, p, x, sigma, scale, log_ref, opts) -> dict | 
 
 
 def _assemble(layout, p, cov, gram, x, tau, centre, scale, keep, inliers, rejected, flat, drift_info,
-              opts, n_total, misfit=None) -> FitResult:
+              opts, n_total, coverage, misfit=None) -> FitResult:
     h_n, s_n, drift = mdl.unpack(layout, p)
     log_r = mdl.log_raw_radius(layout, p)
     field_est = float(scale * np.exp(log_r))
@@ -552,7 +552,7 @@ def _assemble(layout, p, cov, gram, x, tau, centre, scale, keep, inliers, reject
         raw_to_reference_ratio=ratio, raw_to_reference_sigma=ratio_sigma,
         hard_iron_sigma_ut=h_sigma, soft_iron_sigma=s_sigma, residuals_ut=residuals, used=used,
         samples_total=n_total, rejected=rejected,
-        coverage=coverage_fraction(cal, opts.coverage_bins), coverage_bins=opts.coverage_bins,
+        coverage=coverage, coverage_bins=opts.coverage_bins,
         planarity=flat, condition_number=cond, direction_sigma_deg=dir_sigma, drift=drift_info,
         noise_ut=noise, model_misfit=misfit,
     )

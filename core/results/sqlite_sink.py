@@ -2,17 +2,22 @@
 
 Why SQLite: a real database with transactions on a line PC, no server, readable by any quality
 tool.  Attempts (raw samples) are committed the moment they exist, so a crash later in the run
-loses nothing.  Relative paths are resolved against the directory magline runs in.
+loses nothing.  Relative paths are resolved against the station file's directory (the embedded
+demo's: the directory magline runs in).  A run is written as ``running`` with its writer
+(host:pid); a store opened later marks the runs of writers that no longer exist ``incomplete``.
 """
 
 from __future__ import annotations
 
 import json
+import os
+import socket
 import sqlite3
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
+from magline.core.faults import StationFault
 from magline.core.measurements import Array, Json, Numeric
 from magline.core.plugins import hookimpl
 from magline.core.record import AttemptRecord, RunRecord
@@ -37,29 +42,77 @@ CREATE TABLE IF NOT EXISTS params (
 CREATE TABLE IF NOT EXISTS attachments (
     run_id INTEGER REFERENCES runs(id), name TEXT, mime TEXT, content BLOB);
 """
+# Columns added since the first schema: files written by older versions get them on open.
+ADDED_COLUMNS = {
+    "attempts": {"refused": "TEXT", "repeats": "INTEGER", "sensor_rate_hz": "REAL"},
+    "runs": {"owner": "TEXT", "aborted_phase": "TEXT", "left_changed": "TEXT", "unverified_params": "TEXT",
+             "earlier_runs": "INTEGER"},
+}
+RUNNING = "running"
+
+
+def _owner() -> str:
+    return f"{socket.gethostname()}:{os.getpid()}"
+
+
+def _alive(owner: str | None) -> bool:
+    """Is the process that wrote a ``running`` row still there?  Another PC's process cannot be
+    checked and counts as alive; a row without a writer (older versions) as dead."""
+    host, _, pid = (owner or "").rpartition(":")
+    if not pid.isdigit():
+        return False
+    if host != socket.gethostname():
+        return True
+    try:
+        os.kill(int(pid), 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 class SqliteSink:
     def __init__(self, path: Path) -> None:
         self.path = path
-        path.parent.mkdir(parents=True, exist_ok=True)
-        self.db = sqlite3.connect(path)
-        self.db.executescript(SCHEMA)
-        columns = {row[1] for row in self.db.execute("PRAGMA table_info(attempts)")}
-        if "refused" not in columns:  # results files from before fit refusals were recorded
-            self.db.execute("ALTER TABLE attempts ADD COLUMN refused TEXT")
-        self.db.commit()
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            self.db = sqlite3.connect(path)
+            self.db.executescript(SCHEMA)
+            for table, columns in ADDED_COLUMNS.items():
+                have = {row[1] for row in self.db.execute(f"PRAGMA table_info({table})")}
+                for name, kind in columns.items():
+                    if name not in have:
+                        self.db.execute(f"ALTER TABLE {table} ADD COLUMN {name} {kind}")
+            self.db.commit()
+        except (OSError, sqlite3.Error) as exc:
+            raise StationFault(f"results store {path}: {exc}") from exc
+        self.mark_incomplete()
+
+    def mark_incomplete(self) -> int:
+        """Runs left ``running`` by a process that no longer exists (killed, power lost) become
+        ``incomplete``: never counted as passed, their raw data kept."""
+        stale = [(rid,) for rid, owner in self.db.execute("SELECT id, owner FROM runs WHERE verdict=?", (RUNNING,))
+                 if not _alive(owner)]
+        with self.db:
+            self.db.executemany("UPDATE runs SET verdict='incomplete', cause='the station process ended before the "
+                                "run finished' WHERE id=?", stale)
+        return len(stale)
 
     def close(self) -> None:
         self.db.close()
+
+    def location(self, record: RunRecord) -> str:
+        return f"{self.path} run {record.run_id}"
 
     def begin(self, record: RunRecord) -> None:
         with self.db:
             cur = self.db.execute(
                 "INSERT INTO runs (serial, part, station_id, line, operator, software_version, limit_hash,"
-                " started, verdict) VALUES (?,?,?,?,?,?,?,?,?)",
+                " started, verdict, owner, earlier_runs) VALUES (?,?,?,?,?,?,?,?,?,?,?)",
                 (record.serial, record.part, record.station_id, record.line, record.operator,
-                 record.software_version, record.limit_hash, record.started, "running"))
+                 record.software_version, record.limit_hash, record.started, RUNNING, _owner(),
+                 record.earlier_runs))
             record.run_id = cur.lastrowid
 
     def save_attempt(self, record: RunRecord, attempt: AttemptRecord) -> None:
@@ -67,9 +120,10 @@ class SqliteSink:
             self.begin(record)
         with self.db:
             self.db.execute("INSERT INTO attempts (run_id, attempt, samples, coverage, target, accepted,"
-                            " raw_csv, refused) VALUES (?,?,?,?,?,?,?,?)",
+                            " raw_csv, refused, repeats, sensor_rate_hz) VALUES (?,?,?,?,?,?,?,?,?,?)",
                             (record.run_id, attempt.attempt, attempt.samples, attempt.coverage,
-                             attempt.target, int(attempt.accepted), attempt.raw_csv, attempt.refused))
+                             attempt.target, int(attempt.accepted), attempt.raw_csv, attempt.refused,
+                             attempt.repeats, attempt.sensor_rate_hz))
 
     def finish(self, record: RunRecord) -> None:
         if record.run_id is None:
@@ -77,11 +131,13 @@ class SqliteSink:
         rid = record.run_id
         with self.db:
             self.db.execute(
-                "UPDATE runs SET finished=?, verdict=?, cause=?, unit_info=?, calibration=?, persistence=?"
-                " WHERE id=?",
+                "UPDATE runs SET finished=?, verdict=?, cause=?, unit_info=?, calibration=?, persistence=?,"
+                " aborted_phase=?, left_changed=?, unverified_params=? WHERE id=?",
                 (record.finished, str(record.verdict), record.cause, json.dumps(record.unit_info),
                  json.dumps(record.calibration) if record.calibration else None,
-                 json.dumps(record.persistence), rid))
+                 json.dumps(record.persistence), record.aborted_phase,
+                 json.dumps(record.left_changed) if record.left_changed else None,
+                 json.dumps(record.unverified_params) if record.unverified_params else None, rid))
             # the fit may refuse an attempt after its raw data were saved: final verdicts per attempt
             self.db.executemany("UPDATE attempts SET accepted=?, refused=? WHERE run_id=? AND attempt=?",
                                 [(int(a.accepted), a.refused, rid, a.attempt) for a in record.attempts])
@@ -103,7 +159,7 @@ class SqliteSink:
         try:
             runs = [dict(r) for r in self.db.execute(
                 "SELECT id, serial, part, station_id, line, operator, started, finished, verdict, cause,"
-                " limit_hash, calibration FROM runs WHERE serial=? ORDER BY id", (serial,))]
+                " limit_hash, calibration, aborted_phase FROM runs WHERE serial=? ORDER BY id", (serial,))]
             for run in runs:
                 run["attempts"] = [dict(r) for r in self.db.execute(
                     "SELECT attempt, samples, coverage, accepted, refused FROM attempts"
@@ -135,8 +191,13 @@ def _measurement_row(rid: int, m) -> tuple:
     return (rid, getattr(m, "name", "?"), "other", None, None, None, None, None, json.dumps(asdict(m)))
 
 
+def results_path(station: Any, station_dir: Path) -> Path:
+    """The store's file: a relative path is relative to the station file's directory."""
+    return Path(station_dir) / Path(station.results.path).expanduser()
+
+
 def _factory(station: Any, station_dir: Path) -> SqliteSink:
-    return SqliteSink(Path(station.results.path))
+    return SqliteSink(results_path(station, station_dir))
 
 
 @hookimpl

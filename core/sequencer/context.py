@@ -18,17 +18,24 @@ if TYPE_CHECKING:
     from magline.core.plugins import Plugins
     from magline.core.power import PowerControl
     from magline.core.record import PhaseResult, RunRecord
+    from magline.core.sequencer.abort import AbortSwitch
     from magline.core.station.schema import Limit, Product, Station
 
 
 @dataclass
 class Acquisition:
-    """One acquisition attempt: raw samples and the live coverage they reached."""
+    """One acquisition attempt: distinct raw readings and the coverage they reached.
+
+    ``repeats`` counts the copies of readings the stream carried and the backend dropped (a stream
+    faster than the sensor); ``sensor_rate_hz`` is the rate of distinct readings actually received.
+    """
 
     attempt: int
     samples: RawSamples
     coverage: float
     target: float
+    repeats: int = 0
+    sensor_rate_hz: float | None = None
 
     @property
     def sufficient(self) -> bool:
@@ -36,11 +43,16 @@ class Acquisition:
 
 
 class AcquisitionAborted(RuntimeError):
-    """The DUT failed mid-acquisition; carries what arrived so the raw data is still recorded."""
+    """An acquisition stopped early (DUT or link failure, operator abort, plugin bug).
 
-    def __init__(self, message: str, partial: Acquisition) -> None:
-        super().__init__(message)
+    Carries what arrived (``partial``) so the raw data is recorded, and the original exception
+    (``cause``), which the sequencer re-raises so the unit is classified by what really happened.
+    """
+
+    def __init__(self, partial: Acquisition, cause: BaseException) -> None:
+        super().__init__(str(cause))
         self.partial = partial
+        self.cause = cause
 
 
 @dataclass
@@ -63,7 +75,14 @@ class RunContext:
     # why the next acquisition attempt is needed, in the operator's terms (None: low coverage)
     retry_advice: str | None = None
     state: dict[str, Any] = field(default_factory=dict)  # scratch space for plugins
+    abort: AbortSwitch | None = None
     _phase: PhaseResult | None = None
+
+    def check_abort(self) -> None:
+        """A safe point in a long loop: raise :class:`~magline.core.faults.UnitAborted` when the
+        operator asked to stop (an abort requested from another thread lands here)."""
+        if self.abort is not None:
+            self.abort.check()
 
     def log(self, message: str) -> None:
         """Add a line to the current phase's log (kept in the record)."""

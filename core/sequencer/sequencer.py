@@ -1,11 +1,13 @@
 """Run one unit through the phases, in order, with outcomes, durations and logs.
 
 Rules the sequencer enforces whatever the plugins do:
-* an exception in a plugin ends the unit as ERROR (or FAIL for a DUT/fit refusal) with the cause;
-  it never propagates to the station loop;
-* raw samples are stored the moment an attempt ends, before fitting;
+* an exception in a plugin ends the unit with the cause, classified once for every backend and
+  instrument (:mod:`magline.core.faults`): FAIL when the unit was judged bad, ERROR when the station
+  could not judge it, ABORTED when the operator stopped it; it never propagates to the station loop;
+* raw samples are stored the moment an attempt ends (or is interrupted), before fitting;
 * persist runs only when validation passed; verify only when persist succeeded;
-* the DUT is restored and closed, and the record stored, on every path.
+* the DUT is restored and closed, and the record stored, on every path — shielded from a second
+  Ctrl-C; what could not be restored, and a calibration written but not proven, is said plainly.
 """
 
 from __future__ import annotations
@@ -17,17 +19,23 @@ from pathlib import Path
 from typing import Any
 
 from magline.core import __version__
-from magline.core.dut import DutError
+from magline.core.dut import DutError, NotRestored
+from magline.core.faults import StationFault, UnitAborted
 from magline.core.field import FieldSourceError
 from magline.core.fit import FitOptions, FitRefused, FitResult
 from magline.core.fit.samples_csv import format_samples
 from magline.core.measurements import Json, Verdict, verdicts
 from magline.core.plugins import Plugins
 from magline.core.record import AttemptRecord, Outcome, PersistReport, PhaseResult, RunRecord, now_iso
+from magline.core.sequencer.abort import AbortSwitch
 from magline.core.sequencer.context import Acquisition, AcquisitionAborted, RunContext
+from magline.core.sequencer.unit_log import unit_log_capture
 from magline.core.station.schema import Station
+from magline.core.text import fmt, percent
 
 PHASES = ("identify", "connect", "acquire", "fit", "validate", "persist", "verify", "record")
+SHIELDED_PHASES = ("persist",)  # a half-written calibration is worse than a few seconds' wait
+RETEST = "re-test the unit"
 
 
 class PhaseFailed(Exception):
@@ -43,6 +51,7 @@ class Sequencer:
         self.plugins = plugins
         self.station_dir = Path(station_dir)
         self.sleep = sleep
+        self.abort = AbortSwitch()
         sink_factory = plugins.result_sinks[station.results.sink]
         self.sink = sink_factory(station, self.station_dir)
         source_factory = plugins.field_sources[station.field_source.type]
@@ -65,31 +74,40 @@ class Sequencer:
         run = RunContext(station=self.station, station_dir=self.station_dir, part=part,
                          product=self.station.products.get(part), serial=serial, operator=operator,
                          plugins=self.plugins, record=record,
-                         limits=self.station.effective_limits(part) if part in self.station.products else {})
+                         limits=self.station.effective_limits(part) if part in self.station.products else {},
+                         abort=self.abort)
         steps: list[tuple[str, Callable[[RunContext], Any]]] = [
             ("identify", self._identify), ("connect", self._connect), ("acquire", self._acquire),
             ("fit", self._fit), ("validate", self._validate), ("persist", self._persist),
             ("verify", self._verify),
         ]
-        failed = False
         if self.stopped is not None:
             steps = [("identify", self._identify), ("connect", self._refuse_stopped_batch)]
+        with unit_log_capture(record):
+            return self._run_steps(run, steps)
+
+    def _run_steps(self, run: RunContext, steps: list[tuple[str, Callable[[RunContext], Any]]]) -> RunRecord:
+        record = run.record
+        verdict: Outcome | None = None
         try:
             for name, step in steps:
-                if failed:
+                if verdict is not None:
                     record.phases.append(PhaseResult(name=name, outcome=Outcome.SKIPPED))
                     continue
                 outcome = self._run_phase(run, name, step)
                 if outcome is not Outcome.PASS:
-                    failed = True
-                    record.verdict = outcome
+                    verdict = outcome
                     record.cause = record.phases[-1].message
+        except UnitAborted as exc:  # between phases: charged to the last phase that ran
+            last = record.phases[-1].name if record.phases else "identify"
+            verdict, record.cause, record.aborted_phase = Outcome.ABORTED, f"{exc.reason} after {last}", last
         finally:
-            self._cleanup(run)
-        if not failed:
-            record.verdict = Outcome.PASS
-        self._run_phase(run, "record", self._record)
-        self.plugins.hook.magline_unit_finished(run=run, record=record)
+            with self.abort.shielded():
+                self._cleanup(run)
+        with self.abort.shielded():
+            record.verdict = self._conclude(record, verdict or Outcome.PASS)
+            self._run_phase(run, "record", self._record)
+            self.plugins.hook.magline_unit_finished(run=run, record=record)
         return record
 
     def _run_phase(self, run: RunContext, name: str, step: Callable[[RunContext], Any]) -> Outcome:
@@ -98,19 +116,32 @@ class Sequencer:
         run.record.phases.append(result)
         self.plugins.hook.magline_phase_started(run=run, phase=name)
         start = time.monotonic()
+        run.state["_phase_started"] = start
         try:
-            step(run)
+            if name in SHIELDED_PHASES:
+                with self.abort.shielded():
+                    step(run)
+            else:
+                self.abort.check()
+                step(run)
             result.outcome = Outcome.PASS
-        except (PhaseFailed, DutError, FitRefused) as exc:
-            result.outcome = Outcome.FAIL
-            result.message = str(exc)
+        except UnitAborted as exc:
+            result.outcome = Outcome.ABORTED
+            result.message = f"{exc.reason} during {name}"
+            run.record.aborted_phase = name
         except FieldSourceError as exc:  # the cell, not the unit: stop the batch
             result.outcome = Outcome.ERROR
-            result.message = f"batch stopped: {exc}"
+            result.message = f"batch stopped: {_text(exc)}"
             self.stopped = str(exc)
+        except StationFault as exc:  # no or lost link, instrument, supply: the unit was not judged
+            result.outcome = Outcome.ERROR
+            result.message = _text(exc)
+        except (PhaseFailed, DutError, FitRefused) as exc:
+            result.outcome = Outcome.FAIL
+            result.message = _text(exc)
         except Exception as exc:  # a plugin bug must not crash the station
             result.outcome = Outcome.ERROR
-            result.message = f"{type(exc).__name__}: {exc}"
+            result.message = f"internal error in the {name} phase: {_text(exc)} (details in the record's log)"
             result.log.append(traceback.format_exc(limit=6))
         result.duration_s = time.monotonic() - start
         if result.message:
@@ -119,15 +150,46 @@ class Sequencer:
         self.plugins.hook.magline_phase_finished(run=run, phase=name, result=result)
         return result.outcome
 
+    def _conclude(self, record: RunRecord, verdict: Outcome) -> Outcome:
+        """The unit's verdict once the DUT is released: what was left changed or written but not
+        proven is said in the cause, and a unit that cannot ship as it is never passes."""
+        written_not_proven = record.params_written and not record.params_read_back and verdict in (
+            Outcome.ERROR, Outcome.ABORTED)
+        if written_not_proven:
+            record.unverified_params = list(record.params_written)
+            record.cause += (f" — the unit now holds a new, unverified calibration ({len(record.unverified_params)} "
+                             f"parameters: {', '.join(record.unverified_params)}); {RETEST}")
+        if record.left_changed:
+            changed = ", ".join(f"{k} left at {v}" for k, v in record.left_changed.items())
+            note = f"the unit could not be restored: {changed}; {RETEST}"
+            record.cause = f"{record.cause} — {note}" if record.cause else note
+            if verdict is Outcome.PASS:
+                return Outcome.ERROR
+        return verdict
+
     # ------------------------------------------------------------------ phases
     def _identify(self, run: RunContext) -> None:
         if not run.serial.strip():
-            raise ValueError("no serial number given")
+            raise StationFault("no serial number given")
         if run.product is None:
-            raise ValueError(f"part number {run.part!r} is not built on this station "
-                             f"(known: {', '.join(self.station.products)})")
+            raise StationFault(f"part number {run.part!r} is not built on this station "
+                               f"(known: {', '.join(self.station.products)})")
         run.log(f"unit {run.serial}, part {run.part}, limit set {run.record.limit_hash}")
+        self._count_earlier_runs(run)
         self.sink.begin(run.record)
+
+    def _count_earlier_runs(self, run: RunContext) -> None:
+        """A re-test is allowed, but said: the record keeps how many runs and passes came before."""
+        history = getattr(self.sink, "history", None)
+        earlier = history(run.serial) if history is not None else []
+        passes = [r for r in earlier if r.get("verdict") == Outcome.PASS]
+        run.record.earlier_runs, run.record.earlier_passes = len(earlier), len(passes)
+        if passes:
+            last = passes[-1]
+            run.prompt(f"Re-test: {run.serial} already passed (run {last.get('id')}, {str(last.get('started'))[:16]}); "
+                       f"this is test {len(earlier) + 1} of this unit")
+        elif earlier:
+            run.log(f"re-test: {len(earlier)} earlier run(s) of {run.serial}, none passed")
 
     def _refuse_stopped_batch(self, run: RunContext) -> None:
         raise FieldSourceError(self.stopped)
@@ -135,10 +197,10 @@ class Sequencer:
     def _connect(self, run: RunContext) -> None:
         factory = self.plugins.dut_backends.get(run.product.backend)
         if factory is None:
-            raise ValueError(f"no DUT backend named {run.product.backend!r} is loaded")
+            raise StationFault(f"no DUT backend named {run.product.backend!r} is loaded")
         power_factory = self.plugins.power_controls.get(run.product.power.method)
         if power_factory is None:
-            raise ValueError(f"no power control named {run.product.power.method!r} is loaded")
+            raise StationFault(f"no power control named {run.product.power.method!r} is loaded")
         run.field_source = self.field_source
         run.reference_field_ut = self.field_source.reference_field_ut()
         run.log(f"reference field {run.reference_field_ut:.2f} µT")
@@ -168,15 +230,19 @@ class Sequencer:
                 self.sleep(acq.retry_delay_s)
             try:
                 result = self.plugins.hook.magline_acquire(run=run, attempt=attempt)
-            except AcquisitionAborted as exc:
-                self._store_attempt(run, exc.partial, accepted=False)  # keep what arrived before the failure
-                raise DutError(f"{exc} (after {len(exc.partial.samples)} samples; raw data kept)") from exc
+            except AcquisitionAborted as exc:  # keep what arrived before the failure, then classify the cause
+                stored = self._store_attempt(run, exc.partial, accepted=False)
+                cause = exc.cause
+                stored.refused = f"interrupted: {_text(cause) if not isinstance(cause, UnitAborted) else cause.reason}"
+                cause.add_note(f"after {len(exc.partial.samples)} readings; raw data kept")
+                raise cause from None
             run.attempts.append(result)
             stored = self._store_attempt(run, result, accepted=result.sufficient)
-            run.log(f"attempt {attempt}: {len(result.samples)} samples, coverage {result.coverage:.0%} "
-                    f"(target {result.target:.0%})")
+            run.log(f"attempt {attempt}: {_readings_line(result)}, coverage {percent(result.coverage)} "
+                    f"(target {percent(result.target)})")
             if not result.sufficient:
                 run.retry_advice, refusal = None, None
+                stored.refused = f"coverage {percent(result.coverage)} below the target {percent(result.target)}"
                 continue
             started = time.monotonic()
             try:
@@ -192,12 +258,13 @@ class Sequencer:
         if refusal is not None:
             raise FitRefused(refusal.reason, f"{refusal.message} (after {len(run.attempts)} attempts)",
                              refusal.advice)
-        raise PhaseFailed(f"coverage {run.attempts[-1].coverage:.0%} below target "
-                          f"{acq.coverage_target:.0%} after {len(run.attempts)} attempts")
+        raise PhaseFailed(f"coverage {percent(run.attempts[-1].coverage)} below the target "
+                          f"{percent(acq.coverage_target)} after {len(run.attempts)} attempts")
 
     def _store_attempt(self, run: RunContext, result: Acquisition, accepted: bool) -> AttemptRecord:
         stored = AttemptRecord(attempt=result.attempt, samples=len(result.samples), coverage=result.coverage,
-                               target=result.target, raw_csv=format_samples(result.samples), accepted=accepted)
+                               target=result.target, raw_csv=format_samples(result.samples), accepted=accepted,
+                               repeats=result.repeats, sensor_rate_hz=result.sensor_rate_hz)
         run.record.attempts.append(stored)
         self.sink.save_attempt(run.record, stored)  # raw data safe before any fitting
         return stored
@@ -235,9 +302,9 @@ class Sequencer:
         failed = [m for m in verdicts(run.record.measurements) if m.verdict is Verdict.FAIL]
         review = [m for m in verdicts(run.record.measurements) if m.verdict is Verdict.REVIEW]
         for m in review:
-            run.log(f"review: {m.name} = {m.value:.4g} is within the marginal band")
+            run.log(f"review: {m.name} = {fmt(m.value, m.unit)} is within the marginal band")
         if failed:
-            message = "; ".join(f"{m.name} = {m.value:.4g} {m.unit} outside [{_fmt(m.low)}, {_fmt(m.high)}]"
+            message = "; ".join(f"{m.name} = {fmt(m.value, m.unit)} outside [{fmt(m.low)}, {fmt(m.high)}]"
                                 for m in failed)
             if any(m.name == "field_error_pct" for m in failed):
                 message += (" — the field magnitude the unit measures does not match the reference: "
@@ -263,7 +330,11 @@ class Sequencer:
 
     def _record(self, run: RunContext) -> None:
         run.record.finished = now_iso()
+        phase = run.record.phases[-1]  # this phase: stored with its real outcome, timed up to the write
+        phase.outcome, phase.duration_s = Outcome.PASS, time.monotonic() - run.state["_phase_started"]
         self.sink.finish(run.record)
+        where = getattr(self.sink, "location", None)
+        run.record.store = where(run.record) if callable(where) else ""
 
     def _cleanup(self, run: RunContext) -> None:
         """Always: put the DUT back as it was, release it, then leave the fixture in its final state."""
@@ -274,9 +345,23 @@ class Sequencer:
                 continue
             try:
                 getattr(target, action)()
+            except NotRestored as exc:
+                run.record.left_changed.update(exc.left_changed)
+                run.record.phases[-1].log.append(str(exc))
             except Exception as exc:
-                run.record.phases[-1].log.append(f"{action} failed: {type(exc).__name__}: {exc}")
+                run.record.phases[-1].log.append(f"{action} failed: {_text(exc)}")
 
 
-def _fmt(v: float | None) -> str:
-    return "—" if v is None else f"{v:.4g}"
+def _text(exc: BaseException) -> str:
+    """An exception as an operator reads it: its message and notes, no class name."""
+    notes = "".join(f" ({n})" for n in getattr(exc, "__notes__", ()))
+    return (str(exc) or type(exc).__name__) + notes
+
+
+def _readings_line(result: Acquisition) -> str:
+    line = f"{len(result.samples)} readings"
+    if result.repeats:
+        line += f" (the stream repeated readings {result.repeats} times; dropped)"
+    if result.sensor_rate_hz:
+        line += f", sensor {result.sensor_rate_hz:.0f} readings/s"
+    return line

@@ -14,8 +14,10 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from magline.core.dut import DutError, ParamValue, SampleChunk, UnitInfo, await_new_boot
+from magline.core.dut import DutError, NotRestored, ParamValue, SampleChunk, UnitInfo, await_new_boot
+from magline.core.faults import StationFault
 from magline.core.fit import FitResult
+from magline.core.readings import RepeatFilter, untruncate_mg
 from magline.core.station.schema import Product
 from magline.plugins.ardupilot.calibration import (
     SETS,
@@ -33,6 +35,7 @@ STREAMS = (("RAW_IMU", ML.MAVLINK_MSG_ID_RAW_IMU), ("SCALED_IMU2", ML.MAVLINK_MS
            ("SCALED_IMU3", ML.MAVLINK_MSG_ID_SCALED_IMU3))
 INT_PARAMS = ("COMPASS_DEV_ID", "COMPASS_PRIO", "COMPASS_LEARN", "COMPASS_OFFS_MAX", "COMPASS_MOTCT")
 CHUNK = 10
+RESTORE_RECONNECT_S = 3.0  # a vehicle that does not answer by then is reported as not restored
 COMPASS_PREARM = "PreArm: Compass"
 
 
@@ -58,7 +61,7 @@ class ArduPilotDut:
         heartbeat = self.link.open(self.opts.connect_timeout_s)
         if heartbeat.autopilot != ML.MAV_AUTOPILOT_ARDUPILOTMEGA:
             self.link.close()
-            raise DutError(f"the vehicle on {self.product.connection} is not ArduPilot "
+            raise StationFault(f"the vehicle on {self.product.connection} is not ArduPilot "
                            f"(MAV_AUTOPILOT {heartbeat.autopilot}); check the product's backend")
         version = self.link.request_message(ML.MAVLINK_MSG_ID_AUTOPILOT_VERSION, "AUTOPILOT_VERSION")
         firmware = _firmware(version.flight_sw_version) if version is not None else "unknown"
@@ -106,9 +109,17 @@ class ArduPilotDut:
         self.held = HeldCalibration.from_params({n: self.link.get(n) for n in names}, self.suffix)
 
     def restore(self) -> None:
-        if self._saved_learn is not None and self.link.conn is not None:
+        """COMPASS_LEARN back to what it was (ArduPilot stores every PARAM_SET at once, so the change
+        is in storage either way); after a closed link, one short reconnect is tried first."""
+        if self._saved_learn is None:
+            return
+        try:
+            if self.link.conn is None:
+                self.link.open(min(self.opts.connect_timeout_s, RESTORE_RECONNECT_S))
             self.link.set("COMPASS_LEARN", self._saved_learn)
-            self._saved_learn = None
+        except DutError as exc:
+            raise NotRestored(str(exc), {"COMPASS_LEARN": f"0 (was {self._saved_learn})"}) from exc
+        self._saved_learn = None
 
     # ------------------------------------------------------------------ data
     def samples(self, rate_hz: float) -> Iterator[SampleChunk]:
@@ -117,18 +128,25 @@ class ArduPilotDut:
         kind, msg_id = STREAMS[SETS.index(self.suffix)]
         self.link.drain()
         self.link.set_message_interval(msg_id, rate_hz)
+        readings = RepeatFilter()
         try:
             rows: list[tuple[float, float, float]] = []
             times: list[float] = []
             while True:
                 msg = self.link.recv(kind, self.opts.stream_timeout_s)
                 if msg is None:
-                    raise DutError(f"no {kind} from the vehicle for {self.opts.stream_timeout_s:g} s: "
-                                   "link lost during acquisition")
+                    self.link.require_alive(f"link lost during acquisition: no {kind} for "
+                                            f"{self.opts.stream_timeout_s:g} s")
+                    raise DutError(f"the vehicle answers but sent no {kind} for {self.opts.stream_timeout_s:g} s: "
+                                   f"compass {self.device_id} delivers no readings")
+                if not readings.accept(msg.xmag, msg.ymag, msg.zmag):
+                    continue  # the stream is faster than the compass: the same reading again
                 rows.append((msg.xmag, msg.ymag, msg.zmag))
                 times.append(msg.time_usec / 1000.0 if kind == "RAW_IMU" else float(msg.time_boot_ms))
                 if len(rows) >= CHUNK:
-                    yield SampleChunk(mag_ut=self.held.raw_ut(np.array(rows, float)), t_ms=np.array(times))
+                    corrected_mg = untruncate_mg(np.array(rows, float))
+                    yield SampleChunk(mag_ut=self.held.raw_ut(corrected_mg), t_ms=np.array(times),
+                                      repeats=readings.take_repeats())
                     rows, times = [], []
         finally:
             with contextlib.suppress(DutError):  # when the link is gone the stream stops with it

@@ -18,15 +18,46 @@ from typing import Any
 os.environ.setdefault("MAVLINK20", "1")  # PARAM_ERROR and v2 framing; must precede the import
 
 import contextlib
+import socket
 
 from pymavlink import mavutil
 
-from magline.core.dut import DutError
+from magline.core.dut import DutError, LinkError
 
 ML = mavutil.mavlink
 GCS_SYSTEM, GCS_COMPONENT = 255, 190
 RESULT_NAMES = {v: k.removeprefix("MAV_RESULT_") for k, v in vars(ML).items() if k.startswith("MAV_RESULT_")
                 and isinstance(v, int)}
+# An autopilot sends HEARTBEAT at 1 Hz: this long without any message means the link is gone.
+SILENCE_S = 2.5
+
+
+class LinkClosed(ConnectionError):
+    """The vehicle closed the TCP connection (it died, lost power or rebooted)."""
+
+
+class DeadlineTcp(mavutil.mavtcp):
+    """pymavlink's TCP client with a connect deadline and EOF taken as a closed link.
+
+    Why: ``mavtcp`` connects with a blocking ``connect()`` (about 130 s against a port that never
+    accepts, however short the station's deadline) and, on EOF, prints "EOF on TCP socket" and
+    returns nothing — so a poll loop on a closed socket prints it hundreds of thousands of times.
+    """
+
+    def __init__(self, device: str, connect_timeout_s: float, **kwargs) -> None:
+        self.connect_timeout_s = max(connect_timeout_s, 0.05)
+        super().__init__(device, autoreconnect=False, retries=0, **kwargs)
+
+    def do_connect(self) -> None:
+        self.port = socket.create_connection(self.destination_addr, timeout=self.connect_timeout_s)
+        self.port.setblocking(False)
+        self.port.setsockopt(socket.SOL_TCP, socket.TCP_NODELAY, 1)
+
+    def handle_eof(self) -> None:
+        raise LinkClosed("the vehicle closed the TCP connection")
+
+    def handle_disconnect(self) -> None:
+        raise LinkClosed("the TCP connection was reset by the vehicle")
 
 
 def float32_equal(a: float, b: float) -> bool:
@@ -63,6 +94,7 @@ class ArduPilotLink:
         self.target_system = 1
         self.target_component = ML.MAV_COMP_ID_AUTOPILOT1
         self._next_heartbeat = 0.0
+        self.last_rx = 0.0  # monotonic time of the last message from the vehicle
         self.statustexts: list[str] = []
 
     # ------------------------------------------------------------------ connection
@@ -70,20 +102,29 @@ class ArduPilotLink:
         """Connect and wait for the autopilot's heartbeat; return it."""
         deadline = time.monotonic() + timeout_s
         last_error = "no heartbeat"
-        while time.monotonic() < deadline:
+        while (remaining := deadline - time.monotonic()) > 0:
             try:
-                self.conn = mavutil.mavlink_connection(self.device, baud=self.baud, source_system=GCS_SYSTEM,
-                                                       source_component=GCS_COMPONENT, retries=0, autoreconnect=False)
+                self.conn = self._connect(remaining)
             except OSError as exc:  # refused while the vehicle boots; try again until the deadline
-                last_error = f"{type(exc).__name__}: {exc}"
-                time.sleep(0.2)
+                last_error = _socket_error(exc)
+                time.sleep(min(0.2, max(deadline - time.monotonic(), 0.0)))
                 continue
-            heartbeat = self._wait_autopilot_heartbeat(min(deadline, time.monotonic() + 2.0))
+            try:
+                heartbeat = self._wait_autopilot_heartbeat(min(deadline, time.monotonic() + 2.0))
+            except LinkError as exc:
+                heartbeat, last_error = None, str(exc)
             if heartbeat is not None:
                 return heartbeat
             last_error = "connected, but no autopilot heartbeat"
             self.close()
-        raise DutError(f"no ArduPilot vehicle answered on {self.connection} within {timeout_s:.0f} s ({last_error})")
+        raise LinkError(f"no ArduPilot vehicle answered on {self.connection} within {timeout_s:g} s ({last_error})")
+
+    def _connect(self, timeout_s: float) -> Any:
+        if self.device.startswith("tcp:"):
+            return DeadlineTcp(self.device.removeprefix("tcp:"), timeout_s, source_system=GCS_SYSTEM,
+                               source_component=GCS_COMPONENT)
+        return mavutil.mavlink_connection(self.device, baud=self.baud, source_system=GCS_SYSTEM,
+                                          source_component=GCS_COMPONENT, retries=0, autoreconnect=False)
 
     def _wait_autopilot_heartbeat(self, deadline: float) -> Any | None:
         while time.monotonic() < deadline:
@@ -109,12 +150,12 @@ class ArduPilotLink:
             try:
                 self.conn.mav.heartbeat_send(ML.MAV_TYPE_GCS, ML.MAV_AUTOPILOT_INVALID, 0, 0, ML.MAV_STATE_ACTIVE)
             except OSError as exc:
-                raise DutError(f"link to {self.connection} lost: {exc}") from exc
+                raise self._lost(exc) from exc
 
     def recv(self, kind: str | list[str], timeout_s: float) -> Any | None:
         """Next message of ``kind`` within ``timeout_s`` (heartbeats keep going out meanwhile)."""
         if self.conn is None:
-            raise DutError(f"link to {self.connection} is closed")
+            raise LinkError(f"link to {self.connection} is closed")
         deadline = time.monotonic() + max(timeout_s, 0.0)
         kinds = {kind} if isinstance(kind, str) else set(kind)
         while True:
@@ -122,8 +163,9 @@ class ArduPilotLink:
             try:
                 msg = self.conn.recv_match(blocking=True, timeout=min(0.2, max(deadline - time.monotonic(), 0.001)))
             except OSError as exc:
-                raise DutError(f"link to {self.connection} lost: {exc}") from exc
+                raise self._lost(exc) from exc
             if msg is not None:
+                self.last_rx = time.monotonic()
                 if msg.get_type() == "STATUSTEXT":
                     self.statustexts.append(msg.text)
                 if msg.get_type() in kinds and msg.get_srcSystem() == self.target_system:
@@ -133,19 +175,55 @@ class ArduPilotLink:
 
     def drain(self) -> None:
         """Drop what is queued (stale echoes, old stream samples); status texts are still collected."""
-        while self.conn is not None and (msg := self.conn.recv_match(blocking=False)) is not None:
-            if msg.get_type() == "STATUSTEXT":
-                self.statustexts.append(msg.text)
+        try:
+            while self.conn is not None and (msg := self.conn.recv_match(blocking=False)) is not None:
+                self.last_rx = time.monotonic()
+                if msg.get_type() == "STATUSTEXT":
+                    self.statustexts.append(msg.text)
+        except OSError as exc:
+            raise self._lost(exc) from exc
+
+    def _lost(self, exc: OSError) -> LinkError:
+        """The socket failed or the vehicle closed it: the link is gone now, not at the next timeout."""
+        self.close()
+        return LinkError(f"link to {self.connection} lost: {_socket_error(exc)}")
+
+    def _send(self, method: str, *args: Any) -> None:
+        if self.conn is None:
+            raise LinkError(f"link to {self.connection} is closed")
+        try:
+            getattr(self.conn.mav, method)(*args)
+        except OSError as exc:
+            raise self._lost(exc) from exc
+
+    def silent_for_s(self) -> float:
+        """Seconds since the vehicle last sent anything (its 1 Hz heartbeat included)."""
+        return time.monotonic() - self.last_rx
+
+    def require_alive(self, what: str) -> None:
+        """After a wait that got no answer: return when the vehicle still talks (its 1 Hz heartbeat
+        within :data:`SILENCE_S`), else raise LinkError — a lost link is never reported as the
+        firmware ignoring ``what``."""
+        if self.conn is None:
+            raise LinkError(f"link to {self.connection} is closed ({what})")
+        remaining = SILENCE_S - self.silent_for_s()
+        if remaining > 0:
+            self.recv("HEARTBEAT", remaining)  # any message on the way refreshes last_rx
+        if self.silent_for_s() > SILENCE_S:
+            raise LinkError(f"link to {self.connection} lost: nothing received for {self.silent_for_s():.0f} s "
+                            f"({what})")
 
     # ------------------------------------------------------------------ parameters (C-cast)
     def get(self, name: str) -> float:
         for _ in range(self.param_retries):
-            self.conn.mav.param_request_read_send(self.target_system, self.target_component, name.encode(), -1)
+            self._send("param_request_read_send", self.target_system, self.target_component, name.encode(), -1)
             deadline = time.monotonic() + self.param_timeout_s
             while (msg := self.recv("PARAM_VALUE", deadline - time.monotonic())) is not None:
                 if msg.param_id == name:
                     return float(msg.param_value)
-        raise DutError(f"parameter {name} could not be read (no PARAM_VALUE; unknown name or link lost)")
+        self.require_alive(f"reading {name}")
+        raise DutError(f"parameter {name} could not be read: the autopilot does not answer for it "
+                       "(unknown name for this firmware?)")
 
     def set(self, name: str, value: float) -> float:
         """C-cast PARAM_SET; return the echoed value once an echo with this name and value arrives."""
@@ -155,8 +233,8 @@ class ArduPilotLink:
         for _ in range(self.param_retries):
             self.drain()  # an earlier vector echo may carry this name with its old value
             echoed = None
-            self.conn.mav.param_set_send(self.target_system, self.target_component, name.encode(), float(value),
-                                         ML.MAV_PARAM_TYPE_REAL32)  # the type is ignored by ArduPilot
+            self._send("param_set_send", self.target_system, self.target_component, name.encode(), float(value),
+                       ML.MAV_PARAM_TYPE_REAL32)  # the type is ignored by ArduPilot
             deadline = time.monotonic() + self.param_timeout_s
             while (msg := self.recv("PARAM_VALUE", deadline - time.monotonic())) is not None:
                 if msg.param_id != name:
@@ -165,8 +243,9 @@ class ArduPilotLink:
                 if float32_equal(echoed, value):
                     return echoed
         if echoed is None:
-            raise DutError(f"PARAM_SET {name} = {value:g} got no echo: ArduPilot ignores unknown names "
-                           "without a reply (wrong parameter name for this firmware?) or the link is lost")
+            self.require_alive(f"writing {name}")
+            raise DutError(f"PARAM_SET {name} = {value:g} got no echo while the vehicle was otherwise answering: "
+                           "ArduPilot ignores unknown names without a reply (wrong parameter name for this firmware?)")
         raise DutError(f"PARAM_SET {name} = {value:g} was answered with {echoed:g}: the autopilot refused the value")
 
     # ------------------------------------------------------------------ commands
@@ -174,11 +253,12 @@ class ArduPilotLink:
         """COMMAND_LONG with retries; return the ACK's MAV_RESULT."""
         p = [*params, *([0.0] * (7 - len(params)))]
         for confirmation in range(3):
-            self.conn.mav.command_long_send(self.target_system, self.target_component, command, confirmation, *p)
+            self._send("command_long_send", self.target_system, self.target_component, command, confirmation, *p)
             deadline = time.monotonic() + timeout_s / 3
             while (msg := self.recv("COMMAND_ACK", deadline - time.monotonic())) is not None:
                 if msg.command == command:
                     return int(msg.result)
+        self.require_alive(f"command {command}")
         raise DutError(f"command {command} got no COMMAND_ACK within {timeout_s:.1f} s")
 
     def require_accepted(self, command: int, what: str, *params: float, timeout_s: float = 2.0) -> None:
@@ -194,3 +274,14 @@ class ArduPilotLink:
         interval = -1 if rate_hz <= 0 else 1e6 / rate_hz
         self.require_accepted(ML.MAV_CMD_SET_MESSAGE_INTERVAL, f"SET_MESSAGE_INTERVAL for message {msg_id}",
                               msg_id, interval)
+
+
+def _socket_error(exc: OSError) -> str:
+    """An operator-readable reason for a socket failure (no Python class names)."""
+    if isinstance(exc, ConnectionRefusedError):
+        return "connection refused: nothing listens on that port"
+    if isinstance(exc, TimeoutError | socket.timeout):
+        return "the port does not accept connections"
+    if isinstance(exc, LinkClosed):
+        return str(exc)
+    return exc.strerror or str(exc) or "socket error"

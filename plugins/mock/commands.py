@@ -30,6 +30,9 @@ def add_sim_command(subparsers: argparse._SubParsersAction) -> None:
     sim.add_argument("--field-ut", type=float, default=48.0, help="local field magnitude (µT)")
     sim.add_argument("--inclination-deg", type=float, default=62.0)
     sim.add_argument("--noise-ut", type=float, default=0.3)
+    sim.add_argument("--mag-rate", type=float, metavar="HZ",
+                     help="how often the sensors publish a new reading (default: ardupilot 10 Hz, px4 per driver); "
+                          "a faster stream repeats readings, as real vehicles do")
     sim.add_argument("--seed", type=int, default=7, help="seed of the sensors' distortion and noise")
     sim.add_argument("--firmware", default="1.15.0", help="px4 only: firmware version (ODIAG from 1.12)")
     sim.add_argument("--fault", action="append", default=[], metavar="NAME[=VALUE]",
@@ -82,7 +85,7 @@ def run_sim(args: argparse.Namespace) -> int:
         options: dict[str, Any] = {"workdir": args.workdir, "mag_count": args.mags, "boot_time_s": args.boot_time,
                                    "motions": motions, "speed": args.speed, "field_ut": args.field_ut,
                                    "inclination_deg": args.inclination_deg, "seed": args.seed,
-                                   "faults": SimFaults.parse(args.fault)}
+                                   "faults": SimFaults.parse(args.fault), "mag_rate_hz": args.mag_rate}
         if args.flavour == "px4":
             options["firmware"] = args.firmware
         sim = create_sim(args.flavour, args.listen, **options)

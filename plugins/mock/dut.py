@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from magline.core.dut import DutError, ParamValue, SampleChunk, UnitInfo
+from magline.core.dut import LinkError, NotRestored, ParamValue, SampleChunk, UnitInfo
 from magline.core.fit import FitResult
 from magline.core.synthetic import SensorTruth, earth_field_ned, motion_directions
 from magline.core.synthetic.motions import single_axis
@@ -46,7 +46,7 @@ class MockDut:
     # ------------------------------------------------------------------ link
     def connect(self) -> UnitInfo:
         if self.opts.faults.fail_connect:
-            raise DutError("mock DUT does not answer (fault injected)")
+            raise LinkError("mock DUT does not answer (fault injected)")
         self._boot()
         return UnitInfo(autopilot="mock", firmware="1.0.0", sensors=[self.opts.device_id],
                         selected_sensor=self.opts.device_id,
@@ -62,8 +62,12 @@ class MockDut:
         self.ram["MAG_AUTOCAL"] = 0
 
     def restore(self) -> None:
-        if self._saved_autocal is not None and self.connected:
-            self.ram["MAG_AUTOCAL"] = self._saved_autocal
+        if self._saved_autocal is None:
+            return
+        if not self.connected:
+            raise NotRestored("link to mock DUT lost", {"MAG_AUTOCAL": f"0 (was {self._saved_autocal})"})
+        self.ram["MAG_AUTOCAL"] = self._saved_autocal
+        self._saved_autocal = None
 
     def close(self) -> None:
         self.connected = False
@@ -77,7 +81,7 @@ class MockDut:
         sent = 0
         for block in field_chunks:
             if not self.connected:
-                raise DutError("link to mock DUT lost")
+                raise LinkError("link to mock DUT lost")
             raw = self.truth.read(self.to_sensor.apply(block), self.rng)
             t_ms = (sent + np.arange(len(raw))) * 1000.0 / rate_hz
             sent += len(raw)
@@ -100,7 +104,7 @@ class MockDut:
         try:
             link = socket.create_connection((host, int(port)), timeout=2.0)
         except OSError as exc:
-            raise DutError(f"mock DUT: coil simulator {self.opts.coil_sim} not reachable: {exc}") from exc
+            raise LinkError(f"mock DUT: coil simulator {self.opts.coil_sim} not reachable: {exc}") from exc
         with link, link.makefile("rw", encoding="ascii", newline="\n") as wire:
             while True:
                 wire.write("SIM:FIELD?\n")
@@ -167,4 +171,4 @@ class MockDut:
 
     def _require_link(self) -> None:
         if not self.connected:
-            raise DutError("mock DUT link is down")
+            raise LinkError("mock DUT link is down")

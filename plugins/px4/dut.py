@@ -21,8 +21,9 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from magline.core.dut import DutError, ParamValue, SampleChunk, UnitInfo, await_new_boot
+from magline.core.dut import DutError, NotRestored, ParamValue, SampleChunk, UnitInfo, await_new_boot
 from magline.core.fit import FitResult
+from magline.core.readings import RepeatFilter, untruncate_mg
 from magline.core.station.schema import Product
 from magline.plugins.px4.calibration import (
     EULER_SINCE,
@@ -44,6 +45,7 @@ SYSTEM_TIME = ("SYSTEM_TIME", 2)
 MG_PER_UT = 10.0
 log = logging.getLogger("magline.px4")
 CHUNK = 10
+RESTORE_RECONNECT_S = 3.0  # a vehicle that does not answer by then is reported as not restored
 DEVICE_ID = re.compile(r"device_id:\s*(\d+)")
 EXTERNAL = re.compile(r"is_external:\s*(\w+)")
 
@@ -122,16 +124,25 @@ class Px4Dut:
             self._saved_autocal = autocal
 
     def restore(self) -> None:
-        if self._saved_autocal is not None and self.link.is_open:
+        """SENS_MAG_AUTOCAL back, saved (else a power-off right after the station leaves it off);
+        after a closed link, one short reconnect is tried first."""
+        if self._saved_autocal is None:
+            return
+        try:
+            if not self.link.is_open:
+                self.link.reopen(min(self.opts.connect_timeout_s, RESTORE_RECONNECT_S))
             self.link.set("SENS_MAG_AUTOCAL", self._saved_autocal, True)
-            self._saved_autocal = None
-            self.commit()  # else a power-off right after the station leaves it switched off
+            self.commit()
+        except DutError as exc:
+            raise NotRestored(str(exc), {"SENS_MAG_AUTOCAL": f"0 (was {self._saved_autocal})"}) from exc
+        self._saved_autocal = None
 
     # ------------------------------------------------------------------ data
     def samples(self, rate_hz: float) -> Iterator[SampleChunk]:
         kind, msg_id = STREAMS[self.instance]
         inbox, handle = self.link.subscribe(kind)
         self.link.require_accepted(MAV_CMD_SET_MESSAGE_INTERVAL, f"{kind} stream request", msg_id, 1e6 / rate_hz)
+        readings = RepeatFilter()
         try:
             rows: list[tuple[float, float, float]] = []
             times: list[float] = []
@@ -139,12 +150,19 @@ class Px4Dut:
                 try:
                     msg = inbox.get(timeout=self.opts.stream_timeout_s)
                 except queue.Empty:
-                    raise DutError(f"no {kind} from the vehicle for {self.opts.stream_timeout_s:g} s: "
-                                   "link lost during acquisition") from None
+                    self.link.require_alive(f"link lost during acquisition: no {kind} for "
+                                            f"{self.opts.stream_timeout_s:g} s")
+                    raise DutError(f"the vehicle answers but sent no {kind} for {self.opts.stream_timeout_s:g} s: "
+                                   f"magnetometer {self.device_id} delivers no readings") from None
+                # SCALED_IMU is sent whenever the IMU *or* the magnetometer updated, with the IMU's
+                # time: the same magnetometer reading repeats at the IMU's rate
+                if not readings.accept(msg["xmag"], msg["ymag"], msg["zmag"]):
+                    continue
                 rows.append((msg["xmag"], msg["ymag"], msg["zmag"]))
                 times.append(float(msg["time_boot_ms"]))
                 if len(rows) >= CHUNK:
-                    yield SampleChunk(mag_ut=np.array(rows, float) / MG_PER_UT, t_ms=np.array(times))
+                    yield SampleChunk(mag_ut=untruncate_mg(np.array(rows, float)) / MG_PER_UT, t_ms=np.array(times),
+                                      repeats=readings.take_repeats())
                     rows, times = [], []
         finally:
             with contextlib.suppress(DutError):  # a lost link stops the stream by itself

@@ -27,12 +27,14 @@ from mavsdk.plugins.param.param import Param, ParamError
 from mavsdk.plugins.shell.shell import Device, Shell
 from pymavlink.dialects.v20 import common as mavlink
 
-from magline.core.dut import DutError
+from magline.core.dut import DutError, LinkError
+from magline.core.faults import StationFault
 
 log = logging.getLogger("magline.px4.mavsdk")
 GCS_SYSTEM, GCS_COMPONENT = 245, 190  # MAVSDK's ground-station identity
 RESULTS = {n: e.name.removeprefix("MAV_RESULT_") for n, e in mavlink.enums["MAV_RESULT"].items()}
 SHELL_PROMPT = "nsh> "
+SILENCE_S = 2.5  # PX4 sends HEARTBEAT at 1 Hz: this long without one means the link is gone
 
 _routed = False
 
@@ -64,16 +66,16 @@ class Px4Link:
         result = self.mavsdk.add_any_connection(self.url)
         if result != ConnectionResult.SUCCESS:
             self.close()
-            raise DutError(f"cannot open {self.url}: {ConnectionResult(result).name} "
+            raise StationFault(f"cannot open {self.url}: {ConnectionResult(result).name} "
                            "(expected udpin://HOST:PORT, udpout://HOST:PORT, tcpout://HOST:PORT or serial://DEV:BAUD)")
         self.system = self.mavsdk.first_autopilot(timeout_s)
         if self.system is None:
             self.close()
-            raise DutError(f"no PX4 vehicle answered on {self.url} within {timeout_s:g} s")
+            raise LinkError(f"no PX4 vehicle answered on {self.url} within {timeout_s:g} s")
         if self.system.autopilot_type() != Autopilot.PX4:
             kind = Autopilot(self.system.autopilot_type()).name
             self.close()
-            raise DutError(f"the vehicle on {self.url} is {kind}, not PX4; check the product's backend")
+            raise StationFault(f"the vehicle on {self.url} is {kind}, not PX4; check the product's backend")
         self.target_system = self.system.get_system_id()
         self.param = Param(self.system)
         self.action = Action(self.system)
@@ -97,6 +99,19 @@ class Px4Link:
     def is_open(self) -> bool:
         return self.system is not None
 
+    def require_alive(self, what: str) -> None:
+        """After a wait that got no answer: return when the vehicle still sends its 1 Hz heartbeat,
+        else raise LinkError — a lost link is never reported as the firmware ignoring ``what``."""
+        if not self.is_open:
+            raise LinkError(f"link to {self.url} is closed ({what})")
+        inbox, handle = self.subscribe("HEARTBEAT")
+        try:
+            inbox.get(timeout=SILENCE_S)
+        except queue.Empty:
+            raise LinkError(f"link to {self.url} lost: no heartbeat for {SILENCE_S:g} s ({what})") from None
+        finally:
+            self.unsubscribe(handle)
+
     def firmware(self) -> tuple[int, int, int] | None:
         for _ in range(10):  # AUTOPILOT_VERSION arrives shortly after discovery
             try:
@@ -108,9 +123,13 @@ class Px4Link:
 
     # ------------------------------------------------------------------ parameters
     def get(self, name: str, is_int: bool) -> int | float:
+        if not self.is_open:
+            raise LinkError(f"link to {self.url} is closed (reading {name})")
         try:
             return self.param.get_param_int(name) if is_int else self.param.get_param_float(name)
         except ParamError as exc:
+            if exc.result.name == "TIMEOUT":
+                self.require_alive(f"reading {name}")
             raise DutError(f"parameter {name} could not be read: {exc.result.name}") from exc
 
     def set(self, name: str, value: int | float, is_int: bool) -> int | float:
@@ -121,8 +140,10 @@ class Px4Link:
             else:
                 self.param.set_param_float(name, float(value))
         except ParamError as exc:
-            hint = (" — PX4 drops a PARAM_SET of an unknown name or the wrong type without a reply"
-                    if exc.result.name == "TIMEOUT" else "")
+            if exc.result.name == "TIMEOUT":
+                self.require_alive(f"writing {name}")
+            hint = (" while the vehicle was otherwise answering — PX4 drops a PARAM_SET of an unknown name or "
+                    "the wrong type without a reply" if exc.result.name == "TIMEOUT" else "")
             raise DutError(f"PARAM_SET {name} = {value!r} not confirmed: {exc.result.name}{hint}") from exc
         return self.get(name, is_int)
 
@@ -131,10 +152,13 @@ class Px4Link:
         p = [*params, *([0.0] * (7 - len(params)))]
         fields = {"target_system": self.target_system, "target_component": 1, "command": command,
                   "confirmation": 0, **{f"param{i + 1}": v for i, v in enumerate(p)}}
+        if not self.is_open:
+            raise LinkError(f"link to {self.url} is closed (command {command})")
         try:
             ack = self.direct.send_command(MavlinkMessage("COMMAND_LONG", GCS_SYSTEM, GCS_COMPONENT,
                                                           self.target_system, 1, json.dumps(fields)))
         except MavlinkDirectError as exc:
+            self.require_alive(f"command {command}")
             raise DutError(f"command {command} got no COMMAND_ACK ({exc.result.name})") from exc
         return int(json.loads(ack.fields_json)["result"])
 
@@ -172,5 +196,5 @@ class Px4Link:
                 try:
                     out += self._shell_out.get(timeout=max(deadline - time.monotonic(), 0.01))
                 except queue.Empty:
-                    raise DutError(f"no answer from the PX4 shell to {command!r} within {timeout_s:g} s") from None
+                    raise StationFault(f"no answer from the PX4 shell to {command!r} within {timeout_s:g} s") from None
             return out.split(SHELL_PROMPT)[0]

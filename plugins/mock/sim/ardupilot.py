@@ -9,7 +9,10 @@ What it reproduces, because each is a trap for a factory tool:
 - a compass counts as calibrated only if its offsets are non-zero and its DEV_ID was *saved*
   (MAV_CMD_PREFLIGHT_CALIBRATION param2 = 76); MAV_CMD_RUN_PREARM_CHECKS reports it;
 - RAW_IMU / SCALED_IMU2 / SCALED_IMU3 carry the *corrected* body-frame field in mG (offsets added,
-  SCALE, then the DIA/ODI matrix), so raw data needs the calibration neutralised or inverted;
+  SCALE, then the DIA/ODI matrix), so raw data needs the calibration neutralised or inverted; the
+  int16 fields are filled by a C conversion (truncation toward zero, not rounding);
+- the compass is read at 10 Hz (ArduCopter's scheduler) while a stream goes out at the rate asked
+  for, so RAW_IMU at 50 Hz carries each reading about five times;
 - a reboot closes the TCP connection; the client must reconnect.
 """
 
@@ -23,7 +26,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from magline.plugins.mock.sim.magnetometers import SimMagnetometer
 from magline.plugins.mock.sim.params import INT8, INT16, INT32, REAL32, ParamSpec, ParamValue, ccast_from_wire
-from magline.plugins.mock.sim.vehicle import ACCEPTED, UNSUPPORTED, SimulatedAutopilot
+from magline.plugins.mock.sim.vehicle import ACCEPTED, UNSUPPORTED, SimulatedAutopilot, int16_mg
 
 SETS = ("", "2", "3")
 AXES = ("X", "Y", "Z")
@@ -62,6 +65,7 @@ class ArduPilotSim(SimulatedAutopilot):
     stream_sensor: ClassVar[dict[int, int]] = {mavlink.MAVLINK_MSG_ID_RAW_IMU: 0, mavlink.MAVLINK_MSG_ID_SCALED_IMU: 0,
                      mavlink.MAVLINK_MSG_ID_SCALED_IMU2: 1, mavlink.MAVLINK_MSG_ID_SCALED_IMU3: 2}
     REBOOT_DELAY_S = 0.2
+    firmware_mag_rate_hz: ClassVar[float | None] = 10.0  # ArduCopter's update_compass task
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         self.stored: dict[str, ParamValue] = {}
@@ -197,11 +201,10 @@ class ArduPilotSim(SimulatedAutopilot):
         sensor = self.sets[i] if i < len(self.sets) else None
         if sensor is None:
             return None
-        raw_ut = sensor.read_ut(self.body_field_ut(now), self.rng)
-        mg = np.clip(np.round(self.correct_mg(i, raw_ut * 10.0)), -32768, 32767).astype(int)
+        raw_ut = self.held_reading_ut(sensor, now)
+        mag = int16_mg(self.correct_mg(i, raw_ut * 10.0))
         acc = self.accel_mg(now).astype(int)
         t_ms = self.time_boot_ms(now)
-        mag = [int(x) for x in mg]
         if msg_id == mavlink.MAVLINK_MSG_ID_RAW_IMU:
             return self.mav.raw_imu_encode(t_ms * 1000, *acc, 0, 0, 0, *mag, 0, 2500)
         encode = {mavlink.MAVLINK_MSG_ID_SCALED_IMU: self.mav.scaled_imu_encode,

@@ -26,6 +26,15 @@ def device_id(bus_type: int, bus: int, address: int, devtype: int) -> int:
 
 # IST8310 on I2C bus 1 at 0x0E (external GPS mast), RM3100 on SPI bus 4, BMM150 on I2C bus 3 at 0x10
 DEFAULT_IDS = (device_id(BUS_I2C, 1, 0x0E, 0x06), device_id(BUS_SPI, 4, 0x00, 0x07), device_id(BUS_I2C, 3, 0x10, 0x43))
+# How often a driver publishes a new reading, by device type (bits 16–23 of the id).  These are the
+# simulator's assumptions for "a sensor slower than the stream", not measured driver rates; a
+# station never relies on them — it measures the rate from the distinct readings it receives.
+DRIVER_RATE_HZ = {0x06: 50.0, 0x07: 100.0, 0x43: 25.0}
+DEFAULT_DRIVER_RATE_HZ = 50.0
+
+
+def driver_rate_hz(dev_id: int) -> float:
+    return DRIVER_RATE_HZ.get(dev_id >> 16 & 0xFF, DEFAULT_DRIVER_RATE_HZ)
 
 
 @dataclass

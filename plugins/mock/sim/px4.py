@@ -8,7 +8,9 @@ What it reproduces, because each is a trap for a factory tool:
 - the PARAM_VALUE echo only means "in RAM": autosave runs 300 ms after a change and at most once
   per 2 s, so a reboot soon after a write loses it unless MAV_CMD_PREFLIGHT_STORAGE (param1 = 1)
   forced a save; a save in progress finishes before a commanded reboot but not before a power cut;
-- SCALED_IMU/2/3 stream the raw sensor in mG; HIGHRES_IMU the calibrated field in Gauss;
+- SCALED_IMU/2/3 stream the raw sensor in mG (int16 by truncation toward zero); HIGHRES_IMU the
+  calibrated field in Gauss; each driver publishes at its own rate and a stream faster than that
+  carries the latest reading again with a fresh (IMU) timestamp;
 - with SENS_MAG_AUTOCAL = 1 the firmware writes its own calibration into an uncalibrated slot;
 - the device id of each ``sensor_mag`` instance is visible through the MAVLink shell
   (``listener sensor_mag -i N``), as on a real board.
@@ -26,7 +28,7 @@ from scipy.spatial.transform import Rotation
 
 from magline.plugins.mock.sim.magnetometers import SimMagnetometer
 from magline.plugins.mock.sim.params import INT32, REAL32, ParamSpec, ParamValue, bytewise_from_wire, bytewise_to_wire
-from magline.plugins.mock.sim.vehicle import ACCEPTED, DENIED, UNSUPPORTED, Power, SimulatedAutopilot
+from magline.plugins.mock.sim.vehicle import ACCEPTED, DENIED, UNSUPPORTED, Power, SimulatedAutopilot, int16_mg
 
 SLOTS = 4
 AXES = ("X", "Y", "Z")
@@ -198,11 +200,10 @@ class Px4Sim(SimulatedAutopilot):
             cal_g = self.corrected_ut(sensor, raw_ut) / 100.0
             return self.mav.highres_imu_encode(t_ms * 1000, *(acc * 9.80665e-3), 0.0, 0.0, 0.0, *cal_g,
                                                1013.25, 0.0, 0.0, 25.0, 0x1FF)
-        mg = np.clip(np.round(raw_ut * 10.0), -32768, 32767).astype(int)
         encode = {mavlink.MAVLINK_MSG_ID_SCALED_IMU: self.mav.scaled_imu_encode,
                   mavlink.MAVLINK_MSG_ID_SCALED_IMU2: self.mav.scaled_imu2_encode,
                   mavlink.MAVLINK_MSG_ID_SCALED_IMU3: self.mav.scaled_imu3_encode}[msg_id]
-        return encode(t_ms, *acc.astype(int), 0, 0, 0, *(int(x) for x in mg), 2500)
+        return encode(t_ms, *acc.astype(int), 0, 0, 0, *int16_mg(raw_ut * 10.0), 2500)
 
     # ------------------------------------------------------------------ commands
     def extra_commands(self) -> dict:

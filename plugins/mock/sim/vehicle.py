@@ -31,7 +31,7 @@ from scipy.spatial.transform import Rotation
 
 from magline.core.synthetic import earth_field_ned
 from magline.plugins.mock.sim.faults import SimFaults
-from magline.plugins.mock.sim.magnetometers import SimMagnetometer, attitude, default_magnetometers
+from magline.plugins.mock.sim.magnetometers import SimMagnetometer, attitude, default_magnetometers, driver_rate_hz
 from magline.plugins.mock.sim.params import ParamSpec, ParamTable, ParamValue
 from magline.plugins.mock.sim.transport import open_server
 from magline.plugins.mock.storage import NvStorage
@@ -47,6 +47,12 @@ class Power(enum.Enum):
     SHUTTING_DOWN = "shutting down"
     BOOTING = "booting"
     OFF = "off"
+
+
+def int16_mg(values_mg: NDArray) -> list[int]:
+    """What both firmwares put into a MAVLink int16 mG field: a C conversion from float, which
+    truncates toward zero (each axis reads on average 0.5 mG closer to zero), saturated at the type."""
+    return [int(v) for v in np.clip(np.trunc(np.asarray(values_mg, float)), -32768, 32767)]
 
 
 class _Wire:
@@ -68,13 +74,17 @@ class SimulatedAutopilot(ABC):
     default_listen: str
     storage_name: str
     stream_sensor: ClassVar[dict[int, int]]  # message id → index into the detected sensors
+    # How often the firmware reads its compass (None: each driver's own rate).  A stream requested
+    # faster than this carries the same reading several times, as real vehicles do.
+    firmware_mag_rate_hz: ClassVar[float | None] = None
 
     def __init__(self, listen: str | None = None, *, workdir: str | Path = ".",
                  magnetometers: list[SimMagnetometer] | None = None, mag_count: int = 1,
                  field_ut: float = 48.0, inclination_deg: float = 62.0,
                  motions: tuple[str, ...] = ("tumble",), speed: float = 1.0, boot_time_s: float = 2.0,
                  faults: SimFaults | None = None, seed: int | None = None, system_id: int = 1,
-                 save_duration_s: float = 0.05, field_provider: Callable[[], NDArray] | None = None) -> None:
+                 save_duration_s: float = 0.05, field_provider: Callable[[], NDArray] | None = None,
+                 mag_rate_hz: float | None = None) -> None:
         self.listen = listen or self.default_listen
         self.workdir = Path(workdir)
         self.rng = np.random.default_rng(seed)
@@ -89,6 +99,8 @@ class SimulatedAutopilot(ABC):
         self.system_id = system_id
         self.save_duration_s = save_duration_s
         self.field_provider = field_provider  # the board stands in a coil: its field, not a tumble
+        self.mag_rate_hz = mag_rate_hz  # overrides the firmware's / driver's sensor rate
+        self._held: dict[int, tuple[float, NDArray]] = {}  # device id → (next reading due, latest reading)
         self.table = ParamTable(self.param_specs())
         self.mav = mavlink.MAVLink(_Wire(self), srcSystem=system_id, srcComponent=mavlink.MAV_COMP_ID_AUTOPILOT1)
         self.lock = threading.RLock()
@@ -243,6 +255,7 @@ class SimulatedAutopilot(ABC):
             if self.faults.swap_mags_after_reboot and len(mags) > 1:
                 mags[0], mags[1] = mags[1], mags[0]
         self.detected = mags
+        self._held.clear()
         self.load_from_storage(self.read_storage())
         self.power = Power.UP
         self.boots += 1
@@ -376,11 +389,27 @@ class SimulatedAutopilot(ABC):
         """Gravity in the body frame (mG), for the IMU fields of the streamed messages."""
         return self.attitude_at(now).inv().apply([0.0, 0.0, -1000.0])
 
+    def sensor_rate_hz(self, sensor: SimMagnetometer) -> float:
+        return self.mag_rate_hz or self.firmware_mag_rate_hz or driver_rate_hz(sensor.device_id)
+
+    def held_reading_ut(self, sensor: SimMagnetometer, now: float) -> NDArray:
+        """The sensor's latest reading: a new one every 1/rate s, held in between (sample and hold).
+
+        Why: a MAVLink stream is sent at the rate asked for, whatever the sensor's own rate, so a
+        stream faster than the sensor repeats each reading — exactly, on every axis."""
+        period = 1.0 / self.sensor_rate_hz(sensor)
+        due, reading = self._held.get(sensor.device_id, (now, None))
+        if reading is None or now >= due:
+            reading = sensor.read_ut(self.body_field_ut(now), self.rng)
+            due = due + period if now - due < period else now + period
+            self._held[sensor.device_id] = (due, reading)
+        return reading
+
     def raw_reading_ut(self, index: int, now: float) -> tuple[SimMagnetometer, NDArray] | None:
         if index >= len(self.detected):
             return None
         sensor = self.detected[index]
-        return sensor, sensor.read_ut(self.body_field_ut(now), self.rng)
+        return sensor, self.held_reading_ut(sensor, now)
 
     def send_param(self, name: str) -> None:
         spec = self.table.specs[name]

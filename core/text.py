@@ -1,0 +1,36 @@
+"""Numbers as an operator reads them: rounded to what matters, with their unit.
+
+Why one module: the console, the verdict panel, phase logs and ``magline history`` all show
+values; none may show 0.38549133410640546 or 29.6988 s.
+"""
+
+from __future__ import annotations
+
+import math
+
+
+def fmt(value: float | None, unit: str = "", digits: int = 4) -> str:
+    """``value`` to ``digits`` significant digits (no exponent for everyday magnitudes), then the unit."""
+    if value is None:
+        return "—"
+    if isinstance(value, float) and not math.isfinite(value):
+        text = str(value)
+    else:
+        text = f"{float(value):.{digits}g}"
+        if "e" in text and 1e-4 <= abs(value) < 1e7:
+            text = f"{float(value):.{max(digits - 1 - math.floor(math.log10(abs(value))), 0)}f}"
+    return f"{text} {unit}".rstrip() if unit and unit not in ("%", "°") else f"{text}{unit}"
+
+
+def percent(fraction: float) -> str:
+    """0.6234 → ``62%``."""
+    return f"{fraction:.0%}"
+
+
+def seconds(value: float) -> str:
+    """A duration: ``0.42 s``, ``3.1 s``, ``30 s``."""
+    if value < 1:
+        return f"{value:.2f} s"
+    if value < 10:
+        return f"{value:.1f} s"
+    return f"{value:.0f} s"

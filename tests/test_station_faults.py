@@ -1,0 +1,109 @@
+"""FAIL against ERROR, fault by fault: the unit is failed only when it was judged bad.
+
+The classification table of the README, tested per backend and transport against real sockets:
+nothing listening, a port that never accepts, one that never answers, every simulator fault, and a
+vehicle that closes its TCP link mid-acquisition.  Every timeout is a deadline.
+"""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+from dead_ports import never_accepting_port, refused_port, silent_port
+from simstation import FAST_SENSOR_HZ, run_unit, stored_attempts, write_station
+
+from magline.core.plugins import hookimpl, load_plugins
+from magline.core.record import Outcome
+from magline.core.sequencer import Sequencer
+from magline.core.station import load_station
+from magline.plugins.mock.sim import SimFaults, create_sim
+
+AP = {"connect_timeout_s": 1.0, "boot_timeout_s": 3.0, "prearm_wait_s": 0.3}
+PX4 = {"connect_timeout_s": 1.0, "boot_timeout_s": 3.0}
+DEADLINE_SLACK_S = 4.0  # a deadline of 1 s may overrun by a poll and a close, never by a TCP retry cycle
+
+
+def dead_address(kind: str, backend: str, port: int) -> str:
+    if backend == "ardupilot":
+        return {"tcp": f"tcp:127.0.0.1:{port}", "udp": f"udpout:127.0.0.1:{port}"}[kind]
+    return {"tcp": f"tcpout://127.0.0.1:{port}", "udp": f"udpout://127.0.0.1:{port}"}[kind]
+
+
+CASES = [("ardupilot", "tcp", refused_port), ("ardupilot", "tcp", never_accepting_port),
+         ("ardupilot", "tcp", silent_port), ("ardupilot", "udp", lambda: silent_port("udp")),
+         ("px4", "tcp", refused_port), ("px4", "tcp", never_accepting_port), ("px4", "tcp", silent_port),
+         ("px4", "udp", lambda: silent_port("udp"))]
+
+
+@pytest.mark.parametrize(("backend", "transport", "port_kind"), CASES,
+                         ids=[f"{b}-{t}-{k.__name__ if hasattr(k, '__name__') else 'silent'}" for b, t, k in CASES])
+def test_no_vehicle_is_an_error_within_the_connect_deadline(tmp_path, backend, transport, port_kind):
+    example = {"ardupilot": "ardupilot-sim.yaml", "px4": "px4-sim.yaml"}[backend]
+    options = AP if backend == "ardupilot" else PX4
+    with port_kind() as port:
+        station = write_station(example, tmp_path, dead_address(transport, backend, port), options)
+        started = time.monotonic()
+        record = run_unit(station)
+        elapsed = time.monotonic() - started
+    assert record.verdict is Outcome.ERROR, record.cause
+    assert "within 1 s" in record.cause and "answered" in record.cause
+    assert elapsed < options["connect_timeout_s"] + DEADLINE_SLACK_S
+    assert "Error:" not in record.cause  # no Python class names for the operator
+
+
+def ap_sim(tmp_path, faults=None, **kw):
+    workdir = tmp_path / "fc"
+    workdir.mkdir(exist_ok=True)
+    return create_sim("ardupilot", "tcp:127.0.0.1:0", mag_rate_hz=FAST_SENSOR_HZ, workdir=workdir, seed=11,
+                      boot_time_s=0.3, speed=5.0, faults=faults, **kw).start()
+
+
+FAULTS = [  # (fault, outcome, words in the cause)
+    (SimFaults(ignore_param_set=["COMPASS_DIA_X"]), Outcome.FAIL, "got no echo while the vehicle was otherwise"),
+    (SimFaults(no_persist=["COMPASS_OFS_Y"]), Outcome.FAIL, "did not survive the power cycle"),
+    (SimFaults(mag_missing_after_reboot=396809), Outcome.FAIL, "missing after power cycle"),
+    (SimFaults(reboot_fails=True), Outcome.ERROR, "the unit now holds a new, unverified calibration"),
+    (SimFaults(link_loss_after_s=0.5), Outcome.ERROR, "link lost during acquisition"),
+    (SimFaults(drop_percent=2.0), Outcome.PASS, ""),
+]
+
+
+@pytest.mark.parametrize(("faults", "outcome", "words"), FAULTS,
+                         ids=["refused-write", "not-persisted", "mag-missing", "no-reboot", "link-lost", "lossy"])
+def test_each_simulator_fault_is_classified(tmp_path, faults, outcome, words):
+    with ap_sim(tmp_path, faults) as sim:
+        record = run_unit(write_station("ardupilot-sim.yaml", tmp_path, sim.address,
+                                        {**AP, "stream_timeout_s": 0.5}), "SN-F")
+    assert record.verdict is outcome, record.cause
+    assert words in record.cause
+    assert stored_attempts(tmp_path / "results.sqlite", "SN-F")  # raw data kept on every path
+    if outcome is Outcome.ERROR and "unverified" in words:
+        assert record.unverified_params and all(n.startswith("COMPASS_") for n in record.unverified_params)
+        assert "COMPASS_OFS_X" in record.cause and "re-test the unit" in record.cause
+
+
+def test_a_vehicle_closing_its_tcp_link_is_a_lost_link_at_once(tmp_path, capfd):
+    """The vehicle dies mid-acquisition: no 2 s stream timeout, no "EOF on TCP socket" flood."""
+    sim = ap_sim(tmp_path)
+    killed: list[float] = []
+
+    class KillTheVehicle:
+        @hookimpl
+        def magline_acquisition_progress(self, run, attempt, samples, coverage, target):
+            if samples >= 60 and not killed:
+                sim.stop()
+                killed.append(time.monotonic())
+
+    station = write_station("ardupilot-sim.yaml", tmp_path, sim.address, {**AP, "stream_timeout_s": 30.0})
+    seq = Sequencer(load_station(station), load_plugins(extra=[KillTheVehicle()]), tmp_path, sleep=lambda s: None)
+    try:
+        record = seq.run_unit("SN-EOF")
+    finally:
+        seq.close()
+        sim.stop()
+    acquire = next(p for p in record.phases if p.name == "acquire")
+    assert record.verdict is Outcome.ERROR and "link" in record.cause and "closed" in record.cause
+    assert acquire.duration_s < 30.0  # it did not wait for the stream timeout
+    out = capfd.readouterr()
+    assert "EOF on TCP socket" not in out.out + out.err
