@@ -9,20 +9,23 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
+from collections.abc import Callable, Iterator
 from importlib.resources import as_file, files
 from pathlib import Path
 
-from pydantic import ValidationError
-
 from magline.core import __version__
+from magline.core.faults import StationFault, UnitAborted
 from magline.core.fit import FitOptions, FitRefused, fit_calibration
 from magline.core.fit.affine import fit_affine
 from magline.core.fit.samples_csv import SampleFileError, read_samples
 from magline.core.plugins import PluginError, Plugins, load_plugins
 from magline.core.record import Outcome
-from magline.core.station import Station, StationError, load_station_text
-from magline.core.station.loader import line_of, read_station_text
+from magline.core.station import Station, StationError
+from magline.core.station.checks import station_problems
+from magline.core.station.loader import read_station_text
+from magline.core.text import fmt, percent
 
 EXIT = {Outcome.PASS: 0, Outcome.FAIL: 1, Outcome.ERROR: 2, Outcome.SKIPPED: 2}
 DEMO = "demo.yaml"
@@ -69,7 +72,7 @@ def main(argv: list[str] | None = None) -> int:
     if hasattr(args, "handler"):
         return args.handler(args)
     handler = {"run": _run, "check": _check, "fit": _fit, "plugins": _plugins, "history": _history}
-    return handler[args.command](args, plugins)
+    return _quiet_broken_pipe(lambda: handler[args.command](args, plugins))
 
 
 def _err(message: str) -> None:
@@ -77,85 +80,79 @@ def _err(message: str) -> None:
 
 
 def _load(path: str | None, plugins: Plugins) -> tuple[Station, Path]:
-    """Load a station file (or the embedded demo) and check the names it uses against the plugins."""
+    """Load a station file (or the embedded demo) and check the names it uses against the plugins;
+    every problem is reported at once."""
     if path is None:  # the embedded demo keeps its files in the directory magline runs in
         with as_file(files("magline.stations") / DEMO) as demo:
             text, name, where = read_station_text(demo), str(demo), Path.cwd()
     else:
         text, name, where = read_station_text(path), path, Path(path).parent
-    station = load_station_text(text, name)
-    problems = []
-    for part, product in station.products.items():
-        if product.backend not in plugins.dut_backends:
-            line = line_of(text, ("products", part, "backend"))
-            problems.append(f"{name}:{line}: products.{part}.backend: unknown DUT backend "
-                            f"{product.backend!r}; loaded: {', '.join(sorted(plugins.dut_backends))}")
-        problems += _option_problems(plugins, ("dut backend", product.backend), product.options,
-                                     ("products", part, "options"), text, name)
-        problems += _option_problems(plugins, ("power control", product.power.method), product.power.options,
-                                     ("products", part, "power", "options"), text, name)
-        if product.power.method not in plugins.power_controls:
-            line = line_of(text, ("products", part, "power", "method"))
-            problems.append(f"{name}:{line}: products.{part}.power.method: unknown power control "
-                            f"{product.power.method!r}; loaded: {', '.join(sorted(plugins.power_controls))}")
-    for key, value, registry in (("field_source.type", station.field_source.type, plugins.field_sources),
-                                 ("results.sink", station.results.sink, plugins.result_sinks)):
-        if value not in registry:
-            line = line_of(text, tuple(key.split(".")))
-            problems.append(f"{name}:{line}: {key}: unknown {key.split('.')[0].replace('_', ' ')} "
-                            f"{value!r}; loaded: {', '.join(sorted(registry))}")
-    if problems:
+    station, problems = station_problems(text, name, plugins)
+    if problems or station is None:
         raise StationError(problems)
     return station, where
 
 
-def _option_problems(plugins: Plugins, key: tuple[str, str], options: dict, where: tuple, text: str,
-                     name: str) -> list[str]:
-    """A plugin's declared options model applied to the station file's options, one line per problem."""
-    model = plugins.option_models.get(key)
-    if model is None:
-        return []
-    try:
-        model.model_validate(options)
-    except ValidationError as exc:
-        return [f"{name}:{line_of(text, (*where, *err['loc']))}: {'.'.join(map(str, (*where, *err['loc'])))}: "
-                f"{err['msg']}" for err in exc.errors()]
-    return []
-
-
 def _run(args: argparse.Namespace, plugins: Plugins) -> int:
+    """Run units until the batch ends: one unit, or with ``--loop`` until an empty serial / EOF.
+
+    Ctrl-C or SIGTERM aborts the unit under test (its DUT restored where the link allows, its
+    record marked aborted) and ends the batch with its summary; no traceback.
+    """
     from magline.core.console import OperatorConsole
     from magline.core.sequencer import Sequencer
+    from magline.core.sequencer.batch import Batch
 
-    plugins.pm.register(OperatorConsole())
+    console = OperatorConsole()
+    plugins.pm.register(console)
     try:
         station, where = _load(args.station, plugins)
         sequencer = Sequencer(station, plugins, where)
-    except (StationError, PluginError, ValueError, KeyError, RuntimeError, OSError) as exc:
+    except (StationError, PluginError, StationFault, ValueError, KeyError, RuntimeError, OSError) as exc:
         _err(str(exc))  # includes instruments that do not answer at start-up
         return 2
+    batch = Batch()
+    serials = _serials(args, station)
     try:
-        code = 0
-        while True:
-            serial = args.serial or _ask_serial(station, args.station is None)
-            if serial is None:
-                return code
-            record = sequencer.run_unit(serial, args.part, args.operator)
-            code = EXIT[record.verdict]
-            if sequencer.stopped is not None:
-                _err(f"batch stopped: {sequencer.stopped}")
-                return 2
-            if not args.loop:
-                return code
-            args.serial = None
+        with sequencer.abort.signals():
+            try:
+                for serial in serials:
+                    batch.add(sequencer.run_unit(serial, args.part, args.operator))
+                    if sequencer.abort.requested is not None:
+                        break
+                    if sequencer.stopped is not None:
+                        _err(f"batch stopped: {sequencer.stopped}")
+                        break
+            except UnitAborted as exc:  # at the serial prompt: nothing to restore
+                console.note(f"{exc.reason}: no unit under test")
     finally:
         sequencer.close()
+    if batch.units == 0:
+        _err("no unit tested")
+        return 2
+    if args.loop or batch.units > 1 or sequencer.abort.requested is not None:
+        console.batch_summary(batch)
+    return batch.exit_code()
 
 
-def _ask_serial(station: Station, demo: bool) -> str | None:
-    if demo and not sys.stdin.isatty():
+def _serials(args: argparse.Namespace, station: Station) -> Iterator[str]:
+    """The units to test: ``--serial`` first, then (with ``--loop``) one per line the operator or a
+    barcode scanner types, until an empty line or EOF.  Only the embedded demo without a terminal
+    and without ``--loop`` invents one serial, so ``magline run`` works in a plain script."""
+    if args.serial:
+        yield args.serial
+    elif args.station is None and not args.loop and not sys.stdin.isatty():
         from datetime import UTC, datetime
-        return "DEMO-" + datetime.now(UTC).strftime("%Y%m%d-%H%M%S")
+        yield "DEMO-" + datetime.now(UTC).strftime("%Y%m%d-%H%M%S")
+    elif (serial := _ask_serial(station)) is not None:
+        yield serial
+    else:
+        return
+    while args.loop and (serial := _ask_serial(station)) is not None:
+        yield serial
+
+
+def _ask_serial(station: Station) -> str | None:
     try:
         serial = input(f"{station.prompts.serial}: ").strip()
     except EOFError:
@@ -235,25 +232,49 @@ def _plugins(args: argparse.Namespace, plugins: Plugins) -> int:
 
 
 def _history(args: argparse.Namespace, plugins: Plugins) -> int:
+    from magline.core.results.sqlite_sink import results_path
     try:
         station, where = _load(args.station, plugins)
-        sink = plugins.result_sinks[station.results.sink](station, where)
     except (StationError, PluginError) as exc:
         _err(str(exc))
         return 2
-    runs = sink.history(args.serial)
-    sink.close()
+    name = "the embedded demo station" if args.station is None else args.station
+    if station.results.sink == "sqlite":  # never create a store just to find it empty
+        path = results_path(station, where)
+        if not path.exists():
+            _err(f"no results store at {path} (named by {name}); nothing has been recorded there yet")
+            return 1
+        print(f"results store {path} (named by {name})")
+    try:
+        sink = plugins.result_sinks[station.results.sink](station, where)
+    except StationFault as exc:
+        _err(str(exc))
+        return 2
+    try:
+        runs = sink.history(args.serial)
+    finally:
+        sink.close()
     if not runs:
         print(f"no runs for {args.serial}")
         return 1
     for run in runs:
-        cov = ", ".join(f"{a['coverage']:.0%}" + (" refused" if a.get("refused") else "")
-                        for a in run["attempts"])
-        print(f"#{run['id']} {run['started']} {run['part']} {run['verdict'].upper()} "
+        cov = ", ".join(percent(a["coverage"]) + (" refused" if a.get("refused") else "") for a in run["attempts"])
+        where_aborted = f" during {run['aborted_phase']}" if run.get("aborted_phase") else ""
+        print(f"#{run['id']} {run['started'][:19]} {run['part']} {run['verdict'].upper()}{where_aborted} "
               f"attempts [{cov}] {run['cause'] or ''}".rstrip())
         for f in run["failed"]:
-            print(f"    ✗ {f['name']} = {f['value']:.4g} {f['unit']} limits [{f['low']}, {f['high']}]")
+            print(f"    ✗ {f['name']} = {fmt(f['value'], f['unit'])}  limits [{fmt(f['low'])}, {fmt(f['high'])}]")
     return 0
+
+
+def _quiet_broken_pipe(handler: Callable[[], int]) -> int:
+    """``magline fit … | head``: the reader went away; stop quietly, as a Unix filter does."""
+    try:
+        return handler()
+    except BrokenPipeError:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())  # the interpreter's final flush must not fail again
+        return 0
 
 
 if __name__ == "__main__":

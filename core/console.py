@@ -1,7 +1,9 @@
-"""Operator console: a listener plugin that shows phases, coverage and the verdict.
+"""Operator console: a listener plugin that shows phases, coverage, waits and the verdict.
 
 Why rich: it gives a live coverage bar and coloured panels on a terminal and degrades to plain
 lines when stdout is a pipe or a log file (no escape codes in CI logs or line-PC transcripts).
+What the operator reads is rounded, carries its unit and names no Python class; library chatter
+goes to the record's log (see :mod:`magline.core.sequencer.unit_log`), not here.
 """
 
 from __future__ import annotations
@@ -13,21 +15,30 @@ from rich.progress import BarColumn, Progress, TaskID, TextColumn
 from magline.core.measurements import Verdict, verdicts
 from magline.core.plugins import hookimpl
 from magline.core.record import Outcome, PhaseResult, RunRecord
+from magline.core.sequencer.batch import Batch
 from magline.core.sequencer.context import RunContext
+from magline.core.text import fmt, percent, seconds
 
-STYLE = {Outcome.PASS: "green", Outcome.FAIL: "red", Outcome.ERROR: "magenta", Outcome.SKIPPED: "dim"}
+STYLE = {Outcome.PASS: "green", Outcome.FAIL: "red", Outcome.ERROR: "magenta", Outcome.ABORTED: "yellow",
+         Outcome.SKIPPED: "dim", Outcome.INCOMPLETE: "magenta"}
+MARK = {Verdict.PASS: "✓", Verdict.FAIL: "✗", Verdict.REVIEW: "!", Verdict.INFO: "·"}
+WAIT_EVERY_S = 5  # plain-text consoles print a countdown line this often
 
 
 class OperatorConsole:
     """Register an instance with the plugin manager (``load_plugins(extra=[console])``)."""
 
     def __init__(self, console: Console | None = None) -> None:
-        self.console = console or Console(highlight=False)
+        self.console = console or Console(highlight=False, soft_wrap=True)  # log lines are never cut
         self.live = self.console.is_terminal
         self._progress: Progress | None = None
         self._task: TaskID | None = None
         self._attempt = 0
         self._last_pct = -1
+        self._last_wait = -1
+
+    def note(self, text: str) -> None:
+        self.console.print(text)
 
     @hookimpl
     def magline_phase_started(self, run: RunContext, phase: str) -> None:
@@ -37,9 +48,10 @@ class OperatorConsole:
     @hookimpl
     def magline_phase_finished(self, run: RunContext, phase: str, result: PhaseResult) -> None:
         self._stop_progress()
-        if phase == "record":
+        self._last_wait = -1
+        if phase == "record" and result.outcome is Outcome.PASS:
             return
-        text = f"[{STYLE[result.outcome]}]{phase:>9} {result.outcome.upper()}[/] ({result.duration_s:.2f} s)"
+        text = f"[{STYLE[result.outcome]}]{phase:>9} {result.outcome.upper()}[/] ({seconds(result.duration_s)})"
         if result.message:
             text += f": {result.message}"
         self.console.print(text)
@@ -49,20 +61,29 @@ class OperatorConsole:
         self.console.print(f"[bold yellow]>>> {message}[/]")
 
     @hookimpl
+    def magline_waiting(self, run: RunContext, what: str, elapsed_s: float, limit_s: float | None) -> None:
+        whole = int(elapsed_s)
+        if not self.live and whole // WAIT_EVERY_S == self._last_wait // WAIT_EVERY_S:
+            return
+        self._last_wait = whole
+        left = f"{max(limit_s - elapsed_s, 0):.0f} s left of {limit_s:.0f} s" if limit_s else f"{whole} s"
+        self.console.print(f"    {what} … {left}")
+
+    @hookimpl
     def magline_acquisition_progress(self, run: RunContext, attempt: int, samples: int, coverage: float,
                                      target: float) -> None:
         pct = int(coverage * 100)
         if not self.live:
             if attempt != self._attempt or pct // 10 != self._last_pct // 10:
-                self.console.print(f"    attempt {attempt}: {samples} samples, coverage {pct}% "
-                                   f"(target {target:.0%})")
+                self.console.print(f"    attempt {attempt}: {samples} readings, coverage {pct}% "
+                                   f"(target {percent(target)})")
             self._attempt, self._last_pct = attempt, pct
             return
         if self._progress is None or attempt != self._attempt:
             self._stop_progress()
             self._progress = Progress(TextColumn("    coverage"), BarColumn(),
                                       TextColumn("{task.percentage:>3.0f}% (target {task.fields[target]:.0%})"
-                                                 " {task.fields[samples]} samples"),
+                                                 " {task.fields[samples]} readings"),
                                       console=self.console, transient=False)
             self._task = self._progress.add_task("coverage", total=100, target=target, samples=0)
             self._progress.start()
@@ -76,19 +97,41 @@ class OperatorConsole:
 
     @hookimpl
     def magline_unit_finished(self, run: RunContext, record: RunRecord) -> None:
-        lines = [f"unit {record.serial}  part {record.part}  station {record.station_id}"]
-        failed = [m for m in verdicts(record.measurements) if m.verdict is Verdict.FAIL]
-        for m in failed:
-            lines.append(f"  ✗ {m.name} = {m.value:.4g} {m.unit}  limits [{m.low}, {m.high}]")
-        review = [m for m in verdicts(record.measurements) if m.verdict is Verdict.REVIEW]
-        for m in review:
-            lines.append(f"  ! {m.name} = {m.value:.4g} {m.unit}  (marginal, for review)")
-        if record.cause:
-            lines.append(f"  cause: {record.cause}")
-        if record.calibration:
-            h = record.calibration["hard_iron_ut"]
-            lines.append(f"  offset [{h[0]:.2f}, {h[1]:.2f}, {h[2]:.2f}] µT, field "
-                         f"{record.calibration['field_ut']:.2f} µT, attempts {len(record.attempts)}")
         style = STYLE.get(record.verdict, "red")
-        self.console.print(Panel("\n".join(lines), title=f"[bold {style}]{record.verdict.upper()}[/]",
+        self.console.print(Panel("\n".join(verdict_lines(record)), title=f"[bold {style}]{record.verdict.upper()}[/]",
                                  border_style=style, expand=False))
+
+    def batch_summary(self, batch: Batch) -> None:
+        self.console.print(f"[bold]{batch.summary()}[/]")
+
+
+def verdict_lines(record: RunRecord) -> list[str]:
+    """The verdict panel: identity, every measurement against its limit, the calibration, where
+    the record is kept, and anything the operator must act on (re-test, left changed)."""
+    lines = [f"unit {record.serial}  part {record.part}  station {record.station_id}"]
+    if record.earlier_passes:
+        lines.append(f"  re-test: this unit passed {record.earlier_passes} time(s) before "
+                     f"(test {record.earlier_runs + 1} of this serial)")
+    if record.cause:
+        lines.append(f"  cause: {record.cause}")
+    for m in verdicts(record.measurements):
+        limit = f"[{fmt(m.low)}, {fmt(m.high)}]" if m.verdict is not Verdict.INFO else "no limit"
+        flag = "  REVIEW (marginal)" if m.verdict is Verdict.REVIEW else ("  FAIL" if m.verdict is Verdict.FAIL else "")
+        lines.append(f"  {MARK[m.verdict]} {m.name:<24} {fmt(m.value, m.unit):>14}  {limit}{flag}")
+    if record.calibration:
+        cal = record.calibration
+        h = ", ".join(fmt(v, digits=4) for v in cal["hard_iron_ut"])
+        lines.append(f"  hard iron [{h}] µT, field {fmt(cal['field_ut'], 'µT')}, attempts {len(record.attempts)}")
+        for i, row in enumerate(cal["soft_iron"]):
+            lines.append(f"  {'soft iron' if i == 0 else '':<9} [" + ", ".join(f"{v:8.4f}" for v in row) + "]")
+        affine = cal.get("affine")
+        if affine:
+            lines.append(f"  coil misalignment {fmt(affine['misalignment_deg'], '°', 3)}")
+    if record.unverified_params:
+        lines.append(f"  UNVERIFIED: the unit holds a new calibration that was not proven "
+                     f"({', '.join(record.unverified_params)}) — re-test it")
+    if record.left_changed:
+        lines.append("  NOT RESTORED: " + ", ".join(f"{k} left at {v}" for k, v in record.left_changed.items())
+                     + " — re-test it")
+    lines.append(f"  record: {record.store}" if record.store else "  record: NOT stored")
+    return lines

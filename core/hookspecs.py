@@ -179,6 +179,17 @@ def magline_acquisition_progress(run: RunContext, attempt: int, samples: int, co
 
 
 @hookspec
+def magline_waiting(run: RunContext, what: str, elapsed_s: float, limit_s: float | None) -> None:
+    """A long wait of the station is under way (the power cycle and the new boot): called about once
+    a second, from a timer thread, so that an operator view can show a countdown.
+
+    :param what: what the station waits for, in the operator's words.
+    :param elapsed_s: seconds since the wait began.
+    :param limit_s: when the station gives up (None when the backend does not say).
+    """
+
+
+@hookspec
 def magline_operator_prompt(run: RunContext, message: str) -> None:
     """Something the operator must do now (tumble, tumble again, scan)."""
 

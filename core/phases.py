@@ -195,7 +195,8 @@ def _roll_back(run: RunContext, before: dict[str, ParamValue]) -> str:
 def magline_verify_persistence(run: RunContext, persisted: PersistReport) -> VerifyReport:
     dut = run.require_dut()
     power = run.require_power()
-    figures = dict(power.cycle(dut))
+    with run.waiting("power cycle: waiting for the unit to boot", getattr(dut, "boot_timeout_s", None)):
+        figures = dict(power.cycle(dut))
     method = str(figures.pop("method", power.method))
     present = dut.selected_sensor_present()
     read_back = dut.read_params(list(persisted.written))

@@ -90,3 +90,18 @@ def test_the_truncation_no_longer_biases_the_calibration(tmp_path, hard_iron_ut)
         radius = np.linalg.norm(sim.corrected_sphere(sensor.device_id, n=4000), axis=1)
     assert abs(radius.mean() / sim.field_ut - 1.0) < 0.0005
     assert np.abs(np.array(record.calibration["hard_iron_ut"]) - hard_iron_ut).max() < 0.03
+
+
+def test_a_sensor_too_slow_for_the_timeout_is_a_station_error_that_says_why(tmp_path):
+    """The count is of readings: at 10 Hz, 400 readings cannot arrive in 3 s.  The station's
+    configuration cannot be met — an ERROR naming the rate and the settings, not a bad unit."""
+    with create_sim("ardupilot", "tcp:127.0.0.1:0", workdir=tmp_path / "fc", seed=11, boot_time_s=0.3,
+                    speed=5.0) as sim:
+        station = write_station("ardupilot-sim.yaml", tmp_path, sim.address, AP,
+                                {"acquisition": {"samples": 400, "rate_hz": 50.0, "timeout_s": 3.0, "retries": 0}})
+        record = run(station)
+    assert record.verdict is Outcome.ERROR
+    assert "of 400 readings within 3 s: the sensor delivers about 10 readings/s" in record.cause
+    assert "the stream carried each about 5 times" in record.cause
+    assert "raise acquisition.timeout_s or lower acquisition.samples" in record.cause
+    assert record.attempts and record.attempts[0].refused.startswith("interrupted: only")

@@ -6,6 +6,10 @@ and the listeners, so hook signatures stay stable as phases learn more.
 
 from __future__ import annotations
 
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -92,6 +96,25 @@ class RunContext:
     def prompt(self, message: str) -> None:
         self.log(f"operator: {message}")
         self.plugins.hook.magline_operator_prompt(run=self, message=message)
+
+    @contextmanager
+    def waiting(self, what: str, limit_s: float | None = None, tick_s: float = 1.0) -> Iterator[None]:
+        """Around a long blocking wait: ``magline_waiting`` about every ``tick_s`` from a timer thread."""
+        done = threading.Event()
+        started = time.monotonic()
+
+        def tick() -> None:
+            while not done.wait(tick_s):
+                self.plugins.hook.magline_waiting(run=self, what=what, elapsed_s=time.monotonic() - started,
+                                                  limit_s=limit_s)
+
+        ticker = threading.Thread(target=tick, name="magline-countdown", daemon=True)
+        ticker.start()
+        try:
+            yield
+        finally:
+            done.set()
+            ticker.join(timeout=2.0)
 
     def progress(self, attempt: int, samples: int, coverage: float, target: float) -> None:
         self.plugins.hook.magline_acquisition_progress(run=self, attempt=attempt, samples=samples,

@@ -8,10 +8,11 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from pathlib import Path
-from typing import Any
+from types import UnionType
+from typing import Annotated, Any, Union, get_args, get_origin
 
 import yaml
-from pydantic import ValidationError
+from pydantic import BaseModel, ValidationError
 
 from magline.core.station.schema import Station
 
@@ -109,10 +110,10 @@ def _describe(err: Any, lines: dict[Path_, int], name: str) -> str:
         msg = "required key is missing"
     elif kind == "extra_forbidden":
         line = _nearest(loc, lines)
-        msg = "unknown key"
+        msg = "unknown key" + _did_you_mean(loc)
     else:
         line = _nearest(loc, lines)
-        msg = err["msg"]
+        msg = err["msg"].removeprefix("Value error, ")
         if "input" in err and kind.endswith("_type"):
             msg += f" (got {type(err['input']).__name__} {err['input']!r})"
     key = _dotted(loc) or "(top level)"
@@ -124,3 +125,43 @@ def _dotted(path: Iterable[str | int]) -> str:
     for p in path:
         out += f"[{p}]" if isinstance(p, int) else (f".{p}" if out else str(p))
     return out
+
+
+def _did_you_mean(loc: Path_) -> str:
+    """For an unknown key: the nearest key the schema allows at that place, when one is close."""
+    import difflib
+
+    allowed = _allowed_keys(loc[:-1])
+    close = difflib.get_close_matches(str(loc[-1]), allowed, n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def _allowed_keys(path: Path_) -> list[str]:
+    """The keys the station schema accepts under ``path`` (empty when it is not a section)."""
+    node: Any = Station
+    for part in path:
+        node = _unwrap(node)
+        if isinstance(node, type) and issubclass(node, BaseModel):
+            field = node.model_fields.get(str(part))
+            if field is None:
+                return []
+            node = field.annotation
+        elif get_origin(node) is dict:
+            node = get_args(node)[1]
+        elif get_origin(node) is list:
+            node = get_args(node)[0]
+        else:
+            return []
+    node = _unwrap(node)
+    return list(node.model_fields) if isinstance(node, type) and issubclass(node, BaseModel) else []
+
+
+def _unwrap(node: Any) -> Any:
+    """Annotated[X, ...] → X; X | None → X."""
+    while get_origin(node) is Annotated:
+        node = get_args(node)[0]
+    if get_origin(node) in (Union, UnionType):
+        members = [a for a in get_args(node) if a is not type(None)]
+        node = members[0] if members else node
+        return _unwrap(node)
+    return node

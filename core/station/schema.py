@@ -61,7 +61,11 @@ class Limit(_Strict):
 
 def _known_measurement(name: str) -> str:
     if name not in KNOWN_LIMIT_NAMES:
-        raise ValueError(f"unknown measurement {name!r}; known: {', '.join(sorted(KNOWN_LIMIT_NAMES))}")
+        import difflib
+
+        close = difflib.get_close_matches(name, sorted(KNOWN_LIMIT_NAMES), n=1, cutoff=0.6)
+        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        raise ValueError(f"unknown measurement {name!r}{hint}; known: {', '.join(sorted(KNOWN_LIMIT_NAMES))}")
     return name
 
 

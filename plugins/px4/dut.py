@@ -116,6 +116,11 @@ class Px4Dut:
     def close(self) -> None:
         self.link.close()
 
+    @property
+    def boot_timeout_s(self) -> float:
+        """How long the station waits for the new boot after a power cycle (the operator's countdown)."""
+        return self.opts.boot_timeout_s
+
     # ------------------------------------------------------------------ prepare / restore
     def prepare(self) -> None:
         autocal = int(self.link.get("SENS_MAG_AUTOCAL", True))

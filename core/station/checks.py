@@ -1,0 +1,98 @@
+"""Every problem of a station file in one pass: schema, then the names and options that only the
+loaded plugins can judge (backends, power controls, field sources, result sinks).
+
+Why one pass: an engineer editing a station file should see all of its problems at once, each as
+``file:line: key: what is wrong``, not one round of edit-and-check per problem.  The plugin checks
+read the YAML data directly, so they run even when the schema has complaints of its own.
+"""
+
+from __future__ import annotations
+
+import difflib
+from collections.abc import Iterable
+from typing import Any
+
+import yaml
+from pydantic import BaseModel, ValidationError
+
+from magline.core.plugins import Plugins
+from magline.core.station.loader import StationError, line_of, load_station_text
+from magline.core.station.schema import Station
+
+
+def did_you_mean(word: str, choices: Iterable[str]) -> str:
+    """`` (did you mean 'backend'?)`` when a choice is close to ``word``, else nothing."""
+    close = difflib.get_close_matches(str(word), [str(c) for c in choices], n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def station_problems(text: str, name: str, plugins: Plugins) -> tuple[Station | None, list[str]]:
+    """The station (None when the schema refuses it) and every problem found, in file order."""
+    try:
+        station, problems = load_station_text(text, name), []
+    except StationError as exc:
+        station, problems = None, list(exc.problems)
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError:
+        return station, problems  # a syntax error was reported by the loader; nothing else to read
+    if isinstance(data, dict):
+        problems += _plugin_problems(data, text, name, plugins)
+    return station, sorted(dict.fromkeys(problems), key=_line_number)
+
+
+def _line_number(problem: str) -> int:
+    parts = problem.split(":")
+    return int(parts[1]) if len(parts) > 2 and parts[1].isdigit() else 0
+
+
+def _plugin_problems(data: dict, text: str, name: str, plugins: Plugins) -> list[str]:
+    out: list[str] = []
+
+    def unknown(path: tuple, what: str, value: Any, registry: dict) -> None:
+        out.append(f"{name}:{line_of(text, path)}: {'.'.join(map(str, path))}: unknown {what} {value!r}"
+                   f"{did_you_mean(value, registry)}; loaded: {', '.join(sorted(registry))}")
+
+    products = data.get("products")
+    for part, product in (products.items() if isinstance(products, dict) else ()):
+        if not isinstance(product, dict):
+            continue
+        backend = product.get("backend")
+        if isinstance(backend, str):
+            if backend not in plugins.dut_backends:
+                unknown(("products", part, "backend"), "DUT backend", backend, plugins.dut_backends)
+            out += _option_problems(plugins, ("dut backend", backend), product.get("options"),
+                                    ("products", part, "options"), text, name)
+        power = product.get("power")
+        if isinstance(power, dict):
+            method = power.get("method", "mavlink-reboot")
+            if isinstance(method, str):
+                if method not in plugins.power_controls:
+                    unknown(("products", part, "power", "method"), "power control", method, plugins.power_controls)
+                out += _option_problems(plugins, ("power control", method), power.get("options"),
+                                        ("products", part, "power", "options"), text, name)
+    for section, key, what, registry in (("field_source", "type", "field source", plugins.field_sources),
+                                         ("results", "sink", "results sink", plugins.result_sinks)):
+        block = data.get(section)
+        value = block.get(key) if isinstance(block, dict) else None
+        if isinstance(value, str) and value not in registry:
+            unknown((section, key), what, value, registry)
+    return out
+
+
+def _option_problems(plugins: Plugins, key: tuple[str, str], options: Any, where: tuple, text: str,
+                     name: str) -> list[str]:
+    """A plugin's declared options model applied to the station file's options, one line per problem."""
+    model: type[BaseModel] | None = plugins.option_models.get(key)
+    if model is None or not isinstance(options, dict | None):
+        return []
+    try:
+        model.model_validate(options or {})
+    except ValidationError as exc:
+        out = []
+        for err in exc.errors():
+            path = (*where, *err["loc"])
+            hint = did_you_mean(err["loc"][-1], model.model_fields) if err["type"] == "extra_forbidden" else ""
+            out.append(f"{name}:{line_of(text, path)}: {'.'.join(map(str, path))}: {err['msg']}{hint}")
+        return out
+    return []
