@@ -119,6 +119,11 @@ class DutBackend(Protocol):
     def selected_sensor_present(self) -> bool:
         """After a power cycle: is the calibrated sensor still there with the same id?"""
 
+    # Optional: ``calibrated_field_ut(count) -> NDArray | None`` — after the power cycle, ``count``
+    # readings (µT, rows) of the firmware's own *calibrated* output for this sensor (ArduPilot's
+    # corrected stream, PX4's HIGHRES_IMU); None when it cannot be attributed to this sensor.  The
+    # verify phase requires their magnitude to match the reference field.
+
     def persistence_problems(self) -> list[str]:
         """After a power cycle: what the autopilot itself says is wrong with the calibration
         (ArduPilot: "Compass not calibrated" when the device id was not saved); empty when fine."""

@@ -58,7 +58,9 @@ def magline_register_field_sources(register: Callable[[str, Callable[..., Any]],
         station and returns a :class:`~magline.core.field.FieldSource`: ``reference_field_ut()``
         (called as each unit connects; raise :class:`~magline.core.field.FieldSourceError` to stop
         the batch when the cell's field cannot be trusted), ``finish_unit()`` (after every unit,
-        also after errors) and ``close()``.  The name is the station file's ``field_source.type``.
+        also after errors) and ``close()``; ``reference_is_ambient = True`` when the unit sits in that
+        field after its power cycle too (the verify phase then checks the firmware's calibrated
+        output against it).  The name is the station file's ``field_source.type``.
         A source that generates the field itself (a coil) also implements the acquire and fit
         hooks for its stations (see ``plugins/helmholtz``).
     """

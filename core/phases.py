@@ -191,6 +191,34 @@ def _roll_back(run: RunContext, before: dict[str, ParamValue]) -> str:
     return "previous values restored"
 
 
+CALIBRATED_READINGS = 20
+
+
+def _calibrated_output_problems(run: RunContext, dut: object, figures: dict) -> list[str]:
+    """The proof on the firmware's own terms: after the power cycle, the unit's *calibrated* output
+    must read the reference field.  A read-back only proves that what was written is stored; a
+    calibration written to a slot the firmware does not apply to this sensor, or with a wrong sign
+    or unit, is stored just as well — and reads far off here.  Backends that can read their
+    calibrated output implement ``calibrated_field_ut(count)`` (None: not attributable here); field
+    sources whose reference is the field the unit sits in say ``reference_is_ambient = True``
+    (a coil's generated field is gone after its schedule)."""
+    read = getattr(dut, "calibrated_field_ut", None)
+    reference = run.reference_field_ut
+    if read is None or not reference or not getattr(run.field_source, "reference_is_ambient", False):
+        return []
+    readings = read(CALIBRATED_READINGS)
+    if readings is None or len(readings) == 0:
+        return []
+    measured = float(np.median(np.linalg.norm(np.atleast_2d(readings), axis=1)))
+    off_pct = (measured / reference - 1.0) * 100.0
+    figures["calibrated_field_ut"] = measured
+    tolerance = run.station.verify.field_tolerance_pct
+    if abs(off_pct) <= tolerance:
+        return []
+    return [f"the firmware's calibrated field reads {measured:.1f} µT against the reference {reference:.1f} µT "
+            f"({off_pct:+.1f} %, tolerance ±{tolerance:g} %): the calibration is not applied to this sensor as written"]
+
+
 @hookimpl(trylast=True)
 def magline_verify_persistence(run: RunContext, persisted: PersistReport) -> VerifyReport:
     dut = run.require_dut()
@@ -204,5 +232,6 @@ def magline_verify_persistence(run: RunContext, persisted: PersistReport) -> Ver
                   if k not in read_back or not _same(v, read_back[k])]
     if present:
         mismatches += [f"autopilot reports: {text}" for text in dut.persistence_problems()]
+        mismatches += _calibrated_output_problems(run, dut, figures)
     return VerifyReport(read_back=read_back, mismatches=mismatches, sensor_present=present,
                         method=method, figures={k: float(v) for k, v in figures.items()})

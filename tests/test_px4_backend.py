@@ -164,3 +164,80 @@ def test_tcpout_connection_string_reaches_a_vehicle_on_tcp(tmp_path):
         record = run_unit(write_station(STATION, tmp_path, f"tcpout://{host}:{port}", OPTIONS))
         assert record.verdict is Outcome.PASS, record.cause
         assert record.unit_info["autopilot"] == "PX4" and record.unit_info["firmware"] == "1.15.0"
+
+
+# ------------------------------------------------------------------ no MAVLink shell (POSIX builds)
+
+
+def test_without_a_shell_a_unit_the_station_names_passes_and_the_record_says_how(tmp_path):
+    """POSIX PX4: SERIAL_CONTROL answers nothing.  The station names the device id; the only
+    SCALED_IMU stream says which instance; the unit is calibrated, proven after the power cycle."""
+    with start_sim(tmp_path, shell=False) as sim:
+        device = sim.magnetometers[0].device_id
+        record = run_unit(station(tmp_path, sim, {"shell_timeout_s": 0.5}, {"magnetometer": device}))
+        assert record.verdict is Outcome.PASS, record.cause
+        assert record.unit_info["identified_by"] == ("without the shell: the only magnetometer stream, "
+                                                      "the station file's device id")
+        assert sim.param("CAL_MAG0_ID") == device and sim.slot_of(device) == 0
+        radius = np.linalg.norm(sim.corrected_sphere(device), axis=1)
+        assert abs(radius.mean() - sim.field_ut) < 0.3  # the written slot is the one the firmware applies
+
+
+def test_with_the_shell_the_record_says_so(tmp_path):
+    with start_sim(tmp_path) as sim:
+        record = run_unit(station(tmp_path, sim))
+        assert record.verdict is Outcome.PASS, record.cause
+        assert record.unit_info["identified_by"] == "MAVLink shell (listener sensor_mag)"
+
+
+def test_without_a_shell_posix_preset_slot_ids_identify_a_single_magnetometer(tmp_path):
+    """POSIX startup scripts preset CAL_MAG0_ID for the simulated sensor: with one stream and one
+    id the firmware itself says which sensor it is, and the station file may stay at 'primary'."""
+    with start_sim(tmp_path, shell=False, preset_ids=True) as sim:
+        device = sim.magnetometers[0].device_id
+        record = run_unit(station(tmp_path, sim, {"shell_timeout_s": 0.5}))
+        assert record.verdict is Outcome.PASS, record.cause
+        assert record.unit_info["selected_sensor"] == device
+        assert f"the only CAL_MAGn_ID ({device})" in record.unit_info["identified_by"]
+
+
+def test_without_a_shell_two_magnetometers_and_no_ids_is_a_named_error_not_a_guess(tmp_path):
+    with start_sim(tmp_path, mags=2, shell=False) as sim:
+        record = run_unit(station(tmp_path, sim, {"shell_timeout_s": 0.5}), "SN-AMB")
+        assert record.verdict is Outcome.ERROR  # the station could not tell, the unit is not judged
+        assert "cannot tell which magnetometer to calibrate: the PX4 shell does not answer" in record.cause
+        assert "2 magnetometer stream(s), CAL_MAGn_ID all 0" in record.cause
+        assert "set products.<part>.magnetometer to the sensor's device id and " \
+               "products.<part>.options.sensor_instance to its sensor_mag instance (0, 1 or 2)" in record.cause
+        assert sim.param("CAL_MAG0_ID") == 0 and sim.param("CAL_MAG1_ID") == 0  # nothing written
+
+
+def test_without_a_shell_two_magnetometers_are_told_apart_by_the_station_file(tmp_path):
+    with start_sim(tmp_path, mags=2, shell=False) as sim:
+        second = sim.magnetometers[1]
+        record = run_unit(station(tmp_path, sim, {"shell_timeout_s": 0.5, "sensor_instance": 1},
+                                  {"magnetometer": second.device_id}))
+        assert record.verdict is Outcome.PASS, record.cause
+        assert record.unit_info["sensor_instance"] == 1 and record.unit_info["cal_slot"] == 1
+        assert np.linalg.norm(np.array(record.calibration["hard_iron_ut"]) - second.hard_iron_ut) < 1.0
+        assert sim.slot_of(second.device_id) == 1
+
+
+def test_a_wrong_device_id_is_caught_by_the_firmwares_own_calibrated_output(tmp_path):
+    """Without the shell the station's word is taken for the device id; when it is wrong, PX4 does
+    not apply the written slot to the sensor.  The read-back matches, but HIGHRES_IMU (the
+    firmware's calibrated field) does not read the reference after the power cycle: the unit fails."""
+    sensor = SimMagnetometer(device_id=396809, hard_iron_ut=[40.0, -30.0, 25.0], soft_iron=np.eye(3))
+    with start_sim(tmp_path, shell=False, magnetometers=[sensor]) as sim:
+        record = run_unit(station(tmp_path, sim, {"shell_timeout_s": 0.5}, {"magnetometer": 12345}), "SN-WRONG")
+        assert record.verdict is Outcome.FAIL
+        assert [p.name for p in record.phases if p.outcome is Outcome.FAIL] == ["verify"]
+        assert "the firmware's calibrated field reads" in record.cause and "not applied to this sensor" in record.cause
+        assert record.params_read_back == pytest.approx(record.params_written)  # the read-back alone is fooled
+
+
+def test_the_calibrated_output_reads_the_reference_after_a_good_calibration(tmp_path):
+    with start_sim(tmp_path) as sim:
+        record = run_unit(station(tmp_path, sim))
+        assert record.verdict is Outcome.PASS, record.cause
+        assert record.persistence["figures"]["calibrated_field_ut"] == pytest.approx(48.0, rel=0.01)

@@ -99,6 +99,10 @@ class ReferenceMonitor:
 class CheckedField:
     """A field magnitude from a model or a survey, checked against an optional live reference."""
 
+    # The unit sits in this field after its power cycle too, so the verify phase can require the
+    # firmware's calibrated output to read it (a coil's field is gone by then: it does not say this).
+    reference_is_ambient = True
+
     def __init__(self, field_ut: float, reference: dict | None, model_name: str) -> None:
         from magline.core.dut import validated_options
 

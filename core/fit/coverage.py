@@ -17,6 +17,7 @@ directions a little).
 
 from __future__ import annotations
 
+import math
 from functools import lru_cache
 
 import numpy as np
@@ -62,6 +63,8 @@ def coverage_of(samples_ut: NDArray, n_bins: int, *, final: bool = True) -> floa
 
     ``final=False`` evaluates only the checkpoints reached so far, not the end: what the live bar
     shows while more samples are coming (the end of the attempt adds the last evaluation).
+    Between two re-centrings the hit bins only grow, so each run of checkpoints with one centre
+    is binned once, at its last checkpoint: the same figure as binning at every checkpoint.
     """
     x = np.atleast_2d(np.asarray(samples_ut, float)) if len(samples_ut) else np.empty((0, 3))
     n = len(x)
@@ -71,16 +74,14 @@ def coverage_of(samples_ut: NDArray, n_bins: int, *, final: bool = True) -> floa
     if not checkpoints:
         return 0.0
     centres, radii = _prefix_sphere_centres(x, np.array(checkpoints))
-    hits = np.zeros(n_bins, dtype=bool)
-    best, binned, centre = 0.0, 0, None
-    for k, c, r in zip(checkpoints, centres, radii, strict=True):
-        if centre is None or np.linalg.norm(c - centre) > RECENTRE_TOL * r:
-            centre, binned = c, 0
-            hits[:] = False
-        hits[bin_index(x[binned:k] - centre, n_bins)] = True
-        binned = k
-        best = max(best, float(hits.mean()))
-    return best
+    best, centre, end = 0.0, None, 0
+    for k, c, r in zip(checkpoints, centres.tolist(), radii.tolist(), strict=True):
+        if centre is None or math.dist(c, centre) > RECENTRE_TOL * r:
+            if centre is not None:
+                best = max(best, coverage_fraction(x[:end] - centre, n_bins))
+            centre = c
+        end = k
+    return max(best, coverage_fraction(x[:end] - np.asarray(centre), n_bins))
 
 
 def _prefix_sphere_centres(x: NDArray, ends: NDArray) -> tuple[NDArray, NDArray]:
@@ -96,19 +97,17 @@ def _prefix_sphere_centres(x: NDArray, ends: NDArray) -> tuple[NDArray, NDArray]
     rhs = np.einsum("ij,ij->i", y, y)
     gram = np.cumsum(rows[:, :, None] * rows[:, None, :], axis=0)[ends - 1]
     moment = np.cumsum(rows * rhs[:, None], axis=0)[ends - 1]
-    centres = np.empty((len(ends), 3))
-    radii = np.empty(len(ends))
-    for i, (g, m, k) in enumerate(zip(gram, moment, ends, strict=True)):
-        if k >= 4 and np.linalg.cond(g) < 1e12:
-            sol = np.linalg.solve(g, m)
-            c, d = sol[:3], sol[3]
-            r2 = d + c @ c
-        else:
-            c, r2 = y[:k].mean(axis=0), 0.0
-        if r2 <= 0:
-            r2 = float(np.mean(np.sum((y[:k] - c) ** 2, axis=1)))
-        centres[i], radii[i] = c + shift, np.sqrt(max(r2, 1e-12))
-    return centres, radii
+    diag = np.prod(np.diagonal(gram, axis1=1, axis2=2), axis=1)
+    solvable = (ends >= 4) & (np.abs(np.linalg.det(gram)) > 1e-12 * np.maximum(diag, 1e-300))
+    centres = np.cumsum(y, axis=0)[ends - 1] / ends[:, None]  # the mean, where no sphere is determined
+    r2 = np.zeros(len(ends))
+    if solvable.any():
+        sol = np.linalg.solve(gram[solvable], moment[solvable][..., None])[..., 0]
+        centres[solvable] = sol[:, :3]
+        r2[solvable] = sol[:, 3] + np.einsum("ij,ij->i", sol[:, :3], sol[:, :3])
+    for i in np.flatnonzero(r2 <= 0):  # degenerate prefixes: the mean distance from the centre
+        r2[i] = float(np.mean(np.sum((y[: ends[i]] - centres[i]) ** 2, axis=1)))
+    return centres + shift, np.sqrt(np.maximum(r2, 1e-12))
 
 
 class CoverageTracker:

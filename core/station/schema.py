@@ -119,6 +119,17 @@ class FitSettings(_Strict):
     max_direction_sigma_deg: Annotated[float, Field(gt=0, le=45)] = 1.0
 
 
+class VerifySettings(_Strict):
+    """How the verify phase proves the calibration after the power cycle.
+
+    ``field_tolerance_pct``: the firmware's own calibrated output (where the backend can read it)
+    must have the reference field's magnitude within this share; a calibration written to the
+    wrong slot, with a wrong sign or unit, reads far off.
+    """
+
+    field_tolerance_pct: Annotated[float, Field(gt=0, le=50)] = 3.0
+
+
 class Results(_Strict):
     sink: str = "sqlite"
     path: str = "magline-results.sqlite"
@@ -137,6 +148,7 @@ class Station(_Strict):
     field_source: FieldSource = Field(default_factory=FieldSource)
     acquisition: Acquisition = Field(default_factory=Acquisition)
     fit: FitSettings = Field(default_factory=FitSettings)
+    verify: VerifySettings = Field(default_factory=VerifySettings)
     limits: LimitSet = Field(default_factory=dict)
     results: Results = Field(default_factory=Results)
     prompts: Prompts = Field(default_factory=Prompts)

@@ -206,6 +206,27 @@ class ArduPilotDut:
     def selected_sensor_present(self) -> bool:
         return self.device_id in self.ids.values()
 
+    def calibrated_field_ut(self, count: int) -> np.ndarray:
+        """The set's own stream after the power cycle: the field the firmware corrects with the
+        calibration as it holds it now (distinct readings, truncation undone)."""
+        kind, msg_id = STREAMS[SETS.index(self.suffix)]
+        self.link.drain()
+        self.link.set_message_interval(msg_id, 50.0)
+        readings = RepeatFilter()
+        rows: list[tuple[float, float, float]] = []
+        try:
+            while len(rows) < count:
+                msg = self.link.recv(kind, self.opts.stream_timeout_s)
+                if msg is None:
+                    self.link.require_alive(f"waiting for {kind} after the power cycle")
+                    raise DutError(f"the vehicle answers but sent no {kind} after the power cycle")
+                if readings.accept(msg.xmag, msg.ymag, msg.zmag):
+                    rows.append((msg.xmag, msg.ymag, msg.zmag))
+        finally:
+            with contextlib.suppress(DutError):
+                self.link.set_message_interval(msg_id, 0)
+        return untruncate_mg(np.array(rows, float)) / 10.0
+
     def persistence_problems(self) -> list[str]:
         """Run ArduPilot's arming checks: a compass whose DEV_ID was not saved is 'not calibrated'.
 

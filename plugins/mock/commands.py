@@ -35,6 +35,10 @@ def add_sim_command(subparsers: argparse._SubParsersAction) -> None:
                           "a faster stream repeats readings, as real vehicles do")
     sim.add_argument("--seed", type=int, default=7, help="seed of the sensors' distortion and noise")
     sim.add_argument("--firmware", default="1.15.0", help="px4 only: firmware version (ODIAG from 1.12)")
+    sim.add_argument("--no-shell", action="store_true",
+                     help="px4 only: the MAVLink shell answers nothing, as on POSIX builds (SITL)")
+    sim.add_argument("--preset-ids", action="store_true",
+                     help="px4 only: CAL_MAGn_ID preset to the detected sensors, as POSIX startup scripts do")
     sim.add_argument("--fault", action="append", default=[], metavar="NAME[=VALUE]",
                      help="inject a fault, e.g. drop_percent=5, ignore_param_set=CAL_MAG0_XOFF, "
                           "no_persist=NAME, reboot_fails, link_loss_after_s=3, mag_missing_after_reboot=ID, "
@@ -87,7 +91,7 @@ def run_sim(args: argparse.Namespace) -> int:
                                    "inclination_deg": args.inclination_deg, "seed": args.seed,
                                    "faults": SimFaults.parse(args.fault), "mag_rate_hz": args.mag_rate}
         if args.flavour == "px4":
-            options["firmware"] = args.firmware
+            options.update(firmware=args.firmware, shell=not args.no_shell, preset_ids=args.preset_ids)
         sim = create_sim(args.flavour, args.listen, **options)
         for mag in sim.magnetometers:
             mag.truth.noise_ut = args.noise_ut

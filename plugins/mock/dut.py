@@ -169,6 +169,17 @@ class MockDut:
     def persistence_problems(self) -> list[str]:
         return []
 
+    def calibrated_field_ut(self, count: int) -> np.ndarray:
+        """What the mock firmware outputs with the calibration it holds now, at ``count`` attitudes."""
+        self._require_link()
+        directions = self.rng.normal(size=(count, 3))
+        field = directions / np.linalg.norm(directions, axis=1, keepdims=True) * self.opts.field_ut
+        raw = self.truth.read(self.to_sensor.apply(field), self.rng)
+        s = np.eye(3)
+        for name, i, j in MATRIX:
+            s[i, j] = s[j, i] = float(self.ram[name])
+        return (raw - np.array([self.ram[n] for n in OFFSETS], float)) @ s.T
+
     def _require_link(self) -> None:
         if not self.connected:
             raise LinkError("mock DUT link is down")

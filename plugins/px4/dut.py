@@ -1,7 +1,8 @@
 """The PX4 DUT backend: calibrate one magnetometer through MAVSDK, persist, prove it survived.
 
-Sequence as the core's phases drive it: connect (discovery, firmware, sensors by device id
-through the MAVLink shell, calibration slot by id) → prepare (SENS_MAG_AUTOCAL off) → samples
+Sequence as the core's phases drive it: connect (discovery, firmware, the sensor by device id
+through the MAVLink shell or, where it does not answer, from parameters, streams and the station
+file — see :mod:`.discovery` — calibration slot by id) → prepare (SENS_MAG_AUTOCAL off) → samples
 (SCALED_IMU/2/3 of the sensor's uORB instance: raw, mG) → parameters (CAL_MAGn_* of the slot)
 → commit (MAV_CMD_PREFLIGHT_STORAGE param1 = 1) → reboot, fresh link, read back → restore.
 
@@ -22,6 +23,7 @@ from collections.abc import Iterator
 import numpy as np
 
 from magline.core.dut import DutError, NotRestored, ParamValue, SampleChunk, UnitInfo, await_new_boot
+from magline.core.faults import StationFault
 from magline.core.fit import FitResult
 from magline.core.readings import RepeatFilter, untruncate_mg
 from magline.core.station.schema import Product
@@ -36,12 +38,15 @@ from magline.plugins.px4.calibration import (
     is_int_param,
     rotation_params,
 )
+from magline.plugins.px4.discovery import Identified, from_shell, without_shell
 from magline.plugins.px4.link import Px4Link
 from magline.plugins.px4.options import Px4Options
 
 STREAMS = (("SCALED_IMU", 26), ("SCALED_IMU2", 116), ("SCALED_IMU3", 129))  # uORB sensor_mag instance 0/1/2
 MAV_CMD_SET_MESSAGE_INTERVAL, MAV_CMD_REQUEST_MESSAGE, MAV_CMD_PREFLIGHT_STORAGE = 511, 512, 245
 SYSTEM_TIME = ("SYSTEM_TIME", 2)
+HIGHRES_IMU = ("HIGHRES_IMU", 105)  # the calibrated vehicle_magnetometer, Gauss
+UT_PER_GAUSS = 100.0
 MG_PER_UT = 10.0
 log = logging.getLogger("magline.px4")
 CHUNK = 10
@@ -55,7 +60,10 @@ class Px4Dut:
         self.product = product
         self.opts = options
         self.link = Px4Link(product.connection, connect_timeout_s=options.connect_timeout_s)
-        self.sensors: list[tuple[int, bool]] = []  # (device id, external) per sensor_mag instance
+        self.ident: Identified | None = None
+        self.shell_answers = False
+        self.present = True  # after a power cycle: is the calibrated sensor still there?
+        self._streaming_count = 0  # magnetometer streams seen without the shell
         self.device_id = 0
         self.instance = 0
         self.slot = 0
@@ -70,18 +78,16 @@ class Px4Dut:
         firmware = ".".join(map(str, version)) if version else "unknown"
         self.with_odiag = version >= ODIAG_SINCE if version else self._has_param("CAL_MAG0_XODIAG")
         self.with_euler = version >= EULER_SINCE if version else self._has_param("CAL_MAG0_ROLL")
-        self.sensors = self._discover()
-        if not self.sensors:
-            raise DutError("the PX4 shell lists no sensor_mag instance: no magnetometer detected")
-        self.device_id = self._selected_id()
-        self.instance = [d for d, _ in self.sensors].index(self.device_id)
         slot_ids = [int(self.link.get(f"CAL_MAG{n}_ID", True)) for n in range(SLOTS)]
+        self.ident = self._identify(slot_ids)
+        self.device_id, self.instance = self.ident.device_id, self.ident.instance
         self.slot = choose_slot(slot_ids, self.device_id, preferred=self.instance)
         prio = int(self.link.get(f"CAL_MAG{self.slot}_PRIO", True))
-        self.prio = prio if prio >= 1 else (PRIO_EXTERNAL if self.sensors[self.instance][1] else PRIO_INTERNAL)
-        return UnitInfo(autopilot="PX4", firmware=firmware, sensors=[d for d, _ in self.sensors],
+        self.prio = prio if prio >= 1 else (PRIO_EXTERNAL if self.ident.external else PRIO_INTERNAL)
+        return UnitInfo(autopilot="PX4", firmware=firmware, sensors=list(self.ident.sensors),
                         selected_sensor=self.device_id, soft_iron_model="full" if self.with_odiag else "diagonal",
-                        extra={"cal_slot": self.slot, "sensor_instance": self.instance})
+                        extra={"cal_slot": self.slot, "sensor_instance": self.instance,
+                               "identified_by": self.ident.by})
 
     def _has_param(self, name: str) -> bool:
         try:
@@ -90,11 +96,22 @@ class Px4Dut:
         except DutError:
             return False
 
+    def _identify(self, slot_ids: list[int]) -> Identified:
+        """The shell where it answers; otherwise parameters, streams and the station file."""
+        try:
+            found = self._discover()
+        except StationFault as exc:
+            self.shell_answers = False
+            return without_shell(self._streaming_instances(), slot_ids, self.product.magnetometer,
+                                 self.opts.sensor_instance, f"the PX4 shell does not answer ({exc})")
+        self.shell_answers = True
+        return from_shell(found, self.product.magnetometer)
+
     def _discover(self) -> list[tuple[int, bool]]:
         """Device id of each sensor_mag instance, from the MAVLink shell (SCALED_IMU carries none)."""
         found = []
         for instance in range(len(STREAMS)):
-            out = self.link.shell(f"listener sensor_mag -i {instance} -n 1")
+            out = self.link.shell(f"listener sensor_mag -i {instance} -n 1", self.opts.shell_timeout_s)
             match = DEVICE_ID.search(out)
             if match is None:
                 break
@@ -102,16 +119,27 @@ class Px4Dut:
             found.append((int(match.group(1)), bool(ext and ext.group(1) in ("True", "1"))))
         return found
 
-    def _selected_id(self) -> int:
-        ids = [d for d, _ in self.sensors]
-        wanted = self.product.magnetometer
-        if wanted == "primary":
-            return ids[0]
-        if not isinstance(wanted, int) and not str(wanted).isdigit():
-            raise DutError(f"magnetometer {wanted!r}: give a device id or 'primary'")
-        if int(wanted) not in ids:
-            raise DutError(f"magnetometer {wanted} is not on this unit; it has {', '.join(map(str, ids))}")
-        return int(wanted)
+    def _streaming_instances(self) -> list[int]:
+        """The sensor_mag instances whose SCALED_IMU/2/3 answers a request (one message each).
+
+        REQUEST_MESSAGE rather than a stream: nothing keeps running, and nothing else changes."""
+        out: list[int] = []
+        for instance, (kind, msg_id) in enumerate(STREAMS):
+            inbox, handle = self.link.subscribe(kind)
+            try:
+                for _ in range(3):
+                    if self.link.command(MAV_CMD_REQUEST_MESSAGE, msg_id) != 0:
+                        break  # the firmware has no such stream
+                    try:
+                        inbox.get(timeout=self.opts.stream_probe_s / 3)
+                        out.append(instance)
+                        break
+                    except queue.Empty:
+                        continue
+            finally:
+                self.link.unsubscribe(handle)
+        self._streaming_count = len(out)
+        return out
 
     def close(self) -> None:
         self.link.close()
@@ -178,7 +206,7 @@ class Px4Dut:
     def calibration_params(self, fit: FitResult) -> dict[str, ParamValue]:
         params = fit_to_params(fit, self.slot, self.device_id, self.prio, self.with_odiag)
         if fit.model == "affine":  # a coil measured the misalignment too: hold it where PX4 can
-            if self.with_euler and self.sensors[self.instance][1]:
+            if self.with_euler and self.ident.external:
                 params |= rotation_params(np.array(fit.extra["rotation"]), self.slot)
             else:
                 log.warning("misalignment of %.2f° not written: PX4 holds a custom rotation only for external "
@@ -207,7 +235,10 @@ class Px4Dut:
     def await_boot(self, since: float) -> dict[str, float]:
         # a fresh MAVSDK instance per try: nothing cached from the old boot can answer a read
         reconnected, uptime = await_new_boot(self.link.reopen, self._uptime_s, since, self.opts.boot_timeout_s)
-        self.sensors = self._discover()
+        if self.shell_answers:
+            self.present = self.device_id in [d for d, _ in self._discover()]
+        else:  # no shell: the instance still streams (its device id is checked in the slots)
+            self.present = self.instance in self._streaming_instances()
         return {"time_to_heartbeat_s": reconnected, "uptime_at_reconnect_s": uptime}
 
     def _uptime_s(self) -> float | None:
@@ -221,7 +252,30 @@ class Px4Dut:
             self.link.unsubscribe(handle)
 
     def selected_sensor_present(self) -> bool:
-        return self.device_id in [d for d, _ in self.sensors]
+        return self.present
+
+    def calibrated_field_ut(self, count: int) -> np.ndarray | None:
+        """HIGHRES_IMU's magnetic field (Gauss, calibrated by the firmware), when this sensor is the
+        unit's only magnetometer: with several, it carries whichever PX4's voter selected."""
+        if len(self.ident.sensors) > 1 or (not self.shell_answers and self._streaming_count > 1):
+            return None
+        kind, msg_id = HIGHRES_IMU
+        inbox, handle = self.link.subscribe(kind)
+        rows = []
+        try:
+            self.link.require_accepted(MAV_CMD_SET_MESSAGE_INTERVAL, f"{kind} stream request", msg_id, 1e6 / 50)
+            while len(rows) < count:
+                try:
+                    msg = inbox.get(timeout=self.opts.stream_timeout_s)
+                except queue.Empty:
+                    self.link.require_alive(f"waiting for {kind}")
+                    return None  # the firmware does not send it: nothing to prove with
+                rows.append((msg["xmag"], msg["ymag"], msg["zmag"]))
+        finally:
+            with contextlib.suppress(DutError):
+                self.link.command(MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, -1)
+            self.link.unsubscribe(handle)
+        return np.array(rows, float) * UT_PER_GAUSS
 
     def persistence_problems(self) -> list[str]:
         """The firmware uses the *first* slot whose ID matches; it must be the one written."""

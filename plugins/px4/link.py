@@ -33,7 +33,7 @@ from magline.core.faults import StationFault
 log = logging.getLogger("magline.px4.mavsdk")
 GCS_SYSTEM, GCS_COMPONENT = 245, 190  # MAVSDK's ground-station identity
 RESULTS = {n: e.name.removeprefix("MAV_RESULT_") for n, e in mavlink.enums["MAV_RESULT"].items()}
-SHELL_PROMPT = "nsh> "
+SHELL_PROMPTS = ("nsh> ", "pxh> ")  # NuttX boards; POSIX builds (which rarely answer over MAVLink)
 SILENCE_S = 2.5  # PX4 sends HEARTBEAT at 1 Hz: this long without one means the link is gone
 
 _routed = False
@@ -192,9 +192,9 @@ class Px4Link:
             self.shell_plugin.send(command, Device.SHELL)
             out = ""
             deadline = time.monotonic() + timeout_s
-            while SHELL_PROMPT not in out:
+            while not any(p in out for p in SHELL_PROMPTS):
                 try:
                     out += self._shell_out.get(timeout=max(deadline - time.monotonic(), 0.01))
                 except queue.Empty:
                     raise StationFault(f"no answer from the PX4 shell to {command!r} within {timeout_s:g} s") from None
-            return out.split(SHELL_PROMPT)[0]
+            return min((out.split(p)[0] for p in SHELL_PROMPTS if p in out), key=len)

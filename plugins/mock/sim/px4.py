@@ -13,12 +13,16 @@ What it reproduces, because each is a trap for a factory tool:
   carries the latest reading again with a fresh (IMU) timestamp;
 - with SENS_MAG_AUTOCAL = 1 the firmware writes its own calibration into an uncalibrated slot;
 - the device id of each ``sensor_mag`` instance is visible through the MAVLink shell
-  (``listener sensor_mag -i N``), as on a real board.
+  (``listener sensor_mag -i N``), as on a NuttX board; with ``shell=False`` SERIAL_CONTROL is
+  ignored, as POSIX builds (SITL) do: their shell is ``pxh`` and answers nothing over MAVLink;
+- ``preset_ids=True``: the slot ids are preset to the detected sensors, as POSIX startup scripts
+  do (``param set-default CAL_MAG0_ID …``), so they are defaults, not stored values.
 """
 
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 from typing import Any, ClassVar
 
 import numpy as np
@@ -64,7 +68,10 @@ class Px4Sim(SimulatedAutopilot):
     REBOOT_DELAY_S = 0.4
 
     def __init__(self, *args: Any, firmware: str = "1.15.0", autocal_after_s: float = 30.0,
-                 autosave_interval_s: float = 2.0, **kwargs: Any) -> None:
+                 autosave_interval_s: float = 2.0, shell: bool = True, preset_ids: bool = False,
+                 **kwargs: Any) -> None:
+        self.shell = shell  # False: SERIAL_CONTROL is ignored (a POSIX build's pxh shell)
+        self.preset_ids = preset_ids
         self.firmware_version = tuple(int(x) for x in firmware.split("."))[:3]  # type: ignore[assignment]
         self.autocal_after_s = autocal_after_s
         self.autosave_interval_s = autosave_interval_s  # PX4: 2 s; a test may stretch it
@@ -109,6 +116,10 @@ class Px4Sim(SimulatedAutopilot):
         self.send_param(name)
 
     def load_from_storage(self, stored: dict[str, ParamValue]) -> None:
+        if self.preset_ids:  # the startup script's set-default: each detected sensor's id in its slot
+            for n, sensor in enumerate(self.detected[:SLOTS]):
+                name = f"CAL_MAG{n}_ID"
+                self.table.specs[name] = replace(self.table.specs[name], default=sensor.device_id)
         self.table.load(stored)
         self._save_due = None
         self._saving = None
@@ -241,7 +252,7 @@ class Px4Sim(SimulatedAutopilot):
 
     # ------------------------------------------------------------------ MAVLink shell
     def handle_other(self, msg: Any) -> None:
-        if msg.get_type() != "SERIAL_CONTROL" or msg.device != SHELL_DEVICE:
+        if msg.get_type() != "SERIAL_CONTROL" or msg.device != SHELL_DEVICE or not self.shell:
             return
         self._shell_line += bytes(msg.data[: msg.count])
         while b"\n" in self._shell_line:
