@@ -14,6 +14,7 @@ import sys
 from collections.abc import Callable, Iterator
 from importlib.resources import as_file, files
 from pathlib import Path
+from typing import Any
 
 from magline.core import __version__
 from magline.core.faults import StationFault, UnitAborted
@@ -58,6 +59,21 @@ def main(argv: list[str] | None = None) -> int:
 
     sub.add_parser("plugins", help="list loaded plugins and their hooks (JSON)")
 
+    show = sub.add_parser("show", help="a run's whole record (by run id or UUID)")
+    show.add_argument("run")
+    show.add_argument("--station", help="station file naming the results store (default: demo)")
+    show.add_argument("--json", action="store_true", help="one JSON object")
+
+    exp = sub.add_parser("export", help="stream runs from the results store as CSV or JSON lines")
+    exp.add_argument("--station", help="station file naming the results store (default: demo)")
+    exp.add_argument("--since", help="runs started at or after this ISO time (e.g. 2026-11-24 or 2026-11-24T06:00)")
+    exp.add_argument("--until", help="runs started before this ISO time")
+    exp.add_argument("--part", help="part number")
+    exp.add_argument("--station-id", help="the writing station's id (a shared store holds several)")
+    exp.add_argument("--verdict", choices=["pass", "fail", "error", "aborted", "incomplete", "running"])
+    exp.add_argument("--format", choices=["csv", "jsonl"], default="csv")
+    exp.add_argument("--raw", action="store_true", help="every raw sample (CSV: a row per sample)")
+
     hist = sub.add_parser("history", help="show a unit's runs from a station's results store")
     hist.add_argument("serial")
     hist.add_argument("--station", help="station file naming the results store (default: demo)")
@@ -71,7 +87,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if hasattr(args, "handler"):
         return args.handler(args)
-    handler = {"run": _run, "check": _check, "fit": _fit, "plugins": _plugins, "history": _history}
+    handler = {"run": _run, "check": _check, "fit": _fit, "plugins": _plugins, "history": _history,
+               "show": _show, "export": _export}
     return _quiet_broken_pipe(lambda: handler[args.command](args, plugins))
 
 
@@ -265,6 +282,44 @@ def _history(args: argparse.Namespace, plugins: Plugins) -> int:
         for f in run["failed"]:
             print(f"    ✗ {f['name']} = {fmt(f['value'], f['unit'])}  limits [{fmt(f['low'])}, {fmt(f['high'])}]")
     return 0
+
+
+def _open_store(args: argparse.Namespace, plugins: Plugins) -> Any:
+    """The station's results store, for commands that read it (never created by reading)."""
+    from magline.core.results.sqlite_sink import results_path
+
+    station, where = _load(args.station, plugins)
+    if station.results.sink == "sqlite" and not results_path(station, where).exists():
+        raise StationFault(f"no results store at {results_path(station, where)}")
+    return plugins.result_sinks[station.results.sink](station, where)
+
+
+def _with_store(args: argparse.Namespace, plugins: Plugins, use: Callable[[Any], int]) -> int:
+    """Open the station's results store for reading, hand it to ``use``, close it."""
+    try:
+        store = _open_store(args, plugins)
+    except (StationError, PluginError, StationFault) as exc:
+        _err(str(exc))
+        return 2
+    try:
+        return use(store)
+    finally:
+        store.close()
+
+
+def _show(args: argparse.Namespace, plugins: Plugins) -> int:
+    from magline.core.results.commands import show
+
+    return _with_store(args, plugins, lambda store: show(store, args.run, args.json))
+
+
+def _export(args: argparse.Namespace, plugins: Plugins) -> int:
+    from magline.core.results.commands import export
+    from magline.core.results.reading import RunFilter
+
+    where = RunFilter(since=args.since, until=args.until, part=args.part, station_id=args.station_id,
+                      verdict=args.verdict)
+    return _with_store(args, plugins, lambda store: export(store, where, args.format, args.raw))
 
 
 def _quiet_broken_pipe(handler: Callable[[], int]) -> int:

@@ -18,7 +18,8 @@ def test_wheel_contains_only_the_magline_namespace(tmp_path):
     tops = {n.split("/")[0] for n in names}
     assert tops <= {"magline", next(n.split("/")[0] for n in names if ".dist-info/" in n)}
     for required in ("magline/core/hookspecs.py", "magline/plugins/mock/dut.py", "magline/stations/demo.yaml",
-                     "magline/core/fit/geometric.py"):
+                     "magline/core/fit/geometric.py", "magline/core/results/migrations/env.py",
+                     "magline/core/results/migrations/versions/0002_run_uuid.py"):
         assert required in names
     assert not any(n.startswith(("core/", "plugins/")) for n in names)
 

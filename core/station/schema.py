@@ -131,8 +131,12 @@ class VerifySettings(_Strict):
 
 
 class Results(_Strict):
+    """Where records go: ``sqlite`` (``path``, relative to the station file) or ``sql`` (``url_env``:
+    the environment variable holding the server's URL — never the URL itself)."""
+
     sink: str = "sqlite"
     path: str = "magline-results.sqlite"
+    url_env: Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$")] | None = None
 
 
 class Prompts(_Strict):

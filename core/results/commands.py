@@ -1,0 +1,116 @@
+"""``magline show`` and ``magline export``: a whole record, and filtered exports that stream.
+
+Both read the station's results store through its engine, so they work the same on the embedded
+SQLite file and on a shared server.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import sys
+from typing import Any, TextIO
+
+from magline.core.faults import StationFault
+from magline.core.fit.samples_csv import parse_samples
+from magline.core.results.reading import NUMERIC_NAMES, RUN_COLUMNS, RunFilter, export_attempts, export_runs, find_run
+from magline.core.text import fmt, seconds
+
+
+def engine_of(store: Any) -> Any:
+    engine = getattr(store, "engine", None)
+    if engine is None:
+        raise StationFault("this station's results sink is not a SQL store: show and export read SQL stores only")
+    return engine
+
+
+def show(store: Any, run: str, as_json: bool, out: TextIO | None = None) -> int:
+    out = out or sys.stdout
+    with engine_of(store).connect() as conn:
+        record = find_run(conn, run)
+    if record is None:
+        print(f"no run {run} in {store.where}", file=sys.stderr)
+        return 1
+    if as_json:
+        out.write(json.dumps(record, default=str) + "\n")
+        return 0
+    lines = [f"run {record['id']} ({record['run_uuid']}) in {store.where}",
+             f"unit {record['serial']}  part {record['part']}  station {record['station_id']}  line {record['line']}",
+             f"operator {record['operator'] or '—'}  magline {record['software_version']}  "
+             f"limits {record['limit_hash']}",
+             f"{record['started']} → {record['finished'] or '—'}  {str(record['verdict']).upper()}"
+             + (f": {record['cause']}" if record["cause"] else "")]
+    unit = record.get("unit_info") or {}
+    if unit:
+        lines.append("unit info: " + ", ".join(f"{k} {v}" for k, v in unit.items()))
+    lines.append("phases:")
+    lines += [f"  {p['name']:<9} {str(p['outcome']).upper():<8} {seconds(p['duration_s'] or 0.0):>7}"
+              + (f"  {p['message']}" if p["message"] else "") for p in record["phases"]]
+    lines.append("attempts:")
+    lines += [f"  {a['attempt']}: {a['samples']} readings, coverage {a['coverage']:.0%}"
+              + (f", {a['repeats']} repeats dropped" if a.get("repeats") else "")
+              + (" accepted" if a["accepted"] else f" not used ({a['refused'] or 'superseded'})")
+              for a in record["attempts"]]
+    lines.append("measurements:")
+    for m in record["measurements"]:
+        if m["kind"] == "numeric":
+            lines.append(f"  {m['name']:<24} {fmt(m['value'], m['unit'] or ''):>14}  "
+                         f"[{fmt(m['low'])}, {fmt(m['high'])}]  {m['verdict']}")
+    for stage in ("before", "written", "read_back"):
+        values = record["params"].get(stage)
+        if values:
+            lines.append(f"params {stage}: " + ", ".join(f"{k}={fmt(v, digits=7)}" for k, v in sorted(values.items())))
+    if record.get("persistence"):
+        lines.append(f"persistence: {json.dumps(record['persistence'])}")
+    for key, title in (("left_changed", "NOT RESTORED"), ("unverified_params", "UNVERIFIED")):
+        if record.get(key):
+            lines.append(f"{title}: {record[key]}")
+    out.write("\n".join(lines) + "\n")
+    return 0
+
+
+def export(store: Any, where: RunFilter, fmt_name: str, raw: bool, out: TextIO | None = None) -> int:
+    """Stream matching runs as CSV (a row per run, or per raw sample with ``raw``) or JSON lines."""
+    out = out or sys.stdout
+    count = 0
+    with engine_of(store).connect() as conn:
+        if fmt_name == "jsonl":
+            for run in export_runs(conn, where):
+                if raw:
+                    run["attempts"] = [_raw_attempt(a) for a in export_attempts(conn, run["id"])]
+                out.write(json.dumps(run, default=str) + "\n")
+                count += 1
+            return _done(count)
+        writer = csv.writer(out, lineterminator="\n")
+        if raw:
+            writer.writerow(["run_uuid", "serial", "attempt", "accepted", "mag_x_ut", "mag_y_ut", "mag_z_ut", "t_ms"])
+            for run in export_runs(conn, where):
+                for a in export_attempts(conn, run["id"]):
+                    samples = parse_samples(a["raw_csv"]) if a["raw_csv"] else None
+                    for i in range(len(samples.mag_ut) if samples is not None else 0):
+                        t = samples.t_ms[i] if samples.t_ms is not None and len(samples.t_ms) else ""
+                        writer.writerow([run["run_uuid"], run["serial"], a["attempt"], a["accepted"],
+                                         *samples.mag_ut[i].tolist(), t])
+                count += 1
+            return _done(count)
+        writer.writerow([*RUN_COLUMNS, *NUMERIC_NAMES, "failed"])
+        for run in export_runs(conn, where):
+            m = run["measurements"]
+            failed = ";".join(sorted(k for k, v in m.items() if v["verdict"] == "fail"))
+            writer.writerow([run[c] for c in RUN_COLUMNS] + [m.get(n, {}).get("value", "") for n in NUMERIC_NAMES]
+                            + [failed])
+            count += 1
+    return _done(count)
+
+
+def _raw_attempt(attempt: dict) -> dict:
+    samples = parse_samples(attempt.pop("raw_csv")) if attempt.get("raw_csv") else None
+    if samples is not None:
+        attempt["raw"] = {"mag_ut": samples.mag_ut.tolist(),
+                          "t_ms": samples.t_ms.tolist() if samples.t_ms is not None else None}
+    return attempt
+
+
+def _done(count: int) -> int:
+    print(f"{count} run{'s' if count != 1 else ''} exported", file=sys.stderr)
+    return 0

@@ -1,0 +1,97 @@
+"""Reading records back: one whole run (``magline show``) and filtered, streamed exports
+(``magline export``) — the same queries on every engine.
+
+Why streamed: a factory store holds millions of runs; an export walks them in batches
+(``yield_per``) and fetches each batch's measurements with one query, so memory stays constant
+however many rows are written.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Any
+
+from sqlalchemy import Connection, select
+
+from magline.core.measurements import CATALOGUE
+from magline.core.results.tables import attempts, measurements, params, phases, runs
+
+BATCH = 500
+JSON_COLUMNS = ("unit_info", "calibration", "persistence", "left_changed", "unverified_params")
+
+
+@dataclass(frozen=True)
+class RunFilter:
+    since: str | None = None  # ISO time: runs started at or after
+    until: str | None = None  # ISO time: runs started before
+    part: str | None = None
+    station_id: str | None = None
+    verdict: str | None = None
+
+    def apply(self, query: Any) -> Any:
+        for column, value, op in ((runs.c.started, self.since, "ge"), (runs.c.started, self.until, "lt"),
+                                  (runs.c.part, self.part, "eq"), (runs.c.station_id, self.station_id, "eq"),
+                                  (runs.c.verdict, self.verdict, "eq")):
+            if value is not None:
+                query = query.where({"ge": column >= value, "lt": column < value, "eq": column == value}[op])
+        return query
+
+
+def _run_row(row: Any) -> dict[str, Any]:
+    out = dict(row._mapping)
+    for key in JSON_COLUMNS:
+        if out.get(key):
+            out[key] = json.loads(out[key])
+    return out
+
+
+def find_run(conn: Connection, run: str) -> dict[str, Any] | None:
+    """The whole record of a run, by its local id or its UUID."""
+    query = select(runs).where(runs.c.run_uuid == run) if not run.isdigit() else select(runs).where(
+        runs.c.id == int(run))
+    row = conn.execute(query).first()
+    if row is None:
+        return None
+    out = _run_row(row)
+    rid = out["id"]
+    out["phases"] = [dict(r._mapping) for r in conn.execute(
+        select(phases).where(phases.c.run_id == rid).order_by(phases.c.seq))]
+    out["attempts"] = [dict(r._mapping) for r in conn.execute(
+        select(attempts).where(attempts.c.run_id == rid).order_by(attempts.c.attempt))]
+    out["measurements"] = [dict(r._mapping) for r in conn.execute(
+        select(measurements).where(measurements.c.run_id == rid))]
+    out["params"] = {}
+    for r in conn.execute(select(params).where(params.c.run_id == rid)):
+        out["params"].setdefault(r.stage, {})[r.name] = r.value
+    return out
+
+
+NUMERIC_NAMES = (*sorted(CATALOGUE), "residual_ut.mean", "residual_ut.std", "residual_ut.ptp")
+RUN_COLUMNS = ("run_uuid", "id", "serial", "part", "station_id", "line", "operator", "software_version",
+               "limit_hash", "started", "finished", "verdict", "cause")
+
+
+def export_runs(conn: Connection, where: RunFilter) -> Iterator[dict[str, Any]]:
+    """Every matching run, oldest first, with its numeric measurements (``{name: {value, verdict}}``)."""
+    query = where.apply(select(runs).order_by(runs.c.id))
+    result = conn.execution_options(stream_results=True, yield_per=BATCH).execute(query)
+    for batch in result.partitions(BATCH):
+        found = [_run_row(r) for r in batch]
+        ids = [r["id"] for r in found]
+        numeric: dict[int, dict[str, dict]] = {i: {} for i in ids}
+        for m in conn.execute(select(measurements.c.run_id, measurements.c.name, measurements.c.value,
+                                     measurements.c.unit, measurements.c.low, measurements.c.high,
+                                     measurements.c.verdict)
+                              .where(measurements.c.run_id.in_(ids) & (measurements.c.kind == "numeric"))):
+            numeric[m.run_id][m.name] = {"value": m.value, "unit": m.unit, "low": m.low, "high": m.high,
+                                         "verdict": m.verdict}
+        for run in found:
+            run["measurements"] = numeric[run["id"]]
+            yield run
+
+
+def export_attempts(conn: Connection, run_id: int) -> list[dict[str, Any]]:
+    return [dict(r._mapping) for r in conn.execute(
+        select(attempts).where(attempts.c.run_id == run_id).order_by(attempts.c.attempt))]

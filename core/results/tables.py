@@ -1,0 +1,73 @@
+"""The results schema, declared once with SQLAlchemy Core for every engine (SQLite, PostgreSQL).
+
+Why Core tables and not ORM objects: a record is written incrementally (the run row first, each
+attempt's raw data the moment it exists, the rest at the end) and read by quality tools that
+expect plain tables; Core keeps the SQL visible and the same on both engines.  JSON documents
+(unit info, calibration, persistence) are stored as text so that any SQL client can read them.
+The schema's history lives in ``migrations/`` (Alembic); this module is its current state.
+"""
+
+from __future__ import annotations
+
+from sqlalchemy import (
+    Column,
+    Float,
+    ForeignKey,
+    Index,
+    Integer,
+    LargeBinary,
+    MetaData,
+    String,
+    Table,
+    Text,
+)
+
+metadata = MetaData()
+
+runs = Table(
+    "runs", metadata,
+    Column("id", Integer, primary_key=True, autoincrement=True),
+    Column("run_uuid", String(36), nullable=False, unique=True),  # identity across stores (forwarding)
+    Column("serial", Text, nullable=False),
+    Column("part", Text, nullable=False),
+    Column("station_id", Text), Column("line", Text), Column("operator", Text),
+    Column("software_version", Text), Column("limit_hash", Text),
+    Column("started", Text), Column("finished", Text),
+    Column("verdict", Text), Column("cause", Text),
+    Column("unit_info", Text), Column("calibration", Text), Column("persistence", Text),
+    Column("owner", Text), Column("aborted_phase", Text), Column("left_changed", Text),
+    Column("unverified_params", Text), Column("earlier_runs", Integer),
+    Index("runs_serial", "serial"),
+)
+
+phases = Table(
+    "phases", metadata,
+    Column("run_id", Integer, ForeignKey("runs.id")), Column("seq", Integer), Column("name", Text),
+    Column("outcome", Text), Column("duration_s", Float), Column("message", Text), Column("log", Text),
+)
+
+attempts = Table(
+    "attempts", metadata,
+    Column("run_id", Integer, ForeignKey("runs.id")), Column("attempt", Integer), Column("samples", Integer),
+    Column("coverage", Float), Column("target", Float), Column("accepted", Integer), Column("raw_csv", Text),
+    Column("refused", Text), Column("repeats", Integer), Column("sensor_rate_hz", Float),
+)
+
+measurements = Table(
+    "measurements", metadata,
+    Column("run_id", Integer, ForeignKey("runs.id")), Column("name", Text), Column("kind", Text),
+    Column("value", Float), Column("unit", Text), Column("low", Float), Column("high", Float),
+    Column("verdict", Text), Column("data", Text),
+)
+
+params = Table(
+    "params", metadata,
+    Column("run_id", Integer, ForeignKey("runs.id")), Column("stage", Text), Column("name", Text),
+    Column("value", Float),
+)
+
+attachments = Table(
+    "attachments", metadata,
+    Column("run_id", Integer, ForeignKey("runs.id")), Column("name", Text), Column("mime", Text),
+    Column("content", LargeBinary),
+)

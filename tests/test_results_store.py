@@ -1,0 +1,177 @@
+"""The results store: one versioned schema (SQLAlchemy Core + Alembic), old files upgraded in place,
+newer stores refused."""
+
+from __future__ import annotations
+
+import shutil
+import sqlite3
+from pathlib import Path
+
+import pytest
+
+from magline.core.faults import StationFault
+from magline.core.results import schema_version
+from magline.core.results.sqlite_sink import SqliteSink
+
+FIXTURES = Path(__file__).parent / "fixtures"
+LEGACY = FIXTURES / "results-magline-0.1.sqlite"  # written by the hand-written SQLite sink of magline 0.1
+
+
+def test_a_store_from_before_migrations_is_upgraded_in_place_keeping_every_run(tmp_path):
+    path = tmp_path / "station.sqlite"
+    shutil.copy(LEGACY, path)
+    with sqlite3.connect(path) as db:
+        before = db.execute("SELECT id, serial, verdict, calibration FROM runs ORDER BY id").fetchall()
+        raw_before = db.execute("SELECT run_id, attempt, raw_csv FROM attempts ORDER BY run_id, attempt").fetchall()
+        failed_before = db.execute("SELECT name, value FROM measurements WHERE verdict = 'fail'").fetchall()
+    assert [r[1:3] for r in before] == [("LEGACY-1", "pass"), ("LEGACY-2", "fail")]
+    sink = SqliteSink(path)
+    assert sink.revision == schema_version.head_revision()
+    history = sink.history("LEGACY-2")
+    sink.close()
+    with sqlite3.connect(path) as db:
+        after = db.execute("SELECT id, serial, verdict, calibration FROM runs ORDER BY id").fetchall()
+        raw_after = db.execute("SELECT run_id, attempt, raw_csv FROM attempts ORDER BY run_id, attempt").fetchall()
+        uuids = [u for (u,) in db.execute("SELECT run_uuid FROM runs")]
+        (version,), = db.execute("SELECT version_num FROM alembic_version").fetchall()
+    assert after == before and raw_after == raw_before  # every run and its raw data kept
+    assert len(set(uuids)) == 2 and all(len(u) == 36 for u in uuids)  # each old run got its identity
+    assert version == schema_version.head_revision()
+    assert [(f["name"], f["value"]) for f in history[0]["failed"]] == failed_before
+    SqliteSink(path).close()  # opening again changes nothing
+
+
+def test_a_store_written_by_a_newer_magline_is_refused(tmp_path):
+    path = tmp_path / "new.sqlite"
+    SqliteSink(path).close()
+    with sqlite3.connect(path) as db:
+        db.execute("UPDATE alembic_version SET version_num = '9999'")
+    with pytest.raises(StationFault, match=r"schema revision 9999, newer than this magline knows .*: upgrade magline"):
+        SqliteSink(path)
+
+
+def test_a_store_that_cannot_be_written_is_a_clear_station_error(tmp_path):
+    blocker = tmp_path / "not-a-dir"
+    blocker.write_text("x", encoding="utf-8")
+    with pytest.raises(StationFault, match="results store"):
+        SqliteSink(blocker / "results.sqlite")
+
+
+# ------------------------------------------------------------------ both engines
+
+
+def sql_station(make_station, store_url, monkeypatch, changes=None, name="station.yaml"):
+    monkeypatch.setenv("MAGLINE_TEST_DB_URL", store_url)
+    return make_station({"results": {"sink": "sql", "url_env": "MAGLINE_TEST_DB_URL"}, **(changes or {})}, name=name)
+
+
+def test_a_station_writes_and_traces_units_on_each_engine(make_station, store_url, monkeypatch, capsys):
+    from magline.core.cli import main
+    from magline.core.plugins import load_plugins
+    from magline.core.record import Outcome
+    from magline.core.sequencer import Sequencer
+    from magline.core.station import load_station
+
+    good = sql_station(make_station, store_url, monkeypatch)
+    bad = sql_station(make_station, store_url, monkeypatch,
+                      {"products": {"MOCK-100": {"limits": {"hard_iron_norm_ut": {"le": 10.0}}}}}, name="bad.yaml")
+    records = []
+    for path, serial in ((good, "E-1"), (bad, "E-1"), (good, "E-2")):
+        seq = Sequencer(load_station(path), load_plugins(), path.parent, sleep=lambda s: None)
+        try:
+            records.append(seq.run_unit(serial))
+        finally:
+            seq.close()
+    assert [r.verdict for r in records] == [Outcome.PASS, Outcome.FAIL, Outcome.PASS]
+    assert records[1].earlier_runs == 1 and records[1].earlier_passes == 1  # one store, seen across runs
+    assert "not-a-secret" not in records[0].store and records[0].store.endswith(f"run {records[0].run_id}")
+    capsys.readouterr()
+    assert main(["history", "E-1", "--station", str(good)]) == 0
+    out = capsys.readouterr()
+    assert "PASS" in out.out and "FAIL" in out.out and "hard_iron_norm_ut" in out.out
+    assert "not-a-secret" not in out.out + out.err
+
+
+def test_a_run_whose_writer_died_is_marked_incomplete_on_each_engine(store_url, monkeypatch):
+    from sqlalchemy import create_engine
+
+    from magline.core.record import RunRecord
+    from magline.core.results import store as store_module
+    from magline.core.results.store import SqlStore
+
+    store = SqlStore(create_engine(store_url), "test store")
+    monkeypatch.setattr(store_module, "owner", lambda: f"{store_module.socket.gethostname()}:999999999")
+    record = RunRecord(serial="K-1", part="P", station_id="s", line="L", operator="", software_version="0",
+                       limit_hash="h")
+    store.begin(record)  # a writer with a pid that does not exist
+    store.close()
+    reopened = SqlStore(create_engine(store_url), "test store")
+    (run,) = reopened.history("K-1")
+    reopened.close()
+    assert run["verdict"] == "incomplete" and "ended before the run finished" in run["cause"]
+
+
+def test_a_newer_schema_is_refused_on_each_engine(store_url):
+    from sqlalchemy import create_engine, text
+
+    from magline.core.results.store import SqlStore
+
+    SqlStore(create_engine(store_url), "test store").close()
+    engine = create_engine(store_url)
+    with engine.begin() as conn:
+        conn.execute(text("UPDATE alembic_version SET version_num = '9999'"))
+    engine.dispose()
+    with pytest.raises(StationFault, match="newer than this magline"):
+        SqlStore(create_engine(store_url), "test store")
+
+
+def test_the_server_url_comes_from_the_environment_and_its_password_is_never_shown(make_station, monkeypatch):
+    from magline.core.results.sql_sink import server_store
+
+    with pytest.raises(StationFault, match=r"MAGLINE_NOT_SET .* is not set"):
+        server_store("MAGLINE_NOT_SET")
+    monkeypatch.setenv("MAGLINE_BAD_DB", "postgresql+psycopg://line:hunter2@127.0.0.1:1/results")
+    with pytest.raises(StationFault) as info:
+        server_store("MAGLINE_BAD_DB")
+    assert "hunter2" not in str(info.value) and "127.0.0.1" in str(info.value)
+
+
+def test_show_and_export_read_the_store_on_each_engine(make_station, store_url, monkeypatch, capsys):
+    """``magline show`` prints a whole record; ``magline export`` streams filtered runs as CSV / JSON
+    lines, raw samples on request."""
+    import csv
+    import io
+    import json
+
+    from magline.core.cli import main
+
+    good = sql_station(make_station, store_url, monkeypatch)
+    bad = sql_station(make_station, store_url, monkeypatch,
+                      {"products": {"MOCK-100": {"limits": {"hard_iron_norm_ut": {"le": 10.0}}}}}, name="bad.yaml")
+    assert main(["run", str(good), "--serial", "X-1"]) == 0
+    assert main(["run", str(bad), "--serial", "X-2"]) == 1
+    capsys.readouterr()
+
+    assert main(["show", "1", "--station", str(good)]) == 0
+    out = capsys.readouterr().out
+    assert "unit X-1" in out and "PASS" in out and "params written:" in out and "params read_back:" in out
+    assert "attempts:" in out and "not used (coverage" in out  # the demo's first, single-axis attempt
+    assert main(["show", "1", "--station", str(good), "--json"]) == 0
+    whole = json.loads(capsys.readouterr().out)
+    assert whole["serial"] == "X-1" and len(whole["attempts"]) == 2 and whole["params"]["written"]
+    assert main(["show", whole["run_uuid"], "--station", str(good), "--json"]) == 0  # by UUID too
+    assert json.loads(capsys.readouterr().out)["id"] == 1
+
+    assert main(["export", "--station", str(good)]) == 0
+    rows = list(csv.DictReader(io.StringIO(capsys.readouterr().out)))
+    assert [(r["serial"], r["verdict"]) for r in rows] == [("X-1", "pass"), ("X-2", "fail")]
+    assert rows[1]["failed"] == "hard_iron_norm_ut" and float(rows[0]["hard_iron_norm_ut"]) > 0
+    assert main(["export", "--station", str(good), "--verdict", "fail", "--format", "jsonl"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == 1 and json.loads(lines[0])["measurements"]["hard_iron_norm_ut"]["verdict"] == "fail"
+    assert main(["export", "--station", str(good), "--since", "2999-01-01"]) == 0
+    assert len(capsys.readouterr().out.splitlines()) == 1  # the header only
+    assert main(["export", "--station", str(good), "--raw", "--part", "MOCK-100"]) == 0
+    samples = list(csv.DictReader(io.StringIO(capsys.readouterr().out)))
+    assert len(samples) == 2 * (2 * 600) and {s["serial"] for s in samples} == {"X-1", "X-2"}
+    assert abs(float(samples[0]["mag_x_ut"])) < 500
