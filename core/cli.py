@@ -59,6 +59,9 @@ def main(argv: list[str] | None = None) -> int:
 
     sub.add_parser("plugins", help="list loaded plugins and their hooks (JSON)")
 
+    sync = sub.add_parser("sync", help="forward the station's queued records to its results server")
+    sync.add_argument("--station", help="station file naming the results store (default: demo)")
+
     show = sub.add_parser("show", help="a run's whole record (by run id or UUID)")
     show.add_argument("run")
     show.add_argument("--station", help="station file naming the results store (default: demo)")
@@ -88,7 +91,7 @@ def main(argv: list[str] | None = None) -> int:
     if hasattr(args, "handler"):
         return args.handler(args)
     handler = {"run": _run, "check": _check, "fit": _fit, "plugins": _plugins, "history": _history,
-               "show": _show, "export": _export}
+               "show": _show, "export": _export, "sync": _sync}
     return _quiet_broken_pipe(lambda: handler[args.command](args, plugins))
 
 
@@ -292,6 +295,29 @@ def _open_store(args: argparse.Namespace, plugins: Plugins) -> Any:
     if station.results.sink == "sqlite" and not results_path(station, where).exists():
         raise StationFault(f"no results store at {results_path(station, where)}")
     return plugins.result_sinks[station.results.sink](station, where)
+
+
+def _sync(args: argparse.Namespace, plugins: Plugins) -> int:
+    """Forward what a station's outbox holds (the station loop does it too, after every unit)."""
+    try:
+        station, where = _load(args.station, plugins)
+        sink = plugins.result_sinks[station.results.sink](station, where)
+    except (StationError, PluginError, StationFault) as exc:
+        _err(str(exc))
+        return 2
+    try:
+        forward = getattr(sink, "forward", None)
+        if forward is None:
+            print("this station writes straight into its results store: nothing to forward")
+            return 0
+        done, pending = forward()
+        print(f"forwarded {done} record(s) to {sink.server}")
+        if pending:
+            _err(f"{pending} record(s) still queued ({sink.last_error or 'not forwarded yet'})")
+            return 1
+        return 0
+    finally:
+        sink.close()
 
 
 def _with_store(args: argparse.Namespace, plugins: Plugins, use: Callable[[Any], int]) -> int:

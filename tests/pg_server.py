@@ -61,6 +61,14 @@ class Cluster:
         subprocess.run(_as_cluster_owner([str(bindir() / "pg_ctl"), "-D", str(self.base / "data"), "-m", "fast",
                                           "-w", "stop"]), capture_output=True, timeout=60)
 
+    def running(self) -> bool:
+        return subprocess.run(_as_cluster_owner([str(bindir() / "pg_ctl"), "-D", str(self.base / "data"), "status"]),
+                              capture_output=True, timeout=30).returncode == 0
+
+    def start_if_stopped(self) -> None:
+        if not self.running():
+            self.start()
+
     def start(self) -> None:
         subprocess.run(_as_cluster_owner([
             str(bindir() / "pg_ctl"), "-D", str(self.base / "data"), "-l", str(self.base / "server.log"), "-w",

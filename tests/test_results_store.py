@@ -84,7 +84,8 @@ def test_a_station_writes_and_traces_units_on_each_engine(make_station, store_ur
             seq.close()
     assert [r.verdict for r in records] == [Outcome.PASS, Outcome.FAIL, Outcome.PASS]
     assert records[1].earlier_runs == 1 and records[1].earlier_passes == 1  # one store, seen across runs
-    assert "not-a-secret" not in records[0].store and records[0].store.endswith(f"run {records[0].run_id}")
+    assert "not-a-secret" not in records[0].store and ("***" in records[0].store) == ("postgresql" in store_url)
+    assert "forwarded from the outbox" in records[0].store  # committed locally first, then forwarded
     capsys.readouterr()
     assert main(["history", "E-1", "--station", str(good)]) == 0
     out = capsys.readouterr()

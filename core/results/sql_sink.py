@@ -1,4 +1,5 @@
-"""A results store on a database server (``results: {sink: sql, url_env: MAGLINE_DB_URL}``).
+"""A results store on a database server (``results: {sink: sql, url_env: MAGLINE_DB_URL}``), reached
+through a local outbox (store-and-forward, :mod:`.forwarding`).
 
 Why an environment variable: the station file names the variable, the line PC's environment holds
 the SQLAlchemy URL (``postgresql+psycopg://user:password@host/db``), so no secret is ever in a
@@ -18,10 +19,11 @@ from sqlalchemy.exc import ArgumentError
 
 from magline.core.faults import StationFault
 from magline.core.plugins import hookimpl
+from magline.core.results.forwarding import ForwardingStore
 from magline.core.results.store import SqlStore
 
 
-def server_store(url_env: str | None) -> SqlStore:
+def server_url(url_env: str | None) -> Any:
     if not url_env:
         raise StationFault("results.sink 'sql' needs results.url_env: the name of the environment variable "
                            "that holds the database URL")
@@ -30,15 +32,20 @@ def server_store(url_env: str | None) -> SqlStore:
         raise StationFault(f"the environment variable {url_env} (results.url_env) is not set: it must hold the "
                            "results database's URL, e.g. postgresql+psycopg://user:password@host/db")
     try:
-        parsed = make_url(url)
+        return make_url(url)
     except ArgumentError:
         raise StationFault(f"the environment variable {url_env} does not hold a database URL") from None
-    engine = create_engine(parsed, pool_pre_ping=True)
-    return SqlStore(engine, parsed.render_as_string(hide_password=True))
 
 
-def _factory(station: Any, station_dir: Path) -> SqlStore:
-    return server_store(station.results.url_env)
+def server_store(url_env: str | None) -> SqlStore:
+    """The server's store itself (no outbox): what reading commands and the forwarder talk to."""
+    parsed = server_url(url_env)
+    return SqlStore(create_engine(parsed, pool_pre_ping=True), parsed.render_as_string(hide_password=True))
+
+
+def _factory(station: Any, station_dir: Path) -> ForwardingStore:
+    outbox = Path(station_dir) / Path(station.results.outbox).expanduser()
+    return ForwardingStore(outbox, server_url(station.results.url_env))
 
 
 @hookimpl

@@ -58,7 +58,7 @@ class SqlStore:
         try:
             self.revision = schema_version.upgrade(engine, where)
         except SQLAlchemyError as exc:
-            raise StationFault(f"results store {where}: {_reason(exc)}") from exc
+            raise StationFault(f"results store {where}: {reason(exc)}") from exc
         self.mark_incomplete()
 
     def close(self) -> None:
@@ -72,7 +72,7 @@ class SqlStore:
             with self.engine.begin() as conn:
                 return fn(conn)
         except SQLAlchemyError as exc:
-            raise StationFault(f"results store {self.where}: {what} failed: {_reason(exc)}") from exc
+            raise StationFault(f"results store {self.where}: {what} failed: {reason(exc)}") from exc
 
     def mark_incomplete(self) -> int:
         """Runs left ``running`` by a process that no longer exists become ``incomplete``."""
@@ -151,7 +151,7 @@ class SqlStore:
                                                           & (measurements.c.verdict == "fail")))]
                     run["calibration"] = json.loads(run["calibration"]) if run["calibration"] else None
         except SQLAlchemyError as exc:
-            raise StationFault(f"results store {self.where}: reading the history failed: {_reason(exc)}") from exc
+            raise StationFault(f"results store {self.where}: reading the history failed: {reason(exc)}") from exc
         return found
 
 
@@ -160,7 +160,7 @@ def _insert(conn: Any, table: Any, rows: list[dict]) -> None:
         conn.execute(table.insert(), rows)
 
 
-def _reason(exc: SQLAlchemyError) -> str:
+def reason(exc: Exception) -> str:
     """The driver's own words, without SQLAlchemy's statement dump (which may be long)."""
     return str(getattr(exc, "orig", None) or exc).splitlines()[0]
 

@@ -37,7 +37,8 @@ runs = Table(
     Column("unit_info", Text), Column("calibration", Text), Column("persistence", Text),
     Column("owner", Text), Column("aborted_phase", Text), Column("left_changed", Text),
     Column("unverified_params", Text), Column("earlier_runs", Integer),
-    Index("runs_serial", "serial"),
+    Column("forwarded", Text),  # when an outbox forwarded this run to the central store
+    Index("runs_serial", "serial"), Index("runs_part_id", "part", "id"), Index("runs_started", "started"),
 )
 
 phases = Table(

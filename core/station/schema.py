@@ -137,6 +137,7 @@ class Results(_Strict):
     sink: str = "sqlite"
     path: str = "magline-results.sqlite"
     url_env: Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$")] | None = None
+    outbox: str = "magline-outbox.sqlite"  # ``sql``: records are committed here first, then forwarded
 
 
 class Prompts(_Strict):
