@@ -112,7 +112,7 @@ def bulk(url: str, n: int) -> float:
                 "FROM generate_series(1, :n) g"), {"n": n})
             conn.execute(text(
                 "INSERT INTO measurements (run_id, name, kind, value, verdict) "
-                "SELECT r.id, m.name, 'numeric', random(), 'pass' FROM runs r CROSS JOIN unnest(:names) AS m(name) "
+                "SELECT r.id, m.name, 'numeric', random(), 'pass' FROM runs r CROSS JOIN unnest(CAST(:names AS text[])) AS m(name) "
                 "WHERE r.serial LIKE 'S-%'"), {"names": names})
         else:
             conn.execute(text(
