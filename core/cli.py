@@ -280,8 +280,11 @@ def _history(args: argparse.Namespace, plugins: Plugins) -> int:
     for run in runs:
         cov = ", ".join(percent(a["coverage"]) + (" refused" if a.get("refused") else "") for a in run["attempts"])
         where_aborted = f" during {run['aborted_phase']}" if run.get("aborted_phase") else ""
-        print(f"#{run['id']} {run['started'][:19]} {run['part']} {run['verdict'].upper()}{where_aborted} "
-              f"attempts [{cov}] {run['cause'] or ''}".rstrip())
+        cal = run.get("calibration") or {}
+        offsets = (" offset [" + ", ".join(fmt(v) for v in cal["hard_iron_ut"]) + "] µT") if cal.get(
+            "hard_iron_ut") else ""
+        print(f"#{run['id']} {run['started'][:19]} station {run['station_id']} {run['part']} "
+              f"{run['verdict'].upper()}{where_aborted}{offsets} attempts [{cov}] {run['cause'] or ''}".rstrip())
         for f in run["failed"]:
             print(f"    ✗ {f['name']} = {fmt(f['value'], f['unit'])}  limits [{fmt(f['low'])}, {fmt(f['high'])}]")
     return 0

@@ -94,10 +94,13 @@ class RunRecord:
     calibration: dict[str, Any] | None = None
     params_before: dict[str, ParamValue] = field(default_factory=dict)
     params_written: dict[str, ParamValue] = field(default_factory=dict)
+    params_echoed: dict[str, ParamValue] = field(default_factory=dict)  # what the firmware answered the writes with
     params_read_back: dict[str, ParamValue] = field(default_factory=dict)
     persistence: dict[str, Any] = field(default_factory=dict)
     attachments: list[Attachment] = field(default_factory=list)
     run_id: int | None = None
+    station_hash: str = ""  # the station file's content hash (which configuration judged the unit)
+    reference_field_ut: float | None = None  # the field reference the unit was calibrated against
     store: str = ""  # where the record is kept (the sink's own words: a file, a server)
     aborted_phase: str | None = None  # the phase the operator stopped the unit in
     left_changed: dict[str, str] = field(default_factory=dict)  # DUT parameters not restored: name → state

@@ -93,6 +93,24 @@ def test_a_killed_station_leaves_its_run_incomplete_never_running(tmp_path):
     assert (serial, verdict) == ("K-1", "incomplete") and "ended before the run finished" in cause
 
 
+def test_a_station_killed_after_an_attempt_keeps_that_attempts_raw_data(tmp_path):
+    """The demo's first attempt (a single-axis spin) is stored before the retry; a SIGKILL during the
+    retry leaves it there, and the run is marked incomplete, never passed."""
+    station = realtime_station(tmp_path, {"products": {"MOCK-100": {"options": {
+        "motions": ["single_axis", "hand_tumble"]}}}})
+    proc = start(["run", str(station), "--serial", "K-2"], tmp_path)
+    read_until(proc, "attempt 2:")
+    proc.kill()
+    proc.wait(timeout=30)
+    db = tmp_path / "magline-demo-results.sqlite"
+    SqliteSink(db).close()
+    (serial, verdict, _, _), = runs(db)
+    assert (serial, verdict) == ("K-2", "incomplete")
+    with sqlite3.connect(db) as con:
+        (attempt, samples, raw), = con.execute("SELECT attempt, samples, raw_csv FROM attempts").fetchall()
+    assert (attempt, samples) == (1, 600) and raw.count("\n") == 601
+
+
 def test_loop_without_terminal_or_serials_tests_nothing_and_says_so(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "magline.core.cli", "run", "--loop"], cwd=tmp_path,
                           stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=60)

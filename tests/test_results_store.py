@@ -160,6 +160,8 @@ def test_show_and_export_read_the_store_on_each_engine(make_station, store_url, 
     assert main(["show", "1", "--station", str(good), "--json"]) == 0
     whole = json.loads(capsys.readouterr().out)
     assert whole["serial"] == "X-1" and len(whole["attempts"]) == 2 and whole["params"]["written"]
+    assert len(whole["station_hash"]) == 16 and whole["reference_field_ut"] == 48.0
+    assert whole["params"]["echoed"] == pytest.approx(whole["params"]["written"])
     assert main(["show", whole["run_uuid"], "--station", str(good), "--json"]) == 0  # by UUID too
     assert json.loads(capsys.readouterr().out)["id"] == 1
 
@@ -176,3 +178,54 @@ def test_show_and_export_read_the_store_on_each_engine(make_station, store_url, 
     samples = list(csv.DictReader(io.StringIO(capsys.readouterr().out)))
     assert len(samples) == 2 * (2 * 600) and {s["serial"] for s in samples} == {"X-1", "X-2"}
     assert abs(float(samples[0]["mag_x_ut"])) < 500
+
+
+def test_a_record_that_cannot_be_stored_is_never_reported_as_stored(make_station):
+    """Disk full, a read-only store: the unit is not booked as passed, the operator is told."""
+    from rich.console import Console
+
+    from magline.core.console import OperatorConsole
+    from magline.core.plugins import hookimpl, load_plugins
+    from magline.core.record import Outcome
+    from magline.core.sequencer import Sequencer
+    from magline.core.station import load_station
+
+    class FullDisk(SqliteSink):
+        def finish(self, record):
+            raise StationFault(f"results store {self.where}: storing the run's record failed: "
+                               "database or disk is full")
+
+    class Sinks:
+        @hookimpl
+        def magline_register_result_sinks(self, register):
+            register("full-disk", lambda station, where: FullDisk(where / "full.sqlite"))
+
+    path = make_station({"results": {"sink": "full-disk"}})
+    console = OperatorConsole(Console(record=True, width=200, highlight=False))
+    seq = Sequencer(load_station(path), load_plugins(extra=[Sinks(), console]), path.parent, sleep=lambda s: None)
+    try:
+        record = seq.run_unit("FULL-1")
+    finally:
+        seq.close()
+    assert record.verdict is Outcome.ERROR and record.store == ""
+    assert "the record could not be stored" in record.cause and "disk is full" in record.cause
+    assert "record: NOT stored" in console.console.export_text()
+
+
+def test_the_latest_units_of_a_part_are_read_with_their_numeric_measurements(make_station, store_url, monkeypatch):
+    from sqlalchemy import create_engine
+
+    from magline.core.cli import main
+    from magline.core.results.reading import latest_numeric
+
+    path = sql_station(make_station, store_url, monkeypatch)
+    for serial in ("L-1", "L-2", "L-3"):
+        assert main(["run", str(path), "--serial", serial]) == 0
+    engine = create_engine(store_url)
+    with engine.connect() as conn:
+        rows = latest_numeric(conn, "MOCK-100", 2)
+        assert latest_numeric(conn, "NO-SUCH-PART", 2) == []
+    engine.dispose()
+    assert {rid for rid, _, _ in rows} == {2, 3}  # the two latest runs
+    names = {name for rid, name, _ in rows if rid == 3}
+    assert {"hard_iron_x_ut", "coverage", "residual_ut.std"} <= names

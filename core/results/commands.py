@@ -56,7 +56,9 @@ def show(store: Any, run: str, as_json: bool, out: TextIO | None = None) -> int:
         if m["kind"] == "numeric":
             lines.append(f"  {m['name']:<24} {fmt(m['value'], m['unit'] or ''):>14}  "
                          f"[{fmt(m['low'])}, {fmt(m['high'])}]  {m['verdict']}")
-    for stage in ("before", "written", "read_back"):
+    lines.append(f"station file {record.get('station_hash') or '—'}, reference field "
+                 f"{fmt(record.get('reference_field_ut'), 'µT')}")
+    for stage in ("before", "written", "echoed", "read_back"):
         values = record["params"].get(stage)
         if values:
             lines.append(f"params {stage}: " + ", ".join(f"{k}={fmt(v, digits=7)}" for k, v in sorted(values.items())))

@@ -13,7 +13,8 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
 
-from sqlalchemy import Connection, select
+from sqlalchemy import Connection, Integer, any_, cast, select
+from sqlalchemy.dialects.postgresql import ARRAY
 
 from magline.core.measurements import CATALOGUE
 from magline.core.results.tables import attempts, measurements, params, phases, runs
@@ -95,3 +96,19 @@ def export_runs(conn: Connection, where: RunFilter) -> Iterator[dict[str, Any]]:
 def export_attempts(conn: Connection, run_id: int) -> list[dict[str, Any]]:
     return [dict(r._mapping) for r in conn.execute(
         select(attempts).where(attempts.c.run_id == run_id).order_by(attempts.c.attempt))]
+
+
+def latest_numeric(conn: Connection, part: str, units: int) -> list[tuple[int, str, float]]:
+    """(run id, name, value) of every numeric measurement of a part's latest ``units`` runs — what
+    process statistics read.  The run ids are fetched first and passed as one array (PostgreSQL:
+    ``= ANY``), so the measurements are found through their run index rather than by a scan."""
+    ids = [rid for (rid,) in conn.execute(select(runs.c.id).where(runs.c.part == part)
+                                          .order_by(runs.c.id.desc()).limit(units))]
+    if not ids:
+        return []
+    if conn.dialect.name == "postgresql":
+        match = measurements.c.run_id == any_(cast(ids, ARRAY(Integer)))
+    else:
+        match = measurements.c.run_id.in_(ids)
+    return [tuple(r) for r in conn.execute(select(measurements.c.run_id, measurements.c.name, measurements.c.value)
+                                           .where(match & (measurements.c.kind == "numeric")))]

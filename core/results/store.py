@@ -91,7 +91,7 @@ class SqlStore:
                 run_uuid=str(uuid.uuid4()), serial=record.serial, part=record.part, station_id=record.station_id,
                 line=record.line, operator=record.operator, software_version=record.software_version,
                 limit_hash=record.limit_hash, started=record.started, verdict=RUNNING, owner=owner(),
-                earlier_runs=record.earlier_runs)).inserted_primary_key[0]
+                earlier_runs=record.earlier_runs, station_hash=record.station_hash)).inserted_primary_key[0]
         record.run_id = self._write("starting the run's record", insert)
 
     def save_attempt(self, record: RunRecord, attempt: AttemptRecord) -> None:
@@ -113,6 +113,7 @@ class SqlStore:
                 unit_info=json.dumps(record.unit_info),
                 calibration=json.dumps(record.calibration) if record.calibration else None,
                 persistence=json.dumps(record.persistence), aborted_phase=record.aborted_phase,
+                reference_field_ut=record.reference_field_ut,
                 left_changed=json.dumps(record.left_changed) if record.left_changed else None,
                 unverified_params=json.dumps(record.unverified_params) if record.unverified_params else None))
             # the fit may refuse an attempt after its raw data were saved: final verdicts per attempt
@@ -126,6 +127,7 @@ class SqlStore:
             _insert(conn, params, [{"run_id": rid, "stage": stage, "name": k, "value": float(v)}
                                    for stage, values in (("before", record.params_before),
                                                          ("written", record.params_written),
+                                                         ("echoed", record.params_echoed),
                                                          ("read_back", record.params_read_back))
                                    for k, v in values.items()])
             _insert(conn, attachments, [{"run_id": rid, "name": a.name, "mime": a.mime, "content": a.content}

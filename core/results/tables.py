@@ -38,6 +38,7 @@ runs = Table(
     Column("owner", Text), Column("aborted_phase", Text), Column("left_changed", Text),
     Column("unverified_params", Text), Column("earlier_runs", Integer),
     Column("forwarded", Text),  # when an outbox forwarded this run to the central store
+    Column("station_hash", Text), Column("reference_field_ut", Float),
     Index("runs_serial", "serial"), Index("runs_part_id", "part", "id"), Index("runs_started", "started"),
 )
 

@@ -70,7 +70,8 @@ class Sequencer:
         record = RunRecord(serial=serial, part=part, station_id=self.station.station.id,
                            line=self.station.station.line, operator=operator,
                            software_version=__version__,
-                           limit_hash=self.station.limit_hash(part) if part in self.station.products else "")
+                           limit_hash=self.station.limit_hash(part) if part in self.station.products else "",
+                           station_hash=self.station.content_hash())
         run = RunContext(station=self.station, station_dir=self.station_dir, part=part,
                          product=self.station.products.get(part), serial=serial, operator=operator,
                          plugins=self.plugins, record=record,
@@ -106,7 +107,12 @@ class Sequencer:
                 self._cleanup(run)
         with self.abort.shielded():
             record.verdict = self._conclude(record, verdict or Outcome.PASS)
-            self._run_phase(run, "record", self._record)
+            if self._run_phase(run, "record", self._record) is not Outcome.PASS:
+                record.store = ""  # never reported as stored
+                note = f"the record could not be stored ({record.phases[-1].message}); {RETEST}"
+                record.cause = f"{record.cause} — {note}" if record.cause else note
+                if record.verdict in (Outcome.PASS, Outcome.FAIL):
+                    record.verdict = Outcome.ERROR  # a judgement nobody can trace does not count
             self.plugins.hook.magline_unit_finished(run=run, record=record)
         return record
 
@@ -202,7 +208,7 @@ class Sequencer:
         if power_factory is None:
             raise StationFault(f"no power control named {run.product.power.method!r} is loaded")
         run.field_source = self.field_source
-        run.reference_field_ut = self.field_source.reference_field_ut()
+        run.reference_field_ut = run.record.reference_field_ut = self.field_source.reference_field_ut()
         run.log(f"reference field {run.reference_field_ut:.2f} µT")
         run.power = power_factory(run.product.power, self.station_dir)
         run.power.power_up()
@@ -316,6 +322,7 @@ class Sequencer:
         run.state["persisted"] = report
         run.record.params_before = dict(report.before)
         run.record.params_written = dict(report.written)
+        run.record.params_echoed = dict(report.echoed)
         run.record.measurements.append(Json(name="params_written", data=dict(report.written)))
 
     def _verify(self, run: RunContext) -> None:

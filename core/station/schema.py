@@ -168,6 +168,12 @@ class Station(_Strict):
         """Line-wide limits with the product's overrides applied."""
         return {**self.limits, **self.products[part].limits}
 
+    def content_hash(self) -> str:
+        """Stable hash of the whole validated station file (comments and layout do not count),
+        stored with every result: which configuration judged the unit."""
+        doc = self.model_dump(mode="json")
+        return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:16]
+
     def limit_hash(self, part: str) -> str:
         """Stable hash of the effective limit set, stored with every result."""
         doc = {k: v.model_dump(exclude_none=True) for k, v in sorted(self.effective_limits(part).items())}
