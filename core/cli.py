@@ -252,19 +252,15 @@ def _plugins(args: argparse.Namespace, plugins: Plugins) -> int:
 
 
 def _history(args: argparse.Namespace, plugins: Plugins) -> int:
-    from magline.core.results.sqlite_sink import results_path
     try:
         station, where = _load(args.station, plugins)
     except (StationError, PluginError) as exc:
         _err(str(exc))
         return 2
-    name = "the embedded demo station" if args.station is None else args.station
-    if station.results.sink == "sqlite":  # never create a store just to find it empty
-        path = results_path(station, where)
-        if not path.exists():
-            _err(f"no results store at {path} (named by {name}); nothing has been recorded there yet")
-            return 1
-        print(f"results store {path} (named by {name})")
+    missing = _missing_store(args, station, where)
+    if missing is not None:
+        _err(missing)
+        return 1
     try:
         sink = plugins.result_sinks[station.results.sink](station, where)
     except StationFault as exc:
@@ -290,13 +286,26 @@ def _history(args: argparse.Namespace, plugins: Plugins) -> int:
     return 0
 
 
-def _open_store(args: argparse.Namespace, plugins: Plugins) -> Any:
-    """The station's results store, for commands that read it (never created by reading)."""
+def _missing_store(args: argparse.Namespace, station: Station, where: Path) -> str | None:
+    """Reading never creates a store: why there is nothing to read, or None (the store it reads is said)."""
     from magline.core.results.sqlite_sink import results_path
 
+    if station.results.sink != "sqlite":
+        return None
+    path = results_path(station, where)
+    name = "the embedded demo station" if args.station is None else args.station
+    if not path.exists():
+        return f"no results store at {path} (named by {name}); nothing has been recorded there yet"
+    print(f"results store {path} (named by {name})", file=sys.stderr)
+    return None
+
+
+def _open_store(args: argparse.Namespace, plugins: Plugins) -> Any:
+    """The station's results store, for commands that read it (never created by reading)."""
     station, where = _load(args.station, plugins)
-    if station.results.sink == "sqlite" and not results_path(station, where).exists():
-        raise StationFault(f"no results store at {results_path(station, where)}")
+    missing = _missing_store(args, station, where)
+    if missing is not None:
+        raise StationFault(missing)
     return plugins.result_sinks[station.results.sink](station, where)
 
 
