@@ -20,6 +20,7 @@ import statistics
 import sys
 import tempfile
 import time
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -30,22 +31,24 @@ sys.path.insert(0, str(REPO / "tests"))
 
 from pg_server import cluster  # noqa: E402
 
-from magline.core.fit.samples_csv import RawSamples, format_samples  # noqa: E402
+from magline.core.fit.samples_csv import RawSamples, format_samples, parse_samples  # noqa: E402
 from magline.core.measurements import CATALOGUE, Array, Numeric  # noqa: E402
 from magline.core.record import AttemptRecord, Outcome, PhaseResult, RunRecord  # noqa: E402
-from magline.core.results.reading import latest_numeric  # noqa: E402
+from magline.core.results import raw_blob  # noqa: E402
+from magline.core.results.reading import RunFilter  # noqa: E402
+from magline.core.results.series import load_series  # noqa: E402
 from magline.core.results.store import SqlStore  # noqa: E402
 from magline.core.results.tables import runs  # noqa: E402
 
 RNG = np.random.default_rng(1)
-RAW = format_samples(RawSamples(mag_ut=RNG.normal(scale=50, size=(600, 3)), t_ms=np.arange(600) * 20.0))
+RAW = RawSamples(mag_ut=RNG.normal(scale=50, size=(600, 3)), t_ms=np.arange(600) * 20.0)
 RESIDUALS = RNG.normal(scale=0.3, size=600)
 
 
 def record(serial: str, part: str = "P-100", station: str = "st-1") -> RunRecord:
     r = RunRecord(serial=serial, part=part, station_id=station, line="L1", operator="op", software_version="bench",
                   limit_hash="0" * 16)
-    r.attempts.append(AttemptRecord(attempt=1, samples=600, coverage=0.9, target=0.6, raw_csv=RAW, accepted=True))
+    r.attempts.append(AttemptRecord(attempt=1, samples=600, coverage=0.9, target=0.6, raw=RAW, accepted=True))
     r.measurements = [Numeric(name=n, value=float(RNG.normal()), unit=u, low=-5.0, high=5.0) for n, (u, _) in
                       CATALOGUE.items()] + [Array.of("residual_ut", RESIDUALS, {})]
     r.phases = [PhaseResult(name=p, outcome=Outcome.PASS, duration_s=0.1, log=["ok"]) for p in
@@ -143,11 +146,41 @@ def queries(url: str, rounds: int = 20) -> tuple[float, float]:
     with store.engine.connect() as conn:
         for i in range(5):
             t = time.perf_counter()
-            rows = latest_numeric(conn, f"P-{i}", 10_000)
+            series = load_series(conn, RunFilter(part=f"P-{i}"), last=10_000)
             last.append(time.perf_counter() - t)
-            assert len(rows) >= 10_000
+            assert len(series) == 10_000 and len(series.values) == len(CATALOGUE)
     store.close()
     return statistics.median(history), statistics.median(last)
+
+
+def raw_formats(rounds: int = 200) -> None:
+    """Bytes per 600-sample attempt and encode / decode time: CSV text (what the store held before),
+    compressed CSV, the .npy float32 blob (what it holds now), compressed .npy."""
+    rng = np.random.default_rng(2)
+    direction = rng.normal(size=(600, 3))
+    direction /= np.linalg.norm(direction, axis=1)[:, None]
+    samples = RawSamples(mag_ut=direction * 50 + rng.normal(scale=0.3, size=(600, 3)) + [120, -40, 30],
+                         t_ms=np.arange(600) * 20.0 + rng.integers(-1, 2, 600),
+                         temp_c=25 + rng.normal(scale=0.1, size=600))
+    formats = {
+        "csv text": (lambda s: format_samples(s).encode(), lambda b: parse_samples(b.decode())),
+        "csv + zlib": (lambda s: zlib.compress(format_samples(s).encode()),
+                       lambda b: parse_samples(zlib.decompress(b).decode())),
+        "npy float32": (raw_blob.encode, raw_blob.decode),
+        "npy + zlib": (lambda s: zlib.compress(raw_blob.encode(s)), lambda b: raw_blob.decode(zlib.decompress(b))),
+    }
+    print("0. raw samples of one attempt (600 readings with time and temperature)")
+    for name, (encode, decode) in formats.items():
+        blob = encode(samples)
+        t = time.perf_counter()
+        for _ in range(rounds):
+            encode(samples)
+        enc = (time.perf_counter() - t) / rounds * 1e3
+        t = time.perf_counter()
+        for _ in range(rounds):
+            decode(blob)
+        dec = (time.perf_counter() - t) / rounds * 1e3
+        print(f"   {name:<12} {len(blob):6,} bytes   encode {enc:5.2f} ms   decode {dec:5.2f} ms")
 
 
 def main() -> None:
@@ -159,6 +192,8 @@ def main() -> None:
     parser.add_argument("--only-large", action="store_true", help="only the bulk store")
     parser.add_argument("--engines", default="sqlite,postgresql", help="comma list of sqlite, postgresql")
     args = parser.parse_args()
+    if not args.only_large:
+        raw_formats()
     with cluster() as pg, tempfile.TemporaryDirectory() as tmp:
         engines = {"sqlite": lambda name: f"sqlite:///{Path(tmp) / name}.sqlite",
                    "postgresql": lambda name: pg.new_database()}

@@ -98,7 +98,8 @@ class OperatorConsole:
     @hookimpl
     def magline_unit_finished(self, run: RunContext, record: RunRecord) -> None:
         style = STYLE.get(record.verdict, "red")
-        self.console.print(Panel("\n".join(verdict_lines(record)), title=f"[bold {style}]{record.verdict.upper()}[/]",
+        title = record.verdict.upper() + (" · REVIEW" if record.review else "")
+        self.console.print(Panel("\n".join(verdict_lines(record)), title=f"[bold {style}]{title}[/]",
                                  border_style=style, expand=False))
 
     def batch_summary(self, batch: Batch) -> None:
@@ -114,10 +115,19 @@ def verdict_lines(record: RunRecord) -> list[str]:
                      f"(test {record.earlier_runs + 1} of this serial)")
     if record.cause:
         lines.append(f"  cause: {record.cause}")
+    process = {f["name"]: f for f in record.review}
     for m in verdicts(record.measurements):
-        limit = f"[{fmt(m.low)}, {fmt(m.high)}]" if m.verdict is not Verdict.INFO else "no limit"
-        flag = "  REVIEW (marginal)" if m.verdict is Verdict.REVIEW else ("  FAIL" if m.verdict is Verdict.FAIL else "")
+        limit = f"[{fmt(m.low)}, {fmt(m.high)}]" if m.low is not None or m.high is not None else "no limit"
+        flag = "  FAIL" if m.verdict is Verdict.FAIL else ""
+        if m.verdict is Verdict.REVIEW:
+            flag = (f"  REVIEW ({abs(process[m.name]['z']):.1f}σ from the process)" if m.name in process
+                    else "  REVIEW (marginal)")
         lines.append(f"  {MARK[m.verdict]} {m.name:<24} {fmt(m.value, m.unit):>14}  {limit}{flag}")
+    if record.review:
+        lines.append("  FLAGGED FOR ENGINEERING REVIEW (the unit passes):")
+        lines += [f"    {f['reason']}" for f in record.review]
+    elif record.review_note.startswith("no process review"):
+        lines.append(f"  {record.review_note}")
     if record.calibration:
         cal = record.calibration
         h = ", ".join(fmt(v, digits=4) for v in cal["hard_iron_ut"])

@@ -12,6 +12,7 @@ from enum import StrEnum
 from typing import Any
 
 from magline.core.dut import ParamValue
+from magline.core.fit.samples_csv import RawSamples
 from magline.core.measurements import Attachment, Measurement
 
 
@@ -47,7 +48,7 @@ class AttemptRecord:
     samples: int
     coverage: float
     target: float
-    raw_csv: str
+    raw: RawSamples  # every distinct reading of the attempt, in µT
     accepted: bool = False
     refused: str | None = None  # why these samples were not used: low coverage, the fit's refusal, interrupted
     repeats: int = 0  # copies of readings the stream carried and the backend dropped
@@ -107,3 +108,5 @@ class RunRecord:
     unverified_params: list[str] = field(default_factory=list)  # written, but the power cycle was not proven
     earlier_runs: int = 0  # runs of this serial already in the store (0: first test)
     earlier_passes: int = 0  # of those, how many passed (a re-test of a passed unit is said)
+    review: list[dict[str, Any]] = field(default_factory=list)  # process-review flags (see core/quality/review)
+    review_note: str = ""  # what the unit was compared with, or why it was not

@@ -3,14 +3,16 @@
 from __future__ import annotations
 
 import json
-import sqlite3
 from pathlib import Path
 
 import yaml
 from conftest import REPO, deep_update
+from sqlalchemy import create_engine
 
+from magline.core.fit.samples_csv import RawSamples
 from magline.core.plugins import load_plugins
 from magline.core.record import RunRecord
+from magline.core.results.reading import serial_attempts
 from magline.core.sequencer import Sequencer
 from magline.core.station import load_station
 
@@ -42,11 +44,20 @@ def run_unit(station: Path, serial: str = "SN-1") -> RunRecord:
         seq.close()
 
 
-def stored_attempts(results: Path, serial: str) -> list[tuple[int, str]]:
-    """(samples, raw CSV) of every stored acquisition attempt of ``serial``."""
-    with sqlite3.connect(results) as db:
-        return db.execute("SELECT a.samples, a.raw_csv FROM attempts a JOIN runs r ON a.run_id = r.id "
-                          "WHERE r.serial = ?", (serial,)).fetchall()
+def stored_attempts(results: Path, serial: str) -> list[tuple[int, RawSamples]]:
+    """(samples, raw readings) of every stored acquisition attempt of ``serial``, read back through
+    the store's own reading API (the blob decoded as ``magline export`` does)."""
+    return [(a["samples"], a["raw"]) for a in attempt_rows(results, serial)]
+
+
+def attempt_rows(results: Path, serial: str) -> list[dict]:
+    """Every stored attempt of ``serial`` (the attempts table's columns; ``raw``: its readings)."""
+    engine = create_engine(f"sqlite:///{results}")
+    try:
+        with engine.connect() as conn:
+            return serial_attempts(conn, serial)
+    finally:
+        engine.dispose()
 
 
 def load_json(path: Path) -> dict:

@@ -133,8 +133,8 @@ def test_lost_link_mid_acquisition_is_an_error_keeps_the_raw_data_and_says_what_
         assert record.left_changed == {"COMPASS_LEARN": "0 (was 3)"}
         assert "COMPASS_LEARN left at 0 (was 3); re-test the unit" in record.cause
         assert "PARAM_SET" not in record.cause  # the cause is the link, not a refused write
-        (samples, raw_csv), = stored_attempts(tmp_path / "results.sqlite", "SN-LINK")
-        assert samples > 10 and raw_csv.count("\n") == samples + 1
+        (samples, raw), = stored_attempts(tmp_path / "results.sqlite", "SN-LINK")
+        assert samples > 10 and len(raw) == samples
         assert not any(k.startswith("COMPASS_OFS") for k in load_json(sim.storage_path))
         with sqlite3.connect(tmp_path / "results.sqlite") as db:
             (verdict, left), = db.execute("SELECT verdict, left_changed FROM runs WHERE serial='SN-LINK'")

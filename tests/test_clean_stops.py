@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 import yaml
 from conftest import REPO, deep_update, demo_config
+from simstation import attempt_rows
 
 from magline.core.results.sqlite_sink import SqliteSink
 
@@ -106,9 +107,8 @@ def test_a_station_killed_after_an_attempt_keeps_that_attempts_raw_data(tmp_path
     SqliteSink(db).close()
     (serial, verdict, _, _), = runs(db)
     assert (serial, verdict) == ("K-2", "incomplete")
-    with sqlite3.connect(db) as con:
-        (attempt, samples, raw), = con.execute("SELECT attempt, samples, raw_csv FROM attempts").fetchall()
-    assert (attempt, samples) == (1, 600) and raw.count("\n") == 601
+    (attempt,) = attempt_rows(db, "K-2")
+    assert (attempt["attempt"], attempt["samples"], len(attempt["raw"])) == (1, 600, 600)
 
 
 def test_loop_without_terminal_or_serials_tests_nothing_and_says_so(tmp_path):

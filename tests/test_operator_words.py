@@ -9,10 +9,11 @@ import sqlite3
 
 import numpy as np
 from rich.console import Console
-from simstation import FAST_SENSOR_HZ, write_station
+from simstation import FAST_SENSOR_HZ, attempt_rows, write_station
 
 from magline.core.cli import main
 from magline.core.console import OperatorConsole
+from magline.core.fit.samples_csv import format_samples
 from magline.core.plugins import hookimpl, load_plugins
 from magline.core.record import Outcome
 from magline.core.sequencer import Sequencer
@@ -50,10 +51,9 @@ def test_coverage_is_one_figure_that_never_decreases(make_station, tmp_path, cap
     coverage = next(m for m in record.measurements if getattr(m, "name", "") == "coverage")
     assert coverage.value == record.attempts[-1].coverage  # the measurement is the same number
     assert f"coverage {record.attempts[-1].coverage:.0%}" in "\n".join(p for ph in record.phases for p in ph.log)
-    with sqlite3.connect(tmp_path / "magline-demo-results.sqlite") as db:
-        (raw,), = db.execute("SELECT raw_csv FROM attempts WHERE accepted = 1").fetchall()
+    accepted = [a for a in attempt_rows(tmp_path / "magline-demo-results.sqlite", record.serial) if a["accepted"]]
     csv = tmp_path / "accepted.csv"
-    csv.write_text(raw, encoding="utf-8")
+    csv.write_text(format_samples(accepted[0]["raw"]), encoding="utf-8")
     capsys.readouterr()
     assert main(["fit", str(csv), "--json", "--bins", "40"]) == 0
     assert json.loads(capsys.readouterr().out)["coverage"]["fraction"] == coverage.value  # `magline fit` agrees

@@ -7,9 +7,13 @@ import shutil
 import sqlite3
 from pathlib import Path
 
+import numpy as np
 import pytest
+from simstation import attempt_rows
+from sqlalchemy import text
 
 from magline.core.faults import StationFault
+from magline.core.fit.samples_csv import parse_samples
 from magline.core.results import schema_version
 from magline.core.results.sqlite_sink import SqliteSink
 
@@ -31,10 +35,17 @@ def test_a_store_from_before_migrations_is_upgraded_in_place_keeping_every_run(t
     sink.close()
     with sqlite3.connect(path) as db:
         after = db.execute("SELECT id, serial, verdict, calibration FROM runs ORDER BY id").fetchall()
-        raw_after = db.execute("SELECT run_id, attempt, raw_csv FROM attempts ORDER BY run_id, attempt").fetchall()
         uuids = [u for (u,) in db.execute("SELECT run_uuid FROM runs")]
         (version,), = db.execute("SELECT version_num FROM alembic_version").fetchall()
-    assert after == before and raw_after == raw_before  # every run and its raw data kept
+    raw_after = [(a["run_id"], a["attempt"], a["raw"]) for serial in ("LEGACY-1", "LEGACY-2")
+                 for a in attempt_rows(path, serial)]
+    assert after == before  # every run kept
+    assert [r[:2] for r in raw_after] == [r[:2] for r in raw_before]  # and every attempt's raw data,
+    for (_, _, csv_text), (_, _, samples) in zip(raw_before, raw_after, strict=True):  # now a float32 array
+        old = parse_samples(csv_text)
+        assert len(samples) == len(old) > 0
+        np.testing.assert_allclose(samples.mag_ut, old.mag_ut, rtol=1e-6, atol=1e-4)
+        np.testing.assert_array_equal(samples.t_ms, old.t_ms)
     assert len(set(uuids)) == 2 and all(len(u) == 36 for u in uuids)  # each old run got its identity
     assert version == schema_version.head_revision()
     assert [(f["name"], f["value"]) for f in history[0]["failed"]] == failed_before
@@ -212,20 +223,31 @@ def test_a_record_that_cannot_be_stored_is_never_reported_as_stored(make_station
     assert "record: NOT stored" in console.console.export_text()
 
 
-def test_the_latest_units_of_a_part_are_read_with_their_numeric_measurements(make_station, store_url, monkeypatch):
+def test_the_latest_units_of_a_part_are_read_as_aligned_series(make_station, store_url, monkeypatch):
+    """What statistics read, on both engines: the latest runs oldest first, each numeric measurement
+    an array aligned with them, the limits they were judged against, attempts per run."""
+    import numpy as np
     from sqlalchemy import create_engine
 
     from magline.core.cli import main
-    from magline.core.results.reading import latest_numeric
+    from magline.core.results.reading import RunFilter
+    from magline.core.results.series import load_series
 
     path = sql_station(make_station, store_url, monkeypatch)
     for serial in ("L-1", "L-2", "L-3"):
         assert main(["run", str(path), "--serial", serial]) == 0
     engine = create_engine(store_url)
     with engine.connect() as conn:
-        rows = latest_numeric(conn, "MOCK-100", 2)
-        assert latest_numeric(conn, "NO-SUCH-PART", 2) == []
+        series = load_series(conn, RunFilter(part="MOCK-100"), last=2, with_attempts=True)
+        assert len(load_series(conn, RunFilter(part="NO-SUCH-PART"), last=2)) == 0
+        only = load_series(conn, RunFilter(part="MOCK-100"), names=["coverage"])
+        stored = {(r.run_id, r.value) for r in conn.execute(text(
+            "SELECT run_id, value FROM measurements WHERE name = 'hard_iron_x_ut'"))}
     engine.dispose()
-    assert {rid for rid, _, _ in rows} == {2, 3}  # the two latest runs
-    names = {name for rid, name, _ in rows if rid == 3}
-    assert {"hard_iron_x_ut", "coverage", "residual_ut.std"} <= names
+    assert [r["serial"] for r in series.runs] == ["L-2", "L-3"]  # the two latest, oldest first
+    assert {"hard_iron_x_ut", "coverage", "residual_ut.std"} <= set(series.values)
+    x = series.values["hard_iron_x_ut"]
+    assert {(r["id"], v) for r, v in zip(series.runs, x, strict=True)} <= stored and np.all(np.isfinite(x))
+    assert series.limits["hard_iron_norm_ut"].high is not None and series.limits["hard_iron_x_ut"].unit == "µT"
+    assert series.attempts.tolist() == [2, 2]  # the demo spins once about one axis, then tumbles
+    assert list(only.values) == ["coverage"] and len(only) == 3

@@ -12,9 +12,9 @@ from pathlib import Path
 
 import numpy as np
 from conftest import REPO, demo_config
+from simstation import attempt_rows
 
 from magline.core.cli import main
-from magline.core.fit.samples_csv import parse_samples
 from magline.core.plugins import hookimpl, load_plugins
 from magline.core.record import Outcome
 from magline.core.results.sqlite_sink import SqliteSink
@@ -46,10 +46,10 @@ def test_demo_command_passes_after_exactly_one_retry(tmp_path):
     db = line / "magline-demo-results.sqlite"
     (verdict, calibration), = rows(db, "SELECT verdict, calibration FROM runs WHERE serial='SN-0001'")
     assert verdict == "pass"
-    attempts = rows(db, "SELECT attempt, coverage, accepted, raw_csv FROM attempts ORDER BY attempt")
-    assert [(a, acc) for a, _, acc, _ in attempts] == [(1, 0), (2, 1)]
-    assert attempts[0][1] < 0.6 <= attempts[1][1]
-    raw = parse_samples(attempts[1][3])
+    attempts = attempt_rows(db, "SN-0001")
+    assert [(a["attempt"], a["accepted"]) for a in attempts] == [(1, 0), (2, 1)]
+    assert attempts[0]["coverage"] < 0.6 <= attempts[1]["coverage"]
+    raw = attempts[1]["raw"]
     assert len(raw) == 600
     truth = demo_config()["products"]["MOCK-100"]["options"]
     cal = json.loads(calibration)
@@ -140,13 +140,11 @@ def test_fit_refusal_retries_with_its_advice_and_keeps_the_refused_samples(make_
     record = run_station(path, extra=[log])
     assert record.verdict is Outcome.PASS, record.cause
     assert len(log.prompts) == 2 and "tumble about all three axes" in log.prompts[1]
-    (first_coverage, first_acc, first_refused, first_raw), (_, second_acc, second_refused, _) = rows(
-        tmp_path / "magline-demo-results.sqlite", "SELECT coverage, accepted, refused, raw_csv FROM attempts "
-        "ORDER BY attempt")
-    assert first_coverage >= 0.05 and first_acc == 0
-    assert first_refused.split(":")[0] in {"single_plane", "undetermined"}
-    assert len(parse_samples(first_raw)) == 600
-    assert second_acc == 1 and second_refused is None
+    first, second = attempt_rows(tmp_path / "magline-demo-results.sqlite", record.serial)
+    assert first["coverage"] >= 0.05 and first["accepted"] == 0
+    assert first["refused"].split(":")[0] in {"single_plane", "undetermined"}
+    assert len(first["raw"]) == 600
+    assert second["accepted"] == 1 and second["refused"] is None
 
 
 def test_fit_refusing_every_attempt_fails_the_unit_with_the_advice(make_station, tmp_path):

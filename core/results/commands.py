@@ -12,8 +12,7 @@ import sys
 from typing import Any, TextIO
 
 from magline.core.faults import StationFault
-from magline.core.fit.samples_csv import parse_samples
-from magline.core.results.reading import NUMERIC_NAMES, RUN_COLUMNS, RunFilter, export_attempts, export_runs, find_run
+from magline.core.results.reading import NUMERIC_NAMES, RUN_COLUMNS, RunFilter, export_runs, find_run, run_attempts
 from magline.core.text import fmt, seconds
 
 
@@ -79,7 +78,7 @@ def export(store: Any, where: RunFilter, fmt_name: str, raw: bool, out: TextIO |
         if fmt_name == "jsonl":
             for run in export_runs(conn, where):
                 if raw:
-                    run["attempts"] = [_raw_attempt(a) for a in export_attempts(conn, run["id"])]
+                    run["attempts"] = [_raw_attempt(a) for a in run_attempts(conn, run["id"], with_samples=True)]
                 out.write(json.dumps(run, default=str) + "\n")
                 count += 1
             return _done(count)
@@ -87,9 +86,9 @@ def export(store: Any, where: RunFilter, fmt_name: str, raw: bool, out: TextIO |
         if raw:
             writer.writerow(["run_uuid", "serial", "attempt", "accepted", "mag_x_ut", "mag_y_ut", "mag_z_ut", "t_ms"])
             for run in export_runs(conn, where):
-                for a in export_attempts(conn, run["id"]):
-                    samples = parse_samples(a["raw_csv"]) if a["raw_csv"] else None
-                    for i in range(len(samples.mag_ut) if samples is not None else 0):
+                for a in run_attempts(conn, run["id"], with_samples=True):
+                    samples = a["raw"]
+                    for i in range(len(samples) if samples is not None else 0):
                         t = samples.t_ms[i] if samples.t_ms is not None and len(samples.t_ms) else ""
                         writer.writerow([run["run_uuid"], run["serial"], a["attempt"], a["accepted"],
                                          *samples.mag_ut[i].tolist(), t])
@@ -106,7 +105,7 @@ def export(store: Any, where: RunFilter, fmt_name: str, raw: bool, out: TextIO |
 
 
 def _raw_attempt(attempt: dict) -> dict:
-    samples = parse_samples(attempt.pop("raw_csv")) if attempt.get("raw_csv") else None
+    samples = attempt.pop("raw")
     if samples is not None:
         attempt["raw"] = {"mag_ut": samples.mag_ut.tolist(),
                           "t_ms": samples.t_ms.tolist() if samples.t_ms is not None else None}

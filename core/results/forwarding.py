@@ -22,6 +22,8 @@ from sqlalchemy.exc import IntegrityError, SQLAlchemyError
 
 from magline.core.faults import StationFault
 from magline.core.record import AttemptRecord, RunRecord
+from magline.core.results.reading import RunFilter
+from magline.core.results.series import RunSeries
 from magline.core.results.sqlite_sink import SqliteSink
 from magline.core.results.store import RUNNING, SqlStore, reason
 from magline.core.results.tables import attachments, attempts, measurements, params, phases, runs
@@ -100,6 +102,20 @@ class ForwardingStore:
         """Every station's runs from the central store; this station's outbox when it is unreachable."""
         central = self.central()
         return central.history(serial) if central is not None else self.outbox.history(serial)
+
+    def series(self, where: RunFilter, last: int | None = None, names: Any = None,
+               with_attempts: bool = False) -> RunSeries:
+        """The line's history from the central store; this station's outbox while it is unreachable
+        (``source`` says which)."""
+        central = self.central()
+        if central is not None:
+            try:
+                return central.series(where, last, names, with_attempts)
+            except StationFault as exc:
+                self.last_error = str(exc)
+        found = self.outbox.series(where, last, names, with_attempts)
+        found.source = f"this station's outbox {self.outbox.where} (server unreachable)"
+        return found
 
     @property
     def engine(self) -> Any:

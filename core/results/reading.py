@@ -13,14 +13,14 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
 
-from sqlalchemy import Connection, Integer, any_, cast, select
-from sqlalchemy.dialects.postgresql import ARRAY
+from sqlalchemy import Connection, select
 
 from magline.core.measurements import CATALOGUE
+from magline.core.results import raw_blob
 from magline.core.results.tables import attempts, measurements, params, phases, runs
 
 BATCH = 500
-JSON_COLUMNS = ("unit_info", "calibration", "persistence", "left_changed", "unverified_params")
+JSON_COLUMNS = ("unit_info", "calibration", "persistence", "left_changed", "unverified_params", "review")
 
 
 @dataclass(frozen=True)
@@ -29,11 +29,13 @@ class RunFilter:
     until: str | None = None  # ISO time: runs started before
     part: str | None = None
     station_id: str | None = None
+    line: str | None = None
     verdict: str | None = None
 
     def apply(self, query: Any) -> Any:
         for column, value, op in ((runs.c.started, self.since, "ge"), (runs.c.started, self.until, "lt"),
                                   (runs.c.part, self.part, "eq"), (runs.c.station_id, self.station_id, "eq"),
+                                  (runs.c.line, self.line, "eq"),
                                   (runs.c.verdict, self.verdict, "eq")):
             if value is not None:
                 query = query.where({"ge": column >= value, "lt": column < value, "eq": column == value}[op])
@@ -59,8 +61,7 @@ def find_run(conn: Connection, run: str) -> dict[str, Any] | None:
     rid = out["id"]
     out["phases"] = [dict(r._mapping) for r in conn.execute(
         select(phases).where(phases.c.run_id == rid).order_by(phases.c.seq))]
-    out["attempts"] = [dict(r._mapping) for r in conn.execute(
-        select(attempts).where(attempts.c.run_id == rid).order_by(attempts.c.attempt))]
+    out["attempts"] = run_attempts(conn, rid)
     out["measurements"] = [dict(r._mapping) for r in conn.execute(
         select(measurements).where(measurements.c.run_id == rid))]
     out["params"] = {}
@@ -93,22 +94,24 @@ def export_runs(conn: Connection, where: RunFilter) -> Iterator[dict[str, Any]]:
             yield run
 
 
-def export_attempts(conn: Connection, run_id: int) -> list[dict[str, Any]]:
-    return [dict(r._mapping) for r in conn.execute(
-        select(attempts).where(attempts.c.run_id == run_id).order_by(attempts.c.attempt))]
+def run_attempts(conn: Connection, run_id: int, with_samples: bool = False) -> list[dict[str, Any]]:
+    """A run's acquisition attempts, in order; with ``with_samples`` each carries its raw readings
+    (``raw``: :class:`RawSamples`, None when the attempt stored none; ``samples`` stays their count)."""
+    columns = [c for c in attempts.c if c.name != "raw"] + ([attempts.c.raw] if with_samples else [])
+    found = []
+    for r in conn.execute(select(*columns).where(attempts.c.run_id == run_id).order_by(attempts.c.attempt)):
+        row = dict(r._mapping)
+        if with_samples:
+            blob = row["raw"]
+            row["raw"] = raw_blob.decode(bytes(blob)) if blob is not None else None
+        found.append(row)
+    return found
 
 
-def latest_numeric(conn: Connection, part: str, units: int) -> list[tuple[int, str, float]]:
-    """(run id, name, value) of every numeric measurement of a part's latest ``units`` runs — what
-    process statistics read.  The run ids are fetched first and passed as one array (PostgreSQL:
-    ``= ANY``), so the measurements are found through their run index rather than by a scan."""
-    ids = [rid for (rid,) in conn.execute(select(runs.c.id).where(runs.c.part == part)
-                                          .order_by(runs.c.id.desc()).limit(units))]
-    if not ids:
-        return []
-    if conn.dialect.name == "postgresql":
-        match = measurements.c.run_id == any_(cast(ids, ARRAY(Integer)))
-    else:
-        match = measurements.c.run_id.in_(ids)
-    return [tuple(r) for r in conn.execute(select(measurements.c.run_id, measurements.c.name, measurements.c.value)
-                                           .where(match & (measurements.c.kind == "numeric")))]
+def serial_attempts(conn: Connection, serial: str) -> list[dict[str, Any]]:
+    """Every stored attempt of a unit, oldest run first, with its raw readings — what a quality
+    engineer pulls to re-fit a unit."""
+    found = []
+    for (rid,) in conn.execute(select(runs.c.id).where(runs.c.serial == serial).order_by(runs.c.id)):
+        found += [{"run_id": rid, **a} for a in run_attempts(conn, rid, with_samples=True)]
+    return found

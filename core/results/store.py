@@ -13,6 +13,7 @@ import json
 import os
 import socket
 import uuid
+from collections.abc import Sequence
 from dataclasses import asdict
 from typing import Any
 
@@ -22,7 +23,9 @@ from sqlalchemy.exc import SQLAlchemyError
 from magline.core.faults import StationFault
 from magline.core.measurements import Array, Json, Numeric
 from magline.core.record import AttemptRecord, RunRecord
-from magline.core.results import schema_version
+from magline.core.results import raw_blob, schema_version
+from magline.core.results.reading import RunFilter
+from magline.core.results.series import RunSeries, load_series
 from magline.core.results.tables import attachments, attempts, measurements, params, phases, runs
 
 RUNNING = "running"
@@ -99,7 +102,7 @@ class SqlStore:
             self.begin(record)
         self._write("storing the attempt's raw data", lambda conn: conn.execute(attempts.insert().values(
             run_id=record.run_id, attempt=attempt.attempt, samples=attempt.samples, coverage=attempt.coverage,
-            target=attempt.target, accepted=int(attempt.accepted), raw_csv=attempt.raw_csv,
+            target=attempt.target, accepted=int(attempt.accepted), raw=raw_blob.encode(attempt.raw),
             refused=attempt.refused, repeats=attempt.repeats, sensor_rate_hz=attempt.sensor_rate_hz)))
 
     def finish(self, record: RunRecord) -> None:
@@ -114,6 +117,7 @@ class SqlStore:
                 calibration=json.dumps(record.calibration) if record.calibration else None,
                 persistence=json.dumps(record.persistence), aborted_phase=record.aborted_phase,
                 reference_field_ut=record.reference_field_ut,
+                review=json.dumps(record.review) if record.review else None, review_note=record.review_note or None,
                 left_changed=json.dumps(record.left_changed) if record.left_changed else None,
                 unverified_params=json.dumps(record.unverified_params) if record.unverified_params else None))
             # the fit may refuse an attempt after its raw data were saved: final verdicts per attempt
@@ -133,6 +137,18 @@ class SqlStore:
             _insert(conn, attachments, [{"run_id": rid, "name": a.name, "mime": a.mime, "content": a.content}
                                         for a in record.attachments])
         self._write("storing the run's record", write)
+
+    def series(self, where: RunFilter, last: int | None = None, names: Sequence[str] | None = None,
+               with_attempts: bool = False) -> RunSeries:
+        """The latest runs matching ``where`` with their numeric measurements as arrays (statistics)."""
+        try:
+            with self.engine.connect() as conn:
+                found = load_series(conn, where, last, names, with_attempts)
+        except SQLAlchemyError as exc:
+            raise StationFault(f"results store {self.where}: reading the process history failed: "
+                               f"{reason(exc)}") from exc
+        found.source = self.where
+        return found
 
     def history(self, serial: str) -> list[dict[str, Any]]:
         """Every run of a unit, oldest first, with attempts and failed measurements."""

@@ -39,6 +39,7 @@ runs = Table(
     Column("unverified_params", Text), Column("earlier_runs", Integer),
     Column("forwarded", Text),  # when an outbox forwarded this run to the central store
     Column("station_hash", Text), Column("reference_field_ut", Float),
+    Column("review", Text), Column("review_note", Text),  # process-review flags (JSON) and what was compared
     Index("runs_serial", "serial"), Index("runs_part_id", "part", "id"), Index("runs_started", "started"),
 )
 
@@ -51,7 +52,8 @@ phases = Table(
 attempts = Table(
     "attempts", metadata,
     Column("run_id", Integer, ForeignKey("runs.id")), Column("attempt", Integer), Column("samples", Integer),
-    Column("coverage", Float), Column("target", Float), Column("accepted", Integer), Column("raw_csv", Text),
+    Column("coverage", Float), Column("target", Float), Column("accepted", Integer),
+    Column("raw", LargeBinary),  # the samples as a .npy float32 array (raw_blob)
     Column("refused", Text), Column("repeats", Integer), Column("sensor_rate_hz", Float),
 )
 

@@ -23,10 +23,11 @@ from magline.core.dut import DutError, NotRestored
 from magline.core.faults import StationFault, UnitAborted
 from magline.core.field import FieldSourceError
 from magline.core.fit import FitOptions, FitRefused, FitResult
-from magline.core.fit.samples_csv import format_samples
 from magline.core.measurements import Json, Verdict, verdicts
 from magline.core.plugins import Plugins
+from magline.core.quality.review import review
 from magline.core.record import AttemptRecord, Outcome, PersistReport, PhaseResult, RunRecord, now_iso
+from magline.core.results.reading import RunFilter
 from magline.core.sequencer.abort import AbortSwitch
 from magline.core.sequencer.context import Acquisition, AcquisitionAborted, RunContext
 from magline.core.sequencer.unit_log import unit_log_capture
@@ -269,7 +270,7 @@ class Sequencer:
 
     def _store_attempt(self, run: RunContext, result: Acquisition, accepted: bool) -> AttemptRecord:
         stored = AttemptRecord(attempt=result.attempt, samples=len(result.samples), coverage=result.coverage,
-                               target=result.target, raw_csv=format_samples(result.samples), accepted=accepted,
+                               target=result.target, raw=result.samples, accepted=accepted,
                                repeats=result.repeats, sensor_rate_hz=result.sensor_rate_hz)
         run.record.attempts.append(stored)
         self.sink.save_attempt(run.record, stored)  # raw data safe before any fitting
@@ -316,6 +317,43 @@ class Sequencer:
                 message += (" — the field magnitude the unit measures does not match the reference: "
                             "calibration has failed regardless of fit residual")
             raise PhaseFailed(message)
+        self._review(run)
+
+    def _review(self, run: RunContext) -> None:
+        """Compare the passing unit with the process's recent units (see core/quality/review): a
+        flag marks the measurement ``review`` and the record; it never fails the unit, and a store
+        that cannot answer only leaves a note."""
+        settings = self.station.review
+        if not settings.enabled:
+            run.record.review_note = "process review off in the station file"
+            return
+        series_of = getattr(self.sink, "series", None)
+        if series_of is None:
+            run.record.review_note = (f"no process review: the results sink {self.station.results.sink!r} "
+                                      "keeps no history")
+            run.log(run.record.review_note)
+            return
+        numeric = [m for m in verdicts(run.record.measurements) if m.name not in settings.exclude]
+        started = time.monotonic()
+        try:
+            past = series_of(RunFilter(part=run.record.part, line=run.record.line, verdict=str(Outcome.PASS)),
+                             last=settings.window, names=[m.name for m in numeric])
+        except StationFault as exc:
+            run.record.review_note = f"no process review: {exc}"
+            run.log(run.record.review_note)
+            return
+        result = review(numeric, past.values, units=len(past), min_units=settings.min_units,
+                        sigma=settings.sigma, exclude=settings.exclude,
+                        what=f"{run.record.part} units on line {run.record.line}")
+        run.record.review_note = result.note
+        run.record.review = [f.to_dict() for f in result.flags]
+        flagged = {f.name for f in result.flags}
+        for m in numeric:
+            if m.name in flagged:
+                m.verdict = Verdict.REVIEW
+        run.log(f"process review ({(time.monotonic() - started) * 1e3:.0f} ms): {result.note}")
+        for f in result.flags:
+            run.log(f"REVIEW: {f.reason}")
 
     def _persist(self, run: RunContext) -> None:
         report: PersistReport = self.plugins.hook.magline_persist(run=run, fit=run.state["fit"])

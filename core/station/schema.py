@@ -130,6 +130,29 @@ class VerifySettings(_Strict):
     field_tolerance_pct: Annotated[float, Field(gt=0, le=50)] = 3.0
 
 
+class ReviewSettings(_Strict):
+    """The in-run process review: each numeric measurement of a unit that passed its limits is
+    compared with the same measurement of the last ``window`` passing units of the same part on
+    the same line; outside median ± ``sigma``·σ (robust) it is flagged for engineering review —
+    the unit still passes.  With fewer than ``min_units`` such units there is no flag, and the
+    record says why.  ``exclude``: counts whose spread is not a process figure."""
+
+    enabled: bool = True
+    window: Annotated[int, Field(ge=5, le=100_000)] = 200
+    min_units: Annotated[int, Field(ge=5)] = 30
+    sigma: Annotated[float, Field(gt=0, le=10)] = 3.0
+    exclude: list[str] = Field(default_factory=lambda: ["attempts"])
+
+    @model_validator(mode="after")
+    def _enough(self) -> ReviewSettings:
+        if self.min_units > self.window:
+            raise ValueError(f"min_units ({self.min_units}) cannot exceed window ({self.window})")
+        unknown = [n for n in self.exclude if n not in KNOWN_LIMIT_NAMES]
+        if unknown:
+            raise ValueError(f"exclude: unknown measurement(s) {', '.join(unknown)}")
+        return self
+
+
 class Results(_Strict):
     """Where records go: ``sqlite`` (``path``, relative to the station file) or ``sql`` (``url_env``:
     the environment variable holding the server's URL — never the URL itself)."""
@@ -156,6 +179,7 @@ class Station(_Strict):
     verify: VerifySettings = Field(default_factory=VerifySettings)
     limits: LimitSet = Field(default_factory=dict)
     results: Results = Field(default_factory=Results)
+    review: ReviewSettings = Field(default_factory=ReviewSettings)
     prompts: Prompts = Field(default_factory=Prompts)
 
     @model_validator(mode="after")

@@ -1,0 +1,127 @@
+"""The in-run process review: a passing unit far from its process's recent units is flagged for
+engineering review during its run — it still passes — and a short history says why no flag."""
+
+from __future__ import annotations
+
+import io
+import json
+import re
+
+import numpy as np
+import pytest
+from rich.console import Console
+from sqlalchemy import create_engine, text
+
+from magline.core.console import OperatorConsole
+from magline.core.measurements import Numeric, Verdict
+from magline.core.plugins import load_plugins
+from magline.core.quality.review import review
+from magline.core.record import Outcome, RunRecord
+from magline.core.results.sqlite_sink import SqliteSink
+from magline.core.sequencer import Sequencer
+from magline.core.station import load_station
+
+
+def numeric(name: str, value: float, verdict: Verdict = Verdict.PASS) -> Numeric:
+    return Numeric(name=name, value=value, unit="µT", low=-500.0, high=500.0, verdict=verdict)
+
+
+def test_the_band_is_median_and_mad_so_one_bad_unit_does_not_widen_it():
+    history = {"hard_iron_x_ut": np.array([1, 2, 3, 4, 5, 6, 7, 8, 9, 100], dtype=float)}
+    # by hand: median 5.5; |x − 5.5| sorted .5 .5 1.5 1.5 2.5 2.5 3.5 3.5 4.5 94.5 → MAD 2.5; σ = 1.4826·2.5
+    sigma = 1.482602218505602 * 2.5
+    flagged = review([numeric("hard_iron_x_ut", 17.0)], history, units=10, min_units=10, sigma=3.0)
+    (flag,) = flagged.flags
+    assert flag.centre == 5.5 and flag.sigma == pytest.approx(sigma)
+    assert flag.z == pytest.approx(11.5 / sigma)  # 3.10σ
+    assert flag.reason == "hard_iron_x_ut 17 µT is 3.1σ above the last 10 units' median 5.5 µT (σ 3.707 µT)"
+    assert not review([numeric("hard_iron_x_ut", 16.0)], history, units=10, min_units=10, sigma=3.0).flags  # 2.83σ
+    assert np.std(history["hard_iron_x_ut"]) > 25  # a mean ± 3·std band would have let 100 through
+    below = review([numeric("hard_iron_x_ut", -6.0)], history, units=10, min_units=10, sigma=3.0).flags
+    assert below[0].z < -3 and "below" in below[0].reason
+
+
+def test_no_flag_before_min_units_nor_on_a_measurement_without_spread_and_the_note_says_why():
+    short = review([numeric("hard_iron_x_ut", 1e6)], {"hard_iron_x_ut": np.zeros(5)}, units=5, min_units=30,
+                   sigma=3.0, what="P-1 units on line L1")
+    assert not short.flags and short.note == "no process review: 5 passing P-1 units on line L1 in the store, 30 needed"
+    flat = review([numeric("rejected_fraction", 0.01), numeric("hard_iron_x_ut", 9.0)],
+                  {"rejected_fraction": np.zeros(40), "hard_iron_x_ut": np.arange(40.0)}, units=40, min_units=30,
+                  sigma=3.0)
+    assert not flat.flags and "not judged, no spread in the history: rejected_fraction" in flat.note
+    failed = review([numeric("hard_iron_x_ut", 1e3, Verdict.FAIL)], {"hard_iron_x_ut": np.arange(40.0)}, units=40,
+                    min_units=30, sigma=3.0)
+    assert not failed.flags  # a failed measurement is a FAIL, not a review
+
+
+def run(path, serial: str, console: OperatorConsole | None = None) -> RunRecord:
+    seq = Sequencer(load_station(path), load_plugins(extra=[console] if console else []), path.parent,
+                    sleep=lambda s: None)
+    try:
+        return seq.run_unit(serial)
+    finally:
+        seq.close()
+
+
+def seed_history(store_path, like: RunRecord, units: int, rng: np.random.Generator) -> None:
+    """``units`` passing MOCK-100 records on line DEMO whose numeric measurements scatter around
+    ``like``'s by 2 % (at least 0.01): a process the real unit belongs to."""
+    sink = SqliteSink(store_path)
+    try:
+        for i in range(units):
+            r = RunRecord(serial=f"HIST-{i}", part=like.part, station_id=like.station_id, line=like.line,
+                          operator="", software_version="test", limit_hash=like.limit_hash)
+            r.measurements = [Numeric(name=m.name, value=m.value + rng.normal(scale=max(0.02 * abs(m.value), 0.01)),
+                                      unit=m.unit, low=m.low, high=m.high, verdict=Verdict.PASS)
+                              for m in _numerics(like)]
+            r.verdict, r.finished = Outcome.PASS, like.finished
+            sink.begin(r)
+            sink.finish(r)
+    finally:
+        sink.close()
+
+
+def _numerics(record: RunRecord) -> list[Numeric]:
+    from magline.core.measurements import verdicts
+    return verdicts(record.measurements)
+
+
+def test_a_unit_outside_its_process_passes_flagged_for_review_with_the_reason(make_station, tmp_path):
+    path = make_station()
+    first = run(path, "BASE-1")
+    assert first.verdict is Outcome.PASS and not first.review
+    assert first.review_note == "no process review: 0 passing MOCK-100 units on line DEMO in the store, 30 needed"
+
+    store = tmp_path / "magline-demo-results.sqlite"
+    seed_history(store, first, 40, np.random.default_rng(3))
+    typical = run(path, "SAME-1")  # the same simulated unit again: typical of its process
+    assert typical.verdict is Outcome.PASS and not typical.review, typical.review
+    assert typical.review_note.startswith("compared with the last 41 passing MOCK-100 units on line DEMO")
+
+    odd_station = make_station({"products": {"MOCK-100": {"options": {"hard_iron_ut": [60.0, -22.0, 61.0]}}}},
+                               name="odd.yaml")  # a magnetised screw: +25 µT on x, well inside the limits
+    out = io.StringIO()
+    console = OperatorConsole(Console(file=out, width=120, color_system=None))
+    odd = run(odd_station, "ODD-1", console)
+    assert odd.verdict is Outcome.PASS, odd.cause  # flagged, not failed
+    flags = {f["name"]: f for f in odd.review}
+    assert "hard_iron_x_ut" in flags and flags["hard_iron_x_ut"]["z"] > 3
+    assert re.fullmatch(r"hard_iron_x_ut (59|60)\.\d+ µT is \d+\.\dσ above the last 42 units' median 3[45]\.\d+ µT "
+                        r"\(σ 0\.\d+ µT\)", flags["hard_iron_x_ut"]["reason"])
+    shown = out.getvalue()
+    assert "PASS · REVIEW" in shown and "FLAGGED FOR ENGINEERING REVIEW (the unit passes)" in shown
+    assert "σ from the process)" in shown
+
+    engine = create_engine(f"sqlite:///{store}")
+    with engine.connect() as conn:
+        verdict, stored_review, note = conn.execute(text(
+            "SELECT verdict, review, review_note FROM runs WHERE serial = 'ODD-1'")).one()
+        measured = dict(conn.execute(text("SELECT m.name, m.verdict FROM measurements m JOIN runs r ON r.id = m.run_id"
+                                          " WHERE r.serial = 'ODD-1' AND m.kind = 'numeric'")).all())
+    engine.dispose()
+    assert verdict == "pass" and json.loads(stored_review)[0]["reason"] == odd.review[0]["reason"]
+    assert note.startswith("compared with the last 42 passing")
+    assert measured["hard_iron_x_ut"] == "review"
+
+    off = make_station({"review": {"enabled": False}}, name="off.yaml")
+    assert run(off, "OFF-1").review_note == "process review off in the station file"
