@@ -69,14 +69,22 @@ def main(argv: list[str] | None = None) -> int:
 
     exp = sub.add_parser("export", help="stream runs from the results store as CSV or JSON lines")
     exp.add_argument("--station", help="station file naming the results store (default: demo)")
-    exp.add_argument("--since", help="runs started at or after this ISO time (e.g. 2026-11-24 or 2026-11-24T06:00)")
-    exp.add_argument("--until", help="runs started before this ISO time")
-    exp.add_argument("--part", help="part number")
-    exp.add_argument("--station-id", help="the writing station's id (a shared store holds several)")
+    _run_filter_arguments(exp, "part number")
     exp.add_argument("--verdict", choices=["pass", "fail", "error", "aborted", "incomplete", "running"])
     exp.add_argument("--format", choices=["csv", "jsonl"], default="csv")
     exp.add_argument("--raw", action="store_true", help="every raw sample (CSV: a row per sample)")
 
+    spc = sub.add_parser("spc", help="control charts, Cpk / Ppk, yield and refusal causes of a part's latest units")
+    spc.add_argument("--station", help="station file naming the results store and the limits (default: demo)")
+    _run_filter_arguments(spc, "part number (default: the station's default or only part)")
+    spc.add_argument("--measurement", action="append", metavar="NAME", help="only these measurements (repeat)")
+    spc.add_argument("--last", type=int, default=10_000, help="the latest N runs (default 10000)")
+    spc.add_argument("--baseline", type=int, default=50, help="units that set the centre line and limits")
+    spc.add_argument("--html", metavar="FILE", help="also write the charts as one self-contained HTML page")
+    rep = sub.add_parser("report", help="one self-contained HTML report of a run (by run id, UUID or serial)")
+    rep.add_argument("run", metavar="RUN_ID|SERIAL")
+    rep.add_argument("--station", help="station file naming the results store (default: demo)")
+    rep.add_argument("-o", "--output", metavar="FILE", help="where to write it (default: <serial>-run<id>.html)")
     hist = sub.add_parser("history", help="show a unit's runs from a station's results store")
     hist.add_argument("serial")
     hist.add_argument("--station", help="station file naming the results store (default: demo)")
@@ -91,8 +99,16 @@ def main(argv: list[str] | None = None) -> int:
     if hasattr(args, "handler"):
         return args.handler(args)
     handler = {"run": _run, "check": _check, "fit": _fit, "plugins": _plugins, "history": _history,
-               "show": _show, "export": _export, "sync": _sync}
+               "show": _show, "export": _export, "sync": _sync, "spc": _spc, "report": _report}
     return _quiet_broken_pipe(lambda: handler[args.command](args, plugins))
+
+
+def _run_filter_arguments(parser: argparse.ArgumentParser, part_help: str) -> None:
+    """Which runs a reading command looks at (``RunFilter``)."""
+    parser.add_argument("--since", help="runs started at or after this ISO time (e.g. 2026-11-24 or 2026-11-24T06:00)")
+    parser.add_argument("--until", help="runs started before this ISO time")
+    parser.add_argument("--part", help=part_help)
+    parser.add_argument("--station-id", help="only this writing station's runs (a shared store holds several)")
 
 
 def _err(message: str) -> None:
@@ -300,13 +316,13 @@ def _missing_store(args: argparse.Namespace, station: Station, where: Path) -> s
     return None
 
 
-def _open_store(args: argparse.Namespace, plugins: Plugins) -> Any:
-    """The station's results store, for commands that read it (never created by reading)."""
+def _open_store(args: argparse.Namespace, plugins: Plugins) -> tuple[Station, Path, Any]:
+    """The station, its folder and its results store, for commands that read it (never created by reading)."""
     station, where = _load(args.station, plugins)
     missing = _missing_store(args, station, where)
     if missing is not None:
         raise StationFault(missing)
-    return plugins.result_sinks[station.results.sink](station, where)
+    return station, where, plugins.result_sinks[station.results.sink](station, where)
 
 
 def _sync(args: argparse.Namespace, plugins: Plugins) -> int:
@@ -332,15 +348,19 @@ def _sync(args: argparse.Namespace, plugins: Plugins) -> int:
         sink.close()
 
 
-def _with_store(args: argparse.Namespace, plugins: Plugins, use: Callable[[Any], int]) -> int:
-    """Open the station's results store for reading, hand it to ``use``, close it."""
+def _with_store(args: argparse.Namespace, plugins: Plugins, use: Callable[..., int]) -> int:
+    """Open the station's results store for reading, hand it to ``use`` (with the station and its
+    folder when ``use`` takes them), close it."""
     try:
-        store = _open_store(args, plugins)
+        station, where, store = _open_store(args, plugins)
     except (StationError, PluginError, StationFault) as exc:
         _err(str(exc))
         return 2
     try:
-        return use(store)
+        return use(store, station, where)
+    except StationFault as exc:
+        _err(str(exc))
+        return 2
     finally:
         store.close()
 
@@ -348,7 +368,7 @@ def _with_store(args: argparse.Namespace, plugins: Plugins, use: Callable[[Any],
 def _show(args: argparse.Namespace, plugins: Plugins) -> int:
     from magline.core.results.commands import show
 
-    return _with_store(args, plugins, lambda store: show(store, args.run, args.json))
+    return _with_store(args, plugins, lambda store, *_: show(store, args.run, args.json))
 
 
 def _export(args: argparse.Namespace, plugins: Plugins) -> int:
@@ -357,7 +377,19 @@ def _export(args: argparse.Namespace, plugins: Plugins) -> int:
 
     where = RunFilter(since=args.since, until=args.until, part=args.part, station_id=args.station_id,
                       verdict=args.verdict)
-    return _with_store(args, plugins, lambda store: export(store, where, args.format, args.raw))
+    return _with_store(args, plugins, lambda store, *_: export(store, where, args.format, args.raw))
+
+
+def _spc(args: argparse.Namespace, plugins: Plugins) -> int:
+    from magline.core.quality.commands import spc
+
+    return _with_store(args, plugins, lambda store, station, _: spc(store, station, args))
+
+
+def _report(args: argparse.Namespace, plugins: Plugins) -> int:
+    from magline.core.reports.commands import report
+
+    return _with_store(args, plugins, lambda store, station, _: report(store, station, args.run, args.output))
 
 
 def _quiet_broken_pipe(handler: Callable[[], int]) -> int:

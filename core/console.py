@@ -144,4 +144,6 @@ def verdict_lines(record: RunRecord) -> list[str]:
         lines.append("  NOT RESTORED: " + ", ".join(f"{k} left at {v}" for k, v in record.left_changed.items())
                      + " — re-test it")
     lines.append(f"  record: {record.store}" if record.store else "  record: NOT stored")
+    if record.report or record.report_error:
+        lines.append(f"  report: {record.report}" if record.report else f"  {record.report_error}")
     return lines

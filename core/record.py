@@ -110,3 +110,5 @@ class RunRecord:
     earlier_passes: int = 0  # of those, how many passed (a re-test of a passed unit is said)
     review: list[dict[str, Any]] = field(default_factory=list)  # process-review flags (see core/quality/review)
     review_note: str = ""  # what the unit was compared with, or why it was not
+    report: str = ""  # the unit's HTML report, when the station writes them (results.reports)
+    report_error: str = ""  # why the report the station should have written is missing

@@ -22,9 +22,9 @@ def fmt(value: float | None, unit: str = "", digits: int = 4) -> str:
     return f"{text} {unit}".rstrip() if unit and unit not in ("%", "°") else f"{text}{unit}"
 
 
-def percent(fraction: float) -> str:
-    """0.6234 → ``62%``."""
-    return f"{fraction:.0%}"
+def percent(fraction: float | None) -> str:
+    """0.6234 → ``62%``; None (no base to divide by) → ``—``."""
+    return "—" if fraction is None else f"{fraction:.0%}"
 
 
 def seconds(value: float) -> str:

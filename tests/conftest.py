@@ -64,3 +64,12 @@ def store_url(request, tmp_path):
     if request.param == "sqlite":
         return f"sqlite:///{tmp_path / 'results.sqlite'}"
     return request.getfixturevalue("postgres").new_database()
+
+
+@pytest.fixture(scope="session")
+def browser():
+    """One headless Debian Chromium for the session (see ``browser.py``)."""
+    from browser import chromium
+
+    with chromium() as b:
+        yield b

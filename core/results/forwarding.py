@@ -118,6 +118,11 @@ class ForwardingStore:
         return found
 
     @property
+    def record_engine(self) -> Any:
+        """The outbox: the record just written is there whether or not the server is reachable."""
+        return self.outbox.engine
+
+    @property
     def engine(self) -> Any:
         central = self.central()
         if central is None:

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from sqlalchemy import Connection, Float, Integer, any_, cast, func, select
+from sqlalchemy import Connection, Float, Integer, func, select
 from sqlalchemy.dialects.postgresql import ARRAY
 
 from magline.core.results.reading import RunFilter
@@ -38,6 +38,8 @@ class RunSeries:
     values: dict[str, np.ndarray] = field(default_factory=dict)  # name -> values aligned with runs
     limits: dict[str, Limit] = field(default_factory=dict)  # as the newest run that had the measurement judged it
     attempts: np.ndarray | None = None  # acquisition attempts per run (retry rate), when asked for
+    refusals: list[list[str]] = field(default_factory=list)  # per run: why attempts were not used (with_attempts)
+    failed: list[list[str]] = field(default_factory=list)  # per run: measurements that failed (with_attempts)
     source: str = ""  # which store the runs came from (people's words)
 
     def __len__(self) -> int:
@@ -48,57 +50,66 @@ def load_series(conn: Connection, where: RunFilter, last: int | None = None, nam
                 with_attempts: bool = False) -> RunSeries:
     """The latest ``last`` runs matching ``where`` (all when None), oldest first, with their numeric
     measurements (only ``names`` when given)."""
-    query = where.apply(select(*(runs.c[f] for f in RUN_FIELDS))).order_by(runs.c.id.desc())
+    chosen = where.apply(select(runs.c.id)).order_by(runs.c.id.desc())
     if last is not None:
-        query = query.limit(last)
-    found = [dict(r._mapping) for r in conn.execute(query)][::-1]
+        chosen = chosen.limit(last)
+    chosen = chosen.subquery("chosen")
+    found = [dict(r._mapping) for r in conn.execute(
+        select(*(runs.c[f] for f in RUN_FIELDS)).join(chosen, chosen.c.id == runs.c.id).order_by(runs.c.id))]
     series = RunSeries(runs=found)
     if not found:
         return series
-    ids = np.array([r["id"] for r in found], dtype=np.int64)
-    position = {int(rid): i for i, rid in enumerate(ids)}
-    match = _in_runs(conn, measurements.c.run_id, ids) & (measurements.c.kind == "numeric")
+    position = {r["id"]: i for i, r in enumerate(found)}  # a run added meanwhile is not in it: skipped below
+
+    def of(table: Any) -> Any:  # the chosen runs joined to a child table: index lookups, never a scan
+        return chosen.join(table, table.c.run_id == chosen.c.id)
+
+    match = measurements.c.kind == "numeric"
     if names:
         match = match & measurements.c.name.in_(list(names))
-    for name, run_ids, values in _grouped(conn, match):
+    for name, run_ids, values in _grouped(conn, of(measurements), match):
+        keep = [(position[r], v) for r, v in zip(run_ids, values, strict=True) if r in position]
         column = np.full(len(found), np.nan)
-        column[[position[int(r)] for r in run_ids]] = np.asarray(values, dtype=np.float64)
+        if keep:
+            at, vals = zip(*keep, strict=True)
+            column[list(at)] = np.asarray(vals, dtype=np.float64)
         series.values[name] = column
-    for name in series.values:
         series.limits[name] = Limit(None, None, None)
-    newest = conn.execute(select(measurements.c.name, measurements.c.low, measurements.c.high, measurements.c.unit,
-                                 measurements.c.run_id)
-                          .where(match & (measurements.c.run_id >= int(ids[max(0, len(ids) - 50)])))
-                          .order_by(measurements.c.run_id))
-    for row in newest:  # the last 50 runs are enough to find every measurement's current limits
+    recent = found[max(0, len(found) - 50)]["id"]  # the last 50 runs are enough to find every current limit
+    for row in conn.execute(select(measurements.c.name, measurements.c.low, measurements.c.high, measurements.c.unit)
+                            .select_from(of(measurements)).where(match & (chosen.c.id >= recent))
+                            .order_by(measurements.c.run_id)):
         series.limits[row.name] = Limit(row.low, row.high, row.unit)
     if with_attempts:
-        counts = dict(conn.execute(select(attempts.c.run_id, func.count()).where(
-            _in_runs(conn, attempts.c.run_id, ids)).group_by(attempts.c.run_id)).all())
-        series.attempts = np.array([counts.get(int(rid), 0) for rid in ids])
+        counts = np.zeros(len(found), dtype=int)
+        series.refusals = [[] for _ in found]
+        for rid, refused in conn.execute(select(attempts.c.run_id, attempts.c.refused).select_from(of(attempts))):
+            if rid in position:
+                counts[position[rid]] += 1
+                if refused:
+                    series.refusals[position[rid]].append(refused)
+        series.attempts = counts
+        series.failed = [[] for _ in found]
+        for rid, name in conn.execute(select(measurements.c.run_id, measurements.c.name).select_from(
+                of(measurements)).where(measurements.c.verdict == "fail")):
+            if rid in position:
+                series.failed[position[rid]].append(name)
     return series
 
 
-def _in_runs(conn: Connection, column: Any, ids: np.ndarray) -> Any:
-    if conn.dialect.name == "postgresql":  # one array parameter: the index on run_id, no 10,000-term IN
-        return column == any_(cast([int(i) for i in ids], ARRAY(Integer)))
-    return column.in_([int(i) for i in ids])
-
-
-def _grouped(conn: Connection, match: Any) -> list[tuple[str, Sequence[int], Sequence[float]]]:
+def _grouped(conn: Connection, source: Any, match: Any) -> list[tuple[str, Sequence[int], Sequence[float]]]:
     if conn.dialect.name == "postgresql":
         query = (select(measurements.c.name,
                         func.array_agg(measurements.c.run_id, type_=ARRAY(Integer)),
                         func.array_agg(measurements.c.value, type_=ARRAY(Float)))
-                 .where(match).group_by(measurements.c.name))
+                 .select_from(source).where(match).group_by(measurements.c.name))
         return [(name, rids, [np.nan if v is None else v for v in values])
                 for name, rids, values in conn.execute(query)]
     rows = conn.execute(select(measurements.c.name, measurements.c.run_id, measurements.c.value)
-                        .where(match).order_by(measurements.c.name)).all()
+                        .select_from(source).where(match).order_by(measurements.c.name)).all()
     out: dict[str, tuple[list[int], list[float]]] = {}
     for name, rid, value in rows:
         rids, values = out.setdefault(name, ([], []))
         rids.append(rid)
         values.append(np.nan if value is None else value)
     return [(name, rids, values) for name, (rids, values) in out.items()]
-

@@ -67,6 +67,11 @@ class SqlStore:
     def close(self) -> None:
         self.engine.dispose()
 
+    @property
+    def record_engine(self) -> Engine:
+        """Where the record just written is (for the station's own unit reports)."""
+        return self.engine
+
     def location(self, record: RunRecord) -> str:
         return f"{self.where} run {record.run_id}"
 

@@ -114,6 +114,8 @@ class Sequencer:
                 record.cause = f"{record.cause} — {note}" if record.cause else note
                 if record.verdict in (Outcome.PASS, Outcome.FAIL):
                     record.verdict = Outcome.ERROR  # a judgement nobody can trace does not count
+            elif self.station.results.reports is not None:
+                self._write_report(run)
             self.plugins.hook.magline_unit_finished(run=run, record=record)
         return record
 
@@ -380,6 +382,20 @@ class Sequencer:
         self.sink.finish(run.record)
         where = getattr(self.sink, "location", None)
         run.record.store = where(run.record) if callable(where) else ""
+
+    def _write_report(self, run: RunContext) -> None:
+        """The unit's HTML report from its stored record (``results.reports``).  A report that
+        cannot be written is said, never a reason to change the unit's verdict: the record is kept."""
+        from magline.core.reports.commands import write_report
+
+        folder = self.station_dir / self.station.results.reports
+        engine = getattr(self.sink, "record_engine", None)
+        try:
+            if engine is None:
+                raise StationFault(f"the results sink {self.station.results.sink!r} is not a SQL store")
+            run.record.report = str(write_report(engine, str(run.record.run_id), None, folder))
+        except (StationFault, OSError) as exc:
+            run.record.report_error = f"report not written: {exc}"
 
     def _cleanup(self, run: RunContext) -> None:
         """Always: put the DUT back as it was, release it, then leave the fixture in its final state."""

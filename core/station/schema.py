@@ -161,6 +161,7 @@ class Results(_Strict):
     path: str = "magline-results.sqlite"
     url_env: Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$")] | None = None
     outbox: str = "magline-outbox.sqlite"  # ``sql``: records are committed here first, then forwarded
+    reports: str | None = None  # a folder (relative to the station file): the unit's HTML report after each run
 
 
 class Prompts(_Strict):

@@ -1,0 +1,59 @@
+"""Process capability against the station's limits: Cpk (within-process σ) and Ppk (overall σ),
+with confidence intervals — so that limits can be tightened once the process is known.
+
+* Cpk = min(USL − μ, μ − LSL) / 3σ_within, σ_within = MR̄ / d₂ (the I-MR chart's);
+* Ppk = the same with the overall sample standard deviation;
+* a one-sided limit gives the one-sided index (CPU or CPL);
+* confidence interval: Bissell's normal approximation (1990),
+  Ĉ ± z₁₋α/₂ · √(1/(9n) + Ĉ²/(2(n − 1))), for both indices.
+
+Written here because no maintained Python library computes them (scipy gives the normal quantile).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.stats import norm
+
+
+@dataclass(frozen=True)
+class Index:
+    value: float
+    low: float  # confidence interval
+    high: float
+
+
+@dataclass(frozen=True)
+class Capability:
+    n: int
+    mean: float
+    sigma_within: float
+    sigma_overall: float
+    cpk: Index | None
+    ppk: Index | None
+
+
+def _index(mean: float, sigma: float, low: float | None, high: float | None, n: int,
+           confidence: float) -> Index | None:
+    if sigma <= 0 or n < 2 or (low is None and high is None):
+        return None
+    sides = [(high - mean) / (3 * sigma)] if high is not None else []
+    sides += [(mean - low) / (3 * sigma)] if low is not None else []
+    value = min(sides)
+    z = float(norm.ppf(0.5 + confidence / 2))
+    half = z * math.sqrt(1 / (9 * n) + value ** 2 / (2 * (n - 1)))
+    return Index(value, value - half, value + half)
+
+
+def capability(values: np.ndarray, low: float | None, high: float | None, sigma_within: float,
+               confidence: float = 0.95) -> Capability:
+    x = np.asarray(values, dtype=float)
+    x = x[np.isfinite(x)]
+    mean = float(x.mean()) if x.size else math.nan
+    overall = float(x.std(ddof=1)) if x.size > 1 else 0.0
+    return Capability(n=int(x.size), mean=mean, sigma_within=sigma_within, sigma_overall=overall,
+                      cpk=_index(mean, sigma_within, low, high, x.size, confidence),
+                      ppk=_index(mean, overall, low, high, x.size, confidence))

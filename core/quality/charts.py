@@ -1,0 +1,64 @@
+"""Individuals and moving-range (I-MR) control charts: one unit is one subgroup of one.
+
+Why I-MR: a calibration line measures every unit once, so there are no rational subgroups; the
+within-process spread is estimated from consecutive units (σ = MR̄ / d₂, d₂ = 1.128 for ranges of
+two), which a drift between units does not inflate the way the overall standard deviation does.
+Centre line and limits come from a baseline window (the first ``baseline`` units of the selection)
+and are then held, so that later units are judged against the process as it was.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from magline.core.quality.rules import Signal, evaluate
+
+D2 = 1.128  # E[range of two normal values] / σ
+D4 = 3.267  # upper limit of the moving-range chart: D4 · MR̄
+
+
+@dataclass
+class ImrChart:
+    name: str
+    values: np.ndarray  # the individual values, oldest first (NaN removed)
+    index: np.ndarray  # position of each value in the run selection (to name the unit)
+    centre: float
+    sigma: float  # within-process σ = MR̄ / d₂ from the baseline
+    mr_bar: float
+    baseline: int  # how many points set the centre and the limits
+    signals: list[Signal] = field(default_factory=list)
+
+    @property
+    def ucl(self) -> float:
+        return self.centre + 3 * self.sigma
+
+    @property
+    def lcl(self) -> float:
+        return self.centre - 3 * self.sigma
+
+    @property
+    def mr_ucl(self) -> float:
+        return D4 * self.mr_bar
+
+    @property
+    def moving_ranges(self) -> np.ndarray:
+        return np.abs(np.diff(self.values))
+
+
+def imr_chart(name: str, values: np.ndarray, baseline: int = 50) -> ImrChart | None:
+    """The chart of ``values`` (NaN skipped), its limits from the first ``baseline`` points, and
+    the rule signals over every point; None when fewer than three values exist."""
+    values = np.asarray(values, dtype=float)
+    index = np.flatnonzero(np.isfinite(values))
+    x = values[index]
+    if x.size < 3:
+        return None
+    base = x[: max(3, min(baseline, x.size))]
+    centre = float(base.mean())
+    mr_bar = float(np.abs(np.diff(base)).mean())
+    sigma = mr_bar / D2
+    chart = ImrChart(name=name, values=x, index=index, centre=centre, sigma=sigma, mr_bar=mr_bar, baseline=base.size)
+    chart.signals = evaluate(x, centre, sigma) if sigma > 0 else []
+    return chart

@@ -1,0 +1,52 @@
+"""``magline report RUN_ID|SERIAL``: a unit's report from the results store; and the station's own
+report after each run (``results.reports: DIR``)."""
+
+from __future__ import annotations
+
+import re
+import sys
+from pathlib import Path
+from typing import Any
+
+from sqlalchemy import Connection, select
+
+from magline.core.faults import StationFault
+from magline.core.reports.unit_page import write_unit_page
+from magline.core.results.reading import find_run, run_attempts
+from magline.core.results.tables import runs
+from magline.core.station import Station
+
+UNSAFE = re.compile(r"[^A-Za-z0-9._-]+")
+
+
+def stored_run(conn: Connection, wanted: str) -> dict[str, Any] | None:
+    """A run by local id or UUID, else the latest run of a serial; with its attempts' raw arrays."""
+    found = find_run(conn, wanted)
+    if found is None:
+        latest = conn.execute(select(runs.c.id).where(runs.c.serial == wanted).order_by(runs.c.id.desc())).first()
+        found = find_run(conn, str(latest[0])) if latest is not None else None
+    if found is not None:
+        found["attempts"] = run_attempts(conn, found["id"], with_samples=True)
+    return found
+
+
+def default_name(run: dict[str, Any]) -> str:
+    return f"{UNSAFE.sub('_', run['serial'])}-run{run['id']}.html"
+
+
+def write_report(engine: Any, wanted: str, output: Path | None, folder: Path = Path()) -> Path:
+    with engine.connect() as conn:
+        run = stored_run(conn, wanted)
+    if run is None:
+        raise StationFault(f"no run or serial {wanted!r} in the results store")
+    return write_unit_page(run, output or folder / default_name(run))
+
+
+def report(store: Any, station: Station, wanted: str, output: str | None) -> int:
+    engine = getattr(store, "engine", None)
+    if engine is None:
+        raise StationFault("this station's results sink is not a SQL store: reports read SQL stores only")
+    path = write_report(engine, wanted, Path(output) if output else None)
+    print(path)
+    print(f"report of {wanted} from {store.where}", file=sys.stderr)
+    return 0

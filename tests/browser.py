@@ -1,0 +1,66 @@
+"""Headless Chromium from Debian's ``chromium`` package, driven by python playwright (never a
+downloaded browser).  Every page records the requests it makes, so a test can prove a report asks
+nothing of the network."""
+
+from __future__ import annotations
+
+import shutil
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+# What keeps Chromium from phoning home at start (its own update, sync and field-trial requests),
+# so that the requests a test sees are the page's.
+FLAGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
+         "--disable-sync", "--no-first-run", "--disable-quic", "--disable-default-apps"]
+
+
+def chromium_path() -> str:
+    path = shutil.which("chromium")
+    if path is None:
+        raise RuntimeError("Debian's chromium is not installed: run the README's test command, which installs it")
+    return path
+
+
+@contextmanager
+def chromium() -> Any:
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=chromium_path(), args=FLAGS)
+        try:
+            yield browser
+        finally:
+            browser.close()
+
+
+@dataclass
+class Opened:
+    page: Any
+    requests: list[str] = field(default_factory=list)
+
+    def outside(self, allowed: tuple[str, ...]) -> list[str]:
+        return [u for u in self.requests if not u.startswith(allowed)]
+
+
+def open_page(browser: Any, url: str, viewport: tuple[int, int] = (1300, 900)) -> Opened:
+    page = browser.new_page(viewport={"width": viewport[0], "height": viewport[1]})
+    opened = Opened(page)
+    page.on("request", lambda request: opened.requests.append(request.url))
+    page.goto(url)
+    return opened
+
+
+def plots_with_data(page: Any) -> dict[str, int]:
+    """Every rendered plotly chart on the page: its div id → how many data points its traces hold, as
+    plotly.js itself decoded them (``_fullData``: the figure's arrays travel base64-encoded)."""
+    page.wait_for_function("document.querySelectorAll('.js-plotly-plot').length > 0 && "
+                           "[...document.querySelectorAll('.js-plotly-plot')].every(e => e._fullData)")
+    return page.evaluate("""() => Object.fromEntries([...document.querySelectorAll('.js-plotly-plot')].map(
+        e => [e.id, e._fullData.reduce((n, t) => n + ((t.x || t.z || []).length || 0), 0)]))""")
+
+
+def screenshot(page: Any, path: Path) -> Path:
+    page.screenshot(path=str(path), full_page=True)
+    return path

@@ -1,0 +1,115 @@
+"""Unit and batch reports open offline in a real browser (Debian's Chromium through playwright):
+their charts render with data, they ask nothing of the network, and a screenshot is kept."""
+
+from __future__ import annotations
+
+import io
+
+import pytest
+from browser import open_page, plots_with_data, screenshot
+from rich.console import Console
+
+from magline.core.cli import main
+
+OFFLINE = ("file://", "data:", "blob:", "about:")
+
+
+def test_a_unit_report_is_self_contained_and_shows_the_whole_run(make_station, tmp_path, browser, capsys):
+    station = make_station()
+    assert main(["run", str(station), "--serial", "REP-1"]) == 0
+    capsys.readouterr()
+    out = tmp_path / "out" / "rep-1.html"
+    assert main(["report", "REP-1", "--station", str(station), "-o", str(out)]) == 0
+    assert capsys.readouterr().out.strip() == str(out)
+    assert out.stat().st_size <= 6_000_000  # plotly.js embedded is most of it
+
+    opened = open_page(browser, out.as_uri())
+    plots = plots_with_data(opened.page)
+    assert plots["residual"] >= 500 and plots["samples3d"] > 0 and plots["coverage3d"] > 0
+    assert opened.outside(OFFLINE) == []  # not one request beyond the file
+    text = opened.page.inner_text("body")
+    head = text[:200]
+    assert "REP-1" in head and "PASS" in head  # identity and verdict at the top
+    for shown in ("hard_iron_norm_ut", "[—, 150]", "below the target 60%", "accepted",
+                  "read back after power cycle", "MAG_OFS_X", "field reference", "48 µT", "mean", "p2p"):
+        assert shown in text, shown
+    screenshot(opened.page, tmp_path / "unit-report.png")
+    assert (tmp_path / "unit-report.png").stat().st_size > 10_000
+
+
+def test_a_failed_unit_report_marks_the_measurement_and_shows_nothing_written(make_station, tmp_path, browser):
+    station = make_station({"products": {"MOCK-100": {"limits": {"hard_iron_norm_ut": {"le": 50.0}}}}})
+    assert main(["run", str(station), "--serial", "BAD-1"]) == 1
+    out = tmp_path / "bad.html"
+    assert main(["report", "1", "--station", str(station), "-o", str(out)]) == 0  # by run id
+    opened = open_page(browser, out.as_uri())
+    assert plots_with_data(opened.page)["residual"] > 0
+    assert opened.outside(OFFLINE) == []
+    failed_row = opened.page.inner_text("tr.fail")
+    assert "hard_iron_norm_ut" in failed_row and "[—, 50]" in failed_row
+    assert "nothing was written to the unit" in opened.page.inner_text("body")
+    screenshot(opened.page, tmp_path / "failed-report.png")
+
+
+def test_the_station_writes_each_units_report_with_review_flags_marked(make_station, tmp_path, browser):
+    from magline.core.console import OperatorConsole
+    from magline.core.plugins import load_plugins
+    from magline.core.sequencer import Sequencer
+    from magline.core.station import load_station
+
+    marginal = {"hard_iron_norm_ut": {"le": 80.0, "marginal": 10.0}}  # 73.7 µT sits in the 70–80 band
+    station = make_station({"results": {"reports": "reports"}, "products": {"MOCK-100": {"limits": marginal}}})
+    shown = io.StringIO()
+    console = OperatorConsole(Console(file=shown, width=140, color_system=None))
+    seq = Sequencer(load_station(station), load_plugins(extra=[console]), station.parent, sleep=lambda s: None)
+    try:
+        record = seq.run_unit("AUTO-1")
+    finally:
+        seq.close()
+    assert record.report == str(tmp_path / "reports" / "AUTO-1-run1.html") and not record.report_error
+    assert f"report: {record.report}" in shown.getvalue()
+    opened = open_page(browser, f"file://{record.report}")
+    assert plots_with_data(opened.page)["coverage3d"] > 0
+    review_row = opened.page.inner_text("tr.review")
+    assert "hard_iron_norm_ut" in review_row and "within the marginal band" in review_row
+
+
+def test_a_report_that_cannot_be_written_is_said_and_the_unit_keeps_its_verdict(make_station, tmp_path):
+    from magline.core.plugins import load_plugins
+    from magline.core.record import Outcome
+    from magline.core.sequencer import Sequencer
+    from magline.core.station import load_station
+
+    (tmp_path / "blocked").write_text("a file where the report folder should be", encoding="utf-8")
+    station = make_station({"results": {"reports": "blocked"}})
+    seq = Sequencer(load_station(station), load_plugins(), station.parent, sleep=lambda s: None)
+    try:
+        record = seq.run_unit("NOREP-1")
+    finally:
+        seq.close()
+    assert record.verdict is Outcome.PASS and record.store and not record.report
+    assert record.report_error.startswith("report not written:")
+
+
+def test_the_batch_report_draws_every_chart_offline(make_station, tmp_path, browser, capsys):
+    station = make_station()
+    for serial in ("B-1", "B-2", "B-3", "B-4"):
+        assert main(["run", str(station), "--serial", serial]) == 0
+    page = tmp_path / "spc.html"
+    assert main(["spc", "--station", str(station), "--html", str(page)]) == 0
+    assert "hard_iron_x_ut" in capsys.readouterr().out
+    opened = open_page(browser, page.as_uri())
+    plots = plots_with_data(opened.page)
+    assert plots["chart-hard_iron_x_ut"] >= 4 and len(plots) >= 10
+    assert opened.outside(OFFLINE) == []
+    assert "first-pass yield" in opened.page.inner_text("body")
+    screenshot(opened.page, tmp_path / "spc.png")
+
+
+@pytest.mark.parametrize("wanted", ["NO-SUCH-UNIT", "999"])
+def test_report_of_an_unknown_run_says_so(make_station, capsys, wanted):
+    station = make_station()
+    assert main(["run", str(station), "--serial", "K-1"]) == 0
+    capsys.readouterr()
+    assert main(["report", wanted, "--station", str(station)]) == 2
+    assert f"no run or serial '{wanted}' in the results store" in capsys.readouterr().err

@@ -1,0 +1,157 @@
+"""Process statistics against hand-computed values, the run rules against their theory, a drift
+injected into synthetic batches, and ``magline spc`` end to end on both store engines."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import yaml
+
+from magline.core.quality.capability import capability
+from magline.core.quality.charts import imr_chart
+from magline.core.quality.rules import rule_hits
+from magline.core.quality.yields import cause_kind, ranked_causes, yields
+from magline.core.results.series import RunSeries
+
+SMALL = np.array([10.0, 12.0, 11.0, 13.0, 12.0])
+
+
+def test_imr_chart_by_hand():
+    chart = imr_chart("x", SMALL, baseline=5)
+    # MR = 2, 1, 2, 1 → MR̄ 1.5; σ = 1.5 / 1.128; centre = 58 / 5
+    assert chart.centre == pytest.approx(11.6) and chart.mr_bar == pytest.approx(1.5)
+    assert chart.sigma == pytest.approx(1.5 / 1.128)
+    assert chart.ucl == pytest.approx(11.6 + 3 * 1.5 / 1.128) and chart.lcl == pytest.approx(11.6 - 3 * 1.5 / 1.128)
+    assert chart.mr_ucl == pytest.approx(3.267 * 1.5)
+    with_gap = imr_chart("x", np.array([10.0, np.nan, 12.0, 11.0]), baseline=5)
+    assert with_gap.values.tolist() == [10.0, 12.0, 11.0] and with_gap.index.tolist() == [0, 2, 3]
+    assert imr_chart("x", np.array([1.0, np.nan]), baseline=5) is None
+
+
+def test_cpk_and_ppk_by_hand_with_bissell_intervals():
+    sigma_within = 1.5 / 1.128
+    cap = capability(SMALL, 5.0, 20.0, sigma_within)
+    cpk = (11.6 - 5.0) / (3 * sigma_within)  # the lower side is nearer
+    half = 1.959963984540054 * math.sqrt(1 / (9 * 5) + cpk ** 2 / (2 * 4))
+    assert cap.cpk.value == pytest.approx(cpk) and cap.cpk.low == pytest.approx(cpk - half)
+    assert cap.cpk.high == pytest.approx(cpk + half)
+    s = math.sqrt(5.2 / 4)  # squared deviations 2.56 + .16 + .36 + 1.96 + .16
+    assert cap.sigma_overall == pytest.approx(s) and cap.ppk.value == pytest.approx(6.6 / (3 * s))
+    upper_only = capability(SMALL, None, 20.0, sigma_within)
+    assert upper_only.cpk.value == pytest.approx((20.0 - 11.6) / (3 * sigma_within))  # CPU
+    assert capability(SMALL, None, None, sigma_within).cpk is None
+
+
+@pytest.mark.parametrize(("rule", "points", "first"), [
+    ("beyond_3sigma", [0, 0.5, 3.2, 0], 2),
+    ("2_of_3_beyond_2sigma", [0, 2.1, 0.3, 2.5, 0], 3),
+    ("4_of_5_beyond_1sigma", [0, 1.2, 1.5, 0.2, 1.1, 1.3, 0], 5),
+    ("8_on_one_side", [-0.1, *[0.3] * 7, 0.2, -1], 8),
+    ("6_trending", [0.5, -0.9, -0.5, -0.2, 0.1, 0.4, 0.8, 0.6], 6),
+])
+def test_each_rule_signals_at_the_point_that_completes_its_pattern(rule, points, first):
+    hits = rule_hits(np.array(points), 0.0, 1.0)
+    assert int(np.flatnonzero(hits[rule])[0]) == first
+    assert not hits[rule][:first].any()
+
+
+def test_opposite_sides_do_not_make_a_pattern():
+    hits = rule_hits(np.array([2.5, -2.5, 0.0, 0.0, 2.5, -2.5]), 0.0, 1.0)
+    assert not hits["2_of_3_beyond_2sigma"].any()
+    assert not rule_hits(np.array([0.3, -0.3] * 8), 0.0, 1.0)["8_on_one_side"].any()
+
+
+THEORY = {"beyond_3sigma": 0.0026998, "2_of_3_beyond_2sigma": 0.0030585, "4_of_5_beyond_1sigma": 0.0055318,
+          "8_on_one_side": 2 * 0.5 ** 8, "6_trending": 2 / math.factorial(6)}
+
+
+def test_a_stable_process_alarms_at_the_rate_theory_gives():
+    x = np.random.default_rng(2026).normal(size=1_000_000)
+    hits = rule_hits(x, 0.0, 1.0)
+    for rule, p in THEORY.items():
+        rate = hits[rule][10:].mean()
+        assert rate == pytest.approx(p, rel=0.1), (rule, rate, p)
+
+
+def test_a_two_sigma_step_is_flagged_within_ten_units():
+    delays = []
+    for seed in range(200):
+        rng = np.random.default_rng(seed)
+        x = np.concatenate([rng.normal(120.0, 4.0, 150), rng.normal(128.0, 4.0, 60)])  # +2σ after unit 150
+        chart = imr_chart("hard_iron_x_ut", x, baseline=150)
+        after = [s.point for s in chart.signals if s.point >= 150]
+        delays.append(after[0] - 149 if after else 10**6)
+    delays = np.array(delays)
+    assert (delays <= 10).mean() >= 0.99 and np.median(delays) <= 5
+
+
+def series_of(runs: list[dict], attempts: list[int], refusals: list[list[str]], failed: list[list[str]]) -> RunSeries:
+    return RunSeries(runs=runs, attempts=np.array(attempts), refusals=refusals, failed=failed)
+
+
+def test_yield_counts_judged_first_runs_and_keeps_station_faults_apart():
+    runs = [{"serial": "A", "station_id": "s1", "verdict": "pass", "earlier_runs": 0},
+            {"serial": "B", "station_id": "s1", "verdict": "fail", "earlier_runs": 0},
+            {"serial": "B", "station_id": "s1", "verdict": "pass", "earlier_runs": 1},  # a re-test: not first pass
+            {"serial": "C", "station_id": "s1", "verdict": "error", "earlier_runs": 0},  # the station's fault
+            {"serial": "D", "station_id": "s2", "verdict": "pass", "earlier_runs": 0}]
+    series = series_of(runs, [1, 2, 1, 1, 3], [[], ["coverage 41% below the target 60%"], [],
+                                               ["single_plane: the samples lie in one plane"],
+                                               ["coverage 37% below the target 60%", "interrupted"]],
+                       [[], ["hard_iron_norm_ut"], [], [], []])
+    s1, s2 = yields(series, "station_id")
+    assert (s1.group, s1.runs, s1.judged, s1.station_faults, s1.first_runs, s1.first_pass) == ("s1", 4, 3, 1, 2, 1)
+    assert s1.fpy == 0.5 and s1.retry_rate == pytest.approx(1 / 3)
+    assert (s2.fpy, s2.retry_rate) == (1.0, 1.0)
+    refusals, failing = ranked_causes(series)
+    assert refusals[0] == ("coverage N% below the target N%", 2)
+    assert ("single_plane", 1) in refusals and failing == [("hard_iron_norm_ut", 1)]
+    assert cause_kind("coverage 9.5% below the target 60%") == "coverage N% below the target N%"
+
+
+def test_magline_spc_reads_the_store_and_flags_a_drifting_offset(make_station, store_url, monkeypatch, capsys,
+                                                                  tmp_path):
+    from sqlalchemy import create_engine
+    from test_results_store import sql_station
+
+    from magline.core.cli import main
+    from magline.core.measurements import Numeric, Verdict
+    from magline.core.quality.spc import build
+    from magline.core.record import Outcome, RunRecord
+    from magline.core.results.reading import RunFilter
+    from magline.core.results.series import load_series
+    from magline.core.results.store import SqlStore
+
+    path = sql_station(make_station, store_url, monkeypatch)
+    station = yaml.safe_load(path.read_text(encoding="utf-8"))
+    rng = np.random.default_rng(11)
+    store = SqlStore(create_engine(store_url), "test")
+    try:
+        for i in range(120):
+            r = RunRecord(serial=f"U-{i}", part="MOCK-100", station_id="st-a" if i % 2 else "st-b",
+                          line=station["station"]["line"], operator="ann", software_version="test", limit_hash="x")
+            x = rng.normal(35.0, 0.5) + (1.0 if i >= 100 else 0.0)  # +2σ from unit 100 on
+            r.measurements = [Numeric("hard_iron_x_ut", x, "µT", None, None, Verdict.INFO),
+                              Numeric("hard_iron_norm_ut", rng.normal(74.0, 0.5), "µT", None, 300.0, Verdict.PASS)]
+            r.verdict, r.finished = Outcome.PASS, "2026-11-24T00:00:00+00:00"
+            store.begin(r)
+            store.finish(r)
+    finally:
+        store.close()
+    html = tmp_path / "spc.html"
+    assert main(["spc", "--station", str(path), "--baseline", "100", "--html", str(html)]) == 0
+    out = capsys.readouterr().out
+    row = next(line for line in out.splitlines() if line.startswith("hard_iron_x_ut"))
+    assert " 120 " in row and "latest " in row
+    assert int(row.split(" at U-")[1].split()[0]) >= 100  # the latest signal is the step's
+    engine = create_engine(store_url)
+    with engine.connect() as conn:
+        report = build(load_series(conn, RunFilter(part="MOCK-100"), with_attempts=True), "t", baseline=100)
+    engine.dispose()
+    chart = next(m.chart for m in report.measurements if m.name == "hard_iron_x_ut")
+    assert next(s.point for s in chart.signals if s.point >= 100) <= 110  # flagged within 10 units of the step
+    norm = next(line for line in out.splitlines() if line.startswith("hard_iron_norm_ut"))
+    assert "[—, 150]" in norm  # Cpk against the limits of the station file (the product's 150 µT)
+    assert "st-a" in out and "st-b" in out and html.stat().st_size > 4_000_000
