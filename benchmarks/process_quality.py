@@ -81,7 +81,7 @@ def review_check(store: SqlStore, rounds: int = 50) -> tuple[float, float]:
     for i in range(rounds):
         t = time.perf_counter()
         past = store.series(RunFilter(part=f"P-{i % 10}", line="L1", verdict="pass"), last=200,
-                            names=[m.name for m in unit])
+                            names=[m.name for m in unit], with_limits=False)
         review(unit, past.values, units=len(past), min_units=30, sigma=3.0)
         times.append((time.perf_counter() - t) * 1e3)
     return statistics.median(times), float(np.percentile(times, 95))
@@ -116,6 +116,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--records", type=int, default=1_000_000)
     parser.add_argument("--engines", default="sqlite,postgresql")
+    parser.add_argument("--reuse", metavar="URL", help="a store already filled by results_store.bulk (no generation)")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
@@ -124,15 +125,18 @@ def main() -> None:
         with cluster() as pg:
             for engine in args.engines.split(","):
                 env = dict(os.environ)
+                if args.reuse:
+                    url = args.reuse
+                    engine = url.split(":")[0].split("+")[0]
                 if engine == "postgresql":
-                    url = pg.new_database()
+                    url = args.reuse or pg.new_database()
                     env["MAGLINE_BENCH_DB_URL"] = url
                     os.environ["MAGLINE_BENCH_DB_URL"] = url
                     station = station_file(folder, {"sink": "sql", "url_env": "MAGLINE_BENCH_DB_URL"})
                 else:
-                    url = f"sqlite:///{folder / 'large.sqlite'}"
-                    station = station_file(folder, {"sink": "sqlite", "path": "large.sqlite"})
-                made = bulk(url, args.records)
+                    url = args.reuse or f"sqlite:///{folder / 'large.sqlite'}"
+                    station = station_file(folder, {"sink": "sqlite", "path": url.removeprefix("sqlite:///")})
+                made = bulk(url, args.records) if not args.reuse else 0.0
                 store = SqlStore(create_engine(url), engine)
                 read, total = in_process(store)
                 median, p95 = review_check(store)

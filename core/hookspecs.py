@@ -20,7 +20,7 @@ A plugin is a plain module with functions named like these specs and decorated w
 from __future__ import annotations
 
 import argparse
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
 
 import pluggy
@@ -176,8 +176,14 @@ def magline_phase_finished(run: RunContext, phase: str, result: PhaseResult) -> 
 
 @hookspec
 def magline_acquisition_progress(run: RunContext, attempt: int, samples: int, coverage: float,
-                                 target: float) -> None:
-    """Live acquisition figures, called as samples arrive (coverage is a fraction 0..1)."""
+                                 target: float, bins: Sequence[int] | None, n_bins: int | None) -> None:
+    """Live acquisition figures, called as samples arrive (coverage is a fraction 0..1).
+
+    :param bins: the direction bins behind ``coverage`` (indices into
+        :func:`magline.core.fit.coverage.fibonacci_sphere` of ``n_bins``), for a view that lights
+        them up; None when the acquisition does not judge directions (a coil's schedule).
+    :param n_bins: how many bins the sphere has (the station's ``acquisition.coverage_bins``).
+    """
 
 
 @hookspec

@@ -16,6 +16,7 @@ import numpy as np
 from magline.core.dut import DutError, ParamValue, SampleChunk
 from magline.core.faults import StationFault, UnitAborted
 from magline.core.fit import CoverageTracker, FitOptions, FitResult, coverage_of, fit_calibration
+from magline.core.fit.coverage import covered_bins
 from magline.core.fit.samples_csv import RawSamples
 from magline.core.measurements import Array, Json, Measurement, Numeric
 from magline.core.plugins import hookimpl
@@ -39,7 +40,7 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
             for chunk in stream:
                 taken = got.add(chunk, room=cfg.samples - got.count)
                 coverage = tracker.add(taken)
-                run.progress(attempt, got.count, coverage, cfg.coverage_target)
+                run.progress(attempt, got.count, coverage, cfg.coverage_target, tracker.bins, cfg.coverage_bins)
                 if got.count >= cfg.samples:
                     break
                 if time.monotonic() > deadline:
@@ -50,7 +51,8 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
     if got.count == 0:
         raise DutError("the DUT sent no samples")
     result = got.acquisition(attempt, cfg.coverage_bins, cfg.coverage_target)
-    run.progress(attempt, got.count, result.coverage, cfg.coverage_target)  # the end adds its own checkpoint
+    bins = covered_bins(result.samples.mag_ut, cfg.coverage_bins)  # the end adds its own checkpoint
+    run.progress(attempt, got.count, result.coverage, cfg.coverage_target, bins, cfg.coverage_bins)
     return result
 
 

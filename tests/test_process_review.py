@@ -125,3 +125,11 @@ def test_a_unit_outside_its_process_passes_flagged_for_review_with_the_reason(ma
 
     off = make_station({"review": {"enabled": False}}, name="off.yaml")
     assert run(off, "OFF-1").review_note == "process review off in the station file"
+
+
+def test_the_robust_sigma_is_scipys_normal_scaled_mad():
+    from scipy.stats import median_abs_deviation
+
+    past = np.random.default_rng(5).standard_t(3, size=301) * 4 + 100
+    flags = review([numeric("hard_iron_x_ut", 1e4)], {"hard_iron_x_ut": past}, units=301, min_units=30, sigma=3.0)
+    assert flags.flags[0].sigma == pytest.approx(median_abs_deviation(past, scale="normal"), rel=1e-12)

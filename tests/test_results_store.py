@@ -236,9 +236,14 @@ def test_the_latest_units_of_a_part_are_read_as_aligned_series(make_station, sto
     path = sql_station(make_station, store_url, monkeypatch)
     for serial in ("L-1", "L-2", "L-3"):
         assert main(["run", str(path), "--serial", serial]) == 0
+    tight = sql_station(make_station, store_url, monkeypatch,
+                        {"products": {"MOCK-100": {"limits": {"hard_iron_norm_ut": {"le": 10.0}}}}},
+                        name="tight.yaml")
+    assert main(["run", str(tight), "--serial", "L-4"]) == 1
     engine = create_engine(store_url)
     with engine.connect() as conn:
-        series = load_series(conn, RunFilter(part="MOCK-100"), last=2, with_attempts=True)
+        failing = load_series(conn, RunFilter(part="MOCK-100"), last=2, with_attempts=True)
+        series = load_series(conn, RunFilter(part="MOCK-100", verdict="pass"), last=2, with_attempts=True)
         assert len(load_series(conn, RunFilter(part="NO-SUCH-PART"), last=2)) == 0
         only = load_series(conn, RunFilter(part="MOCK-100"), names=["coverage"])
         stored = {(r.run_id, r.value) for r in conn.execute(text(
@@ -250,4 +255,5 @@ def test_the_latest_units_of_a_part_are_read_as_aligned_series(make_station, sto
     assert {(r["id"], v) for r, v in zip(series.runs, x, strict=True)} <= stored and np.all(np.isfinite(x))
     assert series.limits["hard_iron_norm_ut"].high is not None and series.limits["hard_iron_x_ut"].unit == "µT"
     assert series.attempts.tolist() == [2, 2]  # the demo spins once about one axis, then tumbles
-    assert list(only.values) == ["coverage"] and len(only) == 3
+    assert list(only.values) == ["coverage"] and len(only) == 4
+    assert failing.failed == [[], ["hard_iron_norm_ut"]] and [r["verdict"] for r in failing.runs] == ["pass", "fail"]

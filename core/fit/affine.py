@@ -15,8 +15,6 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.linalg import polar
-from scipy.spatial.transform import Rotation
 
 from magline.core.fit.result import FitRefused, FitResult
 
@@ -50,6 +48,10 @@ def fit_affine(mag_ut: NDArray, applied_ut: NDArray, field_ut: float | None = No
     if np.linalg.det(rotation) < 0:
         raise FitRefused("reflected_axes", "the fitted matrix reflects an axis (a sensor axis is wired reversed)",
                          "check the sensor's orientation setting / wiring before calibrating")
+    from scipy.spatial.transform import (
+        Rotation,  # imported on use: scipy's optimisers cost most of a CLI start that never fits
+    )
+
     rotvec = Rotation.from_matrix(rotation).as_rotvec(degrees=True)
     magnitudes = np.linalg.norm(b, axis=1)
     live = magnitudes > 1e-9
@@ -76,5 +78,7 @@ def fit_affine(mag_ut: NDArray, applied_ut: NDArray, field_ut: float | None = No
 
 def _rotation_then_symmetric(full: NDArray) -> tuple[NDArray, NDArray]:
     """``full = R·P`` with R a rotation and P symmetric positive definite."""
+    from scipy.linalg import polar  # imported on use: scipy's optimisers cost most of a CLI start that never fits
+
     u, p = polar(full, side="right")  # full = u @ p
     return u, p

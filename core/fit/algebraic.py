@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import linalg
 
 # QR with column pivoting: rank-revealing like the SVD default (a single-axis rotation makes the
 # quadric's design rank-deficient) at about half its cost on these tall, thin systems.
@@ -26,6 +25,8 @@ def fit_sphere(x: NDArray) -> tuple[NDArray, float]:
     design = np.empty((4, len(x)))  # built row-wise: its transpose is the column-major matrix LAPACK takes
     design[:3] = 2.0 * xt
     design[3] = 1.0
+    from scipy import linalg  # imported on use: scipy's optimisers cost most of a CLI start that never fits
+
     sol, *_ = linalg.lstsq(design.T, np.einsum("ij,ij->j", xt, xt), check_finite=False, lapack_driver=DRIVER)
     centre = sol[:3]
     r2 = sol[3] + centre @ centre
@@ -46,6 +47,8 @@ def fit_ellipsoid(x: NDArray) -> tuple[NDArray, NDArray]:
     design[4] = 2 * xt[0] * xt[2]
     design[5] = 2 * xt[1] * xt[2]
     design[6:] = 2 * xt
+    from scipy import linalg  # imported on use: scipy's optimisers cost most of a CLI start that never fits
+
     sol, *_ = linalg.lstsq(design.T, np.ones(len(x)), check_finite=False, lapack_driver=DRIVER)
     a, b, c, d, e, f, g, hh, i = sol
     q = np.array([[a, d, e], [d, b, f], [e, f, c]])

@@ -66,22 +66,32 @@ def coverage_of(samples_ut: NDArray, n_bins: int, *, final: bool = True) -> floa
     Between two re-centrings the hit bins only grow, so each run of checkpoints with one centre
     is binned once, at its last checkpoint: the same figure as binning at every checkpoint.
     """
+    return covered_bins(samples_ut, n_bins, final=final).size / n_bins
+
+
+def covered_bins(samples_ut: NDArray, n_bins: int, *, final: bool = True) -> NDArray:
+    """The direction bins behind :func:`coverage_of`'s figure (sorted indices into
+    :func:`fibonacci_sphere`): what an operator screen lights up."""
     x = np.atleast_2d(np.asarray(samples_ut, float)) if len(samples_ut) else np.empty((0, 3))
     n = len(x)
     checkpoints = list(range(CHECK_EVERY, n + 1, CHECK_EVERY))
     if final and n and (not checkpoints or checkpoints[-1] != n):
         checkpoints.append(n)
     if not checkpoints:
-        return 0.0
+        return np.empty(0, dtype=int)
     centres, radii = _prefix_sphere_centres(x, np.array(checkpoints))
-    best, centre, end = 0.0, None, 0
+    best, centre, end = np.empty(0, dtype=int), None, 0
     for k, c, r in zip(checkpoints, centres.tolist(), radii.tolist(), strict=True):
         if centre is None or math.dist(c, centre) > RECENTRE_TOL * r:
             if centre is not None:
-                best = max(best, coverage_fraction(x[:end] - centre, n_bins))
+                best = _more(best, np.unique(bin_index(x[:end] - centre, n_bins)))
             centre = c
         end = k
-    return max(best, coverage_fraction(x[:end] - np.asarray(centre), n_bins))
+    return _more(best, np.unique(bin_index(x[:end] - np.asarray(centre), n_bins)))
+
+
+def _more(a: NDArray, b: NDArray) -> NDArray:
+    return b if b.size > a.size else a
 
 
 def _prefix_sphere_centres(x: NDArray, ends: NDArray) -> tuple[NDArray, NDArray]:
@@ -122,6 +132,7 @@ class CoverageTracker:
         self._samples: list[NDArray] = []
         self._count = 0
         self.fraction = 0.0
+        self.bins: NDArray = np.empty(0, dtype=int)  # the bins behind the fraction
 
     def add(self, samples_ut: NDArray) -> float:
         samples_ut = np.atleast_2d(np.asarray(samples_ut, float))
@@ -129,5 +140,7 @@ class CoverageTracker:
         self._samples.append(samples_ut)
         self._count += len(samples_ut)
         if self._count // CHECK_EVERY > before:
-            self.fraction = coverage_of(np.vstack(self._samples), self.n_bins, final=False)
+            bins = covered_bins(np.vstack(self._samples), self.n_bins, final=False)
+            if bins.size / self.n_bins >= self.fraction:
+                self.fraction, self.bins = bins.size / self.n_bins, bins
         return self.fraction

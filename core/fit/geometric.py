@@ -16,7 +16,6 @@ import zlib
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import stats
 
 from magline.core.fit import model as mdl
 from magline.core.fit.algebraic import AlgebraicFitError, fit_ellipsoid, fit_sphere
@@ -379,7 +378,9 @@ def _maybe_drift(layout, p, x_all, tau_all, inliers, sigma, log_ref, opts, name)
     then half, of the acquisition is excluded until the rest shows none.  Drift that persists:
     a linear offset drift is modelled on the latest half and the end state reported.
     """
-    threshold = float(stats.chi2.ppf(1.0 - opts.drift_p_value, 3))
+    from scipy.stats import chi2  # here, not at import: scipy.stats costs a second of every CLI start
+
+    threshold = float(chi2.ppf(1.0 - opts.drift_p_value, 3))
     info: dict = {"regressor": name, "threshold": threshold, "modelled": False, "warm_up_excluded": 0}
     drift_layout = mdl.Layout(layout.model, drift=True)
     for cut in (0.0, 0.25, 0.5):
@@ -483,7 +484,9 @@ def _restricted_model_cost(layout, p, x, sigma, scale, log_ref, opts) -> dict | 
     r_full = geometric_residuals(full, pf, x, None)
     extra, dof = full.size - layout.size, len(x) - full.size
     f_stat = ((r_restricted @ r_restricted - r_full @ r_full) / extra) / (r_full @ r_full / dof)
-    if not f_stat > stats.f.ppf(1.0 - MISFIT_P_VALUE, extra, dof):
+    from scipy.stats import f as f_distribution  # here, not at import (see the drift test)
+
+    if not f_stat > f_distribution.ppf(1.0 - MISFIT_P_VALUE, extra, dof):
         return None
 
     def directions(lay, q):

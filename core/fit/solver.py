@@ -12,7 +12,6 @@ from collections.abc import Callable
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import optimize
 
 # Steps (in normalised parameters, of order one) below this end Gauss–Newton: the parameters' 1σ is
 # about 1e-3 for a 600-sample tumble and 1e-4 for 100 000 samples, so the solution is then known to
@@ -59,6 +58,8 @@ def levenberg_marquardt(objective: Objective, p0: NDArray, tol: float) -> NDArra
     # (divergence, refusal), not reported as a warning
     # diag = 1: fixed, unit variable scaling (least_squares' default for "lm"); MINPACK's own
     # Jacobian-based scaling lets a start with outliers run off to a degenerate ellipsoid
+    from scipy import optimize  # imported on use: scipy's optimisers cost most of a CLI start that never fits
+
     p, *_ = optimize.leastsq(cache.residuals, p0, Dfun=cache.jacobian, xtol=tol, ftol=tol, gtol=tol,
                              diag=np.ones(len(p0)), full_output=True)
     return np.asarray(p, dtype=float)

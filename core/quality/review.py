@@ -5,8 +5,10 @@ A unit inside its absolute limits may still sit far outside what the process has
 but engineering wants to look at it while it is still on the line.  Each numeric measurement is
 compared with the same measurement of the last passing units of the same part on the same line:
 
-* centre: the median; spread: σ = 1.4826 × MAD (scipy's ``median_abs_deviation(scale="normal")``),
-  so that one bad unit in the window neither moves the centre nor widens the band;
+* centre: the median; spread: σ = 1.4826 × MAD (the normal-consistent median absolute deviation,
+  written with NumPy: scipy's ``median_abs_deviation`` gives the same figure at ten times the cost,
+  which the unit would wait for), so that one bad unit in the window neither moves the centre nor
+  widens the band;
 * flagged when |value − median| > k·σ; the reason names the value, the distance in σ, the window
   and its centre;
 * a measurement whose history has no spread (MAD 0: a count, a constant) is not judged, and the
@@ -19,10 +21,11 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 
 import numpy as np
-from scipy.stats import median_abs_deviation
 
 from magline.core.measurements import Numeric, Verdict
 from magline.core.text import fmt
+
+MAD_TO_SIGMA = 1.482602218505602  # 1 / Φ⁻¹(3/4): σ of a normal distribution from its MAD
 
 
 @dataclass
@@ -63,7 +66,7 @@ def review(measurements: Sequence[Numeric], history: dict[str, np.ndarray], *, u
         if past.size < min_units or not np.isfinite(m.value):
             continue
         centre = float(np.median(past))
-        spread = float(median_abs_deviation(past, scale="normal"))
+        spread = MAD_TO_SIGMA * float(np.median(np.abs(past - centre)))
         if spread <= 0.0:
             flat.append(m.name)
             continue

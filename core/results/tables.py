@@ -20,6 +20,7 @@ from sqlalchemy import (
     String,
     Table,
     Text,
+    text,
 )
 
 metadata = MetaData()
@@ -41,6 +42,7 @@ runs = Table(
     Column("station_hash", Text), Column("reference_field_ut", Float),
     Column("review", Text), Column("review_note", Text),  # process-review flags (JSON) and what was compared
     Index("runs_serial", "serial"), Index("runs_part_id", "part", "id"), Index("runs_started", "started"),
+    Index("runs_running", "id", postgresql_where=text("verdict = 'running'"), sqlite_where=text("verdict = 'running'")),
 )
 
 phases = Table(

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -116,9 +116,12 @@ class RunContext:
             done.set()
             ticker.join(timeout=2.0)
 
-    def progress(self, attempt: int, samples: int, coverage: float, target: float) -> None:
+    def progress(self, attempt: int, samples: int, coverage: float, target: float,
+                 bins: Sequence[int] | None = None, n_bins: int | None = None) -> None:
         self.plugins.hook.magline_acquisition_progress(run=self, attempt=attempt, samples=samples,
-                                                       coverage=coverage, target=target)
+                                                       coverage=coverage, target=target,
+                                                       bins=None if bins is None else [int(b) for b in bins],
+                                                       n_bins=n_bins)
 
     def require_power(self) -> PowerControl:
         if self.power is None:

@@ -339,7 +339,7 @@ class Sequencer:
         started = time.monotonic()
         try:
             past = series_of(RunFilter(part=run.record.part, line=run.record.line, verdict=str(Outcome.PASS)),
-                             last=settings.window, names=[m.name for m in numeric])
+                             last=settings.window, names=[m.name for m in numeric], with_limits=False)
         except StationFault as exc:
             run.record.review_note = f"no process review: {exc}"
             run.log(run.record.review_note)

@@ -2,15 +2,23 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from magline.core.dut import validated_options
 from magline.core.plugins import hookimpl
 from magline.core.station.schema import Product
 from magline.plugins.mock.commands import add_sim_command
-from magline.plugins.mock.dut import MockDut
 from magline.plugins.mock.options import MockOptions
+
+if TYPE_CHECKING:
+    from magline.plugins.mock.dut import MockDut
 
 
 def create_mock_dut(product: Product) -> MockDut:
+    # imported when a unit is tested, not when the plugin loads: the simulated sensor's scipy
+    # rotations would cost every command (spc, report, history) a third of a second
+    from magline.plugins.mock.dut import MockDut
+
     options = validated_options(MockOptions, product.options, "mock backend")
     return MockDut(options)
 

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 from magline.core.dut import DutError, ParamValue
 from magline.core.fit import FitResult
@@ -61,6 +60,8 @@ def fit_to_params(fit: FitResult, slot: int, device_id: int, prio: int, with_odi
 def rotation_params(rotation: NDArray, slot: int) -> dict[str, ParamValue]:
     """A coil-measured misalignment as PX4's custom rotation: ``m_body = R·S·(raw − OFF)`` with
     R = Rz(yaw)·Ry(pitch)·Rx(roll), degrees — exactly the polar factor of the affine fit."""
+    from scipy.spatial.transform import Rotation  # on use: scipy.spatial costs every CLI start a third of a second
+
     yaw, pitch, roll = Rotation.from_matrix(np.asarray(rotation)).as_euler("ZYX", degrees=True)
     p = f"CAL_MAG{slot}_"
     return {p + "ROT": ROT_CUSTOM_EULER, p + "ROLL": float(roll), p + "PITCH": float(pitch), p + "YAW": float(yaw)}
