@@ -19,5 +19,5 @@ for folder, installed in ROOTS.items():
 setup(
     packages=packages,
     package_dir=package_dir,
-    package_data={"magline.stations": ["*.yaml"]},
+    package_data={"magline.stations": ["*.yaml"], "magline.core.screen": ["static/*"]},
 )

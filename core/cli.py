@@ -85,6 +85,10 @@ def main(argv: list[str] | None = None) -> int:
     rep.add_argument("run", metavar="RUN_ID|SERIAL")
     rep.add_argument("--station", help="station file naming the results store (default: demo)")
     rep.add_argument("-o", "--output", metavar="FILE", help="where to write it (default: <serial>-run<id>.html)")
+    scr = sub.add_parser("station", help="serve the station screen: operators run units from a browser")
+    scr.add_argument("station", nargs="?", help="station file (default: the embedded demo)")
+    scr.add_argument("--host", default="127.0.0.1", help="address to bind (any other than loopback needs the token)")
+    scr.add_argument("--port", type=int, default=8080)
     hist = sub.add_parser("history", help="show a unit's runs from a station's results store")
     hist.add_argument("serial")
     hist.add_argument("--station", help="station file naming the results store (default: demo)")
@@ -99,7 +103,8 @@ def main(argv: list[str] | None = None) -> int:
     if hasattr(args, "handler"):
         return args.handler(args)
     handler = {"run": _run, "check": _check, "fit": _fit, "plugins": _plugins, "history": _history,
-               "show": _show, "export": _export, "sync": _sync, "spc": _spc, "report": _report}
+               "show": _show, "export": _export, "sync": _sync, "spc": _spc, "report": _report,
+               "station": _station}
     return _quiet_broken_pipe(lambda: handler[args.command](args, plugins))
 
 
@@ -390,6 +395,17 @@ def _report(args: argparse.Namespace, plugins: Plugins) -> int:
     from magline.core.reports.commands import report
 
     return _with_store(args, plugins, lambda store, station, _: report(store, station, args.run, args.output))
+
+
+def _station(args: argparse.Namespace, plugins: Plugins) -> int:
+    from magline.core.screen.serve import serve
+
+    try:
+        station, where = _load(args.station, plugins)
+    except (StationError, PluginError) as exc:
+        _err(str(exc))
+        return 2
+    return serve(station, where, plugins, args.host, args.port)
 
 
 def _quiet_broken_pipe(handler: Callable[[], int]) -> int:

@@ -15,6 +15,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from magline.core.field import FieldSourceError
+from magline.core.record import now_iso
 from magline.core.scpi import InstrumentError, ScpiInstrument
 
 
@@ -70,6 +71,7 @@ class ReferenceMonitor:
         self.fluxgate = Fluxgate(options)
         self.units = 0
         self.first_ut: float | None = None
+        self.last: dict | None = None  # the latest fluxgate check (shown on the station screen)
 
     def before_unit(self) -> None:
         if self.units % self.opts.every_n_units == 0:
@@ -84,6 +86,7 @@ class ReferenceMonitor:
                 f"{self.model_ut:.2f} µT (difference {measured - self.model_ut:+.2f} µT, "
                 f"tolerance ±{self.opts.tolerance_ut:g} µT): the cell's field is disturbed — "
                 "find the magnetic object or move the fixture before calibrating")
+        self.last = {"measured_ut": round(measured, 3), "at": now_iso(), "after_units": self.units}
         if self.first_ut is None:
             self.first_ut = measured
         elif abs(measured - self.first_ut) > self.opts.drift_limit_ut:
@@ -107,6 +110,7 @@ class CheckedField:
         from magline.core.dut import validated_options
 
         self.field_ut = float(field_ut)
+        self.model_name = model_name
         self.monitor = (ReferenceMonitor(validated_options(ReferenceOptions, reference, "field_source reference"),
                                          self.field_ut, model_name) if reference is not None else None)
 
@@ -117,6 +121,13 @@ class CheckedField:
 
     def finish_unit(self) -> None:
         return None
+
+    def describe(self) -> dict:
+        """The reference as an operator screen shows it: the model value and the last fluxgate check."""
+        out: dict = {"model": self.model_name, "field_ut": round(self.field_ut, 2)}
+        if self.monitor is not None:
+            out["last_check"] = self.monitor.last
+        return out
 
     def close(self) -> None:
         if self.monitor is not None:

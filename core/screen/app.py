@@ -1,0 +1,133 @@
+"""The station screen's web application: the page, its live state (server-sent events), start and
+abort, the unit reports, and plotly.js from the installed plotly package (a line PC has no
+internet, so nothing comes from a CDN).
+
+Access: bound to 127.0.0.1 the screen is the line PC's own and needs no login.  Bound to any other
+address, every request needs the operator token generated at start (``?token=`` once in the
+address, then a cookie; or ``Authorization: Bearer``): a station that writes calibrations into
+flight controllers must not be startable or abortable by anyone on the factory network.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import hmac
+import json
+from importlib.resources import files
+from pathlib import Path
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, PlainTextResponse, Response
+from sse_starlette.sse import EventSourceResponse
+
+from magline.core.screen.runner import Busy, UnitRunner
+from magline.core.screen.state import ScreenState
+
+STATIC = files("magline.core.screen") / "static"
+COOKIE = "magline_token"
+HEARTBEAT_S = 5.0  # an idle stream still says it is alive, so the page notices a dead server
+WAIT_S = 0.5
+
+
+def plotly_js_path() -> Path:
+    import plotly
+
+    return Path(plotly.__file__).parent / "package_data" / "plotly.min.js"
+
+
+class TokenRequired:
+    """Plain ASGI middleware (it must not buffer the event stream): 401 without the token; a token
+    given in the address is kept in a cookie so the page's own requests carry it."""
+
+    def __init__(self, app: Any, token: str) -> None:
+        self.app, self.token = app, token
+
+    async def __call__(self, scope: dict, receive: Any, send: Any) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        request = Request(scope)
+        in_address = request.query_params.get("token")
+        given = (in_address or request.cookies.get(COOKIE)
+                 or request.headers.get("authorization", "").removeprefix("Bearer ").strip())
+        if not given or not hmac.compare_digest(given.encode(), self.token.encode()):
+            refused = PlainTextResponse("operator token required (printed when the station started)", status_code=401)
+            await refused(scope, receive, send)
+            return
+
+        async def send_with_cookie(message: dict) -> None:
+            if message["type"] == "http.response.start" and in_address:
+                cookie = f"{COOKIE}={self.token}; HttpOnly; SameSite=Strict; Path=/".encode()
+                message["headers"] = [*message.get("headers", []), (b"set-cookie", cookie)]
+            await send(message)
+
+        await self.app(scope, receive, send_with_cookie)
+
+
+def create_app(state: ScreenState, runner: UnitRunner, token: str | None = None,
+               reports: Path | None = None) -> FastAPI:
+    app = FastAPI(title="magline station", docs_url=None, redoc_url=None, openapi_url=None)
+
+    if token is not None:
+        app.add_middleware(TokenRequired, token=token)
+
+    @app.get("/", response_class=HTMLResponse)
+    def page() -> HTMLResponse:
+        return HTMLResponse((STATIC / "index.html").read_text(encoding="utf-8"))
+
+    @app.get("/static/plotly.min.js")
+    def plotly_js() -> FileResponse:
+        return FileResponse(plotly_js_path(), media_type="text/javascript")
+
+    @app.get("/static/{name}")
+    def static(name: str) -> Response:
+        item = STATIC / name
+        if "/" in name or not item.is_file():
+            return PlainTextResponse("not found", status_code=404)
+        kind = {"js": "text/javascript", "css": "text/css"}.get(name.rsplit(".", 1)[-1], "text/plain")
+        return Response(item.read_bytes(), media_type=kind)
+
+    @app.get("/api/state")
+    def current() -> JSONResponse:
+        return JSONResponse(state.snapshot()[1])
+
+    @app.get("/api/events")
+    async def events(request: Request) -> EventSourceResponse:
+        async def stream() -> Any:
+            version, quiet = -1, 0.0
+            while not await request.is_disconnected():
+                # short waits: a shutting-down server is not held up by a thread parked in a long one
+                newer = await asyncio.to_thread(state.wait_newer, version, WAIT_S)
+                if newer or version < 0:
+                    version, snapshot = state.snapshot()
+                    quiet = 0.0
+                    yield {"event": "state", "data": json.dumps(snapshot)}
+                elif (quiet := quiet + WAIT_S) >= HEARTBEAT_S:
+                    quiet = 0.0
+                    yield {"event": "alive", "data": "{}"}
+        return EventSourceResponse(stream())
+
+    @app.post("/api/start")
+    async def start(request: Request) -> JSONResponse:
+        body = await request.json()
+        try:
+            runner.start(str(body.get("serial", "")), body.get("part") or None, str(body.get("operator", "")))
+        except Busy as exc:
+            return JSONResponse({"error": str(exc)}, status_code=409)
+        except ValueError as exc:
+            return JSONResponse({"error": str(exc)}, status_code=400)
+        return JSONResponse({"started": body.get("serial")})
+
+    @app.post("/api/abort")
+    def abort() -> JSONResponse:
+        return JSONResponse({"aborting": runner.abort()})
+
+    @app.get("/reports/{name}")
+    def report(name: str) -> Response:
+        path = (reports / name) if reports is not None and "/" not in name else None
+        if path is None or not path.is_file():
+            return PlainTextResponse("no such report", status_code=404)
+        return FileResponse(path, media_type="text/html")
+
+    return app

@@ -1,0 +1,82 @@
+"""Runs one unit at a time for the station screen, on a worker thread, with the same sequencer
+``magline run`` uses.  Abort is the sequencer's own switch: honoured at the next safe point, the
+DUT restored and closed, the record saying aborted."""
+
+from __future__ import annotations
+
+import threading
+from typing import Any
+
+from magline.core.faults import UnitAborted
+from magline.core.screen.state import ScreenState
+from magline.core.sequencer import Sequencer
+
+
+class Busy(Exception):
+    """A unit is under test already."""
+
+
+class UnitRunner:
+    def __init__(self, sequencer: Sequencer, state: ScreenState) -> None:
+        self.sequencer = sequencer
+        self.state = state
+        self._thread: threading.Thread | None = None
+        self._lock = threading.Lock()
+        self.standing()
+
+    def start(self, serial: str, part: str | None, operator: str = "") -> None:
+        serial = serial.strip()
+        if not serial:
+            raise ValueError("scan or type the unit's serial number")
+        if part is not None and part not in self.sequencer.station.products:
+            raise ValueError(f"unknown part {part!r} (this station tests {', '.join(self.sequencer.station.products)})")
+        with self._lock:
+            if self._thread is not None and self._thread.is_alive():
+                raise Busy("a unit is under test: wait for its verdict or abort it")
+            part = part or self.state.state["station"]["default_part"]
+            self.sequencer.abort.clear()
+            self.state.unit_started(serial, part)
+            self._thread = threading.Thread(target=self._run, args=(serial, part, operator), name="magline-unit",
+                                            daemon=True)
+            self._thread.start()
+
+    def _run(self, serial: str, part: str, operator: str) -> None:
+        try:
+            self.sequencer.run_unit(serial, part, operator)
+        except UnitAborted as exc:
+            self.state.unit_refused(f"{exc.reason}: no unit under test")
+        except Exception as exc:  # the screen must say it, not die with the worker
+            self.state.unit_refused(f"the station could not run the unit: {exc}")
+        finally:
+            self.standing()
+
+    def abort(self) -> bool:
+        """Ask the unit under test to stop; False when none is."""
+        if self._thread is None or not self._thread.is_alive():
+            return False
+        self.sequencer.abort.request("aborted by the operator")
+        return True
+
+    def wait(self, timeout: float | None = None) -> None:
+        if self._thread is not None:
+            self._thread.join(timeout)
+
+    def standing(self) -> None:
+        """The station's standing state: field reference and results store."""
+        field: dict[str, Any] = {"source": self.sequencer.station.field_source.type}
+        describe = getattr(self.sequencer.field_source, "describe", None)
+        if callable(describe):
+            field.update(describe())
+        store: dict[str, Any] = {"where": getattr(self.sequencer.sink, "where", self.sequencer.station.results.sink)}
+        pending = getattr(self.sequencer.sink, "pending", None)
+        if callable(pending):
+            try:
+                store["queued"] = pending()
+            except Exception as exc:  # a store that cannot say is shown as such
+                store["error"] = str(exc)
+        self.state.update(field=field, store=store)
+
+    def close(self) -> None:
+        self.abort()
+        self.wait(30)
+        self.sequencer.close()

@@ -1,0 +1,147 @@
+"""What the station screen shows, built only from the listener hooks the console also implements
+(one source of truth: the page and the console cannot disagree), plus the station's standing
+state (field reference, results store) read after each unit.
+
+The state is one JSON-able dictionary with a version number; every change bumps the version and
+wakes the event streams, which send the whole state (a reload or a reconnect sees the run in
+progress, never a partial picture).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any
+
+from magline.core.fit.coverage import fibonacci_sphere
+from magline.core.measurements import Verdict, verdicts
+from magline.core.plugins import hookimpl
+from magline.core.record import PhaseResult, RunRecord
+from magline.core.sequencer.batch import Batch
+from magline.core.sequencer.sequencer import PHASES
+from magline.core.text import fmt
+
+RECENT = 12  # units listed on the screen
+
+
+class ScreenState:
+    def __init__(self, station: Any) -> None:
+        self._lock = threading.Condition()
+        self.version = 0
+        self.batch = Batch()
+        self.state: dict[str, Any] = {
+            "station": {"id": station.station.id, "line": station.station.line, "parts": list(station.products),
+                        "default_part": station.default_part or next(iter(station.products))},
+            "busy": False, "run": None, "result": None, "recent": [], "shift": {"units": 0, "fpy": None},
+            "field": {}, "store": {}, "sent_at_ms": 0.0,
+        }
+
+    # ------------------------------------------------------------------ reading
+    def snapshot(self) -> tuple[int, dict[str, Any]]:
+        with self._lock:
+            return self.version, {**self.state, "sent_at_ms": time.time() * 1e3}
+
+    def wait_newer(self, version: int, timeout: float) -> bool:
+        """Block until the state is newer than ``version`` (or ``timeout``): the event stream's pace."""
+        with self._lock:
+            return self._lock.wait_for(lambda: self.version > version, timeout)
+
+    def _changed(self) -> None:
+        self.version += 1
+        self._lock.notify_all()
+
+    def update(self, **changes: Any) -> None:
+        with self._lock:
+            self.state.update(changes)
+            self._changed()
+
+    # ------------------------------------------------------------------ a unit starts
+    def unit_started(self, serial: str, part: str) -> None:
+        with self._lock:
+            self.state.update(busy=True, result=None, run={
+                "serial": serial, "part": part, "attempt": 0, "prompt": "", "prompts": [], "samples": 0,
+                "target_samples": None, "coverage": 0.0, "target": None, "bins": [], "n_bins": None,
+                "centres": None, "waiting": None, "phases": [{"name": p, "state": "pending", "duration_s": None}
+                                                             for p in PHASES]})
+            self._changed()
+
+    def unit_refused(self, message: str) -> None:
+        """A start that could not begin (bad serial, a crash before the first phase)."""
+        with self._lock:
+            self.state.update(busy=False, run=None,
+                              result={"verdict": "error", "serial": "", "cause": message, "items": []})
+            self._changed()
+
+    def _phase(self, name: str) -> dict[str, Any] | None:
+        run = self.state["run"]
+        return next((p for p in run["phases"] if p["name"] == name), None) if run else None
+
+    # ------------------------------------------------------------------ listener hooks
+    @hookimpl
+    def magline_phase_started(self, run: Any, phase: str) -> None:
+        with self._lock:
+            entry = self._phase(phase)
+            if entry is not None:
+                entry["state"] = "running"
+                self.state["run"]["waiting"] = None
+                self._changed()
+
+    @hookimpl
+    def magline_phase_finished(self, run: Any, phase: str, result: PhaseResult) -> None:
+        with self._lock:
+            entry = self._phase(phase)
+            if entry is not None:
+                entry.update(state=str(result.outcome), duration_s=round(result.duration_s, 2))
+                self.state["run"]["waiting"] = None
+                self._changed()
+
+    @hookimpl
+    def magline_acquisition_progress(self, run: Any, attempt: int, samples: int, coverage: float, target: float,
+                                     bins: Any, n_bins: int | None) -> None:
+        with self._lock:
+            current = self.state["run"]
+            if current is None:
+                return
+            if n_bins and current["n_bins"] != n_bins:
+                current["n_bins"] = n_bins
+                current["centres"] = [[round(v, 4) for v in c] for c in fibonacci_sphere(n_bins).tolist()]
+            current.update(attempt=attempt, samples=samples, coverage=coverage, target=target,
+                           target_samples=run.station.acquisition.samples, bins=list(bins or []),
+                           progress_at_ms=time.time() * 1e3)  # when these samples reached the sequencer
+            self._changed()
+
+    @hookimpl
+    def magline_operator_prompt(self, run: Any, message: str) -> None:
+        with self._lock:
+            if self.state["run"] is not None:
+                self.state["run"]["prompt"] = message
+                self.state["run"]["prompts"].append(message)
+                self._changed()
+
+    @hookimpl
+    def magline_waiting(self, run: Any, what: str, elapsed_s: float, limit_s: float | None) -> None:
+        with self._lock:
+            if self.state["run"] is not None:
+                self.state["run"]["waiting"] = {"what": what, "elapsed_s": round(elapsed_s, 1), "limit_s": limit_s}
+                self._changed()
+
+    @hookimpl
+    def magline_unit_finished(self, run: Any, record: RunRecord) -> None:
+        with self._lock:
+            self.batch.add(record)
+            passed, judged = self.batch.first_pass_yield()
+            flags = {f["name"]: f["reason"] for f in record.review}
+            items = [{"name": m.name, "value": fmt(m.value, m.unit), "limit": f"[{fmt(m.low)}, {fmt(m.high)}]",
+                      "verdict": str(m.verdict), "why": flags.get(m.name, "within the marginal band"
+                                                                  if m.verdict is Verdict.REVIEW else "")}
+                     for m in verdicts(record.measurements) if m.verdict in (Verdict.FAIL, Verdict.REVIEW)]
+            shown = "review" if str(record.verdict) == "pass" and items else str(record.verdict)
+            self.state["result"] = {"verdict": shown, "serial": record.serial, "cause": record.cause,
+                                    "items": items, "store": record.store or "NOT stored",
+                                    "report": record.report.rsplit("/", 1)[-1] if record.report else None}
+            self.state["recent"] = ([{"serial": record.serial, "verdict": shown, "finished": record.finished}]
+                                    + self.state["recent"])[:RECENT]
+            self.state["shift"] = {"units": self.batch.units, "first_pass": passed, "judged": judged,
+                                   "fpy": passed / judged if judged else None}
+            self.state["busy"] = False
+            self._changed()

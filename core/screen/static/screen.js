@@ -1,0 +1,123 @@
+// The station screen: renders the server's state (one object, sent whole on every change) and
+// sends the operator's two actions.  No build step, no framework: a line PC runs it as served.
+"use strict";
+const $ = (id) => document.getElementById(id);
+const token = new URLSearchParams(location.search).get("token");
+let sphereDrawn = false;
+let lastVersionShown = null;
+window.__latencies = [];  // sample reaching the sequencer → sphere drawn (ms), read by the benchmark
+
+function esc(text) {
+  const d = document.createElement("div");
+  d.textContent = text == null ? "" : String(text);
+  return d.innerHTML;
+}
+
+function pct(x) { return x == null ? "—" : Math.round(x * 100) + "%"; }
+
+function drawSphere(run) {
+  const centres = run && run.centres;
+  if (!centres) {  // a new unit: no bins hit yet
+    if (sphereDrawn) { Plotly.purge("sphere"); sphereDrawn = false; }
+    $("sphere").dataset.hit = "0";
+    return;
+  }
+  const hit = new Set(run.bins || []);
+  const colour = centres.map((_, i) => (hit.has(i) ? "#1a7f37" : "#d0d7de"));
+  const trace = { type: "scatter3d", mode: "markers", x: centres.map((c) => c[0]), y: centres.map((c) => c[1]),
+                  z: centres.map((c) => c[2]), marker: { size: 9, color: colour }, hoverinfo: "skip" };
+  const layout = { margin: { l: 0, r: 0, t: 0, b: 0 }, showlegend: false,
+                   scene: { aspectmode: "cube", xaxis: { visible: false }, yaxis: { visible: false }, zaxis: { visible: false } } };
+  if (!sphereDrawn) {
+    Plotly.newPlot("sphere", [trace], layout, { displayModeBar: false, responsive: true });
+    sphereDrawn = true;
+  } else {
+    Plotly.restyle("sphere", { "marker.color": [colour] }, [0]);
+  }
+  $("sphere").dataset.hit = String(hit.size);
+}
+
+function render(s) {
+  $("station-name").textContent = `${s.station.id} · line ${s.station.line}`;
+  const f = s.field || {};
+  let field = `field ${f.source || "—"}` + (f.field_ut != null ? ` ${f.field_ut} µT (${f.model})` : "");
+  if (f.last_check) { field += `, fluxgate ${f.last_check.measured_ut} µT at ${f.last_check.at.slice(11, 19)}`; }
+  $("field").textContent = field;
+  const st = s.store || {};
+  $("store").textContent = st.error ? `results store: ${st.error}`
+    : `results: ${st.where || "—"}` + (st.queued ? ` — ${st.queued} QUEUED for forwarding` : "");
+
+  const part = $("part");
+  if (s.station.parts.length > 1 && part.options.length === 0) {
+    for (const p of s.station.parts) { part.add(new Option(p, p, p === s.station.default_part, p === s.station.default_part)); }
+    part.hidden = false;
+  }
+  $("start").disabled = s.busy;
+  $("abort").disabled = !s.busy;
+
+  const run = s.run;
+  $("prompt").textContent = run ? run.prompt : "";
+  $("attempt").textContent = run && run.attempt ? `attempt ${run.attempt}` : "";
+  const fraction = run && run.target_samples ? Math.min(1, run.samples / run.target_samples) : 0;
+  $("progress-bar").style.width = `${fraction * 100}%`;
+  $("progress-text").textContent = run && run.target_samples ? `${run.samples} / ${run.target_samples} samples` : "";
+  $("phases").innerHTML = run ? run.phases.map((p) =>
+    `<li class="${esc(p.state)}">${esc(p.name)} — ${esc(p.state)}${p.duration_s != null ? ` (${p.duration_s} s)` : ""}`
+    + `${p.state === "running" && run.waiting ? ` · ${esc(run.waiting.what)} ${run.waiting.elapsed_s} s` : ""}</li>`).join("") : "";
+  $("coverage-text").textContent = run && run.n_bins ? `coverage ${pct(run.coverage)} (target ${pct(run.target)})` : "";
+  drawSphere(run);
+
+  const sh = s.shift || {};
+  $("shift").textContent = `${sh.units || 0} units, first-pass yield ${pct(sh.fpy)}`;
+  $("recent").innerHTML = (s.recent || []).map((r) => `<li class="${esc(r.verdict)}">${esc(r.serial)} ${esc(r.verdict.toUpperCase())}</li>`).join("");
+
+  const v = s.result;
+  const overlay = $("verdict");
+  if (v && !s.busy) {
+    overlay.className = v.verdict;
+    $("verdict-word").textContent = v.verdict.toUpperCase();
+    $("verdict-serial").textContent = v.serial;
+    $("verdict-cause").textContent = v.cause || "";
+    $("verdict-items").innerHTML = (v.items || []).map((m) =>
+      `<tr><td>${esc(m.name)}</td><td>${esc(m.value)}</td><td>${esc(m.limit)}</td><td>${esc(m.verdict)}</td><td>${esc(m.why)}</td></tr>`).join("");
+    $("verdict-store").textContent = v.store ? `record: ${v.store}` : "";
+    const link = $("verdict-report");
+    link.hidden = !v.report;
+    if (v.report) { link.href = `/reports/${encodeURIComponent(v.report)}`; }
+    overlay.hidden = false;
+  } else {
+    overlay.hidden = true;
+  }
+  if (run && run.progress_at_ms && run.progress_at_ms !== lastVersionShown) {
+    const first = lastVersionShown === null;  // what the page found on opening is not a fresh sample
+    lastVersionShown = run.progress_at_ms;
+    if (first) { return; }
+    requestAnimationFrame(() => window.__latencies.push(Date.now() - run.progress_at_ms));
+  }
+}
+
+function connect() {
+  const events = new EventSource("/api/events" + (token ? `?token=${encodeURIComponent(token)}` : ""));
+  events.addEventListener("state", (e) => { $("banner").hidden = true; render(JSON.parse(e.data)); });
+  events.addEventListener("alive", () => { $("banner").hidden = true; });
+  events.onopen = () => { $("banner").hidden = true; };
+  events.onerror = () => { $("banner").hidden = false; };  // EventSource reconnects by itself
+}
+
+async function post(path, body) {
+  const response = await fetch(path + (token ? `?token=${encodeURIComponent(token)}` : ""), {
+    method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify(body || {}) });
+  const answer = await response.json().catch(() => ({}));
+  $("form-error").textContent = response.ok ? "" : (answer.error || `error ${response.status}`);
+  return response.ok;
+}
+
+$("start-form").addEventListener("submit", async (e) => {
+  e.preventDefault();
+  const serial = $("serial").value.trim();
+  const part = $("part").hidden ? null : $("part").value;
+  if (await post("/api/start", { serial, part })) { $("serial").value = ""; }
+  $("serial").focus();
+});
+$("abort").addEventListener("click", () => { post("/api/abort"); $("serial").focus(); });
+connect();

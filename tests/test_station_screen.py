@@ -1,0 +1,173 @@
+"""The station screen in a real browser (Debian's Chromium through playwright): a unit driven only
+through the page with the keyboard, a failing unit, an abort mid-acquisition, a server restart,
+the operator token — and not one request leaves 127.0.0.1."""
+
+from __future__ import annotations
+
+import json
+import socket
+import threading
+import time
+import urllib.error
+import urllib.request
+
+import pytest
+import uvicorn
+from browser import open_page, screenshot
+
+from magline.core.plugins import load_plugins
+from magline.core.screen.serve import build, is_loopback
+from magline.core.station import load_station
+
+LOCAL = ("http://127.0.0.1:",)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class Served:
+    """The app on a real socket, in a thread; stoppable and startable again on the same port."""
+
+    def __init__(self, app, port: int) -> None:
+        self.app, self.port = app, port
+        self.start()
+
+    def start(self) -> None:
+        config = uvicorn.Config(self.app, host="127.0.0.1", port=self.port, log_level="warning",
+                                timeout_graceful_shutdown=1)
+        self.server = uvicorn.Server(config)
+        self.thread = threading.Thread(target=self.server.run, daemon=True)
+        self.thread.start()
+        deadline = time.monotonic() + 20
+        while not self.server.started:
+            assert time.monotonic() < deadline, "the screen did not start"
+            time.sleep(0.05)
+
+    def stop(self) -> None:
+        self.server.should_exit = True
+        self.thread.join(timeout=20)
+
+    @property
+    def url(self) -> str:
+        return f"http://127.0.0.1:{self.port}/"
+
+
+@pytest.fixture
+def screen(make_station):
+    started = []
+
+    def start(changes: dict | None = None, token: str | None = None):
+        path = make_station(changes)
+        app, runner = build(load_station(path), path.parent, load_plugins(), token)
+        served = Served(app, free_port())
+        started.append((served, runner))
+        return served, runner
+
+    yield start
+    for served, runner in started:
+        served.stop()
+        runner.close()
+
+
+REALTIME = {"products": {"MOCK-100": {"options": {"realtime": True}}}}
+
+
+def test_a_unit_driven_only_through_the_page_shows_the_retry_and_passes(screen, browser, tmp_path):
+    served, _ = screen(REALTIME)
+    opened = open_page(browser, served.url)
+    page = opened.page
+    page.wait_for_selector("#station-name:has-text('demo-01')")
+    page.keyboard.type("SCR-1")  # the serial field has focus: a barcode scanner types, then Enter
+    page.keyboard.press("Enter")
+    page.wait_for_selector("#attempt:has-text('attempt 1')")
+    page.wait_for_function("Number(document.getElementById('sphere').dataset.hit) > 0")
+    screenshot(page, tmp_path / "1-acquiring.png")
+    page.wait_for_selector("#attempt:has-text('attempt 2')", timeout=30_000)
+    assert "tumble again" in page.inner_text("#prompt")  # the station's retry prompt, large
+    screenshot(page, tmp_path / "2-retry.png")
+    page.wait_for_selector("#verdict:not([hidden])", timeout=30_000)
+    assert page.inner_text("#verdict-word") == "PASS" and page.inner_text("#verdict-serial") == "SCR-1"
+    assert "SCR-1 PASS" in page.inner_text("#recent") and "first-pass yield 100%" in page.inner_text("#shift")
+    assert "magline-demo-results.sqlite run 1" in page.inner_text("#verdict-store")
+    screenshot(page, tmp_path / "3-pass.png")
+    assert len(page.evaluate("window.__latencies")) > 5  # the sphere followed the samples
+    page.reload()  # a reload shows what the station holds, not an empty page
+    page.wait_for_selector("#verdict:not([hidden])")
+    assert page.inner_text("#verdict-word") == "PASS"
+    assert opened.outside(LOCAL) == []
+
+
+def test_a_failing_unit_shows_fail_with_its_measurement(screen, browser, tmp_path):
+    served, _ = screen({"products": {"MOCK-100": {"limits": {"hard_iron_norm_ut": {"le": 50.0}}}}})
+    opened = open_page(browser, served.url)
+    opened.page.fill("#serial", "SCR-BAD")
+    opened.page.press("#serial", "Enter")
+    opened.page.wait_for_selector("#verdict:not([hidden])", timeout=30_000)
+    assert opened.page.inner_text("#verdict-word") == "FAIL"
+    row = opened.page.inner_text("#verdict-items")
+    assert "hard_iron_norm_ut" in row and "[—, 50]" in row and "fail" in row
+    screenshot(opened.page, tmp_path / "fail.png")
+    assert opened.outside(LOCAL) == []
+
+
+def test_abort_mid_acquisition_restores_the_unit_and_records_aborted(screen, browser, tmp_path):
+    from sqlalchemy import create_engine, text
+
+    served, runner = screen(REALTIME)
+    opened = open_page(browser, served.url)
+    opened.page.fill("#serial", "SCR-AB")
+    opened.page.press("#serial", "Enter")
+    opened.page.wait_for_function("Number(document.getElementById('sphere').dataset.hit) > 3")
+    opened.page.click("#abort")
+    opened.page.wait_for_selector("#verdict:not([hidden])", timeout=30_000)
+    assert opened.page.inner_text("#verdict-word") == "ABORTED"
+    assert "aborted by the operator" in opened.page.inner_text("#verdict-cause")
+    screenshot(opened.page, tmp_path / "aborted.png")
+    runner.wait(10)
+    engine = create_engine(f"sqlite:///{tmp_path / 'magline-demo-results.sqlite'}")
+    with engine.connect() as conn:
+        verdict, phase, left = conn.execute(text(
+            "SELECT verdict, aborted_phase, left_changed FROM runs WHERE serial = 'SCR-AB'")).one()
+    engine.dispose()
+    assert (verdict, phase, left) == ("aborted", "acquire", None)  # the DUT restored: nothing left changed
+
+
+def test_a_lost_server_shows_a_banner_and_the_page_recovers_without_reload(screen, browser, tmp_path):
+    served, _ = screen()
+    opened = open_page(browser, served.url)
+    opened.page.wait_for_selector("#station-name:has-text('demo-01')")
+    assert opened.page.is_hidden("#banner")
+    served.stop()
+    opened.page.wait_for_selector("#banner", state="visible", timeout=20_000)
+    screenshot(opened.page, tmp_path / "lost.png")
+    served.start()
+    opened.page.wait_for_selector("#banner", state="hidden", timeout=30_000)
+    opened.page.fill("#serial", "SCR-AFTER")
+    opened.page.press("#serial", "Enter")
+    opened.page.wait_for_selector("#verdict:not([hidden])", timeout=30_000)
+    assert opened.page.inner_text("#verdict-word") == "PASS"
+    assert opened.outside(LOCAL) == []
+
+
+def test_off_loopback_every_request_needs_the_operator_token(screen):
+    assert is_loopback("127.0.0.1") and is_loopback("::1") and is_loopback("localhost")
+    assert not is_loopback("0.0.0.0") and not is_loopback("192.168.1.20")
+    served, _ = screen(token="s3cret-token")
+    for path in ("", "api/state", "static/plotly.min.js"):
+        with pytest.raises(urllib.error.HTTPError) as refused:
+            urllib.request.urlopen(served.url + path, timeout=10)
+        assert refused.value.code == 401
+    start = urllib.request.Request(served.url + "api/start", data=b'{"serial": "X"}', method="POST",
+                                   headers={"Content-Type": "application/json"})
+    with pytest.raises(urllib.error.HTTPError) as refused:
+        urllib.request.urlopen(start, timeout=10)
+    assert refused.value.code == 401
+    with urllib.request.urlopen(served.url + "api/state?token=s3cret-token", timeout=10) as answer:
+        assert json.loads(answer.read())["station"]["id"] == "demo-01"
+        assert "magline_token=s3cret-token" in answer.headers["set-cookie"]
+    bearer = urllib.request.Request(served.url + "api/state", headers={"Authorization": "Bearer s3cret-token"})
+    with urllib.request.urlopen(bearer, timeout=10) as answer:
+        assert answer.status == 200
