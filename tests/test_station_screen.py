@@ -4,6 +4,8 @@ the operator token — and not one request leaves 127.0.0.1."""
 
 from __future__ import annotations
 
+import copy
+import datetime as dt
 import json
 import socket
 import threading
@@ -11,13 +13,20 @@ import time
 import urllib.error
 import urllib.request
 
+import numpy as np
 import pytest
 import uvicorn
+import yaml
 from browser import open_page, screenshot
+from sqlalchemy import create_engine
 
+from magline.core.field.wmm import wmm_field_nt
 from magline.core.plugins import load_plugins
+from magline.core.results.reading import find_run
 from magline.core.screen.serve import build, is_loopback
 from magline.core.station import load_station
+from magline.plugins.mock.sim.fluxgate import FluxgateSim
+from magline.plugins.mock.storage import NvStorage
 
 LOCAL = ("http://127.0.0.1:",)
 
@@ -36,6 +45,7 @@ class Served:
         self.start()
 
     def start(self) -> None:
+        self.app.state.closing.clear()
         config = uvicorn.Config(self.app, host="127.0.0.1", port=self.port, log_level="warning",
                                 timeout_graceful_shutdown=1)
         self.server = uvicorn.Server(config)
@@ -47,6 +57,7 @@ class Served:
             time.sleep(0.05)
 
     def stop(self) -> None:
+        self.app.state.closing.set()
         self.server.should_exit = True
         self.thread.join(timeout=20)
 
@@ -59,8 +70,12 @@ class Served:
 def screen(make_station):
     started = []
 
-    def start(changes: dict | None = None, token: str | None = None):
+    def start(changes: dict | None = None, token: str | None = None, edit=None):
         path = make_station(changes)
+        if edit is not None:  # whole sections replaced, not merged
+            cfg = yaml.safe_load(path.read_text(encoding="utf-8"))
+            edit(cfg)
+            path.write_text(yaml.safe_dump(cfg, sort_keys=False, allow_unicode=True), encoding="utf-8")
         app, runner = build(load_station(path), path.parent, load_plugins(), token)
         served = Served(app, free_port())
         started.append((served, runner))
@@ -116,6 +131,9 @@ def test_a_failing_unit_shows_fail_with_its_measurement(screen, browser, tmp_pat
 def test_abort_mid_acquisition_restores_the_unit_and_records_aborted(screen, browser, tmp_path):
     from sqlalchemy import create_engine, text
 
+    storage = NvStorage(tmp_path / "magline-demo-storage.json")  # the unit's earlier calibration
+    storage.save({"MAG_OFS_X": 12.5, "MAG_OFS_Y": -3.25, "MAG_OFS_Z": 7.0, "MAG_AUTOCAL": 1, "MAG_DEV_ID": 7})
+    before = storage.path.read_bytes()
     served, runner = screen(REALTIME)
     opened = open_page(browser, served.url)
     opened.page.fill("#serial", "SCR-AB")
@@ -132,7 +150,53 @@ def test_abort_mid_acquisition_restores_the_unit_and_records_aborted(screen, bro
         verdict, phase, left = conn.execute(text(
             "SELECT verdict, aborted_phase, left_changed FROM runs WHERE serial = 'SCR-AB'")).one()
     engine.dispose()
-    assert (verdict, phase, left) == ("aborted", "acquire", None)  # the DUT restored: nothing left changed
+    assert (verdict, phase, left) == ("aborted", "acquire", None)  # the record: nothing left changed
+    assert storage.path.read_bytes() == before  # the DUT's own storage: its calibration untouched
+
+
+def test_part_picker_report_link_field_reference_and_queued_records(screen, browser, tmp_path, monkeypatch):
+    """A two-product station with a WMM field checked by a fluxgate, reports on, and its results
+    server unreachable: the operator picks the part, the page shows the fluxgate check, the record
+    queued for forwarding, and links the unit's report."""
+    field = wmm_field_nt(47.3769, 8.5417, 408.0, dt.date(2026, 11, 22))["f"] / 1000
+    monkeypatch.setenv("MAGLINE_CENTRAL_URL", f"postgresql+psycopg://nobody:x@127.0.0.1:{free_port()}/gone")
+    with FluxgateSim("tcp:127.0.0.1:0", lambda: np.array([0.0, 0.0, field + 0.2]), noise_ut=0.0) as flux:
+        def edit(cfg: dict) -> None:
+            cfg["products"]["MOCK-100"]["options"]["field_ut"] = field
+            cfg["products"]["MOCK-200"] = copy.deepcopy(cfg["products"]["MOCK-100"])
+            cfg["field_source"] = {"type": "wmm", "options": {"date": "2026-11-22", "reference": {
+                "resource": flux.visa_resource, "readings": 2, "every_n_units": 1}}}
+            cfg["results"] = {"sink": "sql", "url_env": "MAGLINE_CENTRAL_URL", "outbox": "outbox.sqlite",
+                              "reports": "reports"}
+
+        served, runner = screen(edit=edit)
+        opened = open_page(browser, served.url)
+        page = opened.page
+        page.wait_for_selector("#field:has-text('wmm')")
+        assert f"{round(field, 2)} µT" in page.inner_text("#field")
+        assert page.is_visible("#part") and page.input_value("#part") == "MOCK-100"  # the default first
+        page.select_option("#part", "MOCK-200")
+        page.fill("#serial", "SCR-P2")
+        page.press("#serial", "Enter")
+        page.wait_for_selector("#unit:has-text('SCR-P2 · MOCK-200')")
+        page.wait_for_selector("#verdict:not([hidden])", timeout=30_000)
+        assert page.inner_text("#verdict-word") == "PASS" and page.inner_text("#verdict-part") == "MOCK-200"
+        page.wait_for_selector("#field:has-text('fluxgate')")
+        assert f"fluxgate {round(field + 0.2, 3)} µT at" in page.inner_text("#field")
+        page.wait_for_selector("#store:has-text('1 QUEUED for forwarding')")
+        screenshot(page, tmp_path / "standing.png")
+        with page.context.expect_page() as opening:
+            page.click("#verdict-report")
+        report = opening.value
+        report.wait_for_load_state()
+        assert "SCR-P2" in report.title() + report.inner_text("body")
+        runner.wait(10)
+    engine = create_engine(f"sqlite:///{tmp_path / 'outbox.sqlite'}")
+    with engine.connect() as conn:
+        record = find_run(conn, "1")
+    engine.dispose()
+    assert (record["serial"], record["part"], record["verdict"]) == ("SCR-P2", "MOCK-200", "pass")
+    assert opened.outside(LOCAL) == []
 
 
 def test_a_lost_server_shows_a_banner_and_the_page_recovers_without_reload(screen, browser, tmp_path):

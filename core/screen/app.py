@@ -13,6 +13,7 @@ from __future__ import annotations
 import asyncio
 import hmac
 import json
+import threading
 from importlib.resources import files
 from pathlib import Path
 from typing import Any
@@ -22,7 +23,7 @@ from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, PlainTex
 from sse_starlette.sse import EventSourceResponse
 
 from magline.core.screen.runner import Busy, UnitRunner
-from magline.core.screen.state import ScreenState
+from magline.core.screen.state import ScreenState, bin_centres
 
 STATIC = files("magline.core.screen") / "static"
 COOKIE = "magline_token"
@@ -68,6 +69,9 @@ class TokenRequired:
 def create_app(state: ScreenState, runner: UnitRunner, token: str | None = None,
                reports: Path | None = None) -> FastAPI:
     app = FastAPI(title="magline station", docs_url=None, redoc_url=None, openapi_url=None)
+    # Set by whoever stops a server it runs in a thread (no signal handler for sse-starlette to
+    # watch there): open event streams end within WAIT_S instead of holding up the shutdown.
+    app.state.closing = threading.Event()
 
     if token is not None:
         app.add_middleware(TokenRequired, token=token)
@@ -92,11 +96,17 @@ def create_app(state: ScreenState, runner: UnitRunner, token: str | None = None,
     def current() -> JSONResponse:
         return JSONResponse(state.snapshot()[1])
 
+    @app.get("/api/bins/{n_bins}")
+    def centres(n_bins: int) -> JSONResponse:
+        if not 1 <= n_bins <= 10_000:
+            return JSONResponse({"error": "bin count out of range"}, status_code=400)
+        return JSONResponse(bin_centres(n_bins), headers={"Cache-Control": "max-age=86400"})
+
     @app.get("/api/events")
     async def events(request: Request) -> EventSourceResponse:
         async def stream() -> Any:
             version, quiet = -1, 0.0
-            while not await request.is_disconnected():
+            while not app.state.closing.is_set() and not await request.is_disconnected():
                 # short waits: a shutting-down server is not held up by a thread parked in a long one
                 newer = await asyncio.to_thread(state.wait_newer, version, WAIT_S)
                 if newer or version < 0:

@@ -2,6 +2,9 @@
 (one source of truth: the page and the console cannot disagree), plus the station's standing
 state (field reference, results store) read after each unit.
 
+The bins' centres are not part of the state (the page fetches them once per bin count, see
+``bin_centres``): every update stays a few hundred bytes at 200 samples/s.
+
 The state is one JSON-able dictionary with a version number; every change bumps the version and
 wakes the event streams, which send the whole state (a reload or a reconnect sees the run in
 progress, never a partial picture).
@@ -13,7 +16,6 @@ import threading
 import time
 from typing import Any
 
-from magline.core.fit.coverage import fibonacci_sphere
 from magline.core.measurements import Verdict, verdicts
 from magline.core.plugins import hookimpl
 from magline.core.record import PhaseResult, RunRecord
@@ -61,7 +63,7 @@ class ScreenState:
             self.state.update(busy=True, result=None, run={
                 "serial": serial, "part": part, "attempt": 0, "prompt": "", "prompts": [], "samples": 0,
                 "target_samples": None, "coverage": 0.0, "target": None, "bins": [], "n_bins": None,
-                "centres": None, "waiting": None, "phases": [{"name": p, "state": "pending", "duration_s": None}
+                "waiting": None, "phases": [{"name": p, "state": "pending", "duration_s": None}
                                                              for p in PHASES]})
             self._changed()
 
@@ -102,10 +104,7 @@ class ScreenState:
             current = self.state["run"]
             if current is None:
                 return
-            if n_bins and current["n_bins"] != n_bins:
-                current["n_bins"] = n_bins
-                current["centres"] = [[round(v, 4) for v in c] for c in fibonacci_sphere(n_bins).tolist()]
-            current.update(attempt=attempt, samples=samples, coverage=coverage, target=target,
+            current.update(attempt=attempt, samples=samples, coverage=coverage, target=target, n_bins=n_bins,
                            target_samples=run.station.acquisition.samples, bins=list(bins or []),
                            progress_at_ms=time.time() * 1e3)  # when these samples reached the sequencer
             self._changed()
@@ -136,12 +135,21 @@ class ScreenState:
                                                                   if m.verdict is Verdict.REVIEW else "")}
                      for m in verdicts(record.measurements) if m.verdict in (Verdict.FAIL, Verdict.REVIEW)]
             shown = "review" if str(record.verdict) == "pass" and items else str(record.verdict)
-            self.state["result"] = {"verdict": shown, "serial": record.serial, "cause": record.cause,
+            self.state["result"] = {"verdict": shown, "serial": record.serial, "part": record.part,
+                                    "cause": record.cause,
                                     "items": items, "store": record.store or "NOT stored",
                                     "report": record.report.rsplit("/", 1)[-1] if record.report else None}
-            self.state["recent"] = ([{"serial": record.serial, "verdict": shown, "finished": record.finished}]
+            self.state["recent"] = ([{"serial": record.serial, "part": record.part, "verdict": shown,
+                                      "finished": record.finished}]
                                     + self.state["recent"])[:RECENT]
             self.state["shift"] = {"units": self.batch.units, "first_pass": passed, "judged": judged,
                                    "fpy": passed / judged if judged else None}
             self.state["busy"] = False
             self._changed()
+
+
+def bin_centres(n_bins: int) -> list[list[float]]:
+    """The centres of the coverage bins, the same ``fibonacci_sphere`` the coverage figure bins on."""
+    from magline.core.fit.coverage import fibonacci_sphere
+
+    return [[round(v, 4) for v in c] for c in fibonacci_sphere(n_bins).tolist()]

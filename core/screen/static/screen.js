@@ -15,26 +15,46 @@ function esc(text) {
 
 function pct(x) { return x == null ? "—" : Math.round(x * 100) + "%"; }
 
+const centresByCount = {};  // bin count → promise of the bins' centres, fetched once
+let sphereShown = "";  // the bin count and hit set the sphere shows now
+
+function binCentres(n) {
+  if (!centresByCount[n]) {
+    centresByCount[n] = fetch(`/api/bins/${n}` + (token ? `?token=${encodeURIComponent(token)}` : ""))
+      .then((r) => r.json());
+  }
+  return centresByCount[n];
+}
+
+// Redraws only when the hit set changed: most updates at 200 samples/s hit no new bin, and a 3D
+// redraw is the costliest thing the page does.  Returns whether the sphere changed.
 function drawSphere(run) {
-  const centres = run && run.centres;
-  if (!centres) {  // a new unit: no bins hit yet
-    if (sphereDrawn) { Plotly.purge("sphere"); sphereDrawn = false; }
+  if (!run || !run.n_bins) {  // a new unit: no bins hit yet
+    if (sphereDrawn) { Plotly.purge("sphere"); sphereDrawn = false; sphereShown = ""; }
     $("sphere").dataset.hit = "0";
-    return;
+    return false;
   }
-  const hit = new Set(run.bins || []);
-  const colour = centres.map((_, i) => (hit.has(i) ? "#1a7f37" : "#d0d7de"));
-  const trace = { type: "scatter3d", mode: "markers", x: centres.map((c) => c[0]), y: centres.map((c) => c[1]),
-                  z: centres.map((c) => c[2]), marker: { size: 9, color: colour }, hoverinfo: "skip" };
-  const layout = { margin: { l: 0, r: 0, t: 0, b: 0 }, showlegend: false,
-                   scene: { aspectmode: "cube", xaxis: { visible: false }, yaxis: { visible: false }, zaxis: { visible: false } } };
-  if (!sphereDrawn) {
-    Plotly.newPlot("sphere", [trace], layout, { displayModeBar: false, responsive: true });
-    sphereDrawn = true;
-  } else {
-    Plotly.restyle("sphere", { "marker.color": [colour] }, [0]);
-  }
-  $("sphere").dataset.hit = String(hit.size);
+  const bins = run.bins || [];
+  const key = `${run.n_bins}:${bins.join(",")}`;
+  if (key === sphereShown) { return false; }
+  sphereShown = key;
+  binCentres(run.n_bins).then((centres) => {
+    if (sphereShown !== key) { return; }  // a newer state already took over
+    const hit = new Set(bins);
+    const colour = centres.map((_, i) => (hit.has(i) ? "#1a7f37" : "#d0d7de"));
+    if (!sphereDrawn) {
+      const trace = { type: "scatter3d", mode: "markers", x: centres.map((c) => c[0]), y: centres.map((c) => c[1]),
+                      z: centres.map((c) => c[2]), marker: { size: 9, color: colour }, hoverinfo: "skip" };
+      const layout = { margin: { l: 0, r: 0, t: 0, b: 0 }, showlegend: false,
+                       scene: { aspectmode: "cube", xaxis: { visible: false }, yaxis: { visible: false }, zaxis: { visible: false } } };
+      Plotly.newPlot("sphere", [trace], layout, { displayModeBar: false, responsive: true });
+      sphereDrawn = true;
+    } else {
+      Plotly.restyle("sphere", { "marker.color": [colour] }, [0]);
+    }
+    $("sphere").dataset.hit = String(hit.size);
+  });
+  return true;
 }
 
 function render(s) {
@@ -56,6 +76,7 @@ function render(s) {
   $("abort").disabled = !s.busy;
 
   const run = s.run;
+  $("unit").textContent = run ? `${run.serial} · ${run.part}` : "";
   $("prompt").textContent = run ? run.prompt : "";
   $("attempt").textContent = run && run.attempt ? `attempt ${run.attempt}` : "";
   const fraction = run && run.target_samples ? Math.min(1, run.samples / run.target_samples) : 0;
@@ -65,11 +86,11 @@ function render(s) {
     `<li class="${esc(p.state)}">${esc(p.name)} — ${esc(p.state)}${p.duration_s != null ? ` (${p.duration_s} s)` : ""}`
     + `${p.state === "running" && run.waiting ? ` · ${esc(run.waiting.what)} ${run.waiting.elapsed_s} s` : ""}</li>`).join("") : "";
   $("coverage-text").textContent = run && run.n_bins ? `coverage ${pct(run.coverage)} (target ${pct(run.target)})` : "";
-  drawSphere(run);
+  const sphereChanged = drawSphere(run);
 
   const sh = s.shift || {};
   $("shift").textContent = `${sh.units || 0} units, first-pass yield ${pct(sh.fpy)}`;
-  $("recent").innerHTML = (s.recent || []).map((r) => `<li class="${esc(r.verdict)}">${esc(r.serial)} ${esc(r.verdict.toUpperCase())}</li>`).join("");
+  $("recent").innerHTML = (s.recent || []).map((r) => `<li class="${esc(r.verdict)}">${esc(r.serial)} ${esc(r.verdict.toUpperCase())} <small>${esc(r.part)}</small></li>`).join("");
 
   const v = s.result;
   const overlay = $("verdict");
@@ -77,6 +98,7 @@ function render(s) {
     overlay.className = v.verdict;
     $("verdict-word").textContent = v.verdict.toUpperCase();
     $("verdict-serial").textContent = v.serial;
+    $("verdict-part").textContent = v.part || "";
     $("verdict-cause").textContent = v.cause || "";
     $("verdict-items").innerHTML = (v.items || []).map((m) =>
       `<tr><td>${esc(m.name)}</td><td>${esc(m.value)}</td><td>${esc(m.limit)}</td><td>${esc(m.verdict)}</td><td>${esc(m.why)}</td></tr>`).join("");
@@ -91,14 +113,23 @@ function render(s) {
   if (run && run.progress_at_ms && run.progress_at_ms !== lastVersionShown) {
     const first = lastVersionShown === null;  // what the page found on opening is not a fresh sample
     lastVersionShown = run.progress_at_ms;
-    if (first) { return; }
-    requestAnimationFrame(() => window.__latencies.push(Date.now() - run.progress_at_ms));
+    if (!first) {  // the next frame starts once this one is painted
+      requestAnimationFrame(() => window.__latencies.push({ ms: Date.now() - run.progress_at_ms, sphere: sphereChanged }));
+    }
   }
+}
+
+// States arrive faster than a screen refreshes: keep the newest, draw it once per animation frame.
+let newest = null;
+function show(state) {
+  const pending = newest !== null;
+  newest = state;
+  if (!pending) { requestAnimationFrame(() => { const s = newest; newest = null; render(s); }); }
 }
 
 function connect() {
   const events = new EventSource("/api/events" + (token ? `?token=${encodeURIComponent(token)}` : ""));
-  events.addEventListener("state", (e) => { $("banner").hidden = true; render(JSON.parse(e.data)); });
+  events.addEventListener("state", (e) => { $("banner").hidden = true; show(JSON.parse(e.data)); });
   events.addEventListener("alive", () => { $("banner").hidden = true; });
   events.onopen = () => { $("banner").hidden = true; };
   events.onerror = () => { $("banner").hidden = false; };  // EventSource reconnects by itself
