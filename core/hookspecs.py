@@ -89,6 +89,21 @@ def magline_register_power_controls(register: Callable[[str, Callable[..., Any]]
 
 
 @hookspec
+def magline_register_motions(register: Callable[[str, Callable[..., Any]], None]) -> None:
+    """Add motions (what turns the units during acquisition) by name.  Called once at start-up.
+
+    :param register: call ``register(name, factory, options=Model)``; ``factory(station,
+        station_dir)`` returns a :class:`~magline.core.motion.Motion`: ``start(round, slots)`` begins
+        the pattern and returns once the fixture moves, ``stop()`` ends it, ``close()`` at the end
+        of the batch.  The name is the station file's ``motion.type``; the core registers
+        ``operator`` (a person tumbles the unit, prompted by the acquire phase).  On a station with
+        slots one motion serves every slot: the sequencer starts it once per shared acquisition
+        round, for the slots that need samples in that round, and stops it when the last of them has
+        its samples.  ``options=Model`` lets ``magline check`` validate ``motion.options``.
+    """
+
+
+@hookspec
 def magline_add_commands(subparsers: argparse._SubParsersAction) -> None:
     """Add sub-commands to the ``magline`` command line.  Called once, before arguments are parsed.
 
@@ -195,6 +210,26 @@ def magline_waiting(run: RunContext, what: str, elapsed_s: float, limit_s: float
     :param elapsed_s: seconds since the wait began.
     :param limit_s: when the station gives up (None when the backend does not say).
     """
+
+
+@hookspec
+def magline_motion_started(round: int, slots: list[str], motion: str) -> None:
+    """The shared motion began an acquisition round (slot-aware views; per-unit plugins can ignore it).
+
+    Called once per round, before any slot reads samples in it, from the thread of the slot that
+    completed the round's line-up.
+
+    :param round: 1 for the first pattern of the batch, 2 for the first shared retry, ...
+    :param slots: the slot ids reading samples in this round (on a station without slots: ``[""]``);
+        slots that already have an accepted attempt are not among them.
+    :param motion: the station's ``motion.type``.
+    """
+
+
+@hookspec
+def magline_motion_stopped(round: int, slots: list[str], motion: str) -> None:
+    """The shared motion ended a round: every slot of ``slots`` has its samples, or left the round
+    (link lost, abort).  Called once per round, after :func:`magline_motion_started`."""
 
 
 @hookspec

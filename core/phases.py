@@ -33,10 +33,10 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
     run.prompt(run.station.prompts.tumble if attempt == 1 else run.retry_advice or run.station.prompts.retry)
     tracker = CoverageTracker(cfg.coverage_bins)
     got = _Readings()
-    started = time.monotonic()
-    deadline = started + cfg.timeout_s
     try:
-        with closing(dut.samples(cfg.rate_hz)) as stream:
+        with run.shared_motion(), closing(dut.samples(cfg.rate_hz)) as stream:
+            started = time.monotonic()  # the fixture moves from here (a slot may have waited for the others)
+            deadline = started + cfg.timeout_s
             for chunk in stream:
                 taken = got.add(chunk, room=cfg.samples - got.count)
                 coverage = tracker.add(taken)

@@ -33,7 +33,7 @@ class PluginError(RuntimeError):
 
 
 class Plugins:
-    """The loaded plugins and their registries (DUT backends, field sources, result sinks, power controls)."""
+    """The loaded plugins and their registries (DUT backends, field sources, result sinks, power controls, motions)."""
 
     def __init__(self, pm: pluggy.PluginManager) -> None:
         self.pm = pm
@@ -42,6 +42,7 @@ class Plugins:
         self.field_sources: dict[str, Callable[..., Any]] = {}
         self.result_sinks: dict[str, Callable[..., Any]] = {}
         self.power_controls: dict[str, Callable[..., Any]] = {}
+        self.motions: dict[str, Callable[..., Any]] = {}
         # options models a plugin declared at registration (``register(name, factory, options=Model)``),
         # so ``magline check`` validates a product's options before any unit is connected
         self.option_models: dict[tuple[str, str], type] = {}
@@ -49,6 +50,7 @@ class Plugins:
         self._collect("field source", self.field_sources, self.hook.magline_register_field_sources)
         self._collect("result sink", self.result_sinks, self.hook.magline_register_result_sinks)
         self._collect("power control", self.power_controls, self.hook.magline_register_power_controls)
+        self._collect("motion", self.motions, self.hook.magline_register_motions)
 
     def _collect(self, kind: str, registry: dict[str, Any], hook: Any) -> None:
         def register(name: str, factory: Any, options: type | None = None) -> None:

@@ -112,3 +112,5 @@ class RunRecord:
     review_note: str = ""  # what the unit was compared with, or why it was not
     report: str = ""  # the unit's HTML report, when the station writes them (results.reports)
     report_error: str = ""  # why the report the station should have written is missing
+    slot: str | None = None  # the fixture position on a station with slots
+    slot_group: str | None = None  # the units that shared the motion with this one carry the same id

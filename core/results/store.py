@@ -99,7 +99,8 @@ class SqlStore:
                 run_uuid=str(uuid.uuid4()), serial=record.serial, part=record.part, station_id=record.station_id,
                 line=record.line, operator=record.operator, software_version=record.software_version,
                 limit_hash=record.limit_hash, started=record.started, verdict=RUNNING, owner=owner(),
-                earlier_runs=record.earlier_runs, station_hash=record.station_hash)).inserted_primary_key[0]
+                earlier_runs=record.earlier_runs, station_hash=record.station_hash, slot=record.slot,
+                slot_group=record.slot_group)).inserted_primary_key[0]
         record.run_id = self._write("starting the run's record", insert)
 
     def save_attempt(self, record: RunRecord, attempt: AttemptRecord) -> None:

@@ -41,6 +41,7 @@ runs = Table(
     Column("forwarded", Text),  # when an outbox forwarded this run to the central store
     Column("station_hash", Text), Column("reference_field_ut", Float),
     Column("review", Text), Column("review_note", Text),  # process-review flags (JSON) and what was compared
+    Column("slot", Text), Column("slot_group", Text),  # fixture position; units that shared one motion
     Index("runs_serial", "serial"), Index("runs_part_id", "part", "id"), Index("runs_started", "started"),
     Index("runs_running", "id", postgresql_where=text("verdict = 'running'"), sqlite_where=text("verdict = 'running'")),
 )

@@ -23,6 +23,7 @@ if TYPE_CHECKING:
     from magline.core.power import PowerControl
     from magline.core.record import PhaseResult, RunRecord
     from magline.core.sequencer.abort import AbortSwitch
+    from magline.core.sequencer.rounds import MotionRounds
     from magline.core.station.schema import Limit, Product, Station
 
 
@@ -80,7 +81,20 @@ class RunContext:
     retry_advice: str | None = None
     state: dict[str, Any] = field(default_factory=dict)  # scratch space for plugins
     abort: AbortSwitch | None = None
+    slot: str | None = None  # the fixture position on a station with slots (None: a one-unit station)
+    rounds: MotionRounds | None = None  # the motion this unit shares (see core/sequencer/rounds)
     _phase: PhaseResult | None = None
+
+    @contextmanager
+    def shared_motion(self) -> Iterator[int | None]:
+        """Around the reading of one attempt: waits for the shared motion's next round (the slots
+        that need samples lined up, the fixture moving) and yields its number; leaving the block
+        tells the motion this unit has its samples."""
+        if self.rounds is None:
+            yield None
+            return
+        with self.rounds.shared_round(self.slot or "", self.check_abort) as number:
+            yield number
 
     def check_abort(self) -> None:
         """A safe point in a long loop: raise :class:`~magline.core.faults.UnitAborted` when the

@@ -12,6 +12,7 @@ Rules the sequencer enforces whatever the plugins do:
 
 from __future__ import annotations
 
+import threading
 import time
 import traceback
 from collections.abc import Callable
@@ -30,8 +31,9 @@ from magline.core.record import AttemptRecord, Outcome, PersistReport, PhaseResu
 from magline.core.results.reading import RunFilter
 from magline.core.sequencer.abort import AbortSwitch
 from magline.core.sequencer.context import Acquisition, AcquisitionAborted, RunContext
+from magline.core.sequencer.rounds import MotionRounds
 from magline.core.sequencer.unit_log import unit_log_capture
-from magline.core.station.schema import Station
+from magline.core.station.schema import Slot, Station
 from magline.core.text import fmt, percent
 
 PHASES = ("identify", "connect", "acquire", "fit", "validate", "persist", "verify", "record")
@@ -57,27 +59,51 @@ class Sequencer:
         self.sink = sink_factory(station, self.station_dir)
         source_factory = plugins.field_sources[station.field_source.type]
         self.field_source = source_factory(station)
+        motion_factory = plugins.motions.get(station.motion.type)
+        if motion_factory is None:
+            raise StationFault(f"no motion named {station.motion.type!r} is loaded "
+                               f"(loaded: {', '.join(sorted(plugins.motions))})")
+        self.motion = motion_factory(station, self.station_dir)
         self.stopped: str | None = None  # why the batch was stopped (the cell's field is not trusted)
+        self.shared_lock = threading.RLock()  # slots running side by side share the field source
+
+    def rounds(self, slots: list[str]) -> MotionRounds:
+        """The shared motion's rounds for these slots (listeners hear each round start and stop)."""
+        kind = self.station.motion.type
+        return MotionRounds(
+            self.motion, slots,
+            started=lambda r, s: self.plugins.hook.magline_motion_started(round=r, slots=s, motion=kind),
+            stopped=lambda r, s: self.plugins.hook.magline_motion_stopped(round=r, slots=s, motion=kind))
 
     def close(self) -> None:
-        for obj in (self.field_source, self.sink):
+        for obj in (self.field_source, self.sink, self.motion):
             closer = getattr(obj, "close", None)
             if closer is not None:
                 closer()
 
     # ------------------------------------------------------------------ one unit
-    def run_unit(self, serial: str, part: str | None = None, operator: str = "") -> RunRecord:
-        part = part or self.station.default_part or next(iter(self.station.products))
+    def run_unit(self, serial: str, part: str | None = None, operator: str = "", slot: Slot | None = None,
+                 rounds: MotionRounds | None = None, abort: AbortSwitch | None = None,
+                 slot_group: str | None = None) -> RunRecord:
+        """One unit through every phase.  On a station with slots the slot runner calls this once per
+        slot, each on its own thread, with the slot, the shared motion's rounds and the slot's own
+        abort switch; alone, the unit has the motion to itself."""
+        part = slot.part if slot is not None else part or self.station.default_part or next(iter(self.station.products))
+        known = part in self.station.products
+        product = self.station.slot_product(slot) if slot is not None else self.station.products.get(part)
         record = RunRecord(serial=serial, part=part, station_id=self.station.station.id,
                            line=self.station.station.line, operator=operator,
                            software_version=__version__,
-                           limit_hash=self.station.limit_hash(part) if part in self.station.products else "",
-                           station_hash=self.station.content_hash())
+                           limit_hash=self.station.limit_hash(part) if known else "",
+                           station_hash=self.station.content_hash(),
+                           slot=slot.id if slot is not None else None, slot_group=slot_group)
+        slot_id = slot.id if slot is not None else ""
         run = RunContext(station=self.station, station_dir=self.station_dir, part=part,
-                         product=self.station.products.get(part), serial=serial, operator=operator,
+                         product=product, serial=serial, operator=operator,
                          plugins=self.plugins, record=record,
-                         limits=self.station.effective_limits(part) if part in self.station.products else {},
-                         abort=self.abort)
+                         limits=self.station.effective_limits(part) if known else {},
+                         abort=abort or self.abort, slot=slot.id if slot is not None else None,
+                         rounds=rounds or self.rounds([slot_id]))
         steps: list[tuple[str, Callable[[RunContext], Any]]] = [
             ("identify", self._identify), ("connect", self._connect), ("acquire", self._acquire),
             ("fit", self._fit), ("validate", self._validate), ("persist", self._persist),
@@ -85,8 +111,11 @@ class Sequencer:
         ]
         if self.stopped is not None:
             steps = [("identify", self._identify), ("connect", self._refuse_stopped_batch)]
-        with unit_log_capture(record):
-            return self._run_steps(run, steps)
+        with unit_log_capture(record, this_thread_only=slot is not None):
+            try:
+                return self._run_steps(run, steps)
+            finally:
+                run.rounds.leave(slot_id)
 
     def _run_steps(self, run: RunContext, steps: list[tuple[str, Callable[[RunContext], Any]]]) -> RunRecord:
         record = run.record
@@ -104,9 +133,10 @@ class Sequencer:
             last = record.phases[-1].name if record.phases else "identify"
             verdict, record.cause, record.aborted_phase = Outcome.ABORTED, f"{exc.reason} after {last}", last
         finally:
-            with self.abort.shielded():
+            run.rounds.leave(run.slot or "")  # the shared motion never waits for a unit that has ended
+            with run.abort.shielded():
                 self._cleanup(run)
-        with self.abort.shielded():
+        with run.abort.shielded():
             record.verdict = self._conclude(record, verdict or Outcome.PASS)
             if self._run_phase(run, "record", self._record) is not Outcome.PASS:
                 record.store = ""  # never reported as stored
@@ -128,10 +158,10 @@ class Sequencer:
         run.state["_phase_started"] = start
         try:
             if name in SHIELDED_PHASES:
-                with self.abort.shielded():
+                with run.abort.shielded():
                     step(run)
             else:
-                self.abort.check()
+                run.abort.check()
                 step(run)
             result.outcome = Outcome.PASS
         except UnitAborted as exc:
@@ -211,7 +241,8 @@ class Sequencer:
         if power_factory is None:
             raise StationFault(f"no power control named {run.product.power.method!r} is loaded")
         run.field_source = self.field_source
-        run.reference_field_ut = run.record.reference_field_ut = self.field_source.reference_field_ut()
+        with self.shared_lock:
+            run.reference_field_ut = run.record.reference_field_ut = self.field_source.reference_field_ut()
         run.log(f"reference field {run.reference_field_ut:.2f} µT")
         run.power = power_factory(run.product.power, self.station_dir)
         run.power.power_up()
@@ -232,6 +263,12 @@ class Sequencer:
         samples determine the calibration (its refusal is the stronger check), and its advice
         becomes the operator's prompt for the next attempt.
         """
+        try:
+            self._acquire_attempts(run)
+        finally:
+            run.rounds.leave(run.slot or "")  # accepted or given up: the next rounds go without this unit
+
+    def _acquire_attempts(self, run: RunContext) -> None:
         acq = self.station.acquisition
         refusal: FitRefused | None = None
         for attempt in range(1, acq.retries + 2):
@@ -405,7 +442,11 @@ class Sequencer:
             if target is None:
                 continue
             try:
-                getattr(target, action)()
+                if target is run.field_source:
+                    with self.shared_lock:
+                        getattr(target, action)()
+                else:
+                    getattr(target, action)()
             except NotRestored as exc:
                 run.record.left_changed.update(exc.left_changed)
                 run.record.phases[-1].log.append(str(exc))

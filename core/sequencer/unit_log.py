@@ -11,6 +11,7 @@ prints library warnings on the console.
 from __future__ import annotations
 
 import logging
+import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 
@@ -21,11 +22,14 @@ LOGGER.addHandler(logging.NullHandler())
 
 
 class _ToRecord(logging.Handler):
-    def __init__(self, record: RunRecord) -> None:
+    def __init__(self, record: RunRecord, thread: int | None) -> None:
         super().__init__(logging.DEBUG)
         self.record = record
+        self.thread = thread
 
     def emit(self, entry: logging.LogRecord) -> None:
+        if self.thread is not None and entry.thread != self.thread:
+            return  # another slot's unit (slots run side by side, one thread each)
         if self.record.phases:
             try:
                 self.record.phases[-1].log.append(f"{entry.name}: {entry.getMessage()}")
@@ -34,13 +38,24 @@ class _ToRecord(logging.Handler):
 
 
 @contextmanager
-def unit_log_capture(record: RunRecord) -> Iterator[None]:
-    handler = _ToRecord(record)
-    level = LOGGER.level
+def unit_log_capture(record: RunRecord, this_thread_only: bool = False) -> Iterator[None]:
+    """While the block runs, ``magline`` log lines go to the record (``this_thread_only``: only
+    those of the calling thread, when several units run side by side)."""
+    handler = _ToRecord(record, threading.get_ident() if this_thread_only else None)
     LOGGER.addHandler(handler)
-    LOGGER.setLevel(logging.INFO)
+    with _LEVEL_LOCK:
+        global _CAPTURING
+        _CAPTURING += 1
+        LOGGER.setLevel(logging.INFO)
     try:
         yield
     finally:
         LOGGER.removeHandler(handler)
-        LOGGER.setLevel(level)
+        with _LEVEL_LOCK:
+            _CAPTURING -= 1
+            if not _CAPTURING:
+                LOGGER.setLevel(logging.NOTSET)
+
+
+_LEVEL_LOCK = threading.Lock()
+_CAPTURING = 0  # units capturing now (the level goes back when the last one ends)

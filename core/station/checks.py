@@ -71,8 +71,19 @@ def _plugin_problems(data: dict, text: str, name: str, plugins: Plugins) -> list
                     unknown(("products", part, "power", "method"), "power control", method, plugins.power_controls)
                 out += _option_problems(plugins, ("power control", method), power.get("options"),
                                         ("products", part, "power", "options"), text, name)
+    for index, slot in enumerate(data.get("slots") or []):
+        product = products.get(slot.get("part")) if isinstance(slot, dict) and isinstance(products, dict) else None
+        if isinstance(product, dict) and isinstance(slot.get("options"), dict) and slot["options"]:
+            merged = {**(product.get("options") or {}), **slot["options"]}
+            out += _option_problems(plugins, ("dut backend", product.get("backend")), merged,
+                                    ("slots", index, "options"), text, name)
+    motion = data.get("motion")
+    if isinstance(motion, dict) and isinstance(motion.get("type", "operator"), str):
+        out += _option_problems(plugins, ("motion", motion.get("type", "operator")), motion.get("options"),
+                                ("motion", "options"), text, name)
     for section, key, what, registry in (("field_source", "type", "field source", plugins.field_sources),
-                                         ("results", "sink", "results sink", plugins.result_sinks)):
+                                         ("results", "sink", "results sink", plugins.result_sinks),
+                                         ("motion", "type", "motion", plugins.motions)):
         block = data.get(section)
         value = block.get(key) if isinstance(block, dict) else None
         if isinstance(value, str) and value not in registry:

@@ -164,6 +164,27 @@ class Results(_Strict):
     reports: str | None = None  # a folder (relative to the station file): the unit's HTML report after each run
 
 
+class Motion(_Strict):
+    """What turns the units during acquisition: ``operator`` (the default: a person tumbles the unit
+    or the fixture, prompted by the screen) or a plugin's motion (e.g. ``gimbal``) with its options.
+    On a station with slots, one motion serves every slot."""
+
+    type: str = "operator"
+    options: dict[str, Any] = Field(default_factory=dict)
+
+
+class Slot(_Strict):
+    """One position on a shared fixture (gimbal, coil, tumble cradle): its own DUT link and,
+    optionally, its own power control; everything else comes from the part's product entry.
+    ``options`` are merged over the product's options (e.g. a storage path per slot)."""
+
+    id: Annotated[str, Field(pattern=r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")]
+    part: str
+    connection: str | None = None
+    options: dict[str, Any] = Field(default_factory=dict)
+    power: PowerConfig | None = None
+
+
 class Prompts(_Strict):
     serial: str = "Scan the unit's serial number"
     tumble: str = "Tumble the unit slowly through all orientations"
@@ -182,12 +203,38 @@ class Station(_Strict):
     results: Results = Field(default_factory=Results)
     review: ReviewSettings = Field(default_factory=ReviewSettings)
     prompts: Prompts = Field(default_factory=Prompts)
+    motion: Motion = Field(default_factory=Motion)
+    slots: list[Slot] = Field(default_factory=list)
 
     @model_validator(mode="after")
     def _consistent(self) -> Station:
         if self.default_part is not None and self.default_part not in self.products:
             raise ValueError(f"default_part {self.default_part!r} is not one of the products")
+        ids = [s.id for s in self.slots]
+        if len(set(ids)) != len(ids):
+            raise ValueError(f"slot ids must be unique (got {', '.join(ids)})")
+        for slot in self.slots:
+            if slot.part not in self.products:
+                raise ValueError(f"slot {slot.id}: part {slot.part!r} is not one of the products "
+                                 f"({', '.join(self.products)})")
         return self
+
+    def slot(self, slot_id: str) -> Slot:
+        for slot in self.slots:
+            if slot.id == slot_id:
+                return slot
+        raise KeyError(f"no slot {slot_id!r} on station {self.station.id} (slots: "
+                       f"{', '.join(s.id for s in self.slots) or 'none'})")
+
+    def slot_product(self, slot: Slot) -> Product:
+        """The part's product entry as this slot runs it: its own link, options and power."""
+        product = self.products[slot.part]
+        update: dict[str, Any] = {"options": {**product.options, **slot.options}}
+        if slot.connection is not None:
+            update["connection"] = slot.connection
+        if slot.power is not None:
+            update["power"] = slot.power
+        return product.model_copy(update=update)
 
     def effective_limits(self, part: str) -> dict[str, Limit]:
         """Line-wide limits with the product's overrides applied."""

@@ -13,6 +13,7 @@ from contextlib import closing
 import numpy as np
 
 from magline.core.dut import DutError
+from magline.core.faults import StationFault
 from magline.core.fit import FitOptions, FitResult
 from magline.core.fit.affine import fit_affine
 from magline.core.fit.samples_csv import RawSamples
@@ -32,6 +33,9 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition | None:
     source = run.field_source
     if not isinstance(source, HelmholtzField):
         return None
+    if run.slot is not None:
+        raise StationFault("a coil station cannot run slots yet: the coil's schedule is not shared between "
+                           "units; remove slots: from the station file")
     opts = source.opts
     steps = schedule(opts)
     if source.shift_report:  # the shift checks' figures travel with the unit that triggered them

@@ -16,16 +16,20 @@ from typing import Any
 
 def add_sim_command(subparsers: argparse._SubParsersAction) -> None:
     sim = subparsers.add_parser("sim", help="run a simulated flight controller (MAVLink) or Helmholtz coil (SCPI)")
-    sim.add_argument("flavour", choices=["px4", "ardupilot", "coil"],
+    sim.add_argument("flavour", choices=["px4", "ardupilot", "coil", "gimbal"],
                      help="coil: a 3-axis Helmholtz coil current source (default tcp:127.0.0.1:5026) with a "
-                          "fluxgate DAQ at its centre (--fluxgate, default tcp:127.0.0.1:5027)")
+                          "fluxgate DAQ at its centre (--fluxgate, default tcp:127.0.0.1:5027); gimbal: a "
+                          "motorised gimbal controller (default tcp:127.0.0.1:5030) for slot stations")
     sim.add_argument("--listen", help="udp:HOST:PORT or tcp:HOST:PORT (default: px4 udp:127.0.0.1:14550, "
                                       "ardupilot tcp:127.0.0.1:5760; port 0 picks a free one)")
     sim.add_argument("--workdir", default=".", help="where the parameter storage file lives (default: .)")
     sim.add_argument("--mags", type=int, default=1, choices=[1, 2, 3], help="number of magnetometers")
     sim.add_argument("--boot-time", type=float, default=2.0, help="seconds silent after a reboot (default 2)")
-    sim.add_argument("--motion", default="tumble",
-                     help="comma list, one per acquisition (tumble, single_axis, gimbal, still); last repeats")
+    sim.add_argument("--motion",
+                     help="comma list, one per acquisition (tumble, single_axis, gimbal, still, shared); last "
+                          "repeats (default: tumble, or shared with --gimbal)")
+    sim.add_argument("--gimbal", metavar="tcp:HOST:PORT",
+                     help="the board is mounted on this gimbal simulator and moves with it (motion 'shared')")
     sim.add_argument("--speed", type=float, default=1.0, help="tumble speed factor")
     sim.add_argument("--field-ut", type=float, default=48.0, help="local field magnitude (µT)")
     sim.add_argument("--inclination-deg", type=float, default=62.0)
@@ -78,18 +82,21 @@ def _serve(lines: list[str], wait: Callable[[], None], stop: Callable[[], None])
 def run_sim(args: argparse.Namespace) -> int:
     if args.flavour == "coil":
         return run_coil_sim(args)
+    if args.flavour == "gimbal":
+        return run_gimbal_sim(args)
     from magline.plugins.mock.sim import SimFaults, create_sim
     from magline.plugins.mock.sim.magnetometers import MOTIONS
 
-    motions = tuple(m.strip() for m in args.motion.split(",") if m.strip())
-    unknown = [m for m in motions if m not in MOTIONS]
+    motions = tuple(m.strip() for m in (args.motion or "").split(",") if m.strip()) or None
+    unknown = [m for m in motions or () if m not in MOTIONS]
     try:
         if unknown:
             raise ValueError(f"unknown motion {unknown[0]!r}; choose from {', '.join(MOTIONS)}")
         options: dict[str, Any] = {"workdir": args.workdir, "mag_count": args.mags, "boot_time_s": args.boot_time,
                                    "motions": motions, "speed": args.speed, "field_ut": args.field_ut,
                                    "inclination_deg": args.inclination_deg, "seed": args.seed,
-                                   "faults": SimFaults.parse(args.fault), "mag_rate_hz": args.mag_rate}
+                                   "faults": SimFaults.parse(args.fault), "mag_rate_hz": args.mag_rate,
+                                   "motion_source": args.gimbal}
         if args.flavour == "px4":
             options.update(firmware=args.firmware, shell=not args.no_shell, preset_ids=args.preset_ids)
         sim = create_sim(args.flavour, args.listen, **options)
@@ -144,3 +151,22 @@ def run_coil_sim(args: argparse.Namespace) -> int:
         fluxgate.stop()
 
     return _serve(lines, wait, stop)
+
+
+def run_gimbal_sim(args: argparse.Namespace) -> int:
+    from magline.plugins.mock.sim.gimbal import GimbalSim
+
+    try:
+        gimbal = GimbalSim(args.listen or "tcp:127.0.0.1:5030").start()
+    except (ValueError, OSError) as exc:
+        print(f"magline sim: {exc}", file=sys.stderr)
+        return 2
+    lines = [f"listening on {gimbal.address}",
+             f"gimbal controller (VISA {gimbal.visa_resource}); mount simulated boards on it with "
+             f"magline sim px4|ardupilot --gimbal {gimbal.address}"]
+
+    def wait() -> None:
+        while not gimbal._stop.wait(0.5):
+            pass
+
+    return _serve(lines, wait, gimbal.stop)

@@ -74,7 +74,7 @@ def default_magnetometers(count: int, rng: np.random.Generator) -> list[SimMagne
 
 # --------------------------------------------------------------------------- attitude
 
-MOTIONS = ("tumble", "single_axis", "gimbal", "still")
+MOTIONS = ("tumble", "single_axis", "gimbal", "still", "shared")  # shared: follow a gimbal simulator
 SWEEP_S = 8.0  # a full pole-to-pole sweep of the tumble at speed 1
 SPIN_RAD_S = 2 * np.pi * 0.9
 
@@ -105,7 +105,7 @@ def attitude(motion: str, t: float, speed: float = 1.0, field_dir: NDArray | Non
     if motion == "still":
         return Rotation.identity()
     if motion not in ("tumble", "gimbal"):
-        raise ValueError(f"unknown motion {motion!r}; choose from {', '.join(MOTIONS)}")
+        raise ValueError(f"unknown motion {motion!r}; choose from {', '.join(m for m in MOTIONS if m != 'shared')}")
     f = np.array([0.47, 0.0, 0.88]) if field_dir is None else field_dir / np.linalg.norm(field_dir)
     body_dir = _spiral(t, stepped=motion == "gimbal")
     view, _ = Rotation.align_vectors([body_dir], [f])  # maps the NED field direction into the body

@@ -81,10 +81,10 @@ class SimulatedAutopilot(ABC):
     def __init__(self, listen: str | None = None, *, workdir: str | Path = ".",
                  magnetometers: list[SimMagnetometer] | None = None, mag_count: int = 1,
                  field_ut: float = 48.0, inclination_deg: float = 62.0,
-                 motions: tuple[str, ...] = ("tumble",), speed: float = 1.0, boot_time_s: float = 2.0,
+                 motions: tuple[str, ...] | None = None, speed: float = 1.0, boot_time_s: float = 2.0,
                  faults: SimFaults | None = None, seed: int | None = None, system_id: int = 1,
                  save_duration_s: float = 0.05, field_provider: Callable[[], NDArray] | None = None,
-                 mag_rate_hz: float | None = None) -> None:
+                 mag_rate_hz: float | None = None, motion_source: str | None = None) -> None:
         self.listen = listen or self.default_listen
         self.workdir = Path(workdir)
         self.rng = np.random.default_rng(seed)
@@ -92,7 +92,12 @@ class SimulatedAutopilot(ABC):
         self.magnetometers = magnetometers or default_magnetometers(mag_count, self.rng)
         self.field_ned = earth_field_ned(field_ut, inclination_deg)
         self.field_ut = field_ut
-        self.motions = tuple(motions)
+        # ``shared``: the board is mounted on a (simulated) gimbal at ``motion_source`` and moves with it
+        self.motions = tuple(motions or (("shared",) if motion_source else ("tumble",)))
+        if "shared" in self.motions and not motion_source:
+            raise ValueError("the shared motion needs motion_source (the gimbal simulator's tcp:HOST:PORT)")
+        self.motion_source = motion_source
+        self.follower = None
         self.speed = speed
         self.boot_time_s = boot_time_s
         self.faults = faults or SimFaults()
@@ -173,6 +178,10 @@ class SimulatedAutopilot(ABC):
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> SimulatedAutopilot:
         self.workdir.mkdir(parents=True, exist_ok=True)
+        if self.motion_source:
+            from magline.plugins.mock.sim.gimbal import MotionFollower
+
+            self.follower = MotionFollower(self.motion_source)
         self.link = open_server(self.listen)
         self.listen = self.link.address
         with self.lock:
@@ -183,6 +192,8 @@ class SimulatedAutopilot(ABC):
 
     def stop(self) -> None:
         self._stop.set()
+        if self.follower is not None:
+            self.follower.stop()
         if self._thread is not None:
             self._thread.join(timeout=5)
         if self.link is not None:
@@ -378,6 +389,8 @@ class SimulatedAutopilot(ABC):
 
     def attitude_at(self, now: float) -> Rotation:
         motion = self.motions[min(max(self._motion_index, 0), len(self.motions) - 1)]
+        if motion == "shared" and self.follower is not None:
+            return self.follower.attitude()
         return attitude(motion, now - self._t0, self.speed, self.field_ned)
 
     def body_field_ut(self, now: float) -> NDArray:

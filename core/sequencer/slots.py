@@ -1,0 +1,105 @@
+"""Several units at once on one fixture: one thread per slot, one shared motion.
+
+Why threads around the one-unit sequencer rather than a second sequencer: every phase, rule and
+record of a unit stays exactly what ``magline run`` does for one unit; only the acquisition waits
+for the shared motion's round (:mod:`magline.core.sequencer.rounds`).  A slot's fault, refusal
+or abort ends that slot's unit and nothing else.  The station-wide objects the slots share (the
+results store, the field source and its reference instrument) are called under a lock, so their
+writes and instrument sessions never interleave.
+"""
+
+from __future__ import annotations
+
+import threading
+import uuid
+from typing import Any
+
+from magline.core.faults import UnitAborted
+from magline.core.record import Outcome, RunRecord
+from magline.core.sequencer.abort import AbortSwitch
+from magline.core.sequencer.sequencer import Sequencer
+
+JOIN_S = 0.2
+
+
+class Serialized:
+    """A shared object whose methods run one at a time (a results store, a field source)."""
+
+    def __init__(self, target: Any) -> None:
+        self._target = target
+        self._lock = threading.RLock()
+
+    def __getattr__(self, name: str) -> Any:
+        value = getattr(self._target, name)
+        if not callable(value):
+            return value
+
+        def locked(*args: Any, **kwargs: Any) -> Any:
+            with self._lock:
+                return value(*args, **kwargs)
+
+        return locked
+
+
+class SlotRunner:
+    """Runs the units of a slot station together (``run``: slot id → serial, empty slots left out)."""
+
+    def __init__(self, sequencer: Sequencer) -> None:
+        if not sequencer.station.slots:
+            raise ValueError(f"station {sequencer.station.station.id} declares no slots")
+        self.sequencer = sequencer
+        if not isinstance(sequencer.sink, Serialized):
+            sequencer.sink = Serialized(sequencer.sink)  # the field source: under sequencer.shared_lock
+        self.switches: dict[str, AbortSwitch] = {}
+
+    def run(self, serials: dict[str, str], operator: str = "") -> list[RunRecord]:
+        """The records of the slots that held a unit, in the station file's slot order."""
+        station = self.sequencer.station
+        unknown = [s for s in serials if s not in {slot.id for slot in station.slots}]
+        if unknown:
+            raise KeyError(f"no slot {unknown[0]!r} on station {station.station.id} "
+                           f"(slots: {', '.join(s.id for s in station.slots)})")
+        slots = [slot for slot in station.slots if serials.get(slot.id, "").strip()]
+        if not slots:
+            return []
+        group = str(uuid.uuid4())
+        rounds = self.sequencer.rounds([slot.id for slot in slots])
+        self.switches = {slot.id: AbortSwitch() for slot in slots}
+        records: dict[str, RunRecord] = {}
+
+        def unit(slot: Any) -> None:
+            try:
+                records[slot.id] = self.sequencer.run_unit(serials[slot.id].strip(), operator=operator, slot=slot,
+                                                           rounds=rounds, abort=self.switches[slot.id],
+                                                           slot_group=group)
+            except BaseException as exc:  # run_unit classifies every fault itself; this is a last guard
+                record = RunRecord(serial=serials[slot.id], part=slot.part, station_id=station.station.id,
+                                   line=station.station.line, operator=operator, software_version="",
+                                   limit_hash="", slot=slot.id, slot_group=group)
+                record.verdict, record.cause = Outcome.ERROR, f"slot {slot.id} stopped: {exc}"
+                records[slot.id] = record
+                rounds.leave(slot.id)
+
+        threads = [threading.Thread(target=unit, args=(slot,), name=f"magline-slot-{slot.id}", daemon=True)
+                   for slot in slots]
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            while thread.is_alive():
+                try:
+                    thread.join(JOIN_S)
+                    self._pass_on_abort()
+                except UnitAborted as exc:  # Ctrl-C / SIGTERM on the main thread: every slot stops safely
+                    self.abort(exc.reason)
+        return [records[slot.id] for slot in slots]
+
+    def _pass_on_abort(self) -> None:
+        requested = self.sequencer.abort.requested
+        if requested is not None:
+            self.abort(requested)
+
+    def abort(self, reason: str) -> None:
+        """Every slot stops at its next safe point (its DUT restored, its record saying aborted)."""
+        for switch in self.switches.values():
+            if switch.requested is None:
+                switch.requested = reason

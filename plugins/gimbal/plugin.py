@@ -1,0 +1,11 @@
+"""Registers the ``gimbal`` motion (``motion: {type: gimbal, options: {resource: …}}``)."""
+
+from __future__ import annotations
+
+from magline.core.plugins import hookimpl
+from magline.plugins.gimbal.motion import GimbalOptions, create_gimbal_motion
+
+
+@hookimpl
+def magline_register_motions(register):
+    register("gimbal", create_gimbal_motion, options=GimbalOptions)

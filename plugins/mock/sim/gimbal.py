@@ -1,0 +1,116 @@
+"""A simulated motorised gimbal (the controller ``plugins/gimbal`` drives) and the follower that lets
+simulated flight controllers mounted on it feel its motion.
+
+Why a separate simulator: on a slot station the units share one motion.  Each simulated flight
+controller given ``motion_source`` asks the gimbal what it is doing (``PATT?``, every
+``FOLLOW_S``) and turns the Earth field into its body frame with the gimbal's attitude: the same
+pattern function, started at the same wall-clock time, so four boards on one gimbal see the same
+orientations at the same moment, as on the line.
+"""
+
+from __future__ import annotations
+
+import socket
+import threading
+import time
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from magline.plugins.mock.sim.magnetometers import attitude
+from magline.plugins.mock.sim.scpi_server import ScpiServer
+
+PATTERNS = ("TUMBLE", "GIMBAL")
+FOLLOW_S = 0.05
+
+
+class GimbalSim(ScpiServer):
+    identity = "magline,SIM-GIMBAL,0001,1.0"
+
+    def __init__(self, listen: str = "tcp:127.0.0.1:5030") -> None:
+        super().__init__(listen)
+        self.pattern: str | None = None
+        self.speed = 1.0
+        self.t0 = 0.0
+        self.held = Rotation.identity()
+        self.starts = 0  # patterns started (a test counts the shared rounds)
+
+    def attitude(self, at: float | None = None) -> Rotation:
+        """The platform's attitude (body → NED) at wall-clock time ``at``."""
+        with self.lock:
+            if self.pattern is None:
+                return self.held
+            return attitude(self.pattern.lower(), (at or time.time()) - self.t0, self.speed)
+
+    def command(self, head: str, arg: str) -> str | None:
+        if head in ("PATT:STAR", "PATTERN:START"):
+            name, _, speed = arg.partition(",")
+            if name.strip().upper() not in PATTERNS:
+                self.errors.append(f'-224,"Illegal parameter value; pattern {name.strip()[:20]}"')
+                return None
+            self.pattern, self.speed = name.strip().upper(), float(speed or 1.0)
+            self.t0 = time.time()
+            self.starts += 1
+            return None
+        if head in ("PATT:STOP", "PATTERN:STOP"):
+            if self.pattern is not None:
+                self.held = attitude(self.pattern.lower(), time.time() - self.t0, self.speed)
+            self.pattern = None
+            return None
+        if head in ("PATT?", "PATTERN?"):
+            if self.pattern is None:
+                q = self.held.as_quat()
+                return "IDLE," + ",".join(f"{v:.9f}" for v in q)
+            return f"{self.pattern},{self.speed:g},{self.t0:.6f}"
+        raise KeyError(head)
+
+
+class MotionFollower:
+    """A board's view of the gimbal it is mounted on: polls ``PATT?`` and computes the attitude
+    locally, so a board reads its sensors at its own rate without a round trip per reading."""
+
+    def __init__(self, address: str) -> None:
+        _, host, port = address.split(":")
+        self.address = (host, int(port))
+        self._pattern: tuple[str, float, float] | None = None
+        self._held = Rotation.identity()
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self.error: str | None = None
+        self._thread = threading.Thread(target=self._follow, name="sim-gimbal-follower", daemon=True)
+        self._thread.start()
+
+    def attitude(self) -> Rotation:
+        with self._lock:
+            if self._pattern is None:
+                return self._held
+            name, speed, t0 = self._pattern
+        return attitude(name.lower(), time.time() - t0, speed)
+
+    def stop(self) -> None:
+        self._stop.set()
+
+    def _follow(self) -> None:
+        while not self._stop.is_set():
+            try:
+                with socket.create_connection(self.address, timeout=2.0) as link, \
+                        link.makefile("rw", encoding="ascii", newline="\n") as wire:
+                    self.error = None
+                    while not self._stop.wait(FOLLOW_S):
+                        wire.write("PATT?\n")
+                        wire.flush()
+                        self._update(wire.readline().strip())
+            except (OSError, ValueError) as exc:
+                self.error = f"gimbal {self.address[0]}:{self.address[1]}: {exc}"
+                self._stop.wait(0.5)
+
+    def _update(self, answer: str) -> None:
+        parts = answer.split(",")
+        if not answer:
+            raise ValueError("no answer")
+        with self._lock:
+            if parts[0] == "IDLE":
+                self._pattern = None
+                self._held = Rotation.from_quat(np.array([float(v) for v in parts[1:5]]))
+            else:
+                self._pattern = (parts[0], float(parts[1]), float(parts[2]))
