@@ -24,7 +24,7 @@ from magline.core.fit.samples_csv import SampleFileError, read_samples
 from magline.core.plugins import PluginError, Plugins, load_plugins
 from magline.core.record import Outcome
 from magline.core.station import Station, StationError
-from magline.core.station.checks import station_problems
+from magline.core.station.checks import did_you_mean, station_problems
 from magline.core.station.loader import read_station_text
 from magline.core.text import fmt, percent
 
@@ -39,7 +39,10 @@ def main(argv: list[str] | None = None) -> int:
 
     run = sub.add_parser("run", help="calibrate units on a station (default: the embedded mock demo)")
     run.add_argument("station", nargs="?", help="station file (default: the embedded demo station)")
-    run.add_argument("--serial", help="unit serial (else prompt, or generated for the demo)")
+    run.add_argument("--serial", action="append", metavar="SERIAL | SLOT=SERIAL",
+                     help="unit serial (else prompt, or generated for the demo); on a station with slots, "
+                          "once per slot: --serial A=SN-1 --serial B=SN-2 (slots not named are prompted for, "
+                          "an empty answer leaves the slot empty)")
     run.add_argument("--part", help="part number (else the station's default)")
     run.add_argument("--operator", default="", help="operator name for the record")
     run.add_argument("--loop", action="store_true", help="keep prompting for the next serial")
@@ -153,12 +156,22 @@ def _run(args: argparse.Namespace, plugins: Plugins) -> int:
         _err(str(exc))  # includes instruments that do not answer at start-up
         return 2
     batch = Batch()
-    serials = _serials(args, station)
     try:
+        units = _slot_batches(args, station) if station.slots else (
+            {"": serial} for serial in _serials(args, station))
         with sequencer.abort.signals():
             try:
-                for serial in serials:
-                    batch.add(sequencer.run_unit(serial, args.part, args.operator))
+                for unit in units:
+                    if station.slots:
+                        from magline.core.sequencer.slots import SlotRunner
+
+                        records = SlotRunner(sequencer).run(unit, args.operator)
+                        if not records:
+                            break
+                    else:
+                        records = [sequencer.run_unit(unit[""], args.part, args.operator)]
+                    for record in records:
+                        batch.add(record)
                     if sequencer.abort.requested is not None:
                         break
                     if sequencer.stopped is not None:
@@ -166,6 +179,9 @@ def _run(args: argparse.Namespace, plugins: Plugins) -> int:
                         break
             except UnitAborted as exc:  # at the serial prompt: nothing to restore
                 console.note(f"{exc.reason}: no unit under test")
+    except ValueError as exc:  # --serial that does not fit the station
+        _err(str(exc))
+        return 2
     finally:
         sequencer.close()
     if batch.units == 0:
@@ -176,12 +192,50 @@ def _run(args: argparse.Namespace, plugins: Plugins) -> int:
     return batch.exit_code()
 
 
+def _slot_batches(args: argparse.Namespace, station: Station) -> Iterator[dict[str, str]]:
+    """Slot id → serial for each load of the fixture: the ``--serial SLOT=SERIAL`` given (slots not
+    named stay empty), else the operator is asked slot by slot (an empty answer leaves the slot
+    empty); with ``--loop`` asked again for each next load, until every slot is left empty."""
+    ids = [slot.id for slot in station.slots]
+    given: dict[str, str] = {}
+    for item in args.serial or []:
+        slot, sep, serial = item.partition("=")
+        if not sep:
+            raise ValueError(f"station {station.station.id} has slots ({', '.join(ids)}): "
+                             f"give --serial SLOT=SERIAL, not {item!r}")
+        if slot.strip() not in ids:
+            raise ValueError(f"--serial {item}: no slot {slot.strip()!r} on station {station.station.id} "
+                             f"(slots: {', '.join(ids)}){did_you_mean(slot.strip(), ids)}")
+        given[slot.strip()] = serial.strip()
+    if given:
+        yield given
+        if not args.loop:
+            return
+    while (load := _ask_slots(station)) is not None:
+        yield load
+        if not args.loop:
+            return
+
+
+def _ask_slots(station: Station) -> dict[str, str] | None:
+    """One serial per slot from the operator (or a scanner); None when every slot is left empty."""
+    load: dict[str, str] = {}
+    for slot in station.slots:
+        try:
+            load[slot.id] = input(f"slot {slot.id} ({slot.part}) — {station.prompts.serial} (empty: no unit): ").strip()
+        except EOFError:
+            break
+    return load if any(load.values()) else None
+
+
 def _serials(args: argparse.Namespace, station: Station) -> Iterator[str]:
     """The units to test: ``--serial`` first, then (with ``--loop``) one per line the operator or a
     barcode scanner types, until an empty line or EOF.  Only the embedded demo without a terminal
     and without ``--loop`` invents one serial, so ``magline run`` works in a plain script."""
+    if args.serial and len(args.serial) > 1:
+        raise ValueError(f"station {station.station.id} has no slots: give one --serial")
     if args.serial:
-        yield args.serial
+        yield args.serial[0]
     elif args.station is None and not args.loop and not sys.stdin.isatty():
         from datetime import UTC, datetime
         yield "DEMO-" + datetime.now(UTC).strftime("%Y%m%d-%H%M%S")

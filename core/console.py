@@ -12,6 +12,7 @@ from rich.console import Console
 from rich.panel import Panel
 from rich.progress import BarColumn, Progress, TaskID, TextColumn
 
+from magline.core.console_slots import SlotBoard
 from magline.core.measurements import Verdict, verdicts
 from magline.core.plugins import hookimpl
 from magline.core.record import Outcome, PhaseResult, RunRecord
@@ -36,17 +37,22 @@ class OperatorConsole:
         self._attempt = 0
         self._last_pct = -1
         self._last_wait = -1
+        self.slots = SlotBoard(self.console, self.live)  # units of a station with slots, one panel each
 
     def note(self, text: str) -> None:
         self.console.print(text)
 
     @hookimpl
     def magline_phase_started(self, run: RunContext, phase: str) -> None:
+        if run.slot is not None:
+            return self.slots.phase_started(run, phase)
         if phase != "record":
             self.console.print(f"[bold]{phase:>9}[/bold] …")
 
     @hookimpl
     def magline_phase_finished(self, run: RunContext, phase: str, result: PhaseResult) -> None:
+        if run.slot is not None:
+            return self.slots.phase_finished(run, phase, result)
         self._stop_progress()
         self._last_wait = -1
         if phase == "record" and result.outcome is Outcome.PASS:
@@ -58,10 +64,14 @@ class OperatorConsole:
 
     @hookimpl
     def magline_operator_prompt(self, run: RunContext, message: str) -> None:
+        if run.slot is not None:
+            return self.slots.prompt(run, message)
         self.console.print(f"[bold yellow]>>> {message}[/]")
 
     @hookimpl
     def magline_waiting(self, run: RunContext, what: str, elapsed_s: float, limit_s: float | None) -> None:
+        if run.slot is not None:
+            return self.slots.waiting(run, what, elapsed_s, limit_s)
         whole = int(elapsed_s)
         if not self.live and whole // WAIT_EVERY_S == self._last_wait // WAIT_EVERY_S:
             return
@@ -72,6 +82,8 @@ class OperatorConsole:
     @hookimpl
     def magline_acquisition_progress(self, run: RunContext, attempt: int, samples: int, coverage: float,
                                      target: float) -> None:
+        if run.slot is not None:
+            return self.slots.progress(run, attempt, samples, coverage, target)
         pct = int(coverage * 100)
         if not self.live:
             if attempt != self._attempt or pct // 10 != self._last_pct // 10:
@@ -99,8 +111,24 @@ class OperatorConsole:
     def magline_unit_finished(self, run: RunContext, record: RunRecord) -> None:
         style = STYLE.get(record.verdict, "red")
         title = record.verdict.upper() + (" · REVIEW" if record.review else "")
-        self.console.print(Panel("\n".join(verdict_lines(record)), title=f"[bold {style}]{title}[/]",
-                                 border_style=style, expand=False))
+        if record.slot is not None:
+            title = f"slot {record.slot} · {title}"
+        panel = Panel("\n".join(verdict_lines(record)), title=f"[bold {style}]{title}[/]", border_style=style,
+                      expand=False)
+        if run.slot is not None:
+            return self.slots.finished(run, record, panel)
+        self.console.print(panel)
+
+    @hookimpl
+    def magline_motion_started(self, round: int, slots: list[str], motion: str) -> None:
+        if slots != [""]:
+            self.slots.round(f"{motion} round {round}: slot{'s' if len(slots) > 1 else ''} {', '.join(slots)} "
+                             "sampling")
+
+    @hookimpl
+    def magline_motion_stopped(self, round: int, slots: list[str], motion: str) -> None:
+        if slots != [""]:
+            self.slots.round(f"{motion} round {round} done")
 
     def batch_summary(self, batch: Batch) -> None:
         self.console.print(f"[bold]{batch.summary()}[/]")

@@ -235,3 +235,29 @@ def test_off_loopback_every_request_needs_the_operator_token(screen):
     bearer = urllib.request.Request(served.url + "api/state", headers={"Authorization": "Bearer s3cret-token"})
     with urllib.request.urlopen(bearer, timeout=10) as answer:
         assert answer.status == 200
+
+
+def test_a_slot_station_shows_one_panel_per_slot_and_starts_a_load_from_the_keyboard(screen, browser, tmp_path):
+    served, _ = screen({"slots": [{"id": "A", "part": "MOCK-100", "options": {"storage": "slot-a.json"}},
+                                  {"id": "B", "part": "MOCK-100", "options": {"storage": "slot-b.json"}},
+                                  {"id": "C", "part": "MOCK-100", "options": {"storage": "slot-c.json"}}]})
+    opened = open_page(browser, served.url)
+    page = opened.page
+    page.wait_for_selector(".slot[data-slot='C']")
+    assert page.is_hidden("#start-form") and page.is_visible("#slot-form")
+    page.keyboard.type("LOAD-A")  # the first slot's field has focus; Enter moves to the next slot
+    page.keyboard.press("Enter")
+    page.keyboard.press("Enter")  # slot B left empty
+    page.keyboard.type("LOAD-C")
+    page.keyboard.press("Enter")  # the last slot: Enter starts the load
+    page.wait_for_selector(".slot.pass[data-slot='A']", timeout=30_000)
+    page.wait_for_selector(".slot.pass[data-slot='C']", timeout=30_000)
+    assert "no unit" in page.inner_text(".slot[data-slot='B']")
+    assert "LOAD-A" in page.inner_text(".slot[data-slot='A']") and "PASS" in page.inner_text(".slot[data-slot='C']")
+    page.wait_for_selector("#slot-start:not([disabled])")
+    recent = page.inner_text("#recent")
+    assert "A: LOAD-A PASS" in recent and "C: LOAD-C PASS" in recent
+    assert "2 units, first-pass yield 100%" in page.inner_text("#shift")
+    screenshot(page, tmp_path / "slots.png")
+    assert (tmp_path / "slot-a.json").exists() and not (tmp_path / "slot-b.json").exists()
+    assert opened.outside(LOCAL) == []

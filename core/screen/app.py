@@ -122,7 +122,10 @@ def create_app(state: ScreenState, runner: UnitRunner, token: str | None = None,
     async def start(request: Request) -> JSONResponse:
         body = await request.json()
         try:
-            runner.start(str(body.get("serial", "")), body.get("part") or None, str(body.get("operator", "")))
+            if isinstance(body.get("serials"), dict):  # a load of a slot station
+                runner.start_slots({str(k): str(v) for k, v in body["serials"].items()}, str(body.get("operator", "")))
+            else:
+                runner.start(str(body.get("serial", "")), body.get("part") or None, str(body.get("operator", "")))
         except Busy as exc:
             return JSONResponse({"error": str(exc)}, status_code=409)
         except ValueError as exc:

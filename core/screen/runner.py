@@ -22,6 +22,7 @@ class UnitRunner:
         self.state = state
         self._thread: threading.Thread | None = None
         self._lock = threading.Lock()
+        self._slots = None  # the slot runner, made on the first load of a slot station
         self.standing()
 
     def start(self, serial: str, part: str | None, operator: str = "") -> None:
@@ -40,6 +41,40 @@ class UnitRunner:
                                             daemon=True)
             self._thread.start()
 
+    def start_slots(self, serials: dict[str, str], operator: str = "") -> None:
+        """A load of a slot station: slot id → serial (empty slots left out), run together."""
+        station = self.sequencer.station
+        if not station.slots:
+            raise ValueError(f"station {station.station.id} has no slots: scan one serial")
+        known = {s.id: s.part for s in station.slots}
+        unknown = [s for s in serials if s not in known]
+        if unknown:
+            raise ValueError(f"no slot {unknown[0]!r} on this station (slots: {', '.join(known)})")
+        load = {slot: serial.strip() for slot, serial in serials.items() if serial.strip()}
+        if not load:
+            raise ValueError("scan the serial of at least one slot's unit")
+        with self._lock:
+            if self._thread is not None and self._thread.is_alive():
+                raise Busy("units are under test: wait for their verdicts or abort them")
+            self.sequencer.abort.clear()
+            self.state.slots_started(load, {slot: known[slot] for slot in load})
+            self._thread = threading.Thread(target=self._run_slots, args=(load, operator), name="magline-load",
+                                            daemon=True)
+            self._thread.start()
+
+    def _run_slots(self, load: dict[str, str], operator: str) -> None:
+        from magline.core.sequencer.slots import SlotRunner
+
+        try:
+            if self._slots is None:
+                self._slots = SlotRunner(self.sequencer)
+            self._slots.run(load, operator)
+        except Exception as exc:  # the screen must say it, not die with the worker
+            self.state.unit_refused(f"the station could not run the load: {exc}")
+        finally:
+            self.state.load_finished()
+            self.standing()
+
     def _run(self, serial: str, part: str, operator: str) -> None:
         try:
             self.sequencer.run_unit(serial, part, operator)
@@ -54,7 +89,7 @@ class UnitRunner:
         """Ask the unit under test to stop; False when none is."""
         if self._thread is None or not self._thread.is_alive():
             return False
-        self.sequencer.abort.request("aborted by the operator")
+        self.sequencer.abort.request("aborted by the operator")  # a slot runner passes it to every slot
         return True
 
     def wait(self, timeout: float | None = None) -> None:

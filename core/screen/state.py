@@ -33,8 +33,11 @@ class ScreenState:
         self.batch = Batch()
         self.state: dict[str, Any] = {
             "station": {"id": station.station.id, "line": station.station.line, "parts": list(station.products),
-                        "default_part": station.default_part or next(iter(station.products))},
+                        "default_part": station.default_part or next(iter(station.products)),
+                        "slots": [{"id": s.id, "part": s.part} for s in station.slots]},
             "busy": False, "run": None, "result": None, "recent": [], "shift": {"units": 0, "fpy": None},
+            # a station with slots: one run and one result per slot (the page draws one panel each)
+            "slots": {}, "round": None,
             "field": {}, "store": {}, "sent_at_ms": 0.0,
         }
 
@@ -60,12 +63,23 @@ class ScreenState:
     # ------------------------------------------------------------------ a unit starts
     def unit_started(self, serial: str, part: str) -> None:
         with self._lock:
-            self.state.update(busy=True, result=None, run={
-                "serial": serial, "part": part, "attempt": 0, "prompt": "", "prompts": [], "samples": 0,
-                "target_samples": None, "coverage": 0.0, "target": None, "bins": [], "n_bins": None,
-                "waiting": None, "phases": [{"name": p, "state": "pending", "duration_s": None}
-                                                             for p in PHASES]})
+            self.state.update(busy=True, result=None, slots={}, run=_new_run(serial, part))
             self._changed()
+
+    def slots_started(self, serials: dict[str, str], parts: dict[str, str]) -> None:
+        """The units of a slot station's load (slots left empty are not shown as running)."""
+        with self._lock:
+            self.state.update(busy=True, result=None, run=None, round=None, slots={
+                slot: {"run": _new_run(serial, parts[slot]), "result": None} for slot, serial in serials.items()})
+            self._changed()
+
+    def _run_of(self, run: Any) -> dict[str, Any] | None:
+        """The live run dictionary a hook's unit belongs to (its slot's, or the one unit's)."""
+        slot = getattr(run, "slot", None)
+        if slot is None:
+            return self.state["run"]
+        entry = self.state["slots"].get(slot)
+        return entry["run"] if entry else None
 
     def unit_refused(self, message: str) -> None:
         """A start that could not begin (bad serial, a crash before the first phase)."""
@@ -74,34 +88,34 @@ class ScreenState:
                               result={"verdict": "error", "serial": "", "cause": message, "items": []})
             self._changed()
 
-    def _phase(self, name: str) -> dict[str, Any] | None:
-        run = self.state["run"]
-        return next((p for p in run["phases"] if p["name"] == name), None) if run else None
+    def _phase(self, run: Any, name: str) -> dict[str, Any] | None:
+        current = self._run_of(run)
+        return next((p for p in current["phases"] if p["name"] == name), None) if current else None
 
     # ------------------------------------------------------------------ listener hooks
     @hookimpl
     def magline_phase_started(self, run: Any, phase: str) -> None:
         with self._lock:
-            entry = self._phase(phase)
+            entry = self._phase(run, phase)
             if entry is not None:
                 entry["state"] = "running"
-                self.state["run"]["waiting"] = None
+                self._run_of(run)["waiting"] = None
                 self._changed()
 
     @hookimpl
     def magline_phase_finished(self, run: Any, phase: str, result: PhaseResult) -> None:
         with self._lock:
-            entry = self._phase(phase)
+            entry = self._phase(run, phase)
             if entry is not None:
                 entry.update(state=str(result.outcome), duration_s=round(result.duration_s, 2))
-                self.state["run"]["waiting"] = None
+                self._run_of(run)["waiting"] = None
                 self._changed()
 
     @hookimpl
     def magline_acquisition_progress(self, run: Any, attempt: int, samples: int, coverage: float, target: float,
                                      bins: Any, n_bins: int | None) -> None:
         with self._lock:
-            current = self.state["run"]
+            current = self._run_of(run)
             if current is None:
                 return
             current.update(attempt=attempt, samples=samples, coverage=coverage, target=target, n_bins=n_bins,
@@ -112,17 +126,31 @@ class ScreenState:
     @hookimpl
     def magline_operator_prompt(self, run: Any, message: str) -> None:
         with self._lock:
-            if self.state["run"] is not None:
-                self.state["run"]["prompt"] = message
-                self.state["run"]["prompts"].append(message)
+            current = self._run_of(run)
+            if current is not None:
+                current["prompt"] = message
+                current["prompts"].append(message)
                 self._changed()
 
     @hookimpl
     def magline_waiting(self, run: Any, what: str, elapsed_s: float, limit_s: float | None) -> None:
         with self._lock:
-            if self.state["run"] is not None:
-                self.state["run"]["waiting"] = {"what": what, "elapsed_s": round(elapsed_s, 1), "limit_s": limit_s}
+            current = self._run_of(run)
+            if current is not None:
+                current["waiting"] = {"what": what, "elapsed_s": round(elapsed_s, 1), "limit_s": limit_s}
                 self._changed()
+
+    @hookimpl
+    def magline_motion_started(self, round: int, slots: list[str], motion: str) -> None:
+        with self._lock:
+            self.state["round"] = {"number": round, "slots": slots, "motion": motion, "moving": True}
+            self._changed()
+
+    @hookimpl
+    def magline_motion_stopped(self, round: int, slots: list[str], motion: str) -> None:
+        with self._lock:
+            self.state["round"] = {"number": round, "slots": slots, "motion": motion, "moving": False}
+            self._changed()
 
     @hookimpl
     def magline_unit_finished(self, run: Any, record: RunRecord) -> None:
@@ -135,15 +163,24 @@ class ScreenState:
                                                                   if m.verdict is Verdict.REVIEW else "")}
                      for m in verdicts(record.measurements) if m.verdict in (Verdict.FAIL, Verdict.REVIEW)]
             shown = "review" if str(record.verdict) == "pass" and items else str(record.verdict)
-            self.state["result"] = {"verdict": shown, "serial": record.serial, "part": record.part,
-                                    "cause": record.cause,
-                                    "items": items, "store": record.store or "NOT stored",
-                                    "report": record.report.rsplit("/", 1)[-1] if record.report else None}
+            result = {"verdict": shown, "serial": record.serial, "part": record.part, "slot": record.slot,
+                      "cause": record.cause, "items": items, "store": record.store or "NOT stored",
+                      "report": record.report.rsplit("/", 1)[-1] if record.report else None}
             self.state["recent"] = ([{"serial": record.serial, "part": record.part, "verdict": shown,
-                                      "finished": record.finished}]
+                                      "slot": record.slot, "finished": record.finished}]
                                     + self.state["recent"])[:RECENT]
             self.state["shift"] = {"units": self.batch.units, "first_pass": passed, "judged": judged,
                                    "fpy": passed / judged if judged else None}
+            if record.slot is not None and record.slot in self.state["slots"]:
+                self.state["slots"][record.slot]["result"] = result
+            else:
+                self.state["result"] = result
+                self.state["busy"] = False
+            self._changed()
+
+    def load_finished(self) -> None:
+        """Every slot of the load has its verdict: the station takes the next load."""
+        with self._lock:
             self.state["busy"] = False
             self._changed()
 
@@ -153,3 +190,9 @@ def bin_centres(n_bins: int) -> list[list[float]]:
     from magline.core.fit.coverage import fibonacci_sphere
 
     return [[round(v, 4) for v in c] for c in fibonacci_sphere(n_bins).tolist()]
+
+
+def _new_run(serial: str, part: str) -> dict[str, Any]:
+    return {"serial": serial, "part": part, "attempt": 0, "prompt": "", "prompts": [], "samples": 0,
+            "target_samples": None, "coverage": 0.0, "target": None, "bins": [], "n_bins": None,
+            "waiting": None, "phases": [{"name": p, "state": "pending", "duration_s": None} for p in PHASES]}

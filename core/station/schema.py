@@ -11,7 +11,7 @@ import hashlib
 import json
 from typing import Annotated, Any, Literal
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
 from magline.core.measurements import KNOWN_LIMIT_NAMES
 
@@ -210,14 +210,24 @@ class Station(_Strict):
     def _consistent(self) -> Station:
         if self.default_part is not None and self.default_part not in self.products:
             raise ValueError(f"default_part {self.default_part!r} is not one of the products")
-        ids = [s.id for s in self.slots]
-        if len(set(ids)) != len(ids):
-            raise ValueError(f"slot ids must be unique (got {', '.join(ids)})")
-        for slot in self.slots:
-            if slot.part not in self.products:
-                raise ValueError(f"slot {slot.id}: part {slot.part!r} is not one of the products "
-                                 f"({', '.join(self.products)})")
         return self
+
+    @field_validator("slots")
+    @classmethod
+    def _slots_known(cls, slots: list[Slot], info: ValidationInfo) -> list[Slot]:
+        """Every slot problem at once, reported at the ``slots`` key (its line in the file)."""
+        products = info.data.get("products") or {}
+        problems, seen = [], set()
+        for index, slot in enumerate(slots):
+            if slot.id in seen:
+                problems.append(f"slot id {slot.id!r} is used twice (slot ids must be unique)")
+            seen.add(slot.id)
+            if products and slot.part not in products:
+                problems.append(f"slot {slot.id} (item {index + 1}): part {slot.part!r} is not one of the products "
+                                f"({', '.join(products)})")
+        if problems:
+            raise ValueError("; ".join(problems))
+        return slots
 
     def slot(self, slot_id: str) -> Slot:
         for slot in self.slots:

@@ -57,6 +57,52 @@ function drawSphere(run) {
   return true;
 }
 
+function slotPanel(slot, entry) {
+  if (!entry) { return `<div class="slot empty" data-slot="${esc(slot.id)}"><h3>slot ${esc(slot.id)}</h3>no unit</div>`; }
+  const v = entry.result;
+  const run = entry.run;
+  if (v) {
+    const items = (v.items || []).map((m) => `<div>${esc(m.name)} ${esc(m.value)} ${esc(m.limit)} ${esc(m.verdict)}</div>`).join("");
+    return `<div class="slot ${esc(v.verdict)}" data-slot="${esc(slot.id)}"><h3>slot ${esc(slot.id)} · ${esc(v.serial)}</h3>`
+      + `<div class="word">${esc(v.verdict.toUpperCase())}</div><div class="cause">${esc(v.cause || "")}</div>${items}</div>`;
+  }
+  const running = run.phases.find((p) => p.state === "running");
+  const fraction = run.target_samples ? Math.min(1, run.samples / run.target_samples) : 0;
+  return `<div class="slot" data-slot="${esc(slot.id)}"><h3>slot ${esc(slot.id)} · ${esc(run.serial)} <small>${esc(run.part)}</small></h3>`
+    + `<div class="phase">${esc(running ? running.name : "…")}${run.waiting ? ` · ${esc(run.waiting.what)} ${run.waiting.elapsed_s} s` : ""}</div>`
+    + `<div class="attempt">${run.attempt ? `attempt ${run.attempt}` : ""}</div>`
+    + `<div class="bar"><div style="width:${fraction * 100}%"></div></div>`
+    + `<div>${run.target_samples ? `${run.samples} / ${run.target_samples} samples` : ""}`
+    + `${run.n_bins ? `, coverage ${pct(run.coverage)} (target ${pct(run.target)})` : ""}</div>`
+    + `<div class="prompt">${esc(run.prompt)}</div></div>`;
+}
+
+let slotInputsMade = false;
+function renderSlots(s) {
+  const slots = s.station.slots;
+  if (!slotInputsMade) {
+    slotInputsMade = true;
+    $("start-form").hidden = true;
+    $("slot-form").hidden = false;
+    $("left").hidden = true;
+    $("middle").hidden = true;
+    $("slots").hidden = false;
+    $("slot-inputs").innerHTML = slots.map((slot) =>
+      `<label>${esc(slot.id)} <input data-slot="${esc(slot.id)}" placeholder="${esc(slot.part)}"></label>`).join(" ");
+    const inputs = [...document.querySelectorAll("#slot-inputs input")];
+    inputs.forEach((input, i) => input.addEventListener("keydown", (e) => {
+      if (e.key === "Enter" && i < inputs.length - 1) { e.preventDefault(); inputs[i + 1].focus(); }
+    }));
+    inputs[0].focus();
+  }
+  $("slot-start").disabled = s.busy;
+  $("slot-abort").disabled = !s.busy;
+  $("slots").innerHTML = slots.map((slot) => slotPanel(slot, (s.slots || {})[slot.id])).join("");
+  const r = s.round;
+  $("round").textContent = r && r.moving ? `${r.motion} round ${r.number}: slots ${r.slots.join(", ")} sampling` : "";
+  if (s.result && !s.busy && s.result.cause) { $("form-error").textContent = s.result.cause; }
+}
+
 function render(s) {
   $("station-name").textContent = `${s.station.id} · line ${s.station.line}`;
   const f = s.field || {};
@@ -75,6 +121,12 @@ function render(s) {
   $("start").disabled = s.busy;
   $("abort").disabled = !s.busy;
 
+  const sh = s.shift || {};
+  $("shift").textContent = `${sh.units || 0} units, first-pass yield ${pct(sh.fpy)}`;
+  $("recent").innerHTML = (s.recent || []).map((r) => `<li class="${esc(r.verdict)}">${r.slot ? `${esc(r.slot)}: ` : ""}`
+    + `${esc(r.serial)} ${esc(r.verdict.toUpperCase())} <small>${esc(r.part)}</small></li>`).join("");
+  if (s.station.slots && s.station.slots.length) { renderSlots(s); return; }
+
   const run = s.run;
   $("unit").textContent = run ? `${run.serial} · ${run.part}` : "";
   $("prompt").textContent = run ? run.prompt : "";
@@ -87,10 +139,6 @@ function render(s) {
     + `${p.state === "running" && run.waiting ? ` · ${esc(run.waiting.what)} ${run.waiting.elapsed_s} s` : ""}</li>`).join("") : "";
   $("coverage-text").textContent = run && run.n_bins ? `coverage ${pct(run.coverage)} (target ${pct(run.target)})` : "";
   const sphereChanged = drawSphere(run);
-
-  const sh = s.shift || {};
-  $("shift").textContent = `${sh.units || 0} units, first-pass yield ${pct(sh.fpy)}`;
-  $("recent").innerHTML = (s.recent || []).map((r) => `<li class="${esc(r.verdict)}">${esc(r.serial)} ${esc(r.verdict.toUpperCase())} <small>${esc(r.part)}</small></li>`).join("");
 
   const v = s.result;
   const overlay = $("verdict");
@@ -151,4 +199,12 @@ $("start-form").addEventListener("submit", async (e) => {
   $("serial").focus();
 });
 $("abort").addEventListener("click", () => { post("/api/abort"); $("serial").focus(); });
+$("slot-form").addEventListener("submit", async (e) => {
+  e.preventDefault();
+  const inputs = [...document.querySelectorAll("#slot-inputs input")];
+  const serials = Object.fromEntries(inputs.map((i) => [i.dataset.slot, i.value.trim()]));
+  if (await post("/api/start", { serials })) { inputs.forEach((i) => { i.value = ""; }); }
+  inputs[0].focus();
+});
+$("slot-abort").addEventListener("click", () => { post("/api/abort"); });
 connect();
