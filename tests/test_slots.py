@@ -240,3 +240,29 @@ def test_slot_mistakes_in_the_station_file_name_the_key_and_line(make_station):
     assert "motion.options.resource: Field required" in text and "motion.options.pattern" in text
     assert "slots.0.options.noise_uT" in text
     assert all(p.startswith(f"{path}:") and p.split(":")[1].isdigit() for p in problems)
+
+
+def test_an_abort_stops_every_slot_safely_and_each_record_says_aborted(make_station, tmp_path):
+    """The operator's abort (the screen's button, Ctrl-C on the console) during the shared tumble:
+    every slot stops at its next safe point, its DUT restored and its record saying aborted."""
+    path = make_station({**MOCK_SLOTS, "products": {"MOCK-100": {"options": {"realtime": True}}}})
+    motion = CountingMotion()
+    runner: list[SlotRunner] = []
+
+    class AbortMidTumble:
+        @hookimpl
+        def magline_acquisition_progress(self, run, attempt, samples, coverage, target):
+            if run.slot == "A" and samples >= 60:
+                runner[0].abort("aborted by the operator")
+
+    seq = Sequencer(load_station(path), load_plugins(extra=[counting_plugin(motion), AbortMidTumble()]),
+                    path.parent, sleep=lambda s: None)
+    try:
+        runner.append(SlotRunner(seq))
+        records = runner[0].run({"A": "AB-1", "B": "AB-2", "C": "AB-3"})
+    finally:
+        seq.close()
+    assert [(r.verdict, r.aborted_phase) for r in records] == [(Outcome.ABORTED, "acquire")] * 3
+    assert all("aborted by the operator" in r.cause and not r.left_changed for r in records)
+    assert motion.calls == [("start", 1, ("A", "B", "C")), ("stop",), ("close",)]
+    assert not any((tmp_path / f"slot-{s}.json").exists() for s in "abc")  # nothing written to any unit
