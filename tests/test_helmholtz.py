@@ -172,3 +172,40 @@ def test_coil_station_writes_px4_custom_rotation_and_the_board_then_reports_the_
 def fibonacci_vectors(n: int) -> np.ndarray:
     from magline.core.fit.coverage import fibonacci_sphere
     return fibonacci_sphere(n)
+
+
+def applied_setting(command: str) -> bool:
+    """A current set by the schedule or the shift checks (not the plain zero of switching off)."""
+    return command.startswith("SOUR1:CURR ") and command != "SOUR1:CURR 0"
+
+
+def test_three_units_in_one_coil_share_each_step_and_each_gets_its_own_calibration(tmp_path):
+    """Slots in a coil: the schedule runs once (each vector applied once for all three units), every
+    unit reads its own samples in it, and each is calibrated to its own hard and soft iron."""
+    from magline.core.sequencer.slots import SlotRunner
+
+    truths = {"A": [10.0, 20.0, 30.0], "B": [-30.0, 5.0, 12.0], "C": [35.0, -22.0, 61.0]}
+    with Cell() as cell:
+        one = cell.station(tmp_path)  # one unit first: how many current settings one schedule takes
+        record = run_unit(one)
+        assert record.verdict is Outcome.PASS, record.cause
+        settings_for_one = sum(applied_setting(c) for c in cell.coil.log)
+        cell.coil.log.clear()
+        cfg = yaml.safe_load(one.read_text(encoding="utf-8"))
+        cfg["slots"] = [{"id": s, "part": "MOCK-COIL-100", "options": {
+            "storage": str(tmp_path / f"dut-{s}.json"), "hard_iron_ut": h, "seed": 20 + i}}
+            for i, (s, h) in enumerate(truths.items())]
+        path = tmp_path / "slots.yaml"
+        path.write_text(yaml.safe_dump(cfg, sort_keys=False), encoding="utf-8")
+        seq = Sequencer(load_station(path), load_plugins(), tmp_path, sleep=lambda s: None)
+        try:
+            records = SlotRunner(seq).run({s: f"COIL-{s}" for s in truths})
+        finally:
+            seq.close()
+        assert cell.coil.output is False and not cell.coil.current.any()  # off once the last unit is done
+    assert [(r.slot, r.verdict) for r in records] == [(s, Outcome.PASS) for s in truths], [r.cause for r in records]
+    assert sum(applied_setting(c) for c in cell.coil.log) == settings_for_one  # not three schedules
+    for r in records:
+        h, h_sigma = np.array(r.calibration["hard_iron_ut"]), np.array(r.calibration["hard_iron_sigma_ut"])
+        assert np.all(np.abs(h - truths[r.slot]) < 4 * h_sigma + 1e-3), (r.slot, h, h_sigma)
+        assert json.loads((tmp_path / f"dut-{r.slot}.json").read_text())["MAG_OFS_X"] == pytest.approx(h[0], rel=1e-6)

@@ -77,6 +77,13 @@ class MotionRounds:
             with self._cond:
                 self._finish(slot)
 
+    @property
+    def members(self) -> list[str]:
+        """The slots of the current (or last) round: what a plugin sharing more than the motion
+        (a coil's schedule) lines up."""
+        with self._cond:
+            return list(self._members)
+
     def leave(self, slot: str) -> None:
         """The slot needs no more samples (accepted, or its unit ended): never wait for it again."""
         with self._cond:

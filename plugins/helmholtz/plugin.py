@@ -13,7 +13,6 @@ from contextlib import closing
 import numpy as np
 
 from magline.core.dut import DutError
-from magline.core.faults import StationFault
 from magline.core.fit import FitOptions, FitResult
 from magline.core.fit.affine import fit_affine
 from magline.core.fit.samples_csv import RawSamples
@@ -33,9 +32,6 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition | None:
     source = run.field_source
     if not isinstance(source, HelmholtzField):
         return None
-    if run.slot is not None:
-        raise StationFault("a coil station cannot run slots yet: the coil's schedule is not shared between "
-                           "units; remove slots: from the station file")
     opts = source.opts
     steps = schedule(opts)
     if source.shift_report:  # the shift checks' figures travel with the unit that triggered them
@@ -44,26 +40,32 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition | None:
     run.prompt("Place the unit at the coil centre and do not touch it")
     mags, times, applied = [], [], []
     dut = run.require_dut()
-    with closing(dut.samples(run.station.acquisition.rate_hz)) as stream:
-        for index, vector in enumerate(steps, start=1):
-            source.coil.apply(vector)
-            settled = time.monotonic() + opts.settle_s
-            next(stream)  # samples in flight (queued by the link) were taken in the previous field
-            while time.monotonic() < settled:
-                next(stream)
-            got = 0
-            while got < opts.samples_per_step:
-                chunk = next(stream, None)
-                if chunk is None:
-                    raise DutError("the DUT stopped sending samples during the coil schedule")
-                take = np.atleast_2d(chunk.mag_ut)[: opts.samples_per_step - got]
-                mags.append(take)
-                times.append(np.atleast_1d(chunk.t_ms)[: len(take)])
-                applied.append(np.tile(vector, (len(take), 1)))
-                got += len(take)
-            target = run.station.acquisition.coverage_target
-            run.progress(attempt, sum(len(m) for m in mags), index / len(steps), target)
-    source.coil.apply(np.zeros(3))
+    slot = run.slot or ""
+    # every unit in the coil (one per slot) steps through the same schedule: each vector applied once
+    with run.shared_motion() as round_number, closing(dut.samples(run.station.acquisition.rate_hz)) as stream:
+        members = run.rounds.members if run.rounds is not None else [slot]
+        shared = source.shared_schedule(round_number or 0, members, steps)
+        try:
+            for index, vector in enumerate(steps):
+                shared.step(slot, index, run.check_abort)
+                settled = time.monotonic() + opts.settle_s
+                next(stream)  # samples in flight (queued by the link) were taken in the previous field
+                while time.monotonic() < settled:
+                    next(stream)
+                got = 0
+                while got < opts.samples_per_step:
+                    chunk = next(stream, None)
+                    if chunk is None:
+                        raise DutError("the DUT stopped sending samples during the coil schedule")
+                    take = np.atleast_2d(chunk.mag_ut)[: opts.samples_per_step - got]
+                    mags.append(take)
+                    times.append(np.atleast_1d(chunk.t_ms)[: len(take)])
+                    applied.append(np.tile(vector, (len(take), 1)))
+                    got += len(take)
+                target = run.station.acquisition.coverage_target
+                run.progress(attempt, sum(len(m) for m in mags), (index + 1) / len(steps), target)
+        finally:
+            shared.leave(slot)  # the last unit out sets the field to zero
     samples = RawSamples(mag_ut=np.vstack(mags), t_ms=np.concatenate(times), applied_ut=np.vstack(applied))
     return Acquisition(attempt=attempt, samples=samples, coverage=1.0, target=run.station.acquisition.coverage_target)
 

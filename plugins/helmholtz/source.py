@@ -9,6 +9,7 @@ is switched off at the end of every unit, also after errors.
 
 from __future__ import annotations
 
+import threading
 import time
 from typing import Any
 
@@ -21,6 +22,7 @@ from magline.core.field.reference import Fluxgate
 from magline.core.fit.coverage import fibonacci_sphere
 from magline.plugins.helmholtz.coil import CoilDriver
 from magline.plugins.helmholtz.options import HelmholtzOptions
+from magline.plugins.helmholtz.shared import SharedSchedule
 
 AXES = np.eye(3)
 
@@ -38,6 +40,18 @@ class HelmholtzField:
         self._fluxgate: Fluxgate | None = None
         self.ready = False
         self.shift_report: dict[str, Any] = {}
+        self._schedules: dict[int, SharedSchedule] = {}  # acquisition round → the schedule its units share
+        self._schedules_lock = threading.Lock()
+        self.coil_lock = threading.RLock()  # one command sequence at a time on the coil's instruments
+
+    def shared_schedule(self, round_number: int, members: list[str], steps: NDArray) -> SharedSchedule:
+        """The schedule of this round of the station's motion, made by the first unit to ask."""
+        with self._schedules_lock:
+            for number in [n for n, s in self._schedules.items() if s.done]:
+                del self._schedules[number]
+            if round_number not in self._schedules:
+                self._schedules[round_number] = SharedSchedule(self.coil, steps, members, self.coil_lock)
+            return self._schedules[round_number]
 
     @property
     def coil(self) -> CoilDriver:
@@ -111,8 +125,12 @@ class HelmholtzField:
 
     # ------------------------------------------------------------------ per unit
     def finish_unit(self) -> None:
-        if self._coil is not None:
-            self._coil.off()
+        """Off after each unit — unless other units in the coil are still in their schedule."""
+        with self._schedules_lock:
+            busy = any(not s.done for s in self._schedules.values())
+        if self._coil is not None and not busy:
+            with self.coil_lock:
+                self._coil.off()
 
     def close(self) -> None:
         try:
