@@ -23,6 +23,17 @@ from magline.core.motion import Motion
 POLL_S = 0.1  # how often a waiting slot checks for its abort
 
 
+def wait_or_abort(cond: threading.Condition, check_abort: Callable[[], None]) -> None:
+    """Wait on ``cond`` (held by the caller) for at most ``POLL_S``, then check for an abort with
+    the condition released, so an aborting slot never blocks the others' line-up."""
+    cond.wait(POLL_S)
+    cond.release()
+    try:
+        check_abort()
+    finally:
+        cond.acquire()
+
+
 class SlotState(Enum):
     BEFORE = "before"  # identifying, connecting: will ask for samples
     WAITING = "waiting"  # asked for the next round
@@ -56,12 +67,7 @@ class MotionRounds:
                     if self._ready():
                         self._begin()
                     else:
-                        self._cond.wait(POLL_S)
-                        self._cond.release()
-                        try:
-                            check_abort()
-                        finally:
-                            self._cond.acquire()
+                        wait_or_abort(self._cond, check_abort)
             except BaseException:
                 self.state[slot] = SlotState.GONE
                 self._cond.notify_all()

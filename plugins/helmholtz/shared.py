@@ -13,9 +13,8 @@ from collections.abc import Callable
 
 from numpy.typing import NDArray
 
+from magline.core.sequencer.rounds import wait_or_abort
 from magline.plugins.helmholtz.coil import CoilDriver
-
-POLL_S = 0.1
 
 
 class SharedSchedule:
@@ -43,12 +42,7 @@ class SharedSchedule:
                     self.applied = index
                     self._cond.notify_all()
                     break
-                self._cond.wait(POLL_S)
-                self._cond.release()
-                try:
-                    check_abort()
-                finally:
-                    self._cond.acquire()
+                wait_or_abort(self._cond, check_abort)
 
     def leave(self, slot: str) -> None:
         """The unit has its samples, or stopped: the next steps do not wait for it; the last one out
