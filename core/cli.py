@@ -23,6 +23,7 @@ from magline.core.fit.affine import fit_affine
 from magline.core.fit.samples_csv import SampleFileError, read_samples
 from magline.core.plugins import PluginError, Plugins, load_plugins
 from magline.core.record import Outcome
+from magline.core.results.sinks import open_results
 from magline.core.station import Station, StationError
 from magline.core.station.checks import did_you_mean, station_problems
 from magline.core.station.loader import read_station_text
@@ -337,14 +338,16 @@ def _history(args: argparse.Namespace, plugins: Plugins) -> int:
         _err(missing)
         return 1
     try:
-        sink = plugins.result_sinks[station.results.sink](station, where)
-    except StationFault as exc:
+        sink = open_results(station, where, plugins, main_only=True)
+    except (StationFault, ValueError) as exc:
         _err(str(exc))
         return 2
     try:
         runs = sink.history(args.serial)
     finally:
-        sink.close()
+        closer = getattr(sink, "close", None)  # close() is in the contract; an old sink may lack it
+        if callable(closer):
+            closer()
     if not runs:
         print(f"no runs for {args.serial}")
         return 1
@@ -365,7 +368,7 @@ def _missing_store(args: argparse.Namespace, station: Station, where: Path) -> s
     """Reading never creates a store: why there is nothing to read, or None (the store it reads is said)."""
     from magline.core.results.sqlite_sink import results_path
 
-    if station.results.sink != "sqlite":
+    if station.main_results.sink != "sqlite":
         return None
     path = results_path(station, where)
     name = "the embedded demo station" if args.station is None else args.station
@@ -381,15 +384,15 @@ def _open_store(args: argparse.Namespace, plugins: Plugins) -> tuple[Station, Pa
     missing = _missing_store(args, station, where)
     if missing is not None:
         raise StationFault(missing)
-    return station, where, plugins.result_sinks[station.results.sink](station, where)
+    return station, where, open_results(station, where, plugins, main_only=True)
 
 
 def _sync(args: argparse.Namespace, plugins: Plugins) -> int:
     """Forward what a station's outbox holds (the station loop does it too, after every unit)."""
     try:
         station, where = _load(args.station, plugins)
-        sink = plugins.result_sinks[station.results.sink](station, where)
-    except (StationError, PluginError, StationFault) as exc:
+        sink = open_results(station, where, plugins, main_only=True)
+    except (StationError, PluginError, StationFault, ValueError) as exc:
         _err(str(exc))
         return 2
     try:

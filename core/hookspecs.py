@@ -70,9 +70,13 @@ def magline_register_field_sources(register: Callable[[str, Callable[..., Any]],
 def magline_register_result_sinks(register: Callable[[str, Callable[..., Any]], None]) -> None:
     """Add result stores by name.  Called once at start-up.
 
-    :param register: call ``register(name, factory)``; ``factory(station, station_dir)`` returns a
-        sink with ``begin(record)``, ``save_attempt(record, attempt)``, ``finish(record)`` and
-        ``history(serial)``.  The name is the station file's ``results.sink``.
+    :param register: call ``register(name, factory, options=Model)``; ``factory(station,
+        station_dir, entry, options)`` receives the station, its folder, its ``results`` entry
+        (:class:`~magline.core.station.schema.Results`) and that entry's ``options`` validated
+        against ``Model`` (the raw mapping when no model was registered), and returns a
+        :class:`~magline.core.results.contract.ResultSink` (``begin``, ``save_attempt``, ``finish``,
+        ``history``, ``close``; run ids and the ``history`` shape are defined there).  The name is
+        what a ``results`` entry writes under ``sink``; a station may list several stores.
     """
 
 

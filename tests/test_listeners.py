@@ -35,7 +35,7 @@ class Recorder:
 class ExtraSink:
     @hookimpl
     def magline_register_result_sinks(self, register):
-        register("memory", lambda station, where: self)
+        register("memory", lambda station, where, entry, options: self)
 
     @hookimpl
     def magline_register_field_sources(self, register):

@@ -209,7 +209,7 @@ def test_a_record_that_cannot_be_stored_is_never_reported_as_stored(make_station
     class Sinks:
         @hookimpl
         def magline_register_result_sinks(self, register):
-            register("full-disk", lambda station, where: FullDisk(where / "full.sqlite"))
+            register("full-disk", lambda station, where, entry, options: FullDisk(where / "full.sqlite"))
 
     path = make_station({"results": {"sink": "full-disk"}})
     console = OperatorConsole(Console(record=True, width=200, highlight=False))

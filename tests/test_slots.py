@@ -237,8 +237,8 @@ def test_slot_mistakes_in_the_station_file_name_the_key_and_line(make_station):
                          "motion": {"type": "gimbal", "options": {"pattern": "wobble"}}})
     _, problems = station_problems(path.read_text(encoding="utf-8"), str(path), load_plugins())
     text = "\n".join(problems)
-    assert "motion.options.resource: Field required" in text and "motion.options.pattern" in text
-    assert "slots.0.options.noise_uT" in text
+    assert "motion.options.resource: required key is missing" in text and "motion.options.pattern" in text
+    assert "slots[0].options.noise_uT: unknown key (did you mean 'noise_ut'?)" in text
     assert all(p.startswith(f"{path}:") and p.split(":")[1].isdigit() for p in problems)
 
 

@@ -114,8 +114,8 @@ def test_check_validates_backend_and_power_options_with_lines(make_station, caps
     text = path.read_text(encoding="utf-8").splitlines()
     noise_line = next(i for i, line in enumerate(text, 1) if "noise_ut" in line)
     assert f"{path}:{noise_line}: products.MOCK-100.options.noise_ut: Input should be greater than or equal to 0" in err
-    assert "products.MOCK-100.options.colour: Extra inputs are not permitted" in err
-    assert "products.MOCK-100.power.options.resource: Field required" in err
+    assert "products.MOCK-100.options.colour: unknown key" in err  # the core's own words
+    assert "products.MOCK-100.power.options.resource: required key is missing" in err
 
 
 def test_fit_settings_are_checked_with_their_line():

@@ -43,9 +43,9 @@ def server_store(url_env: str | None) -> SqlStore:
     return SqlStore(create_engine(parsed, pool_pre_ping=True), parsed.render_as_string(hide_password=True))
 
 
-def _factory(station: Any, station_dir: Path) -> ForwardingStore:
-    outbox = Path(station_dir) / Path(station.results.outbox).expanduser()
-    return ForwardingStore(outbox, server_url(station.results.url_env))
+def _factory(station: Any, station_dir: Path, entry: Any, options: Any) -> ForwardingStore:
+    outbox = Path(station_dir) / Path(entry.outbox).expanduser()
+    return ForwardingStore(outbox, server_url(entry.url_env))
 
 
 @hookimpl

@@ -43,13 +43,13 @@ class SqliteSink(SqlStore):
         super().__init__(sqlite_engine(self.path), str(self.path))
 
 
-def results_path(station: Any, station_dir: Path) -> Path:
+def results_path(station: Any, station_dir: Path, entry: Any = None) -> Path:
     """The store's file: a relative path is relative to the station file's directory."""
-    return Path(station_dir) / Path(station.results.path).expanduser()
+    return Path(station_dir) / Path((entry or station.main_results).path).expanduser()
 
 
-def _factory(station: Any, station_dir: Path) -> SqliteSink:
-    return SqliteSink(results_path(station, station_dir))
+def _factory(station: Any, station_dir: Path, entry: Any, options: Any) -> SqliteSink:
+    return SqliteSink(results_path(station, station_dir, entry))
 
 
 @hookimpl

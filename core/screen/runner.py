@@ -102,7 +102,8 @@ class UnitRunner:
         describe = getattr(self.sequencer.field_source, "describe", None)
         if callable(describe):
             field.update(describe())
-        store: dict[str, Any] = {"where": getattr(self.sequencer.sink, "where", self.sequencer.station.results.sink)}
+        main = self.sequencer.station.main_results.sink
+        store: dict[str, Any] = {"where": getattr(self.sequencer.sink, "where", main)}
         pending = getattr(self.sequencer.sink, "pending", None)
         if callable(pending):
             try:

@@ -32,7 +32,7 @@ def build(station: Station, where: Path, plugins: Plugins, token: str | None = N
     state = ScreenState(station)
     plugins.pm.register(state)
     runner = UnitRunner(Sequencer(station, plugins, where), state)
-    reports = where / station.results.reports if station.results.reports is not None else None
+    reports = where / station.main_results.reports if station.main_results.reports is not None else None
     return create_app(state, runner, token, reports), runner
 
 

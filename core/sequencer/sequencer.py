@@ -29,6 +29,7 @@ from magline.core.plugins import Plugins
 from magline.core.quality.review import review
 from magline.core.record import AttemptRecord, Outcome, PersistReport, PhaseResult, RunRecord, now_iso
 from magline.core.results.reading import RunFilter
+from magline.core.results.sinks import open_results
 from magline.core.sequencer.abort import AbortSwitch
 from magline.core.sequencer.context import Acquisition, AcquisitionAborted, RunContext
 from magline.core.sequencer.rounds import MotionRounds
@@ -55,8 +56,7 @@ class Sequencer:
         self.station_dir = Path(station_dir)
         self.sleep = sleep
         self.abort = AbortSwitch()
-        sink_factory = plugins.result_sinks[station.results.sink]
-        self.sink = sink_factory(station, self.station_dir)
+        self.sink = open_results(station, self.station_dir, plugins)
         source_factory = plugins.field_sources[station.field_source.type]
         self.field_source = source_factory(station)
         motion_factory = plugins.motions.get(station.motion.type)
@@ -144,7 +144,7 @@ class Sequencer:
                 record.cause = f"{record.cause} — {note}" if record.cause else note
                 if record.verdict in (Outcome.PASS, Outcome.FAIL):
                     record.verdict = Outcome.ERROR  # a judgement nobody can trace does not count
-            elif self.station.results.reports is not None:
+            elif self.station.main_results.reports is not None:
                 self._write_report(run)
             self.plugins.hook.magline_unit_finished(run=run, record=record)
         return record
@@ -368,7 +368,7 @@ class Sequencer:
             return
         series_of = getattr(self.sink, "series", None)
         if series_of is None:
-            run.record.review_note = (f"no process review: the results sink {self.station.results.sink!r} "
+            run.record.review_note = (f"no process review: the results sink {self.station.main_results.sink!r} "
                                       "keeps no history")
             run.log(run.record.review_note)
             return
@@ -425,11 +425,11 @@ class Sequencer:
         cannot be written is said, never a reason to change the unit's verdict: the record is kept."""
         from magline.core.reports.commands import write_report
 
-        folder = self.station_dir / self.station.results.reports
+        folder = self.station_dir / self.station.main_results.reports
         engine = getattr(self.sink, "record_engine", None)
         try:
             if engine is None:
-                raise StationFault(f"the results sink {self.station.results.sink!r} is not a SQL store")
+                raise StationFault(f"the results sink {self.station.main_results.sink!r} is not a SQL store")
             run.record.report = str(write_report(engine, str(run.record.run_id), None, folder))
         except (StationFault, OSError) as exc:
             run.record.report_error = f"report not written: {exc}"

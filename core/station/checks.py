@@ -16,7 +16,7 @@ import yaml
 from pydantic import BaseModel, ValidationError
 
 from magline.core.plugins import Plugins
-from magline.core.station.loader import StationError, line_of, load_station_text
+from magline.core.station.loader import StationError, dotted, line_of, load_station_text
 from magline.core.station.schema import Station
 
 
@@ -50,7 +50,7 @@ def _plugin_problems(data: dict, text: str, name: str, plugins: Plugins) -> list
     out: list[str] = []
 
     def unknown(path: tuple, what: str, value: Any, registry: dict) -> None:
-        out.append(f"{name}:{line_of(text, path)}: {'.'.join(map(str, path))}: unknown {what} {value!r}"
+        out.append(f"{name}:{line_of(text, path)}: {dotted(path)}: unknown {what} {value!r}"
                    f"{did_you_mean(value, registry)}; loaded: {', '.join(sorted(registry))}")
 
     products = data.get("products")
@@ -81,8 +81,16 @@ def _plugin_problems(data: dict, text: str, name: str, plugins: Plugins) -> list
     if isinstance(motion, dict) and isinstance(motion.get("type", "operator"), str):
         out += _option_problems(plugins, ("motion", motion.get("type", "operator")), motion.get("options"),
                                 ("motion", "options"), text, name)
+    stores = data.get("results")
+    for where, entry in ([(("results",), stores)] if isinstance(stores, dict) else
+                         [(("results", i), e) for i, e in enumerate(stores)] if isinstance(stores, list) else []):
+        sink = entry.get("sink", "sqlite") if isinstance(entry, dict) else None
+        if not isinstance(sink, str):
+            continue
+        if sink not in plugins.result_sinks:
+            unknown((*where, "sink"), "results sink", sink, plugins.result_sinks)
+        out += _option_problems(plugins, ("result sink", sink), entry.get("options"), (*where, "options"), text, name)
     for section, key, what, registry in (("field_source", "type", "field source", plugins.field_sources),
-                                         ("results", "sink", "results sink", plugins.result_sinks),
                                          ("motion", "type", "motion", plugins.motions)):
         block = data.get(section)
         value = block.get(key) if isinstance(block, dict) else None
@@ -103,7 +111,16 @@ def _option_problems(plugins: Plugins, key: tuple[str, str], options: Any, where
         out = []
         for err in exc.errors():
             path = (*where, *err["loc"])
-            hint = did_you_mean(err["loc"][-1], model.model_fields) if err["type"] == "extra_forbidden" else ""
-            out.append(f"{name}:{line_of(text, path)}: {'.'.join(map(str, path))}: {err['msg']}{hint}")
+            kind = err["type"]
+            if kind == "extra_forbidden":  # the core's own words for a plugin's options too
+                msg = "unknown key" + did_you_mean(err["loc"][-1], model.model_fields)
+            elif kind == "missing":
+                msg = "required key is missing"
+            else:
+                msg = err["msg"].removeprefix("Value error, ")
+                if "input" in err and kind.endswith("_type"):
+                    msg += f" (got {type(err['input']).__name__} {err['input']!r})"
+            line = line_of(text, path if kind != "missing" else path[:-1])
+            out.append(f"{name}:{line}: {dotted(path)}: {msg}")
         return out
     return []

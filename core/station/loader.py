@@ -85,7 +85,7 @@ def _index(node: yaml.Node, path: Path_, lines: dict[Path_, int], problems: list
         for key_node, value_node in node.value:
             key = key_node.value
             if key in seen:
-                problems.append(f"{name}:{key_node.start_mark.line + 1}: {_dotted((*path, key))}: duplicate key")
+                problems.append(f"{name}:{key_node.start_mark.line + 1}: {dotted((*path, key))}: duplicate key")
             seen.add(key)
             lines[(*path, key)] = key_node.start_mark.line + 1
             _index(value_node, (*path, key), lines, problems, name)
@@ -104,6 +104,7 @@ def _describe(err: Any, lines: dict[Path_, int], name: str) -> str:
     loc = tuple(p for p in err["loc"] if not (isinstance(p, str) and p.startswith("function-")))
     # pydantic adds the union member / validator name in some locations; keep only real keys
     loc = tuple(p for p in loc if p not in ("float", "int", "str", "list[float]", "[key]"))
+    loc = _as_written(loc, lines)
     kind = err["type"]
     if kind == "missing":
         line = _nearest(loc[:-1], lines)
@@ -116,11 +117,22 @@ def _describe(err: Any, lines: dict[Path_, int], name: str) -> str:
         msg = err["msg"].removeprefix("Value error, ")
         if "input" in err and kind.endswith("_type"):
             msg += f" (got {type(err['input']).__name__} {err['input']!r})"
-    key = _dotted(loc) or "(top level)"
+    key = dotted(loc) or "(top level)"
     return f"{name}:{line}: {key}: {msg}"
 
 
-def _dotted(path: Iterable[str | int]) -> str:
+def _as_written(loc: Path_, lines: dict[Path_, int]) -> Path_:
+    """A section that may be one item or a list (``results:``) is validated as a list: an index
+    the file does not have (it wrote the single mapping) is dropped from the key path shown."""
+    out: Path_ = ()
+    for part in loc:
+        if isinstance(part, int) and out in lines and (*out, part) not in lines and (*out, 0) not in lines:
+            continue
+        out = (*out, part)
+    return out
+
+
+def dotted(path: Iterable[str | int]) -> str:
     out = ""
     for p in path:
         out += f"[{p}]" if isinstance(p, int) else (f".{p}" if out else str(p))
@@ -153,6 +165,8 @@ def _allowed_keys(path: Path_) -> list[str]:
         else:
             return []
     node = _unwrap(node)
+    if get_origin(node) is list:  # a one-or-many section written as its single mapping (``results:``)
+        node = _unwrap(get_args(node)[0])
     return list(node.model_fields) if isinstance(node, type) and issubclass(node, BaseModel) else []
 
 

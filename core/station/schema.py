@@ -11,7 +11,16 @@ import hashlib
 import json
 from typing import Annotated, Any, Literal
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 
 from magline.core.measurements import KNOWN_LIMIT_NAMES
 
@@ -154,14 +163,21 @@ class ReviewSettings(_Strict):
 
 
 class Results(_Strict):
-    """Where records go: ``sqlite`` (``path``, relative to the station file) or ``sql`` (``url_env``:
-    the environment variable holding the server's URL — never the URL itself)."""
+    """One results store: ``sqlite`` (``path``, relative to the station file), ``sql`` (``url_env``:
+    the environment variable holding the server's URL — never the URL itself), or a plugin's sink
+    with its own ``options`` (validated against the model the plugin registered)."""
 
     sink: str = "sqlite"
     path: str = "magline-results.sqlite"
     url_env: Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$")] | None = None
     outbox: str = "magline-outbox.sqlite"  # ``sql``: records are committed here first, then forwarded
     reports: str | None = None  # a folder (relative to the station file): the unit's HTML report after each run
+    options: dict[str, Any] = Field(default_factory=dict)  # a plugin sink's own settings
+
+
+def _one_or_many(value: Any) -> Any:
+    """``results:`` may be one store (a mapping, as it always was) or a list of stores."""
+    return [value] if isinstance(value, dict) else value
 
 
 class Motion(_Strict):
@@ -200,7 +216,10 @@ class Station(_Strict):
     fit: FitSettings = Field(default_factory=FitSettings)
     verify: VerifySettings = Field(default_factory=VerifySettings)
     limits: LimitSet = Field(default_factory=dict)
-    results: Results = Field(default_factory=Results)
+    # every store gets every record; the first is the station's own (run ids, history, statistics,
+    # process review, reports)
+    results: Annotated[list[Results], BeforeValidator(_one_or_many), Field(min_length=1)] = Field(
+        default_factory=lambda: [Results()])
     review: ReviewSettings = Field(default_factory=ReviewSettings)
     prompts: Prompts = Field(default_factory=Prompts)
     motion: Motion = Field(default_factory=Motion)
@@ -211,6 +230,18 @@ class Station(_Strict):
         if self.default_part is not None and self.default_part not in self.products:
             raise ValueError(f"default_part {self.default_part!r} is not one of the products")
         return self
+
+    @field_validator("results")
+    @classmethod
+    def _reports_from_the_main_store(cls, stores: list[Results]) -> list[Results]:
+        if any(r.reports is not None for r in stores[1:]):
+            raise ValueError("reports: is read from the first results store only (the station's own)")
+        return stores
+
+    @property
+    def main_results(self) -> Results:
+        """The station's own results store (the first of ``results``)."""
+        return self.results[0]
 
     @field_validator("slots")
     @classmethod
