@@ -320,10 +320,12 @@ def _fit_summary(doc: dict) -> str:
 
 
 def _plugins(args: argparse.Namespace, plugins: Plugins) -> int:
-    print(json.dumps({"plugins": plugins.describe(), "dut_backends": sorted(plugins.dut_backends),
+    print(json.dumps({"plugins": plugins.describe(), "registered": plugins.registry(),
+                      "dut_backends": sorted(plugins.dut_backends),
                       "field_sources": sorted(plugins.field_sources),
                       "result_sinks": sorted(plugins.result_sinks),
-                      "power_controls": sorted(plugins.power_controls)}, indent=2))
+                      "power_controls": sorted(plugins.power_controls), "motions": sorted(plugins.motions)},
+                     indent=2))
     return 0
 
 

@@ -35,7 +35,7 @@ class PluginError(RuntimeError):
 class Plugins:
     """The loaded plugins and their registries (DUT backends, field sources, result sinks, power controls, motions)."""
 
-    def __init__(self, pm: pluggy.PluginManager) -> None:
+    def __init__(self, pm: pluggy.PluginManager, versions: dict[str, tuple[str, str]] | None = None) -> None:
         self.pm = pm
         self.hook = pm.hook
         self.dut_backends: dict[str, DutFactory] = {}
@@ -46,6 +46,9 @@ class Plugins:
         # options models a plugin declared at registration (``register(name, factory, options=Model)``),
         # so ``magline check`` validates a product's options before any unit is connected
         self.option_models: dict[tuple[str, str], type] = {}
+        # who registered each name: (kind, name) → plugin name (for ``magline plugins`` and errors)
+        self.registered_by: dict[tuple[str, str], str] = {}
+        self.versions = versions or {}  # plugin name → (distribution, version)
         self._collect("dut backend", self.dut_backends, self.hook.magline_register_dut_backends)
         self._collect("field source", self.field_sources, self.hook.magline_register_field_sources)
         self._collect("result sink", self.result_sinks, self.hook.magline_register_result_sinks)
@@ -53,26 +56,48 @@ class Plugins:
         self._collect("motion", self.motions, self.hook.magline_register_motions)
 
     def _collect(self, kind: str, registry: dict[str, Any], hook: Any) -> None:
-        def register(name: str, factory: Any, options: type | None = None) -> None:
-            if not isinstance(name, str) or not name:
-                raise PluginError(f"a {kind} must be registered under a non-empty name")
-            if name in registry:
-                raise PluginError(f"{kind} {name!r} is registered twice")
-            registry[name] = factory
-            if options is not None:
-                self.option_models[(kind, name)] = options
+        """Call each plugin's registration hook in pluggy's order (last registered first), knowing
+        which plugin registers what."""
+        for impl in reversed(hook.get_hookimpls()):
+            # a plugin registered without a name (a test's or an application's object) is called by its class
+            by = impl.plugin_name if not impl.plugin_name.isdigit() else type(impl.plugin).__name__
 
-        hook(register=register)
+            def register(name: str, factory: Any, options: type | None = None, _by: str = by) -> None:
+                if not isinstance(name, str) or not name:
+                    raise PluginError(f"plugin {_by!r}: a {kind} must be registered under a non-empty name")
+                if name in registry:
+                    raise PluginError(f"{kind} {name!r} is registered twice (by plugin "
+                                      f"{self.registered_by[(kind, name)]!r} and by plugin {_by!r})")
+                registry[name] = factory
+                self.registered_by[(kind, name)] = _by
+                if options is not None:
+                    self.option_models[(kind, name)] = options
+
+            impl.function(register=register)
 
     def describe(self) -> list[dict[str, Any]]:
-        """Loaded plugins with the hooks each implements (for ``magline plugins``)."""
+        """Loaded plugins with their distribution and version, the hooks each implements and the
+        names each registered (for ``magline plugins``)."""
         out = []
         for name, plugin in self.pm.list_name_plugin():
             if plugin is None:
                 continue
             hooks = sorted(h.name for h in self.pm.get_hookcallers(plugin) or [])
-            out.append({"name": name, "module": getattr(plugin, "__name__", repr(plugin)), "hooks": hooks})
+            dist, version = self.versions.get(name, (None, None))
+            registers = sorted(f"{kind}: {what}" for (kind, what), by in self.registered_by.items() if by == name)
+            out.append({"name": name, "module": getattr(plugin, "__name__", repr(plugin)), "distribution": dist,
+                        "version": version, "hooks": hooks, "registers": registers})
         return sorted(out, key=lambda d: d["name"])
+
+    def registry(self) -> dict[str, dict[str, dict[str, Any]]]:
+        """Every registered name by kind, with the plugin that registered it and its version."""
+        out: dict[str, dict[str, dict[str, Any]]] = {}
+        for (kind, name), by in sorted(self.registered_by.items()):
+            dist, version = self.versions.get(by, (None, None))
+            model = self.option_models.get((kind, name))
+            out.setdefault(kind, {})[name] = {"plugin": by, "distribution": dist, "version": version,
+                                              "options": model.__name__ if model is not None else None}
+        return out
 
 
 def load_plugins(extra: list[ModuleType | object] | None = None) -> Plugins:
@@ -80,6 +105,7 @@ def load_plugins(extra: list[ModuleType | object] | None = None) -> Plugins:
     pm = pluggy.PluginManager("magline")
     pm.add_hookspecs(hookspecs)
     disabled = {n.strip() for n in os.environ.get(DISABLE_ENV, "").split(",") if n.strip()}
+    versions: dict[str, tuple[str, str]] = {}
     for ep in entry_points(group=ENTRY_POINT_GROUP):
         if ep.name in disabled or pm.has_plugin(ep.name):
             continue
@@ -88,10 +114,13 @@ def load_plugins(extra: list[ModuleType | object] | None = None) -> Plugins:
         except Exception as exc:  # a broken third-party plugin must say who it is
             raise PluginError(f"plugin {ep.name!r} ({ep.value}) failed to load: {exc}") from exc
         pm.register(plugin, name=ep.name)
+        dist = getattr(ep, "dist", None)
+        if dist is not None:
+            versions[ep.name] = (dist.metadata["Name"], dist.version)
     for plugin in extra or []:
         pm.register(plugin)
     try:
         pm.check_pending()
     except pluggy.PluginValidationError as exc:
         raise PluginError(f"unknown hook implementation: {exc}") from exc
-    return Plugins(pm)
+    return Plugins(pm, versions)

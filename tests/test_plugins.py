@@ -101,7 +101,7 @@ def test_duplicate_backend_name_rejected():
         def magline_register_dut_backends(self, register):
             register("mock", lambda product: None)
 
-    with pytest.raises(PluginError, match="registered twice"):
+    with pytest.raises(PluginError, match=r"registered twice \(by plugin 'Dup' and by plugin 'mock'\)"):
         load_plugins(extra=[Dup()])
 
 
@@ -110,6 +110,12 @@ def test_plugins_command_lists_hooks(capsys):
     doc = json.loads(capsys.readouterr().out)
     core = next(p for p in doc["plugins"] if p["name"] == "core_phases")
     assert "magline_fit" in core["hooks"] and "mock" in doc["dut_backends"]
+    from magline.core import __version__
+
+    px4 = doc["registered"]["dut backend"]["px4"]
+    assert px4 == {"plugin": "px4", "distribution": "magline", "version": __version__, "options": "Px4Options"}
+    gimbal = next(p for p in doc["plugins"] if p["name"] == "gimbal")
+    assert gimbal["registers"] == ["motion: gimbal"] and gimbal["version"] == __version__
 
 
 def test_fit_hook_can_be_replaced_by_a_plugin(make_station, tmp_path):
