@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-import copy
 from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
+
+from magline.testing import deep_update
 
 REPO = Path(__file__).resolve().parents[1]
 DEMO = REPO / "stations" / "demo.yaml"
@@ -15,16 +16,6 @@ DEMO = REPO / "stations" / "demo.yaml"
 
 def demo_config() -> dict:
     return yaml.safe_load(DEMO.read_text(encoding="utf-8"))
-
-
-def deep_update(base: dict, changes: dict) -> dict:
-    out = copy.deepcopy(base)
-    for key, value in changes.items():
-        if isinstance(value, dict) and isinstance(out.get(key), dict):
-            out[key] = deep_update(out[key], value)
-        else:
-            out[key] = value
-    return out
 
 
 @pytest.fixture

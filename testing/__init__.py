@@ -1,0 +1,30 @@
+"""magline.testing: the public testing API for plugin authors (and magline's own tests).
+
+What a DUT, field-source, motion or results-sink author needs without reading magline's internals:
+
+* stations: :func:`station_file` (a station from a shipped example and a dict of changes, in a
+  folder of yours), :func:`run_unit` (one unit through every phase, no waiting between attempts),
+  :func:`check_station` (exactly the problems ``magline check`` prints);
+* builders: :func:`make_fit` (a :class:`~magline.core.fit.FitResult` from ``h``, ``S`` and the
+  field, for testing a parameter conversion) and :func:`make_record`;
+* known truth: :class:`SensorTruth`, :func:`random_truth`, :func:`earth_field_ned`,
+  :func:`motion_directions` (the sensor model and operator motions magline's own accuracy
+  benchmarks use);
+* simulated flight controllers: :func:`px4_sim`, :func:`ardupilot_sim` (real MAVLink on a free
+  loopback port) and the connection string a station uses for them;
+* conformance: :func:`check_result_sink` runs the results-sink contract against your sink.
+
+With magline installed, pytest loads :mod:`magline.testing.plugin` (entry point ``pytest11``):
+its fixtures (``magline_station``, ``magline_run``, ``magline_px4``, ``magline_ardupilot``) are
+there for any test that names them, and do nothing otherwise.
+"""
+
+from magline.core.synthetic import SensorTruth, earth_field_ned, motion_directions, random_truth
+from magline.testing.builders import make_fit, make_record
+from magline.testing.conformance import check_result_sink
+from magline.testing.sims import SimulatedVehicle, ardupilot_sim, px4_sim
+from magline.testing.stations import Problem, check_station, deep_update, run_unit, station_file
+
+__all__ = ["Problem", "SensorTruth", "SimulatedVehicle", "ardupilot_sim", "check_result_sink", "check_station",
+           "deep_update", "earth_field_ned", "make_fit", "make_record", "motion_directions", "px4_sim",
+           "random_truth", "run_unit", "station_file"]
