@@ -88,11 +88,24 @@ class DutBackend(Protocol):
         """Open the link, identify the autopilot and its magnetometers."""
 
     def prepare(self) -> None:
-        """Stop the firmware rewriting calibration during the test; remember what to restore."""
+        """Stop the firmware rewriting calibration during the test (auto-learning, in-flight
+        calibration) and remember what to restore.  Change RAM only where you can: whatever
+        ``prepare`` changes, :meth:`restore` must put back in RAM *and* storage, because the
+        calibration's own commit (:meth:`commit`) saves every parameter, including the ones
+        ``prepare`` switched off — a ``restore`` that writes RAM only ships the unit with its
+        auto-calibration off after the next power cycle."""
 
     def samples(self, rate_hz: float) -> Iterator[SampleChunk]:
         """Stream raw (uncalibrated) readings until the caller stops iterating, each reading once
-        (copies a fast stream repeats are dropped and counted in ``SampleChunk.repeats``)."""
+        (copies a fast stream repeats are dropped and counted in ``SampleChunk.repeats``).
+
+        Pacing: yield readings as the sensor delivers them (block on the link); never faster than
+        the sensor, and never invent readings to reach ``rate_hz`` — it is the rate to *ask* the
+        firmware for; the core counts distinct readings against ``acquisition.samples`` and its
+        own ``timeout_s``.  ``t_ms``: the sensor's (or the stream's) own clock in milliseconds,
+        increasing; where it starts does not matter (only differences are used).  The generator
+        must stop its stream when closed (``close()`` / ``GeneratorExit``), and raise
+        :class:`LinkError` at once when the link is lost — not after a silent timeout."""
 
     def calibration_params(self, fit: FitResult) -> dict[str, ParamValue]:
         """Map a fit to this autopilot's parameters (units and sign convention applied here)."""
@@ -107,14 +120,21 @@ class DutBackend(Protocol):
         """Force the parameters to non-volatile storage."""
 
     def reboot(self) -> None:
-        """Command a reboot over the link (what the ``mavlink-reboot`` power method uses)."""
+        """Command a reboot over the link (what the ``mavlink-reboot`` power method uses).  A DUT
+        without such a command raises :class:`DutError`; its station then names a power control
+        that cuts the supply (``scpi-supply``, ``command``), and the record's ``persistence.method``
+        says which one proved the power cycle."""
 
     def release_link(self) -> None:
         """Close the link: the power is about to be cut and the vehicle will vanish."""
 
     def await_boot(self, since: float) -> dict[str, float]:
         """Reconnect after a reboot or power-on at ``since`` (``time.monotonic()``) and prove it is a
-        new boot; return figures (``time_to_heartbeat_s``, ``uptime_at_reconnect_s``)."""
+        new boot; return figures (``time_to_heartbeat_s``, ``uptime_at_reconnect_s``).
+
+        :func:`await_new_boot` does the proving: its ``reconnect(remaining_s)`` must itself keep
+        retrying until the vehicle answers or ``remaining_s`` runs out (a vehicle still booting
+        refuses connections), because ``await_new_boot`` gives up at the first error it gets."""
 
     def selected_sensor_present(self) -> bool:
         """After a power cycle: is the calibrated sensor still there with the same id?"""

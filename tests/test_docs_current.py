@@ -1,0 +1,22 @@
+"""docs/plugins.md is generated from the hooks and contracts; it must be what the code says now."""
+
+from __future__ import annotations
+
+from conftest import REPO
+
+from magline.testing.reference import generate
+
+
+def test_the_plugin_reference_is_current():
+    written = (REPO / "docs" / "plugins.md").read_text(encoding="utf-8")
+    assert written == generate(), "docs/plugins.md is stale: run  python -m magline.testing.reference > docs/plugins.md"
+
+
+def test_the_reference_holds_every_hook_and_the_lifecycle_contracts():
+    text = generate()
+    from test_hook_guard import HOOKS
+
+    assert all(f"### `{hook}`" in text for hook in HOOKS)
+    for contract in ("in RAM *and* storage", "never invent readings", "gives up at the first error",
+                     "persistence.method", "Run ids:", "check_result_sink"):
+        assert contract in text, contract
