@@ -81,3 +81,150 @@ def check_result_sink(open_sink: Callable[[Path], Any], folder: str | Path) -> N
         assert failed and failed[0]["verdict"] == "fail" and failed[0]["cause"], "the verdict and cause are stored"
     finally:
         sink.close()
+
+
+# --------------------------------------------------------------------------- DUT backends
+
+
+def _power_cycle(dut: Any) -> dict:
+    from magline.core.power import MavlinkReboot
+
+    return MavlinkReboot().cycle(dut)
+
+
+def _stream(dut: Any, count: int, rate_hz: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """``count`` readings from ``samples()``, checking each chunk; the generator closed at the end."""
+    import time
+
+    from magline.core.dut import SampleChunk
+
+    mags, times, got = [], [], 0
+    started = time.monotonic()
+    stream = dut.samples(rate_hz)
+    try:
+        for chunk in stream:
+            assert isinstance(chunk, SampleChunk), f"samples() must yield SampleChunk (got {type(chunk).__name__})"
+            mag, t_ms = np.atleast_2d(np.asarray(chunk.mag_ut, float)), np.atleast_1d(np.asarray(chunk.t_ms, float))
+            assert mag.shape[1:] == (3,) and len(t_ms) == len(mag), "a chunk holds (n, 3) readings and n times"
+            assert np.all(np.isfinite(mag)) and np.all(np.isfinite(t_ms)), "readings and times must be finite"
+            mags.append(mag)
+            times.append(t_ms)
+            got += len(mag)
+            if got >= count:
+                break
+    finally:
+        stream.close()  # a closable stream: the backend stops it (GeneratorExit)
+    wall = time.monotonic() - started
+    t_ms = np.concatenate(times)
+    assert np.all(np.diff(t_ms) > 0), "t_ms must increase from reading to reading (each distinct reading once)"
+    return np.vstack(mags)[:count], t_ms[:count], wall
+
+
+def check_dut_backend(open_dut: Callable[[], Any], field_ut: float, *, samples: int = 400, rate_hz: float = 50.0,
+                      prepare_params: tuple[str, ...] | list[str] = (), hard_iron_ut: Any = None,
+                      power_cycle: Callable[[Any], dict] | None = None, tolerance_pct: float = 3.0,
+                      unsaved_writes: str = "lost") -> dict:
+    """Run the DUT-backend contract (:class:`magline.core.dut.DutBackend`) against ``open_dut()``, a
+    backend connected to a device (or its simulator) that is being tumbled in a field of
+    ``field_ut`` µT.  Checks, in order, each failing with the rule it breaks:
+
+    identification; a paced, closable stream of distinct readings in µT (a sphere fit of them has
+    the field's radius; with ``hard_iron_ut``, the device's known offset); the float32 echo of a
+    write; unsaved writes lost on a power cycle; a proven new boot; a committed calibration read
+    back after it and the firmware's *calibrated* output reading ``field_ut`` (sign, unit and matrix
+    convention of ``calibration_params``); ``restore()`` undoing ``prepare()`` in storage (for the
+    parameters named in ``prepare_params``).  ``power_cycle(dut) -> figures`` defaults to the
+    ``mavlink-reboot`` method.  ``unsaved_writes``: what a power cycle does to a write that was not
+    committed — ``"lost"`` (the firmware saves only on ``commit()``), ``"kept"`` (it stores every
+    write at once, as ArduPilot) or ``"unspecified"`` (it saves on its own schedule, as PX4's
+    autosave 300 ms after a change: only ``commit()`` is a guarantee).  Returns figures (fit, boots)
+    for the author's own assertions."""
+    from magline.core.dut import DutBackend
+    from magline.core.fit import FitOptions, FitRefused, fit_calibration
+
+    cycle = power_cycle or _power_cycle
+    dut = open_dut()
+    missing = [m for m in ("connect", "prepare", "samples", "calibration_params", "read_params", "write_params",
+                           "commit", "reboot", "release_link", "await_boot", "selected_sensor_present",
+                           "persistence_problems", "restore", "close") if not callable(getattr(dut, m, None))]
+    assert not missing and isinstance(dut, DutBackend), f"the backend lacks {missing} (see DutBackend)"
+    figures: dict[str, Any] = {}
+    try:
+        info = dut.connect()
+        assert info.selected_sensor in info.sensors, "UnitInfo.selected_sensor must be one of UnitInfo.sensors"
+        assert info.autopilot and info.firmware, "UnitInfo names the autopilot and its firmware"
+        assert info.soft_iron_model in ("full", "diagonal"), "UnitInfo.soft_iron_model is 'full' or 'diagonal'"
+        original = dut.read_params(list(prepare_params))
+        assert set(original) == set(prepare_params), f"read_params({list(prepare_params)}) returned {original}"
+        dut.prepare()
+
+        mag, t_ms, wall = _stream(dut, samples, rate_hz)
+        span_s = (t_ms[-1] - t_ms[0]) / 1000.0
+        assert wall >= 0.5 * span_s, (f"{samples} readings spanning {span_s:.1f} s of the device's clock arrived in "
+                                      f"{wall:.1f} s: samples() must follow the sensor, not run ahead of it")
+        try:
+            fit = fit_calibration(mag, FitOptions(field_ut=field_ut, coverage_bins=40))
+        except FitRefused as exc:
+            raise AssertionError(f"the readings do not determine a calibration ({exc.message}): is the device "
+                                 "being tumbled through all orientations?") from None
+        ratio = fit.field_estimate_ut / field_ut
+        assert 0.7 < ratio < 1.3, (f"the readings' sphere has a radius of {fit.field_estimate_ut:.3g} for a "
+                                   f"{field_ut:g} µT field: readings must be in µT")
+        if hard_iron_ut is not None:
+            off = np.abs(fit.hard_iron_ut - np.asarray(hard_iron_ut, float))
+            assert np.all(off < 4 * fit.hard_iron_sigma_ut + 1.0), (
+                f"offset {fit.hard_iron_ut.round(2)} µT fitted from the readings, the device's is {hard_iron_ut}: "
+                "readings must be raw (uncalibrated), in µT, on the sensor's axes")
+        figures["fit"] = fit
+
+        params = dut.calibration_params(fit)
+        before = dut.read_params(list(params))
+        echoed = dut.write_params(params)
+        for name, value in params.items():
+            assert name in echoed, f"write_params() must return the echo of {name}"
+            if isinstance(value, float):
+                assert np.float32(echoed[name]) == np.float32(value), (
+                    f"{name}: wrote {value!r}, echoed {echoed[name]!r} — the echo is the float32 the device holds")
+        cycle(dut)  # not committed
+        after = dut.read_params(list(params))
+        assert unsaved_writes in ("lost", "kept", "unspecified"), f"unsaved_writes={unsaved_writes!r}"
+        if unsaved_writes == "kept":
+            gone = [n for n, v in params.items() if not np.isclose(after.get(n, np.nan), v, rtol=1e-6, atol=1e-9)]
+            assert not gone, f"{gone} did not survive a power cycle, but the firmware is said to save every write"
+        elif unsaved_writes == "lost":
+            kept = [n for n in params if n in before and not np.isclose(after.get(n, np.nan), before[n], rtol=1e-6)]
+            assert not kept, f"{kept} survived a power cycle without commit(): commit() must be what saves"
+
+        dut.prepare()
+        dut.write_params(params)
+        dut.commit()
+        started = __import__("time").monotonic()
+        boot = cycle(dut)
+        since = __import__("time").monotonic() - started
+        uptime = boot.get("uptime_at_reconnect_s")
+        assert uptime is None or uptime < since, "await_boot() must prove a new boot (its uptime is shorter)"
+        figures["boot"] = boot
+        assert dut.selected_sensor_present(), "the calibrated sensor must be present after the power cycle"
+        back = dut.read_params(list(params))
+        wrong = [n for n, v in params.items() if not np.isclose(back.get(n, np.nan), v, rtol=1e-6, atol=1e-9)]
+        assert not wrong, f"{wrong} not read back after commit() and a power cycle"
+        read = getattr(dut, "calibrated_field_ut", None)
+        assert callable(read), ("declare calibrated_field_ut(count): the firmware's calibrated output proves "
+                                "the conversion")
+        output = read(20)
+        if output is not None:
+            measured = float(np.median(np.linalg.norm(np.atleast_2d(output), axis=1)))
+            figures["calibrated_field_ut"] = measured
+            assert abs(measured / field_ut - 1) * 100 <= tolerance_pct, (
+                f"the firmware's calibrated output reads {measured:.2f} µT in a {field_ut:g} µT field: "
+                "calibration_params() has a wrong sign, unit or matrix convention")
+
+        dut.restore()
+        cycle(dut)
+        now = dut.read_params(list(prepare_params))
+        changed = {n: (now.get(n), v) for n, v in original.items() if not np.isclose(now.get(n, np.nan), v)}
+        assert not changed, (f"after restore() and a power cycle {changed} (now, before prepare()): restore() "
+                             "must undo prepare() in storage too, since commit() saved what prepare() changed")
+    finally:
+        dut.close()
+    return figures

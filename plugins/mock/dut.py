@@ -67,6 +67,11 @@ class MockDut:
         if not self.connected:
             raise NotRestored("link to mock DUT lost", {"MAG_AUTOCAL": f"0 (was {self._saved_autocal})"})
         self.ram["MAG_AUTOCAL"] = self._saved_autocal
+        # in storage too: the calibration's commit saved MAG_AUTOCAL = 0 along with everything else
+        stored = self.storage.load()
+        if stored.get("MAG_AUTOCAL", self._saved_autocal) != self._saved_autocal:
+            stored["MAG_AUTOCAL"] = self._saved_autocal
+            self.storage.save(stored)
         self._saved_autocal = None
 
     def close(self) -> None:

@@ -1,0 +1,68 @@
+"""The DUT-backend conformance suite of magline.testing run against magline's own backends: the
+mock in process, PX4 and ArduPilot against their simulators over real MAVLink."""
+
+from __future__ import annotations
+
+import pytest
+
+from magline.core.plugins import load_plugins
+from magline.core.station import load_station
+from magline.plugins.mock.dut import MockDut
+from magline.plugins.mock.options import MockOptions
+from magline.testing import check_dut_backend, station_file
+
+
+def test_the_mock_backend_meets_the_contract(tmp_path):
+    options = MockOptions(motions=["hand_tumble"], realtime=True, storage=str(tmp_path / "nv.json"), seed=4)
+    figures = check_dut_backend(lambda: MockDut(options), options.field_ut, samples=400, rate_hz=200.0,
+                                prepare_params=["MAG_AUTOCAL"], hard_iron_ut=options.hard_iron_ut)
+    assert figures["fit"].residual_rms_ut < 1.0
+
+
+def test_a_restore_that_writes_ram_only_is_caught(tmp_path, monkeypatch):
+    """The plugin author's trap: prepare() changed RAM, the calibration's commit saved it."""
+    def ram_only(self):
+        if self._saved_autocal is not None:
+            self.ram["MAG_AUTOCAL"], self._saved_autocal = self._saved_autocal, None
+
+    monkeypatch.setattr(MockDut, "restore", ram_only)
+    options = MockOptions(motions=["hand_tumble"], realtime=True, storage=str(tmp_path / "nv.json"), seed=4)
+    with pytest.raises(AssertionError, match=r"restore\(\) must undo prepare\(\) in storage"):
+        check_dut_backend(lambda: MockDut(options), options.field_ut, rate_hz=200.0, prepare_params=["MAG_AUTOCAL"])
+
+
+def test_a_wrong_sign_in_the_conversion_is_caught(tmp_path, monkeypatch):
+    convert = MockDut.calibration_params
+
+    def wrong_sign(self, fit):
+        params = convert(self, fit)
+        return {k: (-v if k.startswith("MAG_OFS") else v) for k, v in params.items()}
+
+    monkeypatch.setattr(MockDut, "calibration_params", wrong_sign)
+    options = MockOptions(motions=["hand_tumble"], realtime=True, storage=str(tmp_path / "nv.json"), seed=4)
+    with pytest.raises(AssertionError, match="wrong sign, unit or matrix convention"):
+        check_dut_backend(lambda: MockDut(options), options.field_ut, rate_hz=200.0)
+
+
+def _backend(path, part):
+    station = load_station(path)
+    factory = load_plugins().dut_backends[station.products[part].backend]
+    return lambda: factory(station.products[part])
+
+
+def test_the_px4_backend_meets_the_contract_on_its_simulator(magline_px4, tmp_path):
+    fc = magline_px4()
+    path = station_file(tmp_path, {"products": {"PX4-X500-100": {"connection": fc.connection, "options": {
+        "connect_timeout_s": 5.0, "boot_timeout_s": 10.0}}}}, base="px4-sim.yaml")
+    mag = fc.sim.magnetometers[0]
+    check_dut_backend(_backend(path, "PX4-X500-100"), fc.sim.field_ut, rate_hz=200.0,
+                      prepare_params=["SENS_MAG_AUTOCAL"], hard_iron_ut=mag.hard_iron_ut, unsaved_writes="unspecified")
+
+
+def test_the_ardupilot_backend_meets_the_contract_on_its_simulator(magline_ardupilot, tmp_path):
+    fc = magline_ardupilot()
+    path = station_file(tmp_path, {"products": {"AP-QUAD-200": {"connection": fc.connection, "options": {
+        "connect_timeout_s": 5.0, "boot_timeout_s": 10.0, "prearm_wait_s": 0.3}}}}, base="ardupilot-sim.yaml")
+    mag = fc.sim.magnetometers[0]
+    check_dut_backend(_backend(path, "AP-QUAD-200"), fc.sim.field_ut, rate_hz=200.0,
+                      prepare_params=["COMPASS_LEARN"], hard_iron_ut=mag.hard_iron_ut, unsaved_writes="kept")
