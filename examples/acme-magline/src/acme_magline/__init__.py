@@ -1,0 +1,1 @@
+"""magline plugins for ACME line-protocol magnetometer boards (an example third-party distribution)."""

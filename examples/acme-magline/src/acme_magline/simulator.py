@@ -1,0 +1,162 @@
+"""A simulated ACME board on a TCP port: known-truth sensor (magline.testing), tumbled for ever,
+RAM parameters saved to a JSON "flash" only on SAVE, a reboot that drops the link.
+
+    python -m acme_magline.simulator [--port 7000] [--flash acme-flash.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import socket
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+from magline.testing import SensorTruth, earth_field_ned, motion_directions
+
+from acme_magline.protocol import MATRIX, PARAMS, UT_PER_MG
+
+SENSOR_HZ = 100.0
+
+
+class AcmeSim:
+    def __init__(self, flash: Path, port: int = 0, field_ut: float = 48.0, boot_s: float = 0.3, seed: int = 5) -> None:
+        self.flash = Path(flash)
+        self.field_ut = field_ut
+        self.boot_s = boot_s
+        self.rng = np.random.default_rng(seed)
+        self.truth = SensorTruth(hard_iron_ut=np.array([42.0, -17.0, 25.0]),
+                                 soft_iron=np.array([[1.05, 0.02, 0.0], [0.02, 0.96, -0.01], [0.0, -0.01, 1.0]]),
+                                 noise_ut=0.2)
+        field = earth_field_ned(field_ut, 62.0)
+        # the operator tumbles the board through every orientation every 4 s, for ever
+        self.directions = motion_directions("hand_tumble", int(4 * SENSOR_HZ), self.rng, field)
+        self.server = socket.create_server(("127.0.0.1", port))
+        self.port = self.server.getsockname()[1]
+        self.lock = threading.Lock()
+        self.ram: dict[str, float] = {}
+        self.booted_at = 0.0
+        self.up_at = 0.0
+        self._stop = threading.Event()
+        self._boot()
+
+    @property
+    def connection(self) -> str:
+        return f"tcp:127.0.0.1:{self.port}"
+
+    def _boot(self) -> None:
+        stored = json.loads(self.flash.read_text()) if self.flash.exists() else {}
+        self.ram = {**PARAMS, **stored}
+        self.booted_at = time.monotonic()
+        self.up_at = self.booted_at + self.boot_s
+
+    def start(self) -> AcmeSim:
+        threading.Thread(target=self._serve, daemon=True).start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        self.server.close()
+
+    def _serve(self) -> None:
+        self.server.settimeout(0.2)
+        while not self._stop.is_set():
+            try:
+                client, _ = self.server.accept()
+            except OSError:
+                continue
+            if time.monotonic() < self.up_at:  # still booting: no answer
+                client.close()
+                continue
+            threading.Thread(target=self._session, args=(client,), daemon=True).start()
+
+    def _reading_mg(self, index: int) -> np.ndarray:
+        body = self.directions[index % len(self.directions)] * self.field_ut
+        return self.truth.read(body[None, :], self.rng)[0] / UT_PER_MG
+
+    def _session(self, client: socket.socket) -> None:
+        streaming = threading.Event()
+        with client, client.makefile("rw", encoding="ascii", newline="\n") as wire:
+            send_lock = threading.Lock()
+
+            def send(line: str) -> None:
+                with send_lock:
+                    wire.write(line + "\n")
+                    wire.flush()
+
+            def stream(hz: float) -> None:
+                period = 1.0 / min(hz, SENSOR_HZ)
+                n, t0 = 0, time.monotonic()
+                while streaming.is_set() and not self._stop.is_set():
+                    x, y, z = self._reading_mg(int((time.monotonic() - self.booted_at) * SENSOR_HZ))
+                    send(f"M {int((time.monotonic() - self.booted_at) * 1000)} {x:.1f} {y:.1f} {z:.1f}")
+                    n += 1
+                    time.sleep(max(0.0, t0 + n * period - time.monotonic()))
+
+            for line in wire:
+                parts = line.split()
+                if not parts:
+                    continue
+                head, args = parts[0].upper(), parts[1:]
+                try:
+                    if head == "ID?":
+                        send("ID ACME-MAG 1.2.0 0x4A21")
+                    elif head == "STREAM":
+                        streaming.set()
+                        threading.Thread(target=stream, args=(float(args[0]),), daemon=True).start()
+                    elif head == "STOP":
+                        streaming.clear()
+                        send("OK STOP")
+                    elif head == "GET":
+                        known = args[0] in self.ram
+                        send(f"VAL {args[0]} {self.ram[args[0]]!r}" if known else f"ERR unknown {args[0]}")
+                    elif head == "SET":
+                        if args[0] not in self.ram:
+                            send(f"ERR unknown {args[0]}")
+                            continue
+                        with self.lock:
+                            self.ram[args[0]] = float(np.float32(float(args[1])))
+                        send(f"VAL {args[0]} {self.ram[args[0]]!r}")
+                    elif head == "SAVE":
+                        self.flash.write_text(json.dumps(self.ram))
+                        send("OK SAVE")
+                    elif head == "UPTIME?":
+                        send(f"UPTIME {time.monotonic() - self.booted_at:.3f}")
+                    elif head == "CAL?":
+                        raw = self._reading_mg(int(self.rng.integers(len(self.directions))))
+                        s = np.eye(3)
+                        for name, i, j in MATRIX:
+                            s[i, j] = s[j, i] = self.ram[name]
+                        ofs = np.array([self.ram["OFS_X"], self.ram["OFS_Y"], self.ram["OFS_Z"]])
+                        x, y, z = s @ (raw + ofs)
+                        send(f"C {x:.2f} {y:.2f} {z:.2f}")
+                    elif head == "REBOOT":
+                        send("OK REBOOT")
+                        streaming.clear()
+                        with self.lock:
+                            self._boot()
+                        return
+                    else:
+                        send(f"ERR unknown command {head}")
+                except (IndexError, ValueError):
+                    send(f"ERR bad arguments for {head}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--port", type=int, default=7000)
+    parser.add_argument("--flash", default="acme-flash.json")
+    args = parser.parse_args()
+    sim = AcmeSim(Path(args.flash), args.port).start()
+    print(f"listening on {sim.connection}", flush=True)
+    try:
+        while True:
+            time.sleep(1)
+    except KeyboardInterrupt:
+        sim.stop()
+
+
+if __name__ == "__main__":
+    main()
