@@ -156,7 +156,7 @@ class DutBackend(Protocol):
         """Release the link."""
 
 
-DutFactory = Callable[["Product"], DutBackend]
+DutFactory = Callable[["Product", Any], DutBackend]  # (the product entry, its validated options)
 
 OptionsModel = TypeVar("OptionsModel", bound=BaseModel)
 

@@ -21,12 +21,12 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import pluggy
+from pydantic import BaseModel
 
 if TYPE_CHECKING:
-    from magline.core.dut import DutFactory
     from magline.core.fit import FitOptions, FitResult
     from magline.core.fit.samples_csv import RawSamples
     from magline.core.measurements import Measurement
@@ -35,29 +35,43 @@ if TYPE_CHECKING:
 
 hookspec = pluggy.HookspecMarker("magline")
 
+
+class Register(Protocol):
+    """What every ``magline_register_*`` hook is given: ``register(name, factory, options=Model)``.
+
+    ``Model`` (a pydantic model, optional) declares the options the name takes in a station file:
+    ``magline check`` validates them with file, key and line, and the factory receives them
+    validated (an instance of ``Model``)."""
+
+    def __call__(self, name: str, factory: Callable[..., Any], options: type[BaseModel] | None = None) -> None: ...
+
+
 # --------------------------------------------------------------------------- registration
 
 
 @hookspec
-def magline_register_dut_backends(register: Callable[[str, DutFactory], None]) -> None:
+def magline_register_dut_backends(register: Register) -> None:
     """Add DUT backends by name.  Called once when the plugin manager starts.
 
     :param register: call ``register(name, factory, options=Model)`` once per backend;
-        ``factory(product)`` receives the station file's product entry and returns a
-        :class:`~magline.core.dut.DutBackend`.  The name is what a station file writes under
-        ``products.<part>.backend``; the optional pydantic ``Model`` lets ``magline check`` validate
-        ``products.<part>.options`` (with file and line) before any unit is connected.
+        ``factory(product, options)`` receives the station file's product entry (for a slot: with
+        the slot's connection and options) and ``products.<part>.options`` validated against
+        ``Model`` (the raw mapping without one), and returns a :class:`~magline.core.dut.DutBackend`.
+        The name is what a station file writes under ``products.<part>.backend``; with ``Model``,
+        ``magline check`` (and every command that loads the station) reports bad options with file,
+        key and line before any unit is connected.
     """
 
 
 @hookspec
-def magline_register_field_sources(register: Callable[[str, Callable[..., Any]], None]) -> None:
+def magline_register_field_sources(register: Register) -> None:
     """Add field sources (the expected local field) by name.  Called once at start-up.
 
-    :param register: call ``register(name, factory)``; ``factory(station)`` receives the whole
-        station and returns a :class:`~magline.core.field.FieldSource`: ``reference_field_ut()``
-        (called as each unit connects; raise :class:`~magline.core.field.FieldSourceError` to stop
-        the batch when the cell's field cannot be trusted), ``finish_unit()`` (after every unit,
+    :param register: call ``register(name, factory, options=Model)``; ``factory(station, options)``
+        receives the whole station and ``field_source.options`` validated against ``Model``, and
+        returns a :class:`~magline.core.field.FieldSource`: ``reference_field_ut()`` (called as
+        each unit connects; raise :class:`~magline.core.field.FieldSourceError` to stop the batch
+        when the cell's field cannot be trusted), ``finish_unit()`` (after every unit,
         also after errors) and ``close()``; ``reference_is_ambient = True`` when the unit sits in that
         field after its power cycle too (the verify phase then checks the firmware's calibrated
         output against it).  The name is the station file's ``field_source.type``.
@@ -67,7 +81,7 @@ def magline_register_field_sources(register: Callable[[str, Callable[..., Any]],
 
 
 @hookspec
-def magline_register_result_sinks(register: Callable[[str, Callable[..., Any]], None]) -> None:
+def magline_register_result_sinks(register: Register) -> None:
     """Add result stores by name.  Called once at start-up.
 
     :param register: call ``register(name, factory, options=Model)``; ``factory(station,
@@ -81,11 +95,12 @@ def magline_register_result_sinks(register: Callable[[str, Callable[..., Any]], 
 
 
 @hookspec
-def magline_register_power_controls(register: Callable[[str, Callable[..., Any]], None]) -> None:
+def magline_register_power_controls(register: Register) -> None:
     """Add power-control methods by name.  Called once at start-up.
 
-    :param register: call ``register(name, factory)``; ``factory(power_config, station_dir)``
-        receives the product's ``power`` entry (method and options) and returns a
+    :param register: call ``register(name, factory, options=Model)``; ``factory(power_config,
+        station_dir, options)`` receives the product's ``power`` entry, the station's folder and
+        ``power.options`` validated against ``Model``, and returns a
         :class:`~magline.core.power.PowerControl`.  The name is what a station file writes under
         ``products.<part>.power.method``; the core registers ``mavlink-reboot``.  As for backends,
         ``options=Model`` lets ``magline check`` validate ``products.<part>.power.options``.
@@ -93,17 +108,17 @@ def magline_register_power_controls(register: Callable[[str, Callable[..., Any]]
 
 
 @hookspec
-def magline_register_motions(register: Callable[[str, Callable[..., Any]], None]) -> None:
+def magline_register_motions(register: Register) -> None:
     """Add motions (what turns the units during acquisition) by name.  Called once at start-up.
 
     :param register: call ``register(name, factory, options=Model)``; ``factory(station,
-        station_dir)`` returns a :class:`~magline.core.motion.Motion`: ``start(round, slots)`` begins
-        the pattern and returns once the fixture moves, ``stop()`` ends it, ``close()`` at the end
-        of the batch.  The name is the station file's ``motion.type``; the core registers
-        ``operator`` (a person tumbles the unit, prompted by the acquire phase).  On a station with
-        slots one motion serves every slot: the sequencer starts it once per shared acquisition
-        round, for the slots that need samples in that round, and stops it when the last of them has
-        its samples.  ``options=Model`` lets ``magline check`` validate ``motion.options``.
+        station_dir, options)`` (``motion.options`` validated against ``Model``) returns a
+        :class:`~magline.core.motion.Motion`: ``start(round, slots)`` begins the pattern and
+        returns once the fixture moves, ``stop()`` ends it, ``close()`` at the end of the batch.
+        The name is the station file's ``motion.type``; the core registers ``operator`` (a person
+        tumbles the unit, prompted by the acquire phase).  On a station with slots one motion
+        serves every slot: the sequencer starts it once per shared acquisition round, for the slots
+        that need samples in that round, and stops it when the last of them has its samples.
     """
 
 

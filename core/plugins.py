@@ -75,6 +75,15 @@ class Plugins:
 
             impl.function(register=register)
 
+    def options(self, kind: str, name: str, raw: dict[str, Any], owner: str) -> Any:
+        """A factory's options: ``raw`` validated against the model the plugin registered for
+        ``(kind, name)`` (the raw mapping when it registered none).  ``magline check`` and the
+        commands that load a station report the same problems earlier, with file and line."""
+        from magline.core.dut import validated_options
+
+        model = self.option_models.get((kind, name))
+        return validated_options(model, raw, owner) if model is not None else raw
+
     def describe(self) -> list[dict[str, Any]]:
         """Loaded plugins with their distribution and version, the hooks each implements and the
         names each registered (for ``magline plugins``)."""

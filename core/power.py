@@ -60,7 +60,7 @@ class MavlinkReboot:
         return None
 
 
-def create_mavlink_reboot(config: PowerConfig, station_dir: Path) -> MavlinkReboot:
+def create_mavlink_reboot(config: PowerConfig, station_dir: Path, options: dict) -> MavlinkReboot:
     if config.options:
         raise ValueError(f"mavlink-reboot takes no options (got {', '.join(config.options)})")
     return MavlinkReboot()

@@ -45,9 +45,10 @@ def test_a_wrong_sign_in_the_conversion_is_caught(tmp_path, monkeypatch):
 
 
 def _backend(path, part):
-    station = load_station(path)
-    factory = load_plugins().dut_backends[station.products[part].backend]
-    return lambda: factory(station.products[part])
+    station, plugins = load_station(path), load_plugins()
+    product = station.products[part]
+    options = plugins.options("dut backend", product.backend, product.options, f"products.{part}.options")
+    return lambda: plugins.dut_backends[product.backend](product, options)
 
 
 def test_the_px4_backend_meets_the_contract_on_its_simulator(magline_px4, tmp_path):

@@ -39,7 +39,7 @@ class ExtraSink:
 
     @hookimpl
     def magline_register_field_sources(self, register):
-        register("constant50", lambda station: type("F", (), {"reference_field_ut": lambda self: 48.0})())
+        register("constant50", lambda station, options: type("F", (), {"reference_field_ut": lambda self: 48.0})())
 
     def __init__(self):
         self.finished = []

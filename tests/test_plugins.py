@@ -24,17 +24,18 @@ def third_party(tmp_path, monkeypatch):
     pkg.mkdir(parents=True)
     (pkg / "__init__.py").write_text(textwrap.dedent('''
         from magline.core.plugins import hookimpl
+        from magline.plugins.mock.options import MockOptions
         from magline.plugins.mock.plugin import create_mock_dut
 
         CREATED = []
 
-        def make(product):
+        def make(product, options):
             CREATED.append(product.connection)
-            return create_mock_dut(product)
+            return create_mock_dut(product, options)
 
         @hookimpl
         def magline_register_dut_backends(register):
-            register("acme", make)
+            register("acme", make, options=MockOptions)
 
         def hello(args):
             print(f"acme says hello to {args.who}")
@@ -99,7 +100,7 @@ def test_duplicate_backend_name_rejected():
     class Dup:
         @hookimpl
         def magline_register_dut_backends(self, register):
-            register("mock", lambda product: None)
+            register("mock", lambda product, options: None)
 
     with pytest.raises(PluginError, match=r"registered twice \(by plugin 'Dup' and by plugin 'mock'\)"):
         load_plugins(extra=[Dup()])

@@ -196,7 +196,7 @@ def test_a_third_party_power_control_plugs_in(tmp_path):
         class AcmePlugin:
             @hookimpl
             def magline_register_power_controls(self, register):
-                register("acme-relay", lambda config, station_dir: made.append(Relay(config, station_dir))
+                register("acme-relay", lambda config, station_dir, options: made.append(Relay(config, station_dir))
                          or made[-1])
 
         path = write_station("ardupilot-sim.yaml", tmp_path, sim.address, AP_OPTIONS,

@@ -182,7 +182,7 @@ def counting_plugin(motion: CountingMotion):
     class Plugin:
         @hookimpl
         def magline_register_motions(self, register):
-            register("counting", lambda station, where: motion)
+            register("counting", lambda station, where, options: motion)
 
     return Plugin()
 

@@ -19,7 +19,7 @@ class FixedField(CheckedField):
         super().__init__(field_ut, reference, "surveyed field")
 
 
-def _factory(station: Any) -> FixedField:
+def _factory(station: Any, options: dict) -> FixedField:
     options = station.field_source.options
     if "field_ut" not in options:
         raise ValueError("field_source.options.field_ut is required for the fixed field source")

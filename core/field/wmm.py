@@ -54,7 +54,7 @@ class WmmField(CheckedField):
                          f"World Magnetic Model ({self.day.isoformat()})")
 
 
-def _factory(station: Any) -> WmmField:
+def _factory(station: Any, options: dict) -> WmmField:
     options = dict(station.field_source.options)
     unknown = set(options) - {"date", "reference"}
     if unknown:

@@ -25,7 +25,7 @@ class OperatorMotion:
         return None
 
 
-def create_operator_motion(station: Station, station_dir: Path) -> OperatorMotion:
+def create_operator_motion(station: Station, station_dir: Path, options: dict) -> OperatorMotion:
     return OperatorMotion()
 
 

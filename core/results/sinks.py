@@ -12,7 +12,6 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from magline.core.dut import validated_options
 from magline.core.faults import StationFault
 from magline.core.plugins import Plugins
 from magline.core.record import AttemptRecord, RunRecord
@@ -38,8 +37,7 @@ def open_one(station: Station, station_dir: Path, plugins: Plugins, entry: Resul
     if factory is None:
         raise StationFault(f"no results sink named {entry.sink!r} is loaded "
                            f"(loaded: {', '.join(sorted(plugins.result_sinks))})")
-    model = plugins.option_models.get(("result sink", entry.sink))
-    options = validated_options(model, entry.options, f"results[{index}] ({entry.sink})") if model else entry.options
+    options = plugins.options("result sink", entry.sink, entry.options, f"results[{index}].options")
     return factory(station, Path(station_dir), entry, options)
 
 

@@ -57,13 +57,15 @@ class Sequencer:
         self.sleep = sleep
         self.abort = AbortSwitch()
         self.sink = open_results(station, self.station_dir, plugins)
-        source_factory = plugins.field_sources[station.field_source.type]
-        self.field_source = source_factory(station)
+        kind = station.field_source.type
+        self.field_source = plugins.field_sources[kind](
+            station, plugins.options("field source", kind, station.field_source.options, "field_source.options"))
         motion_factory = plugins.motions.get(station.motion.type)
         if motion_factory is None:
             raise StationFault(f"no motion named {station.motion.type!r} is loaded "
                                f"(loaded: {', '.join(sorted(plugins.motions))})")
-        self.motion = motion_factory(station, self.station_dir)
+        self.motion = motion_factory(station, self.station_dir, plugins.options(
+            "motion", station.motion.type, station.motion.options, "motion.options"))
         self.stopped: str | None = None  # why the batch was stopped (the cell's field is not trusted)
         self.shared_lock = threading.RLock()  # slots running side by side share the field source
 
@@ -244,9 +246,12 @@ class Sequencer:
         with self.shared_lock:
             run.reference_field_ut = run.record.reference_field_ut = self.field_source.reference_field_ut()
         run.log(f"reference field {run.reference_field_ut:.2f} µT")
-        run.power = power_factory(run.product.power, self.station_dir)
+        power = run.product.power
+        run.power = power_factory(power, self.station_dir, self.plugins.options(
+            "power control", power.method, power.options, f"products.{run.part}.power.options"))
         run.power.power_up()
-        run.dut = factory(run.product)
+        run.dut = factory(run.product, self.plugins.options("dut backend", run.product.backend, run.product.options,
+                                                            f"products.{run.part}.options"))
         run.unit = run.dut.connect()
         run.record.unit_info = {
             "autopilot": run.unit.autopilot, "firmware": run.unit.firmware,

@@ -77,6 +77,10 @@ def _plugin_problems(data: dict, text: str, name: str, plugins: Plugins) -> list
             merged = {**(product.get("options") or {}), **slot["options"]}
             out += _option_problems(plugins, ("dut backend", product.get("backend")), merged,
                                     ("slots", index, "options"), text, name)
+    source = data.get("field_source")
+    if isinstance(source, dict) and isinstance(source.get("type", "fixed"), str):
+        out += _option_problems(plugins, ("field source", source.get("type", "fixed")), source.get("options"),
+                                ("field_source", "options"), text, name)
     motion = data.get("motion")
     if isinstance(motion, dict) and isinstance(motion.get("type", "operator"), str):
         out += _option_problems(plugins, ("motion", motion.get("type", "operator")), motion.get("options"),

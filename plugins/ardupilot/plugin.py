@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from magline.core.dut import validated_options
 from magline.core.plugins import hookimpl
 from magline.core.station.schema import Product
 from magline.plugins.ardupilot.options import ArduPilotOptions
@@ -13,12 +12,11 @@ if TYPE_CHECKING:
     from magline.plugins.ardupilot.dut import ArduPilotDut
 
 
-def create_ardupilot_dut(product: Product) -> ArduPilotDut:
+def create_ardupilot_dut(product: Product, options: ArduPilotOptions) -> ArduPilotDut:
     from magline.plugins.ardupilot.dut import (
         ArduPilotDut,  # on use: its MAVLink library would slow every command's start
     )
 
-    options = validated_options(ArduPilotOptions, product.options, "ardupilot backend")
     return ArduPilotDut(product, options)
 
 

@@ -17,7 +17,6 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from magline.core.dut import validated_options
 from magline.core.scpi import InstrumentError, ScpiInstrument
 from magline.core.station.schema import Station
 
@@ -58,5 +57,5 @@ class GimbalMotion:
         self.instrument.close()
 
 
-def create_gimbal_motion(station: Station, station_dir: Path) -> GimbalMotion:
-    return GimbalMotion(validated_options(GimbalOptions, station.motion.options, "motion options"))
+def create_gimbal_motion(station: Station, station_dir: Path, options: GimbalOptions) -> GimbalMotion:
+    return GimbalMotion(options)

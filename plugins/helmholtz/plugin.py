@@ -19,12 +19,13 @@ from magline.core.fit.samples_csv import RawSamples
 from magline.core.measurements import Numeric
 from magline.core.plugins import hookimpl
 from magline.core.sequencer.context import Acquisition, RunContext
+from magline.plugins.helmholtz.options import HelmholtzOptions
 from magline.plugins.helmholtz.source import HelmholtzField, create_helmholtz_field, schedule
 
 
 @hookimpl
 def magline_register_field_sources(register):
-    register("helmholtz", create_helmholtz_field)
+    register("helmholtz", create_helmholtz_field, options=HelmholtzOptions)
 
 
 @hookimpl

@@ -16,7 +16,6 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from magline.core.dut import validated_options
 from magline.core.field import FieldSourceError
 from magline.core.field.reference import Fluxgate
 from magline.core.fit.coverage import fibonacci_sphere
@@ -141,6 +140,5 @@ class HelmholtzField:
                     instrument.close()
 
 
-def create_helmholtz_field(station: Any) -> HelmholtzField:
-    options = validated_options(HelmholtzOptions, dict(station.field_source.options), "helmholtz field source")
+def create_helmholtz_field(station: Any, options: HelmholtzOptions) -> HelmholtzField:
     return HelmholtzField(options)

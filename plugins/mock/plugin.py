@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from magline.core.dut import validated_options
 from magline.core.plugins import hookimpl
 from magline.core.station.schema import Product
 from magline.plugins.mock.commands import add_sim_command
@@ -14,12 +13,11 @@ if TYPE_CHECKING:
     from magline.plugins.mock.dut import MockDut
 
 
-def create_mock_dut(product: Product) -> MockDut:
+def create_mock_dut(product: Product, options: MockOptions) -> MockDut:
     # imported when a unit is tested, not when the plugin loads: the simulated sensor's scipy
     # rotations would cost every command (spc, report, history) a third of a second
     from magline.plugins.mock.dut import MockDut
 
-    options = validated_options(MockOptions, product.options, "mock backend")
     return MockDut(options)
 
 

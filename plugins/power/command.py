@@ -11,7 +11,7 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from magline.core.dut import DutBackend, validated_options
+from magline.core.dut import DutBackend
 from magline.core.power import PowerError
 from magline.core.station.schema import PowerConfig
 
@@ -66,5 +66,5 @@ class CommandPower:
         return None
 
 
-def create_command_power(config: PowerConfig, station_dir: Path) -> CommandPower:
-    return CommandPower(validated_options(CommandOptions, config.options, "command power control"), station_dir)
+def create_command_power(config: PowerConfig, station_dir: Path, options: CommandOptions) -> CommandPower:
+    return CommandPower(options, station_dir)

@@ -15,7 +15,7 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from magline.core.dut import DutBackend, DutError, validated_options
+from magline.core.dut import DutBackend, DutError
 from magline.core.power import PowerError
 from magline.core.scpi import InstrumentError, ScpiInstrument
 from magline.core.station.schema import PowerConfig
@@ -112,5 +112,5 @@ class ScpiSupply:
         self.inst.close()
 
 
-def create_scpi_supply(config: PowerConfig, station_dir: Path) -> ScpiSupply:
-    return ScpiSupply(validated_options(ScpiSupplyOptions, config.options, "scpi-supply power control"))
+def create_scpi_supply(config: PowerConfig, station_dir: Path, options: ScpiSupplyOptions) -> ScpiSupply:
+    return ScpiSupply(options)

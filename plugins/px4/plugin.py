@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from magline.core.dut import validated_options
 from magline.core.plugins import hookimpl
 from magline.core.station.schema import Product
 from magline.plugins.px4.options import Px4Options
@@ -13,10 +12,10 @@ if TYPE_CHECKING:
     from magline.plugins.px4.dut import Px4Dut
 
 
-def create_px4_dut(product: Product) -> Px4Dut:
+def create_px4_dut(product: Product, options: Px4Options) -> Px4Dut:
     from magline.plugins.px4.dut import Px4Dut  # on use: its MAVLink library would slow every command's start
 
-    return Px4Dut(product, validated_options(Px4Options, product.options, "px4 backend"))
+    return Px4Dut(product, options)
 
 
 @hookimpl

@@ -5,15 +5,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from magline.core.dut import validated_options
 from magline.core.plugins import hookimpl
 
 from acme_magline.dut import AcmeDut, AcmeOptions
 from acme_magline.sink import JsonLinesOptions, JsonLinesSink
 
 
-def create_acme_dut(product) -> AcmeDut:
-    return AcmeDut(validated_options(AcmeOptions, product.options, "acme options"), product.connection)
+def create_acme_dut(product, options: AcmeOptions) -> AcmeDut:
+    return AcmeDut(options, product.connection)
 
 
 def create_jsonl_sink(station, station_dir: Path, entry, options: JsonLinesOptions) -> JsonLinesSink:
