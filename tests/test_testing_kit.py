@@ -29,6 +29,20 @@ def test_a_unit_on_a_kit_station_and_check_station_is_exactly_what_magline_check
     assert all(p.line > 1 for p in problems) and check_station(magline_station(name="good.yaml")) == []
 
 
+
+def test_load_station_with_the_plugins_checks_what_only_they_know(magline_station):
+    from magline.core.station import StationError
+
+    path = magline_station({"products": {"MOCK-100": {"options": {"noise": 1.0}, "power": {"method": "relay"}}}})
+    assert load_station(path).products["MOCK-100"].options["noise"] == 1.0  # the schema alone accepts it
+    with pytest.raises(StationError) as refused:
+        load_station(path, load_plugins())
+    text = str(refused.value)
+    assert "products.MOCK-100.options.noise: unknown key (did you mean 'noise_ut'?)" in text
+    assert "products.MOCK-100.power.method: unknown power control 'relay'" in text
+
+
+
 def test_make_fit_tests_a_conversion_without_hand_made_stand_ins():
     from magline.plugins.ardupilot.calibration import fit_to_params as ardupilot_params
     from magline.plugins.px4.calibration import fit_to_params as px4_params
