@@ -13,7 +13,8 @@ What a DUT, field-source, motion or results-sink author needs without reading ma
 * simulated flight controllers: :func:`px4_sim`, :func:`ardupilot_sim` (real MAVLink on a free
   loopback port) and the connection string a station uses for them;
 * conformance: :func:`check_dut_backend` runs the DUT-backend contract against your backend and
-  its (simulated) device, :func:`check_result_sink` the results-sink contract against your sink.
+  its (simulated) device, :func:`check_result_sink` the results-sink contract against your sink,
+  :func:`check_field_source` and :func:`check_power_control` theirs.
 
 With magline installed, pytest loads :mod:`magline.testing.plugin` (entry point ``pytest11``):
 its fixtures (``magline_station``, ``magline_run``, ``magline_px4``, ``magline_ardupilot``) are
@@ -22,10 +23,10 @@ there for any test that names them, and do nothing otherwise.
 
 from magline.core.synthetic import SensorTruth, earth_field_ned, motion_directions, random_truth
 from magline.testing.builders import make_fit, make_record
-from magline.testing.conformance import check_dut_backend, check_result_sink
+from magline.testing.conformance import check_dut_backend, check_field_source, check_power_control, check_result_sink
 from magline.testing.sims import SimulatedVehicle, ardupilot_sim, px4_sim
 from magline.testing.stations import Problem, check_station, deep_update, run_unit, station_file
 
-__all__ = ["Problem", "SensorTruth", "SimulatedVehicle", "ardupilot_sim", "check_dut_backend", "check_result_sink",
-           "check_station", "deep_update", "earth_field_ned", "make_fit", "make_record", "motion_directions", "px4_sim",
-           "random_truth", "run_unit", "station_file"]
+__all__ = ["Problem", "SensorTruth", "SimulatedVehicle", "ardupilot_sim", "check_dut_backend", "check_field_source",
+           "check_power_control", "check_result_sink", "check_station", "deep_update", "earth_field_ned", "make_fit",
+           "make_record", "motion_directions", "px4_sim", "random_truth", "run_unit", "station_file"]

@@ -228,3 +228,63 @@ def check_dut_backend(open_dut: Callable[[], Any], field_ut: float, *, samples: 
     finally:
         dut.close()
     return figures
+
+
+# --------------------------------------------------------------------------- field sources, power controls
+
+
+def check_field_source(open_source: Callable[[], Any], expected_ut: float | None = None,
+                       tolerance_ut: float = 0.05) -> float:
+    """Run the field-source contract (:class:`magline.core.field.FieldSource`): a finite reference
+    in µT (the Earth's 20–70 µT, a coil's up to 500), the same for consecutive units (within
+    ``tolerance_ut``, and equal to ``expected_ut`` when given), ``finish_unit()`` safe after every unit
+    and twice in a row, ``reference_is_ambient`` a bool when declared, ``close()``.  Returns the reference."""
+    from magline.core.field import FieldSource
+
+    source = open_source()
+    assert isinstance(source, FieldSource), "a field source has reference_field_ut(), finish_unit() and close()"
+    try:
+        first = source.reference_field_ut()
+        assert isinstance(first, float) and np.isfinite(first), f"reference_field_ut() is a float (got {first!r})"
+        assert 1.0 < first < 500.0, f"reference_field_ut() = {first:g}: the field must be in µT"
+        source.finish_unit()
+        source.finish_unit()
+        second = source.reference_field_ut()
+        assert abs(second - first) <= tolerance_ut, f"consecutive units got {first:g} and {second:g} µT"
+        if expected_ut is not None:
+            assert abs(first - expected_ut) <= tolerance_ut, f"reference {first:g} µT, expected {expected_ut:g} µT"
+        ambient = getattr(source, "reference_is_ambient", False)
+        assert isinstance(ambient, bool), "reference_is_ambient is True or False"
+        source.finish_unit()
+    finally:
+        source.close()
+    return first
+
+
+def check_power_control(open_power: Callable[[], Any], open_dut: Callable[[], Any]) -> dict:
+    """Run the power-control contract (:class:`magline.core.power.PowerControl`) with a DUT:
+    ``power_up()`` makes the unit reachable, ``cycle(dut)`` returns figures (numbers, and the
+    ``method`` that proved the cycle) with the unit back on a new boot and answering,
+    ``finish()`` twice is safe, ``close()``.  Returns the cycle's figures."""
+    power = open_power()
+    for name in ("power_up", "cycle", "finish", "close"):
+        assert callable(getattr(power, name, None)), f"a power control has {name}()"
+    assert isinstance(getattr(power, "method", None), str), "a power control names its method (``method``)"
+    dut = open_dut()
+    try:
+        power.power_up()
+        dut.connect()
+        figures = dict(power.cycle(dut))
+        method = figures.pop("method", power.method)
+        assert isinstance(method, str) and method, "cycle() says which method proved the power cycle"
+        assert all(isinstance(v, int | float) for v in figures.values()), f"cycle() figures are numbers: {figures}"
+        uptime, since = figures.get("uptime_at_reconnect_s"), figures.get("time_to_heartbeat_s")
+        if uptime is not None and since is not None:
+            assert uptime < since, "the unit after cycle() must be on a new boot (its uptime is shorter)"
+        assert dut.selected_sensor_present(), "after cycle() the unit answers and its sensor is there"
+        power.finish()
+        power.finish()
+    finally:
+        dut.close()
+        power.close()
+    return {"method": method, **figures}

@@ -12,7 +12,15 @@ from magline.core.plugins import load_plugins
 from magline.core.record import Outcome
 from magline.core.station import load_station
 from magline.core.station.schema import Results
-from magline.testing import check_result_sink, check_station, make_fit, make_record, station_file
+from magline.testing import (
+    check_field_source,
+    check_power_control,
+    check_result_sink,
+    check_station,
+    make_fit,
+    make_record,
+    station_file,
+)
 
 
 def test_a_unit_on_a_kit_station_and_check_station_is_exactly_what_magline_check_prints(
@@ -114,3 +122,63 @@ def test_an_outside_project_gets_the_fixtures_from_the_installed_plugin(pytester
     """)
     result = pytester.runpytest("-p", "no:cacheprovider")
     result.assert_outcomes(passed=1)
+
+
+def test_magline_field_sources_meet_the_contract(magline_station):
+    import datetime as dt
+
+    from magline.core.field.wmm import wmm_field_nt
+
+    plugins = load_plugins()
+    fixed = load_station(magline_station())
+    check_field_source(lambda: plugins.field_sources["fixed"](fixed, fixed.field_source.options), expected_ut=48.0)
+    wmm = load_station(magline_station(replace={"field_source": {"type": "wmm", "options": {"date": "2026-11-22"}}},
+                                       name="wmm.yaml"))
+    expected = wmm_field_nt(47.3769, 8.5417, 408.0, dt.date(2026, 11, 22))["f"] / 1000
+    check_field_source(lambda: plugins.field_sources["wmm"](wmm, wmm.field_source.options), expected_ut=expected,
+                       tolerance_ut=1e-6)
+
+
+def test_magline_power_controls_meet_the_contract(magline_px4, tmp_path):
+    from magline.core.power import MavlinkReboot
+    from magline.plugins.mock.dut import MockDut
+    from magline.plugins.mock.options import MockOptions
+    from magline.plugins.mock.sim.supply import SupplySim
+    from magline.plugins.power.scpi_supply import ScpiSupply, ScpiSupplyOptions
+    from magline.plugins.px4.dut import Px4Dut
+    from magline.plugins.px4.options import Px4Options
+
+    mock = MockOptions(storage=str(tmp_path / "nv.json"))
+    assert check_power_control(MavlinkReboot, lambda: MockDut(mock))["method"] == "mavlink-reboot"
+    fc = magline_px4()
+    station = load_station(station_file(tmp_path / "px4", {"products": {"PX4-X500-100": {"connection": fc.connection}}},
+                                        base="px4-sim.yaml"))
+    product = station.products["PX4-X500-100"]
+    with SupplySim("tcp:127.0.0.1:0", board=fc.sim) as supply:
+        figures = check_power_control(
+            lambda: ScpiSupply(ScpiSupplyOptions(resource=supply.visa_resource, off_time_s=0.3, settle_s=0.1)),
+            lambda: Px4Dut(product, Px4Options(connect_timeout_s=5.0, boot_timeout_s=10.0)))
+    assert figures["method"] == "scpi-supply" and figures["uptime_at_reconnect_s"] < figures["time_to_heartbeat_s"]
+
+
+def test_the_power_contract_catches_a_cycle_that_never_reboots(tmp_path):
+    from magline.plugins.mock.dut import MockDut
+    from magline.plugins.mock.options import MockOptions
+
+    class Pretend:
+        method = "pretend"
+
+        def power_up(self):
+            pass
+
+        def cycle(self, dut):  # says it cycled; the unit never went away and its old boot answers
+            return {"method": self.method, "time_to_heartbeat_s": 0.5, "uptime_at_reconnect_s": 120.0}
+
+        def finish(self):
+            pass
+
+        def close(self):
+            pass
+
+    with pytest.raises(AssertionError, match="new boot"):
+        check_power_control(Pretend, lambda: MockDut(MockOptions(storage=str(tmp_path / "nv.json"))))
