@@ -47,6 +47,9 @@ def main(argv: list[str] | None = None) -> int:
     run.add_argument("--part", help="part number (else the station's default)")
     run.add_argument("--operator", default="", help="operator name for the record")
     run.add_argument("--loop", action="store_true", help="keep prompting for the next serial")
+    run.add_argument("--record-mavlink", metavar="FILE.tlog", type=Path,
+                     help="keep every MAVLink packet between the station and each vehicle, both ways, in a tlog "
+                          "(pymavlink, MAVProxy and QGroundControl read it); several links: FILE-<part or slot>.tlog")
 
     check = sub.add_parser("check", help="validate a station file")
     check.add_argument("station")
@@ -150,11 +153,16 @@ def _run(args: argparse.Namespace, plugins: Plugins) -> int:
 
     console = OperatorConsole()
     plugins.pm.register(console)
+    taps: list[Any] = []
     try:
         station, where = _load(args.station, plugins)
+        if args.record_mavlink is not None:
+            station, taps = _tap_links(station, args.record_mavlink)
         sequencer = Sequencer(station, plugins, where)
     except (StationError, PluginError, StationFault, ValueError, KeyError, RuntimeError, OSError) as exc:
         _err(str(exc))  # includes instruments that do not answer at start-up
+        for tap in taps:
+            tap.close()
         return 2
     batch = Batch()
     try:
@@ -185,12 +193,34 @@ def _run(args: argparse.Namespace, plugins: Plugins) -> int:
         return 2
     finally:
         sequencer.close()
+        for tap in taps:
+            tap.close()
+            print(f"MAVLink traffic: {tap.tlog} ({tap.log.packets} packets)", file=sys.stderr)
     if batch.units == 0:
         _err("no unit tested")
         return 2
     if args.loop or batch.units > 1 or sequencer.abort.requested is not None:
         console.batch_summary(batch)
     return batch.exit_code()
+
+
+def _tap_links(station: Station, tlog: Path) -> tuple[Station, list[Any]]:
+    """The station with each MAVLink link pointed at a recording proxy, and the proxies."""
+    from magline.core.mavlink_tap import MavlinkTap, can_tap
+
+    links = [(part, p.connection) for part, p in station.products.items() if can_tap(p.connection)]
+    links += [(slot.id, slot.connection) for slot in station.slots if slot.connection and can_tap(slot.connection)]
+    if not links:
+        raise ValueError(f"--record-mavlink: station {station.station.id} has no tcp: or udpout:// MAVLink link")
+    taps: dict[str, Any] = {}
+    for name, connection in links:
+        path = tlog if len(links) == 1 else tlog.with_name(f"{tlog.stem}-{name}{tlog.suffix or '.tlog'}")
+        taps[name] = MavlinkTap(connection, path)
+    products = {part: p.model_copy(update={"connection": taps[part].connection}) if part in taps else p
+                for part, p in station.products.items()}
+    slots = [slot.model_copy(update={"connection": taps[slot.id].connection}) if slot.id in taps else slot
+             for slot in station.slots]
+    return station.model_copy(update={"products": products, "slots": slots}), list(taps.values())
 
 
 def _slot_batches(args: argparse.Namespace, station: Station) -> Iterator[dict[str, str]]:

@@ -12,6 +12,8 @@ What a DUT, field-source, motion or results-sink author needs without reading ma
   benchmarks use);
 * simulated flight controllers: :func:`px4_sim`, :func:`ardupilot_sim` (real MAVLink on a free
   loopback port) and the connection string a station uses for them;
+* replay: :func:`mavlink_replay` plays the vehicle of a unit recorded on the line with
+  ``magline run --record-mavlink FILE`` to your backend (a bug seen on the line becomes a test);
 * conformance: :func:`check_dut_backend` runs the DUT-backend contract against your backend and
   its (simulated) device, :func:`check_result_sink` the results-sink contract against your sink,
   :func:`check_field_source` and :func:`check_power_control` theirs.
@@ -24,9 +26,11 @@ there for any test that names them, and do nothing otherwise.
 from magline.core.synthetic import SensorTruth, earth_field_ned, motion_directions, random_truth
 from magline.testing.builders import make_fit, make_record
 from magline.testing.conformance import check_dut_backend, check_field_source, check_power_control, check_result_sink
+from magline.testing.replay import mavlink_replay, read_tlog
 from magline.testing.sims import SimulatedVehicle, ardupilot_sim, px4_sim
 from magline.testing.stations import Problem, check_station, deep_update, run_unit, station_file
 
 __all__ = ["Problem", "SensorTruth", "SimulatedVehicle", "ardupilot_sim", "check_dut_backend", "check_field_source",
            "check_power_control", "check_result_sink", "check_station", "deep_update", "earth_field_ned", "make_fit",
-           "make_record", "motion_directions", "px4_sim", "random_truth", "run_unit", "station_file"]
+           "make_record", "mavlink_replay", "motion_directions", "px4_sim", "random_truth", "read_tlog", "run_unit",
+           "station_file"]
