@@ -17,6 +17,7 @@ import socket
 import struct
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, BinaryIO
 
@@ -48,6 +49,16 @@ def can_tap(connection: str) -> bool:
     except ValueError:
         return False
     return True
+
+
+def accepted_links(server: socket.socket, stop: threading.Event) -> Iterator[socket.socket]:
+    """Each link accepted on ``server`` (with a short accept timeout) until ``stop`` is set."""
+    while not stop.is_set():
+        try:
+            client, _ = server.accept()
+        except (TimeoutError, OSError):
+            continue
+        yield client
 
 
 class _Log:
@@ -102,11 +113,7 @@ class MavlinkTap:
 
     # ------------------------------------------------------------------ TCP: one upstream link per accepted link
     def _accept(self) -> None:
-        while not self._stop.is_set():
-            try:
-                client, _ = self.listener.accept()
-            except (TimeoutError, OSError):
-                continue
+        for client in accepted_links(self.listener, self._stop):
             try:
                 upstream = socket.create_connection((self.host, self.port), timeout=5.0)
             except OSError:

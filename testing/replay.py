@@ -77,11 +77,9 @@ class ReplayVehicle:
         self.server.close()
 
     def _accept(self) -> None:
-        while not self._stop.is_set():
-            try:
-                client, _ = self.server.accept()
-            except (TimeoutError, OSError):
-                continue
+        from magline.core.mavlink_tap import accepted_links
+
+        for client in accepted_links(self.server, self._stop):
             self._serve(client)
 
     def _serve(self, client: socket.socket) -> None:
