@@ -19,7 +19,8 @@ What a DUT, field-source, motion or results-sink author needs without reading ma
   :func:`check_field_source` and :func:`check_power_control` theirs.
 
 With magline installed, pytest loads :mod:`magline.testing.plugin` (entry point ``pytest11``):
-its fixtures (``magline_station``, ``magline_run``, ``magline_px4``, ``magline_ardupilot``) are
+its fixtures (``magline_station``, ``magline_run``, ``magline_px4``, ``magline_ardupilot``,
+``magline_mock_dut``, ``magline_results``) are
 there for any test that names them, and do nothing otherwise.
 """
 

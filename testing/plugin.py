@@ -54,3 +54,32 @@ def magline_ardupilot(tmp_path: Path) -> Iterator[Callable[..., Any]]:
     with ExitStack() as stack:
         count = iter(range(1000))
         yield lambda **options: stack.enter_context(ardupilot_sim(tmp_path / f"ap-{next(count)}", **options))
+
+
+@pytest.fixture
+def magline_mock_dut(tmp_path: Path) -> Iterator[Callable[..., Any]]:
+    """``magline_mock_dut(**options)``: the in-process mock DUT (``MockOptions``; its storage in the
+    test's tmp dir unless given), closed after the test."""
+    from magline.plugins.mock.dut import MockDut
+    from magline.plugins.mock.options import MockOptions
+
+    made: list[Any] = []
+
+    def make(**options: Any) -> Any:
+        options.setdefault("storage", str(tmp_path / f"mock-storage-{len(made)}.json"))
+        made.append(MockDut(MockOptions(**options)))
+        return made[-1]
+
+    yield make
+    for dut in made:
+        dut.close()
+
+
+@pytest.fixture
+def magline_results() -> Callable[..., Any]:
+    """``magline_results(station_path)``: the station's own results store, read through magline's
+    reading API (``.history(serial)``, ``.run(run_id)`` the whole record, ``.attempts(serial)``
+    with the raw readings of each attempt)."""
+    from magline.testing.stations import StoredResults
+
+    return StoredResults

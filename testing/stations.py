@@ -106,3 +106,40 @@ def wait_for(condition: Callable[[], bool], timeout_s: float = 10.0, what: str =
         if time.monotonic() > deadline:
             raise AssertionError(f"{what} not reached within {timeout_s:g} s")
         time.sleep(0.02)
+
+
+class StoredResults:
+    """A station's own results store, read as ``magline history`` / ``magline show`` read it."""
+
+    def __init__(self, station: str | Path, plugins: Plugins | None = None) -> None:
+        from magline.core.results.sinks import open_results
+        from magline.core.station import load_station
+
+        path = Path(station)
+        self.sink = open_results(load_station(path), path.parent, plugins or load_plugins(), main_only=True)
+
+    def history(self, serial: str) -> list[dict[str, Any]]:
+        return self.sink.history(serial)
+
+    def _engine(self) -> Any:
+        engine = getattr(self.sink, "record_engine", None)
+        if engine is None:
+            raise TypeError("this station's results store is not a SQL store: only history() is available")
+        return engine
+
+    def run(self, run_id: int | str) -> dict[str, Any] | None:
+        """The whole stored record of a run (phases, attempts, measurements, parameters by stage)."""
+        from magline.core.results.reading import find_run
+
+        with self._engine().connect() as conn:
+            return find_run(conn, str(run_id))
+
+    def attempts(self, serial: str) -> list[dict[str, Any]]:
+        """Every stored attempt of ``serial``; ``raw``: its readings (µT)."""
+        from magline.core.results.reading import serial_attempts
+
+        with self._engine().connect() as conn:
+            return serial_attempts(conn, serial)
+
+    def close(self) -> None:
+        self.sink.close()

@@ -120,7 +120,7 @@ def test_an_outside_project_gets_the_fixtures_from_the_installed_plugin(pytester
         def test_uses_the_kit(magline_station, magline_run):
             assert magline_run(magline_station(), "OUT-1").verdict is Outcome.PASS
     """)
-    result = pytester.runpytest("-p", "no:cacheprovider")
+    result = pytester.runpytest_subprocess("-p", "no:cacheprovider")  # in process it would reload sqlalchemy
     result.assert_outcomes(passed=1)
 
 
@@ -182,3 +182,21 @@ def test_the_power_contract_catches_a_cycle_that_never_reboots(tmp_path):
 
     with pytest.raises(AssertionError, match="new boot"):
         check_power_control(Pretend, lambda: MockDut(MockOptions(storage=str(tmp_path / "nv.json"))))
+
+
+def test_the_mock_dut_and_results_fixtures(magline_mock_dut, magline_results, magline_station, magline_run):
+    dut = magline_mock_dut(hard_iron_ut=[1.0, 2.0, 3.0])
+    info = dut.connect()
+    assert info.autopilot == "mock" and dut.read_params(["MAG_OFS_X"]) == {"MAG_OFS_X": 0.0}
+    station = magline_station()
+    record = magline_run(station, "KIT-STORE")
+    store = magline_results(station)
+    try:
+        (run,) = store.history("KIT-STORE")
+        whole = store.run(run["id"])
+        attempts = store.attempts("KIT-STORE")
+    finally:
+        store.close()
+    assert run["verdict"] == "pass" and whole["params"]["written"] == record.params_written
+    assert [a["samples"] for a in attempts] == [a.samples for a in record.attempts]
+    assert attempts[-1]["raw"].mag_ut.shape == (record.attempts[-1].samples, 3)
