@@ -27,6 +27,7 @@ from magline.plugins.mock.sim import create_sim
 from magline.plugins.mock.sim.gimbal import GimbalSim
 
 SLOTS = {"A": "px4", "B": "px4", "C": "ardupilot", "D": "ardupilot"}
+SEEDS = {"A": 11, "B": 12, "C": 13, "D": 14}  # distinct boards (each must get its own calibration)
 
 
 class Rounds:
@@ -53,7 +54,7 @@ class Fixture:
         self.sims = {}
         for slot, flavour in SLOTS.items():
             listen = "udp:127.0.0.1:0" if flavour == "px4" else "tcp:127.0.0.1:0"
-            self.sims[slot] = create_sim(flavour, listen, workdir=tmp_path / f"fc-{slot}", seed=11 + ord(slot),
+            self.sims[slot] = create_sim(flavour, listen, workdir=tmp_path / f"fc-{slot}", seed=SEEDS[slot],
                                          boot_time_s=0.3, mag_rate_hz=100.0, motion_source=self.gimbal.address,
                                          motions=(motions or {}).get(slot)).start()
         cfg = yaml.safe_load((REPO / "stations" / "slots-sim.yaml").read_text(encoding="utf-8"))
