@@ -23,7 +23,7 @@ from magline.core.fit.affine import fit_affine
 from magline.core.fit.samples_csv import SampleFileError, read_samples
 from magline.core.plugins import PluginError, Plugins, load_plugins
 from magline.core.record import Outcome
-from magline.core.results.sinks import open_results
+from magline.core.results.sinks import close_sink, open_results
 from magline.core.station import Station, StationError
 from magline.core.station.checks import did_you_mean, station_problems
 from magline.core.station.loader import read_station_text
@@ -377,9 +377,7 @@ def _history(args: argparse.Namespace, plugins: Plugins) -> int:
     try:
         runs = sink.history(args.serial)
     finally:
-        closer = getattr(sink, "close", None)  # close() is in the contract; an old sink may lack it
-        if callable(closer):
-            closer()
+        close_sink(sink)
     if not runs:
         print(f"no runs for {args.serial}")
         return 1

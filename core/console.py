@@ -12,7 +12,7 @@ from rich.console import Console
 from rich.panel import Panel
 from rich.progress import BarColumn, Progress, TaskID, TextColumn
 
-from magline.core.console_slots import SlotBoard
+from magline.core.console_slots import STYLE, SlotBoard
 from magline.core.measurements import Verdict, verdicts
 from magline.core.plugins import hookimpl
 from magline.core.record import Outcome, PhaseResult, RunRecord
@@ -20,8 +20,6 @@ from magline.core.sequencer.batch import Batch
 from magline.core.sequencer.context import RunContext
 from magline.core.text import fmt, percent, seconds
 
-STYLE = {Outcome.PASS: "green", Outcome.FAIL: "red", Outcome.ERROR: "magenta", Outcome.ABORTED: "yellow",
-         Outcome.SKIPPED: "dim", Outcome.INCOMPLETE: "magenta"}
 MARK = {Verdict.PASS: "✓", Verdict.FAIL: "✗", Verdict.REVIEW: "!", Verdict.INFO: "·"}
 WAIT_EVERY_S = 5  # plain-text consoles print a countdown line this often
 

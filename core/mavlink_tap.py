@@ -24,7 +24,8 @@ from typing import Any, BinaryIO
 BUFFER = 65536
 
 
-def _parser() -> Any:
+def packet_parser() -> Any:
+    """A pymavlink parser that skips what it cannot read (a link's bytes, any dialect message)."""
     from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
     parser = mavlink.MAVLink(None)
@@ -49,6 +50,21 @@ def can_tap(connection: str) -> bool:
     except ValueError:
         return False
     return True
+
+
+def received(link: socket.socket, stop: threading.Event) -> Iterator[bytes]:
+    """What arrives on ``link`` (polled every 0.2 s) until it closes, fails or ``stop`` is set."""
+    link.settimeout(0.2)
+    while not stop.is_set():
+        try:
+            data = link.recv(BUFFER)
+        except TimeoutError:
+            continue
+        except OSError:
+            return
+        if not data:
+            return
+        yield data
 
 
 def accepted_links(server: socket.socket, stop: threading.Event) -> Iterator[socket.socket]:
@@ -120,20 +136,11 @@ class MavlinkTap:
                 client.close()  # the vehicle is not there (booting): the backend retries, as it would
                 continue
             self._sockets += [client, upstream]
-            self._thread(self._pump, client, upstream, _parser())
-            self._thread(self._pump, upstream, client, _parser())
+            self._thread(self._pump, client, upstream, packet_parser())
+            self._thread(self._pump, upstream, client, packet_parser())
 
     def _pump(self, source: socket.socket, target: socket.socket, parser: Any) -> None:
-        source.settimeout(0.2)
-        while not self._stop.is_set():
-            try:
-                data = source.recv(BUFFER)
-            except TimeoutError:
-                continue
-            except OSError:
-                break
-            if not data:
-                break
+        for data in received(source, self._stop):
             self.log.feed(parser, data)
             try:
                 target.sendall(data)
@@ -145,7 +152,7 @@ class MavlinkTap:
 
     # ------------------------------------------------------------------ UDP: the station's datagrams and the vehicle's
     def _udp_out(self) -> None:
-        parser = _parser()
+        parser = packet_parser()
         while not self._stop.is_set():
             try:
                 data, self._station = self.listener.recvfrom(BUFFER)
@@ -158,7 +165,7 @@ class MavlinkTap:
                 continue
 
     def _udp_in(self) -> None:
-        parser = _parser()
+        parser = packet_parser()
         while not self._stop.is_set():
             try:
                 data = self.upstream.recv(BUFFER)

@@ -8,6 +8,7 @@ stores run it in magline's CI.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -94,8 +95,6 @@ def _power_cycle(dut: Any) -> dict:
 
 def _stream(dut: Any, count: int, rate_hz: float) -> tuple[np.ndarray, np.ndarray, float]:
     """``count`` readings from ``samples()``, checking each chunk; the generator closed at the end."""
-    import time
-
     from magline.core.dut import SampleChunk
 
     mags, times, got = [], [], 0
@@ -198,9 +197,9 @@ def check_dut_backend(open_dut: Callable[[], Any], field_ut: float, *, samples: 
         dut.prepare()
         dut.write_params(params)
         dut.commit()
-        started = __import__("time").monotonic()
+        started = time.monotonic()
         boot = cycle(dut)
-        since = __import__("time").monotonic() - started
+        since = time.monotonic() - started
         uptime = boot.get("uptime_at_reconnect_s")
         assert uptime is None or uptime < since, "await_boot() must prove a new boot (its uptime is shorter)"
         figures["boot"] = boot

@@ -83,25 +83,15 @@ class ReplayVehicle:
             self._serve(client)
 
     def _serve(self, client: socket.socket) -> None:
-        from pymavlink.dialects.v20 import ardupilotmega as mavlink
+        from magline.core.mavlink_tap import packet_parser, received
 
         heard: collections.Counter[str] = collections.Counter()
         gone = threading.Event()
         lock = threading.Condition()
 
         def listen() -> None:
-            parser = mavlink.MAVLink(None)
-            parser.robust_parsing = True
-            client.settimeout(0.2)
-            while not self._stop.is_set():
-                try:
-                    data = client.recv(65536)
-                except TimeoutError:
-                    continue
-                except OSError:
-                    break
-                if not data:
-                    break
+            parser = packet_parser()
+            for data in received(client, self._stop):
                 with lock:
                     for message in parser.parse_buffer(data) or []:
                         heard[message.get_type()] += 1

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import copy
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from importlib.resources import files
@@ -97,15 +96,6 @@ def check_station(path: str | Path, plugins: Plugins | None = None) -> list[Prob
         key, _, message = rest.partition(": ")
         out.append(Problem(name, int(number) if number.isdigit() else 0, key, message))
     return out
-
-
-def wait_for(condition: Callable[[], bool], timeout_s: float = 10.0, what: str = "condition") -> None:
-    """Poll until ``condition()`` is true (a simulator started, a file written), or fail saying what."""
-    deadline = time.monotonic() + timeout_s
-    while not condition():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"{what} not reached within {timeout_s:g} s")
-        time.sleep(0.02)
 
 
 class StoredResults:

@@ -27,7 +27,7 @@ def open_results(station: Station, station_dir: Path, plugins: Plugins, main_onl
             opened.append((entry.sink, open_one(station, station_dir, plugins, entry, index)))
     except BaseException:
         for _, sink in opened:
-            _close(sink)
+            close_sink(sink)
         raise
     return opened[0][1] if len(opened) == 1 else ResultSinks(opened)
 
@@ -41,7 +41,8 @@ def open_one(station: Station, station_dir: Path, plugins: Plugins, entry: Resul
     return factory(station, Path(station_dir), entry, options)
 
 
-def _close(sink: Any) -> None:
+def close_sink(sink: Any) -> None:
+    """``close()`` is in the contract; a sink written before it may lack it."""
     closer = getattr(sink, "close", None)
     if callable(closer):
         closer()
@@ -95,4 +96,4 @@ class ResultSinks:
 
     def close(self) -> None:
         for _, sink in self.sinks:
-            _close(sink)
+            close_sink(sink)

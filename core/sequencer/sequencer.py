@@ -114,10 +114,7 @@ class Sequencer:
         if self.stopped is not None:
             steps = [("identify", self._identify), ("connect", self._refuse_stopped_batch)]
         with unit_log_capture(record, this_thread_only=slot is not None):
-            try:
-                return self._run_steps(run, steps)
-            finally:
-                run.rounds.leave(slot_id)
+            return self._run_steps(run, steps)
 
     def _run_steps(self, run: RunContext, steps: list[tuple[str, Callable[[RunContext], Any]]]) -> RunRecord:
         record = run.record

@@ -142,15 +142,11 @@ def run_coil_sim(args: argparse.Namespace) -> int:
              f"coil current source (VISA {coil.visa_resource}); fluxgate DAQ at the centre on {fluxgate.address} "
              f"(VISA {fluxgate.visa_resource}); ambient field {coil.ambient.tolist()} µT"]
 
-    def wait() -> None:
-        while not coil._stop.wait(0.5):
-            pass
-
     def stop() -> None:
         coil.stop()
         fluxgate.stop()
 
-    return _serve(lines, wait, stop)
+    return _serve(lines, coil.wait_stopped, stop)
 
 
 def run_gimbal_sim(args: argparse.Namespace) -> int:
@@ -165,8 +161,4 @@ def run_gimbal_sim(args: argparse.Namespace) -> int:
              f"gimbal controller (VISA {gimbal.visa_resource}); mount simulated boards on it with "
              f"magline sim px4|ardupilot --gimbal {gimbal.address}"]
 
-    def wait() -> None:
-        while not gimbal._stop.wait(0.5):
-            pass
-
-    return _serve(lines, wait, gimbal.stop)
+    return _serve(lines, gimbal.wait_stopped, gimbal.stop)

@@ -54,6 +54,11 @@ class ScpiServer:
         if self._thread is not None:
             self._thread.join(timeout=5)
 
+    def wait_stopped(self) -> None:
+        """Block until :meth:`stop` (what ``magline sim`` waits on while it serves)."""
+        while not self._stop.wait(0.5):
+            pass
+
     def __enter__(self):
         return self if self._thread is not None else self.start()
 
