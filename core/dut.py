@@ -24,6 +24,7 @@ from magline.core.faults import StationFault
 
 if TYPE_CHECKING:
     from magline.core.fit import FitResult
+    from magline.core.mounting import ImuSeries
     from magline.core.station.schema import Product
 
 ParamValue = int | float
@@ -57,15 +58,40 @@ class NotRestored(DutError):
 
 
 @dataclass
+class Magnetometer:
+    """One magnetometer as the unit's firmware configures it (what the mounting check compares with).
+
+    ``orientation``: the firmware's orientation value for this sensor (MAV_SENSOR_ORIENTATION numbers:
+    ArduPilot ``COMPASS_ORIENTn``, PX4 ``CAL_MAGn_ROT``), i.e. how the firmware believes the sensor is
+    mounted; ``readings_rotated``: the streamed readings have that rotation applied already (ArduPilot's
+    calibration frame is the body frame) rather than being in the sensor's own axes (PX4's sensor_mag);
+    ``fix_params``: the parameter name(s) a different orientation is written to, empty when the firmware
+    cannot hold one for this sensor (PX4's internal magnetometers follow the board).
+    """
+
+    device_id: int
+    label: str  # the firmware's own name for it: "compass 2", "CAL_MAG1"
+    external: bool | None = None
+    orientation: int = 0
+    readings_rotated: bool = False
+    fix_params: list[str] = field(default_factory=list)
+
+
+@dataclass
 class UnitInfo:
-    """Who answered on the link."""
+    """Who answered on the link.
+
+    ``magnetometers``: every magnetometer the unit has, in the firmware's order (the first is the
+    primary); a backend that calibrates one sensor only may leave it empty — the core then knows just
+    ``selected_sensor``."""
 
     autopilot: str
     firmware: str
     sensors: list[int]  # device ids of the magnetometers present
-    selected_sensor: int  # device id being calibrated
+    selected_sensor: int  # device id being calibrated (the primary)
     soft_iron_model: Literal["full", "diagonal"] = "full"  # what the autopilot can hold
     extra: dict[str, Any] = field(default_factory=dict)
+    magnetometers: list[Magnetometer] = field(default_factory=list)
 
 
 @dataclass
@@ -80,6 +106,10 @@ class SampleChunk:
     t_ms: NDArray
     temp_c: NDArray | None = None
     repeats: int = 0
+    # the other magnetometers' distinct readings that arrived meanwhile, by device id (same clock)
+    more: dict[int, SampleChunk] = field(default_factory=dict)
+    # the unit's accelerometer (and gyro) readings that arrived meanwhile, body axes, same clock
+    imu: ImuSeries | None = None
 
 
 @runtime_checkable
@@ -99,6 +129,13 @@ class DutBackend(Protocol):
         """Stream raw (uncalibrated) readings until the caller stops iterating, each reading once
         (copies a fast stream repeats are dropped and counted in ``SampleChunk.repeats``).
 
+        Several magnetometers (see ``use_magnetometers`` below): the primary's readings in ``mag_ut``,
+        every other chosen sensor's in ``more[device_id]``, each with its own repeats dropped and its
+        own time stamps; the accelerometer's readings in ``imu`` (m/s², body axes) on the same clock —
+        the mounting check pairs them by time.  A backend without an accelerometer leaves ``imu`` None:
+        the station then cannot prove the mounting (an ERROR unless the product says
+        ``orientation: skip``).
+
         Pacing: yield readings as the sensor delivers them (block on the link); never faster than
         the sensor, and never invent readings to reach ``rate_hz`` — it is the rate to *ask* the
         firmware for; the core counts distinct readings against ``acquisition.samples`` and its
@@ -108,7 +145,10 @@ class DutBackend(Protocol):
         :class:`LinkError` at once when the link is lost — not after a silent timeout."""
 
     def calibration_params(self, fit: FitResult) -> dict[str, ParamValue]:
-        """Map a fit to this autopilot's parameters (units and sign convention applied here)."""
+        """Map a fit to this autopilot's parameters (units and sign convention applied here).
+
+        With several magnetometers the core calls ``calibration_params(fit, sensor=device_id)`` for each
+        sensor; a backend that lists ``UnitInfo.magnetometers`` must accept that keyword."""
 
     def read_params(self, names: list[str]) -> dict[str, ParamValue]:
         """Read parameters from the DUT."""
@@ -138,6 +178,12 @@ class DutBackend(Protocol):
 
     def selected_sensor_present(self) -> bool:
         """After a power cycle: is the calibrated sensor still there with the same id?"""
+
+    # Optional, for units with several magnetometers:
+    # ``use_magnetometers(device_ids)`` — after ``connect``: stream and calibrate these (primary first);
+    # ``orientation_params(device_id, value) -> dict`` — the parameters that make the firmware take the
+    #   sensor as mounted in orientation ``value`` (names from ``Magnetometer.fix_params``);
+    # ``sensors_present() -> list[int]`` — after a power cycle: the device ids the unit has now.
 
     # Optional: ``calibrated_field_ut(count) -> NDArray | None`` — after the power cycle, ``count``
     # readings (µT, rows) of the firmware's own *calibrated* output for this sensor (ArduPilot's

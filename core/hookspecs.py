@@ -174,12 +174,31 @@ def magline_validate(run: RunContext, fit: FitResult) -> list[Measurement]:
     """
 
 
+@hookspec
+def magline_validate_unit(run: RunContext, fits: dict[int, FitResult]) -> list[Measurement]:
+    """Judge the unit as a whole once every magnetometer is fitted: each sensor's mounting against
+    the unit's accelerometer, the agreement between sensors.  Called after :func:`magline_validate`
+    (which judges one fit at a time; for sensors after the primary its names get the sensor's
+    prefix, ``mag2.``), with every plugin contributing.
+
+    :param fits: the accepted fit of every magnetometer calibrated in this run, by device id, the
+        primary first (``run.magnetometers`` says which sensor each is; ``run.attempts[-1]`` holds
+        their readings and the accelerometer's).
+    :return: measurements judged against the station's limits (a pair's names carry both sensors'
+        prefixes, ``mag1-mag2.``).  A plugin may also leave decisions for the persist phase in
+        ``run.state`` (the core leaves the orientations to write in ``run.state["orientation_fixes"]``).
+        Raise :class:`~magline.core.faults.StationFault` when the station cannot judge (no
+        accelerometer to prove a mounting): the unit is an ERROR.
+    """
+
+
 @hookspec(firstresult=True)
 def magline_persist(run: RunContext, fit: FitResult) -> PersistReport | None:
     """Write the calibration into the DUT's parameters and force it to storage.
 
     Called only when validation passed.  The default reads the parameters before, writes the
-    backend's mapping, checks every echo value and commits.
+    backend's mapping of every fitted magnetometer (``run.fits``; ``fit`` is the primary's) and the
+    orientations the mounting check asked to fix, checks every echo value and commits.
 
     :return: parameters before and written; raise :class:`~magline.core.dut.DutError` on refusal.
     """

@@ -10,6 +10,7 @@ and attachments (raw samples CSV).
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import TYPE_CHECKING, Any
@@ -47,10 +48,41 @@ CATALOGUE: dict[str, tuple[str, str]] = {
     "misalignment_deg": ("°", "sensor axes rotated against the coil frame (Helmholtz affine fit only)"),
     "model_misfit_deg": ("°", "heading cost of the diagonal / sphere model the autopilot holds, against "
                               "the full soft iron (only when the full model fits significantly better)"),
+    "orientation": ("", "the firmware orientation value the sensor is really mounted in (must be the configured one)"),
+    "mounting_error_deg": ("°", "sensor axes against the nearest firmware orientation, from gravity and the field"),
+    "mounting_sigma_deg": ("°", "1σ uncertainty of the mounting estimate"),
+    "inclination_deg": ("°", "field inclination the unit saw (angle between gravity and the calibrated field)"),
+    "inclination_error_deg": ("°", "field inclination the unit saw minus the reference's"),
+    "heading_agreement_median_deg": ("°", "median heading difference between two calibrated magnetometers"),
+    "heading_agreement_max_deg": ("°", "largest heading difference between two magnetometers (1 s windows)"),
 }
+# Limits that apply when a station file declares none (the mounting and agreement checks of issue 26).
+DEFAULT_LIMITS: dict[str, dict[str, Any]] = {
+    "mounting_error_deg": {"le": 3.0},
+    "inclination_error_deg": {"range": [-2.0, 2.0]},
+    "heading_agreement_median_deg": {"le": 1.0},
+    "heading_agreement_max_deg": {"le": 3.0},
+}
+# ``mag2.hard_iron_x_ut``: compass 2's measurement; ``mag1-mag3.heading_agreement_max_deg``: a pair's.
+# The primary magnetometer's measurements carry no prefix (the names every station had before).
+SENSOR_PREFIX = re.compile(r"^(mag[1-9])(?:-(mag[1-9]))?\.")
 ARRAY_MEASUREMENTS: dict[str, str] = {"residual_ut": "µT"}
 AGGREGATIONS = ("mean", "std", "ptp")
 KNOWN_LIMIT_NAMES = frozenset(CATALOGUE) | {f"{a}.{g}" for a in ARRAY_MEASUREMENTS for g in AGGREGATIONS}
+
+
+def base_name(name: str) -> str:
+    """The catalogue name of a sensor's or a pair's measurement (``mag2.axis_ratio`` → ``axis_ratio``)."""
+    return SENSOR_PREFIX.sub("", name)
+
+
+def known_limit_name(name: str) -> bool:
+    return base_name(name) in KNOWN_LIMIT_NAMES
+
+
+def limit_for(name: str, limits: dict[str, Limit]) -> Limit | None:
+    """A sensor's own limit (``mag2.x``) where the station declares one, else the line's (``x``)."""
+    return limits.get(name) or limits.get(base_name(name))
 
 
 def judge(value: float, limit: Limit | None) -> Verdict:
@@ -77,12 +109,19 @@ class Numeric:
     high: float | None = None
     verdict: Verdict = Verdict.INFO
 
+    note: str = ""  # the failure in the operator's words, where the name and limit alone say too little
+
     @classmethod
     def of(cls, name: str, value: float, limits: dict[str, Limit], unit: str | None = None) -> Numeric:
-        limit = limits.get(name)
-        return cls(name=name, value=float(value), unit=CATALOGUE.get(name, (unit or "", ""))[0],
+        limit = limit_for(name, limits)
+        return cls(name=name, value=float(value), unit=CATALOGUE.get(base_name(name), (unit or "", ""))[0],
                    low=limit.low if limit else None, high=limit.high if limit else None,
                    verdict=judge(float(value), limit))
+
+    def rejudged(self, name: str, limits: dict[str, Limit]) -> Numeric:
+        """The same figure under another name (a sensor's prefix), judged against that name's limit."""
+        return Numeric(name=name, value=self.value, unit=self.unit, note=self.note,
+                       **_judged(self.value, limit_for(name, limits)))
 
 
 @dataclass
@@ -105,6 +144,25 @@ class Array:
             n.unit = unit
             numerics.append(n)
         return cls(name=name, values=[float(v) for v in arr], unit=unit, aggregations=numerics)
+
+
+def _judged(value: float, limit: Limit | None) -> dict[str, Any]:
+    return {"low": limit.low if limit else None, "high": limit.high if limit else None,
+            "verdict": judge(value, limit)}
+
+
+def prefixed(measurements: list[Measurement], prefix: str, limits: dict[str, Limit]) -> list[Measurement]:
+    """One sensor's measurements under its prefix (``mag2.``), each judged against that sensor's limit."""
+    out: list[Measurement] = []
+    for m in measurements:
+        if isinstance(m, Numeric):
+            out.append(m.rejudged(prefix + m.name, limits))
+        elif isinstance(m, Array):
+            out.append(Array(name=prefix + m.name, values=m.values, unit=m.unit,
+                             aggregations=[a.rejudged(prefix + a.name, limits) for a in m.aggregations]))
+        else:
+            out.append(Json(name=prefix + m.name, data=m.data))
+    return out
 
 
 @dataclass

@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 import time
 from contextlib import closing
+from dataclasses import replace
 
 import numpy as np
 
@@ -19,6 +20,7 @@ from magline.core.fit import CoverageTracker, FitOptions, FitResult, coverage_of
 from magline.core.fit.coverage import covered_bins
 from magline.core.fit.samples_csv import RawSamples
 from magline.core.measurements import Array, Json, Measurement, Numeric
+from magline.core.mounting import ImuSeries, orientation_matrix
 from magline.core.plugins import hookimpl
 from magline.core.record import PersistReport, VerifyReport
 from magline.core.sequencer.context import Acquisition, AcquisitionAborted, RunContext
@@ -27,12 +29,16 @@ from magline.core.sequencer.context import Acquisition, AcquisitionAborted, RunC
 @hookimpl(trylast=True)
 def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
     """Read distinct readings until ``acquisition.samples`` arrived (the count is of readings, not
-    of stream messages: a stream faster than the sensor repeats readings, which the backend drops)."""
+    of stream messages: a stream faster than the sensor repeats readings, which the backend drops).
+
+    With several magnetometers the primary's count ends the tumble; every other sensor keeps all its
+    readings of the same tumble, and the coverage shown and judged is the worst sensor's."""
     cfg = run.station.acquisition
     dut = run.require_dut()
     run.prompt(run.station.prompts.tumble if attempt == 1 else run.retry_advice or run.station.prompts.retry)
     tracker = CoverageTracker(cfg.coverage_bins)
-    got = _Readings()
+    others: dict[int, CoverageTracker] = {}
+    got = _Readings(run.unit.selected_sensor if run.unit is not None else 0)
     try:
         with run.shared_motion(), closing(dut.samples(cfg.rate_hz)) as stream:
             started = time.monotonic()  # the fixture moves from here (a slot may have waited for the others)
@@ -40,7 +46,11 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
             for chunk in stream:
                 taken = got.add(chunk, room=cfg.samples - got.count)
                 coverage = tracker.add(taken)
-                run.progress(attempt, got.count, coverage, cfg.coverage_target, tracker.bins, cfg.coverage_bins)
+                for device_id, more in chunk.more.items():
+                    coverage = min(coverage, others.setdefault(device_id, CoverageTracker(cfg.coverage_bins))
+                                   .add(np.atleast_2d(more.mag_ut)))
+                bins = tracker.bins if not others else min([tracker, *others.values()], key=lambda t: len(t.bins)).bins
+                run.progress(attempt, got.count, coverage, cfg.coverage_target, bins, cfg.coverage_bins)
                 if got.count >= cfg.samples:
                     break
                 if time.monotonic() > deadline:
@@ -51,13 +61,15 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
     if got.count == 0:
         raise DutError("the DUT sent no samples")
     result = got.acquisition(attempt, cfg.coverage_bins, cfg.coverage_target)
-    bins = covered_bins(result.samples.mag_ut, cfg.coverage_bins)  # the end adds its own checkpoint
+    worst = min(result.coverages, key=result.coverages.get) if result.coverages else None
+    mags = result.more[worst].mag_ut if worst in result.more else result.samples.mag_ut
+    bins = covered_bins(mags, cfg.coverage_bins)  # the end adds its own checkpoint
     run.progress(attempt, got.count, result.coverage, cfg.coverage_target, bins, cfg.coverage_bins)
     return result
 
 
-class _Readings:
-    """What an attempt received so far: readings, times, temperatures, repeats dropped."""
+class _Stream:
+    """One magnetometer's readings of an attempt: values, times, temperatures, repeats dropped."""
 
     def __init__(self) -> None:
         self.mags: list[np.ndarray] = []
@@ -66,9 +78,8 @@ class _Readings:
         self.count = 0
         self.repeats = 0
 
-    def add(self, chunk: SampleChunk, room: int) -> np.ndarray:
-        """Keep at most ``room`` readings of the chunk (an attempt is exactly the samples asked for)."""
-        mag = np.atleast_2d(chunk.mag_ut)[:room]
+    def add(self, chunk: SampleChunk, room: int | None = None) -> np.ndarray:
+        mag = np.atleast_2d(chunk.mag_ut)[:room] if room is not None else np.atleast_2d(chunk.mag_ut)
         self.mags.append(mag)
         self.times.append(np.atleast_1d(chunk.t_ms)[: len(mag)])
         if chunk.temp_c is not None:
@@ -77,13 +88,44 @@ class _Readings:
         self.repeats += chunk.repeats
         return mag
 
-    def acquisition(self, attempt: int, bins: int, target: float) -> Acquisition:
+    def samples(self) -> RawSamples:
         mag = np.vstack(self.mags) if self.mags else np.empty((0, 3))
         t_ms = np.concatenate(self.times) if self.times else np.empty(0)
         temps = self.temps if self.temps and len(self.temps) == len(self.mags) else None
-        samples = RawSamples(mag_ut=mag, t_ms=t_ms, temp_c=np.concatenate(temps) if temps else None)
-        return Acquisition(attempt=attempt, samples=samples, coverage=coverage_of(mag, bins), target=target,
-                           repeats=self.repeats, sensor_rate_hz=_rate_hz(t_ms))
+        return RawSamples(mag_ut=mag, t_ms=t_ms, temp_c=np.concatenate(temps) if temps else None)
+
+
+class _Readings(_Stream):
+    """What an attempt received so far: the primary's readings (an attempt is exactly the samples
+    asked for), every other magnetometer's of the same time, and the accelerometer's."""
+
+    def __init__(self, primary_id: int = 0) -> None:
+        super().__init__()
+        self.primary_id = primary_id
+        self.more: dict[int, _Stream] = {}
+        self.imu: list[ImuSeries] = []
+
+    def add(self, chunk: SampleChunk, room: int | None = None) -> np.ndarray:
+        for device_id, more in chunk.more.items():
+            self.more.setdefault(device_id, _Stream()).add(more)
+        if chunk.imu is not None and len(chunk.imu):
+            self.imu.append(chunk.imu)
+        return super().add(chunk, room)
+
+    def acquisition(self, attempt: int, bins: int, target: float) -> Acquisition:
+        samples = self.samples()
+        more = {d: s.samples() for d, s in self.more.items()}
+        coverages = {self.primary_id: coverage_of(samples.mag_ut, bins)}
+        coverages |= {d: coverage_of(s.mag_ut, bins) for d, s in more.items()}
+        imu = None
+        if self.imu:
+            gyros = [i.gyro_rads for i in self.imu]
+            imu = ImuSeries(t_ms=np.concatenate([i.t_ms for i in self.imu]),
+                            accel_mss=np.vstack([i.accel_mss for i in self.imu]),
+                            gyro_rads=np.vstack(gyros) if all(g is not None for g in gyros) else None)
+        return Acquisition(attempt=attempt, samples=samples, coverage=min(coverages.values()), target=target,
+                           repeats=self.repeats, sensor_rate_hz=_rate_hz(samples.t_ms), more=more, imu=imu,
+                           coverages=coverages)
 
 
 def _rate_hz(t_ms: np.ndarray) -> float | None:
@@ -150,10 +192,30 @@ def _same(written: ParamValue, echoed: ParamValue) -> bool:
     return math.isclose(float(written), float(echoed), rel_tol=1e-6, abs_tol=1e-7)
 
 
+def calibration_to_write(run: RunContext, fit: FitResult) -> dict[str, ParamValue]:
+    """Every fitted magnetometer's parameters (the primary's fit is ``fit``), and the orientations the
+    mounting check asked to fix.  A sensor whose firmware calibrates in its *rotated* frame (ArduPilot)
+    gets its fit turned into the new frame with its new orientation: ``h' = P·h``, ``S' = P·S·Pᵀ``."""
+    dut = run.require_dut()
+    if not run.unit or not run.unit.magnetometers:
+        return dict(dut.calibration_params(fit))
+    fixes: dict[int, int] = run.state.get("orientation_fixes", {})
+    params: dict[str, ParamValue] = {}
+    for sensor in run.magnetometers:
+        this = fit if sensor is run.magnetometers[0] else run.fits[sensor.device_id]
+        if sensor.device_id in fixes and sensor.readings_rotated:
+            turn = orientation_matrix(fixes[sensor.device_id]) @ orientation_matrix(sensor.orientation).T
+            this = replace(this, hard_iron_ut=turn @ this.hard_iron_ut, soft_iron=turn @ this.soft_iron @ turn.T)
+        params |= dut.calibration_params(this, sensor=sensor.device_id)
+        if sensor.device_id in fixes:
+            params |= dut.orientation_params(sensor.device_id, fixes[sensor.device_id])
+    return params
+
+
 @hookimpl(trylast=True)
 def magline_persist(run: RunContext, fit: FitResult) -> PersistReport:
     dut = run.require_dut()
-    params = dut.calibration_params(fit)
+    params = calibration_to_write(run, fit)
     before = dut.read_params(list(params))
     run.log(f"writing {len(params)} parameters")
     try:
@@ -208,17 +270,23 @@ def _calibrated_output_problems(run: RunContext, dut: object, figures: dict) -> 
     reference = run.reference_field_ut
     if read is None or not reference or not getattr(run.field_source, "reference_is_ambient", False):
         return []
-    readings = read(CALIBRATED_READINGS)
-    if readings is None or len(readings) == 0:
-        return []
-    measured = float(np.median(np.linalg.norm(np.atleast_2d(readings), axis=1)))
-    off_pct = (measured / reference - 1.0) * 100.0
-    figures["calibrated_field_ut"] = measured
-    tolerance = run.station.verify.field_tolerance_pct
-    if abs(off_pct) <= tolerance:
-        return []
-    return [f"the firmware's calibrated field reads {measured:.1f} µT against the reference {reference:.1f} µT "
-            f"({off_pct:+.1f} %, tolerance ±{tolerance:g} %): the calibration is not applied to this sensor as written"]
+    several = len(run.magnetometers) > 1
+    problems = []
+    for sensor in run.magnetometers if several else run.magnetometers[:1] or [None]:
+        readings = read(CALIBRATED_READINGS, sensor=sensor.device_id) if several else read(CALIBRATED_READINGS)
+        if readings is None or len(readings) == 0:
+            continue
+        measured = float(np.median(np.linalg.norm(np.atleast_2d(readings), axis=1)))
+        off_pct = (measured / reference - 1.0) * 100.0
+        prefix = run.sensor_prefix(sensor.device_id).replace(".", "_") if sensor is not None else ""
+        figures[f"{prefix}calibrated_field_ut"] = measured
+        tolerance = run.station.verify.field_tolerance_pct
+        if abs(off_pct) > tolerance:
+            whose = f"{run.sensor_label(sensor.device_id)}: " if several else ""
+            problems.append(f"{whose}the firmware's calibrated field reads {measured:.1f} µT against the reference "
+                            f"{reference:.1f} µT ({off_pct:+.1f} %, tolerance ±{tolerance:g} %): the calibration is "
+                            "not applied to this sensor as written")
+    return problems
 
 
 @hookimpl(trylast=True)
@@ -228,7 +296,13 @@ def magline_verify_persistence(run: RunContext, persisted: PersistReport) -> Ver
     with run.waiting("power cycle: waiting for the unit to boot", getattr(dut, "boot_timeout_s", None)):
         figures = dict(power.cycle(dut))
     method = str(figures.pop("method", power.method))
-    present = dut.selected_sensor_present()
+    missing: list[str] = []
+    if len(run.magnetometers) > 1 and hasattr(dut, "sensors_present"):
+        now = set(dut.sensors_present())
+        missing = [run.sensor_label(m.device_id) for m in run.magnetometers if m.device_id not in now]
+        present = not missing
+    else:
+        present = dut.selected_sensor_present()
     read_back = dut.read_params(list(persisted.written))
     mismatches = [f"{k}: wrote {v!r}, read back {read_back.get(k)!r}" for k, v in persisted.written.items()
                   if k not in read_back or not _same(v, read_back[k])]
@@ -236,4 +310,4 @@ def magline_verify_persistence(run: RunContext, persisted: PersistReport) -> Ver
         mismatches += [f"autopilot reports: {text}" for text in dut.persistence_problems()]
         mismatches += _calibrated_output_problems(run, dut, figures)
     return VerifyReport(read_back=read_back, mismatches=mismatches, sensor_present=present,
-                        method=method, figures={k: float(v) for k, v in figures.items()})
+                        method=method, figures={k: float(v) for k, v in figures.items()}, missing=missing)

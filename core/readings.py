@@ -16,10 +16,16 @@ soft-iron scale error against a reference).  :func:`untruncate_mg` undoes that o
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
+
+from magline.core.dut import SampleChunk
+from magline.core.mounting.estimate import ImuSeries
+
+MSS_PER_MG = 9.80665 / 1000.0  # MAVLink IMU messages carry the accelerometer in milli-g
 
 
 def untruncate_mg(values_mg: NDArray) -> NDArray:
@@ -56,3 +62,55 @@ class RepeatFilter:
         """Copies dropped since the last call (what a :class:`~magline.core.dut.SampleChunk` reports)."""
         n, self.repeats = self.repeats, 0
         return n
+
+
+class SensorStreams:
+    """Several magnetometers and the accelerometer read from one interleaved MAVLink stream, handed
+    out as :class:`~magline.core.dut.SampleChunk` s: each sensor's repeats dropped on their own, its
+    int16 truncation undone on its own, the primary's readings in ``mag_ut`` and the others' in
+    ``more`` (what the DUT contract asks of a backend with several sensors).
+
+    ``to_ut(device_id, mg)`` turns one sensor's distinct readings (mG, rows, truncation undone) into
+    raw µT — the place for a firmware's held calibration to be undone (ArduPilot).
+    """
+
+    def __init__(self, primary: int, sensors: list[int], to_ut: Callable[[int, NDArray], NDArray]) -> None:
+        self.primary = primary
+        self.sensors = list(dict.fromkeys([primary, *sensors]))
+        self.to_ut = to_ut
+        self.filters = {d: RepeatFilter() for d in self.sensors}
+        self._clear()
+
+    def _clear(self) -> None:
+        self.rows: dict[int, list[tuple[float, float, float]]] = {d: [] for d in self.sensors}
+        self.times: dict[int, list[float]] = {d: [] for d in self.sensors}
+        self.imu_t: list[float] = []
+        self.imu_mg: list[tuple[float, float, float]] = []
+
+    def accel(self, t_ms: float, x_mg: float, y_mg: float, z_mg: float) -> None:
+        """An accelerometer reading (milli-g, body axes) at ``t_ms``."""
+        self.imu_t.append(t_ms)
+        self.imu_mg.append((x_mg, y_mg, z_mg))
+
+    def mag(self, device_id: int, t_ms: float, x_mg: float, y_mg: float, z_mg: float) -> None:
+        """A magnetometer field of a message (int16 mG); a repeat of the sensor's last reading is dropped."""
+        if self.filters[device_id].accept(x_mg, y_mg, z_mg):
+            self.rows[device_id].append((x_mg, y_mg, z_mg))
+            self.times[device_id].append(t_ms)
+
+    def ready(self, chunk: int) -> bool:
+        return len(self.rows[self.primary]) >= chunk
+
+    def take(self) -> SampleChunk:
+        """What arrived since the last call, as one chunk."""
+        def readings(device_id: int) -> SampleChunk:
+            mg = untruncate_mg(np.array(self.rows[device_id], float).reshape(-1, 3))
+            return SampleChunk(mag_ut=self.to_ut(device_id, mg), t_ms=np.array(self.times[device_id]),
+                               repeats=self.filters[device_id].take_repeats())
+
+        chunk = readings(self.primary)
+        chunk.more = {d: readings(d) for d in self.sensors if d != self.primary}
+        if self.imu_t:
+            chunk.imu = ImuSeries(t_ms=np.array(self.imu_t), accel_mss=np.array(self.imu_mg, float) * MSS_PER_MG)
+        self._clear()
+        return chunk

@@ -53,6 +53,8 @@ class AttemptRecord:
     refused: str | None = None  # why these samples were not used: low coverage, the fit's refusal, interrupted
     repeats: int = 0  # copies of readings the stream carried and the backend dropped
     sensor_rate_hz: float | None = None  # distinct readings per second actually received
+    more: dict[int, RawSamples] = field(default_factory=dict)  # the other magnetometers' readings, by device id
+    imu: Any = None  # the accelerometer's readings (an ImuSeries), when the stream has them
 
 
 @dataclass
@@ -69,6 +71,7 @@ class VerifyReport:
     sensor_present: bool
     method: str
     figures: dict[str, float] = field(default_factory=dict)
+    missing: list[str] = field(default_factory=list)  # the sensors gone after the power cycle, by name
 
     @property
     def ok(self) -> bool:

@@ -24,14 +24,33 @@ its fixtures (``magline_station``, ``magline_run``, ``magline_px4``, ``magline_a
 there for any test that names them, and do nothing otherwise.
 """
 
-from magline.core.synthetic import SensorTruth, earth_field_ned, motion_directions, random_truth
+from magline.core.synthetic import SensorTruth, earth_field_ned, gravity_body, motion_directions, random_truth
 from magline.testing.builders import make_fit, make_record
 from magline.testing.conformance import check_dut_backend, check_field_source, check_power_control, check_result_sink
 from magline.testing.replay import mavlink_replay, read_tlog
 from magline.testing.sims import SimulatedVehicle, ardupilot_sim, px4_sim
 from magline.testing.stations import Problem, check_station, deep_update, run_unit, station_file
 
-__all__ = ["Problem", "SensorTruth", "SimulatedVehicle", "ardupilot_sim", "check_dut_backend", "check_field_source",
-           "check_power_control", "check_result_sink", "check_station", "deep_update", "earth_field_ned", "make_fit",
-           "make_record", "mavlink_replay", "motion_directions", "px4_sim", "random_truth", "read_tlog", "run_unit",
-           "station_file"]
+__all__ = [
+           "Problem",
+           "SensorTruth",
+           "SimulatedVehicle",
+           "ardupilot_sim",
+           "check_dut_backend",
+           "check_field_source",
+           "check_power_control",
+           "check_result_sink",
+           "check_station",
+           "deep_update",
+           "earth_field_ned",
+           "gravity_body",
+           "make_fit",
+           "make_record",
+           "mavlink_replay",
+           "motion_directions",
+           "px4_sim",
+           "random_truth",
+           "read_tlog",
+           "run_unit",
+           "station_file",
+]

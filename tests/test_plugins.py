@@ -165,8 +165,9 @@ def test_acquire_persist_and_verify_hooks_can_be_replaced(make_station, tmp_path
             return VerifyReport(read_back={"X": 0.0}, mismatches=["X: wrote 1.0, read back 0.0"],
                                 sensor_present=True, method="replay")
 
-    replay = Replay()
-    record = Sequencer(load_station(make_station()), load_plugins(extra=[replay]), tmp_path,
+    replay = Replay()  # recorded magnetometer readings only: no accelerometer to prove the mounting with
+    station = make_station({"products": {"MOCK-100": {"orientation": "skip"}}})
+    record = Sequencer(load_station(station), load_plugins(extra=[replay]), tmp_path,
                        sleep=lambda s: None).run_unit("R1")
     assert replay.calls == [("acquire", 1), ("persist", round(float(record.calibration["hard_iron_ut"][0]), 1)),
                             ("verify", 1.0)]

@@ -106,10 +106,12 @@ class CheckedField:
     # firmware's calibrated output to read it (a coil's field is gone by then: it does not say this).
     reference_is_ambient = True
 
-    def __init__(self, field_ut: float, reference: dict | None, model_name: str) -> None:
+    def __init__(self, field_ut: float, reference: dict | None, model_name: str,
+                 inclination_deg: float | None = None) -> None:
         from magline.core.dut import validated_options
 
         self.field_ut = float(field_ut)
+        self.inclination_deg = inclination_deg  # the field's dip (positive down), when the source knows it
         self.model_name = model_name
         self.monitor = (ReferenceMonitor(validated_options(ReferenceOptions, reference, "field_source reference"),
                                          self.field_ut, model_name) if reference is not None else None)
@@ -121,6 +123,11 @@ class CheckedField:
 
     def finish_unit(self) -> None:
         return None
+
+    def reference_inclination_deg(self) -> float | None:
+        """The field's inclination at the station (degrees, positive down), or None when not known:
+        the mounting check then measures the inclination the unit saw but cannot judge it."""
+        return self.inclination_deg
 
     def describe(self) -> dict:
         """The reference as an operator screen shows it: the model value and the last fluxgate check."""

@@ -10,6 +10,7 @@ Options: ``date`` (ISO, default today), ``reference`` (a fluxgate, see :mod:`.re
 from __future__ import annotations
 
 import datetime as dt
+import math
 import warnings
 from typing import Any
 
@@ -49,9 +50,9 @@ class WmmField(CheckedField):
         loc = station.station.location
         when = options.get("date")
         self.day = dt.date.fromisoformat(when) if when else dt.date.today()
-        self.components_nt = wmm_field_nt(loc.latitude_deg, loc.longitude_deg, loc.altitude_m, self.day)
-        super().__init__(self.components_nt["f"] / NT_PER_UT, options.get("reference"),
-                         f"World Magnetic Model ({self.day.isoformat()})")
+        self.components_nt = c = wmm_field_nt(loc.latitude_deg, loc.longitude_deg, loc.altitude_m, self.day)
+        super().__init__(c["f"] / NT_PER_UT, options.get("reference"), f"World Magnetic Model ({self.day.isoformat()})",
+                         inclination_deg=math.degrees(math.atan2(c["z"], math.hypot(c["x"], c["y"]))))
 
 
 def _factory(station: Any, options: dict) -> WmmField:

@@ -16,12 +16,14 @@ from magline.core.text import fmt, percent
 
 
 def _chart(m: MeasurementReport, serials: list[str]) -> go.Figure:
+    """SVG traces, not WebGL: Chromium keeps at most 16 WebGL contexts per page (the oldest charts lose
+    their points beyond that), and each costs a second to start under software rendering."""
     c = m.chart
     x = np.arange(1, c.values.size + 1)
     names = [serials[i] for i in c.index]
     fig = make_subplots(rows=2, cols=1, shared_xaxes=True, row_heights=[0.68, 0.32], vertical_spacing=0.06,
                         subplot_titles=(f"{m.name} — individuals", "moving range"))
-    fig.add_trace(go.Scattergl(x=x, y=c.values, mode="lines+markers", name=m.name, text=names,
+    fig.add_trace(go.Scatter(x=x, y=c.values, mode="lines+markers", name=m.name, text=names,
                                marker={"size": 4}, line={"width": 1},
                                hovertemplate="%{text}<br>%{y:.4g}<extra></extra>"), row=1, col=1)
     flagged = sorted({s.point for s in c.signals})
@@ -29,7 +31,7 @@ def _chart(m: MeasurementReport, serials: list[str]) -> go.Figure:
         rules = {}
         for s in c.signals:
             rules.setdefault(s.point, []).append(RULES[s.rule])
-        fig.add_trace(go.Scattergl(x=x[flagged], y=c.values[flagged], mode="markers", name="rule signals",
+        fig.add_trace(go.Scatter(x=x[flagged], y=c.values[flagged], mode="markers", name="rule signals",
                                    marker={"color": "#cf222e", "size": 8, "symbol": "x"},
                                    text=[f"{names[p]}: {'; '.join(rules[p])}" for p in flagged],
                                    hovertemplate="%{text}<extra></extra>"), row=1, col=1)
@@ -40,7 +42,7 @@ def _chart(m: MeasurementReport, serials: list[str]) -> go.Figure:
         if value is not None:
             fig.add_hline(y=value, line={"color": "#cf222e", "dash": "dot", "width": 1}, row=1, col=1,
                           annotation_text=f"{label} {fmt(value)}", annotation_position="left")
-    fig.add_trace(go.Scattergl(x=x[1:], y=c.moving_ranges, mode="lines", name="moving range",
+    fig.add_trace(go.Scatter(x=x[1:], y=c.moving_ranges, mode="lines", name="moving range",
                                line={"width": 1, "color": "#57606a"}), row=2, col=1)
     fig.add_hline(y=c.mr_bar, line={"color": "#0969da", "width": 1}, row=2, col=1)
     fig.add_hline(y=c.mr_ucl, line={"color": "#0969da", "dash": "dash", "width": 1}, row=2, col=1)

@@ -26,9 +26,9 @@ from magline.core.results.reading import RunFilter
 from magline.core.results.series import RunSeries
 from magline.core.results.sqlite_sink import SqliteSink
 from magline.core.results.store import RUNNING, SqlStore, reason
-from magline.core.results.tables import attachments, attempts, measurements, params, phases, runs
+from magline.core.results.tables import attachments, attempt_streams, attempts, measurements, params, phases, runs
 
-CHILDREN = (phases, attempts, measurements, params, attachments)
+CHILDREN = (phases, attempts, attempt_streams, measurements, params, attachments)
 RETRY_S = 30.0  # the background forwarder tries again this often while records are queued
 CONNECT_TIMEOUT_S = 3
 

@@ -14,6 +14,7 @@ start of the acquisition stay exact to the microsecond over days.
 from __future__ import annotations
 
 import io
+from typing import Any
 
 import numpy as np
 
@@ -35,7 +36,12 @@ def encode(samples: RawSamples) -> bytes:
         columns.append(("temp_c", "<f4", samples.temp_c))
     if samples.applied_ut is not None:
         columns += [(name, "<f4", samples.applied_ut[:, i]) for i, name in enumerate(APPLIED)]
-    table = np.empty(len(samples), dtype=[(name, dtype) for name, dtype, _ in columns])
+    return _npy(columns)
+
+
+def _npy(columns: list[tuple[str, str, np.ndarray]]) -> bytes:
+    """Named columns as one structured ``.npy`` array."""
+    table = np.empty(len(columns[0][2]), dtype=[(name, dtype) for name, dtype, _ in columns])
     for name, _, values in columns:
         table[name] = values
     out = io.BytesIO()
@@ -67,3 +73,30 @@ def _widen(values: np.ndarray) -> np.ndarray:
     if values.dtype == np.float32:
         return values.astype(str).astype(np.float64)
     return values.astype(np.float64)
+
+
+IMU_COLUMNS = ("acc_x_mss", "acc_y_mss", "acc_z_mss")
+GYRO_COLUMNS = ("gyro_x_rads", "gyro_y_rads", "gyro_z_rads")
+
+
+def encode_imu(imu: Any) -> bytes:
+    """The accelerometer (and gyro) readings of an attempt: ``t_ms`` float64, the rest float32."""
+    columns: list[tuple[str, str, np.ndarray]] = [("t_ms", "<f8", np.asarray(imu.t_ms, float))]
+    columns += [(name, "<f4", np.asarray(imu.accel_mss, float)[:, i]) for i, name in enumerate(IMU_COLUMNS)]
+    if imu.gyro_rads is not None:
+        columns += [(name, "<f4", np.asarray(imu.gyro_rads, float)[:, i]) for i, name in enumerate(GYRO_COLUMNS)]
+    return _npy(columns)
+
+
+def decode_imu(blob: bytes) -> Any:
+    from magline.core.mounting import ImuSeries
+
+    if not blob.startswith(MAGIC):
+        raise RawBlobError("not an IMU array (no .npy header)")
+    table = np.lib.format.read_array(io.BytesIO(blob), allow_pickle=False)
+    names = table.dtype.names or ()
+    if "t_ms" not in names or any(c not in names for c in IMU_COLUMNS):
+        raise RawBlobError(f"IMU array without column(s) t_ms, {', '.join(IMU_COLUMNS)}")
+    gyro = np.column_stack([_widen(table[c]) for c in GYRO_COLUMNS]) if GYRO_COLUMNS[0] in names else None
+    return ImuSeries(t_ms=_widen(table["t_ms"]), accel_mss=np.column_stack([_widen(table[c]) for c in IMU_COLUMNS]),
+                     gyro_rads=gyro)

@@ -26,7 +26,7 @@ from magline.core.record import AttemptRecord, RunRecord
 from magline.core.results import raw_blob, schema_version
 from magline.core.results.reading import RunFilter
 from magline.core.results.series import RunSeries, load_series
-from magline.core.results.tables import attachments, attempts, measurements, params, phases, runs
+from magline.core.results.tables import attachments, attempt_streams, attempts, measurements, params, phases, runs
 
 RUNNING = "running"
 
@@ -106,10 +106,21 @@ class SqlStore:
     def save_attempt(self, record: RunRecord, attempt: AttemptRecord) -> None:
         if record.run_id is None:
             self.begin(record)
-        self._write("storing the attempt's raw data", lambda conn: conn.execute(attempts.insert().values(
-            run_id=record.run_id, attempt=attempt.attempt, samples=attempt.samples, coverage=attempt.coverage,
-            target=attempt.target, accepted=int(attempt.accepted), raw=raw_blob.encode(attempt.raw),
-            refused=attempt.refused, repeats=attempt.repeats, sensor_rate_hz=attempt.sensor_rate_hz)))
+        streams = [{"run_id": record.run_id, "attempt": attempt.attempt, "stream": f"mag:{device_id}",
+                    "samples": len(samples), "raw": raw_blob.encode(samples)}
+                   for device_id, samples in attempt.more.items()]
+        if attempt.imu is not None:
+            streams.append({"run_id": record.run_id, "attempt": attempt.attempt, "stream": "imu",
+                            "samples": len(attempt.imu), "raw": raw_blob.encode_imu(attempt.imu)})
+
+        def write(conn: Any) -> None:
+            conn.execute(attempts.insert().values(
+                run_id=record.run_id, attempt=attempt.attempt, samples=attempt.samples, coverage=attempt.coverage,
+                target=attempt.target, accepted=int(attempt.accepted), raw=raw_blob.encode(attempt.raw),
+                refused=attempt.refused, repeats=attempt.repeats, sensor_rate_hz=attempt.sensor_rate_hz))
+            _insert(conn, attempt_streams, streams)
+
+        self._write("storing the attempt's raw data", write)
 
     def finish(self, record: RunRecord) -> None:
         if record.run_id is None:

@@ -60,6 +60,15 @@ attempts = Table(
     Column("refused", Text), Column("repeats", Integer), Column("sensor_rate_hz", Float),
 )
 
+# The other streams of an attempt: each further magnetometer's readings (``stream`` = "mag:<device id>",
+# a raw_blob like attempts.raw) and the accelerometer's ("imu", raw_blob.encode_imu), kept like the primary's.
+attempt_streams = Table(
+    "attempt_streams", metadata,
+    Column("run_id", Integer, ForeignKey("runs.id")), Column("attempt", Integer), Column("stream", Text),
+    Column("samples", Integer), Column("raw", LargeBinary),
+    Index("attempt_streams_run", "run_id"),
+)
+
 measurements = Table(
     "measurements", metadata,
     Column("run_id", Integer, ForeignKey("runs.id")), Column("name", Text), Column("kind", Text),

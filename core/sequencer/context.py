@@ -17,8 +17,10 @@ from typing import TYPE_CHECKING, Any
 from magline.core.fit.samples_csv import RawSamples
 
 if TYPE_CHECKING:
-    from magline.core.dut import DutBackend, UnitInfo
+    from magline.core.dut import DutBackend, Magnetometer, UnitInfo
     from magline.core.field import FieldSource
+    from magline.core.fit import FitResult
+    from magline.core.mounting import ImuSeries
     from magline.core.plugins import Plugins
     from magline.core.power import PowerControl
     from magline.core.record import PhaseResult, RunRecord
@@ -41,6 +43,10 @@ class Acquisition:
     target: float
     repeats: int = 0
     sensor_rate_hz: float | None = None
+    # the other magnetometers' readings over the same tumble, by device id, and the accelerometer's
+    more: dict[int, RawSamples] = field(default_factory=dict)
+    imu: ImuSeries | None = None
+    coverages: dict[int, float] = field(default_factory=dict)  # per device id; ``coverage`` is the worst
 
     @property
     def sufficient(self) -> bool:
@@ -77,6 +83,9 @@ class RunContext:
     power: PowerControl | None = None
     unit: UnitInfo | None = None
     attempts: list[Acquisition] = field(default_factory=list)
+    # the magnetometers calibrated in this run, primary first (one entry for a one-sensor backend)
+    magnetometers: list[Magnetometer] = field(default_factory=list)
+    fits: dict[int, FitResult] = field(default_factory=dict)  # by device id, from the accepted attempt
     # why the next acquisition attempt is needed, in the operator's terms (None: low coverage)
     retry_advice: str | None = None
     state: dict[str, Any] = field(default_factory=dict)  # scratch space for plugins
@@ -141,6 +150,24 @@ class RunContext:
         if self.power is None:
             raise RuntimeError("no power control is set up")
         return self.power
+
+    def sensor_prefix(self, device_id: int) -> str:
+        """The measurement-name prefix of a sensor: ``""`` for the primary, ``mag2.`` for the second…"""
+        ids = [m.device_id for m in self.magnetometers]
+        position = ids.index(device_id) if device_id in ids else 0
+        return "" if position == 0 else f"mag{position + 1}."
+
+    def sensor_label(self, device_id: int) -> str:
+        """How the operator is told which sensor: the firmware's name and its device id."""
+        for m in self.magnetometers:
+            if m.device_id == device_id:
+                return f"{m.label} ({device_id})"
+        return f"magnetometer {device_id}"
+
+    def require_unit(self) -> UnitInfo:
+        if self.unit is None:
+            raise RuntimeError("the unit has not been identified")
+        return self.unit
 
     def require_dut(self) -> DutBackend:
         if self.dut is None:

@@ -20,11 +20,11 @@ from pathlib import Path
 from typing import Any
 
 from magline.core import __version__
-from magline.core.dut import DutError, NotRestored
+from magline.core.dut import DutError, Magnetometer, NotRestored
 from magline.core.faults import StationFault, UnitAborted
 from magline.core.field import FieldSourceError
 from magline.core.fit import FitOptions, FitRefused, FitResult
-from magline.core.measurements import Json, Verdict, verdicts
+from magline.core.measurements import Json, Verdict, prefixed, verdicts
 from magline.core.plugins import Plugins
 from magline.core.quality.review import review
 from magline.core.record import AttemptRecord, Outcome, PersistReport, PhaseResult, RunRecord, now_iso
@@ -255,7 +255,15 @@ class Sequencer:
             "sensors": run.unit.sensors, "selected_sensor": run.unit.selected_sensor,
             "soft_iron_model": run.unit.soft_iron_model, **run.unit.extra,
         }
-        run.log(f"{run.unit.autopilot} {run.unit.firmware}, magnetometer {run.unit.selected_sensor}")
+        run.magnetometers = _chosen_magnetometers(run)
+        run.record.unit_info["magnetometers"] = [
+            {"prefix": run.sensor_prefix(m.device_id).rstrip("."), "device_id": m.device_id, "label": m.label,
+             "external": m.external, "orientation": m.orientation} for m in run.magnetometers]
+        if run.unit.magnetometers and hasattr(run.dut, "use_magnetometers"):
+            run.dut.use_magnetometers([m.device_id for m in run.magnetometers])
+        names = ", ".join(run.sensor_label(m.device_id) for m in run.magnetometers)
+        run.log(f"{run.unit.autopilot} {run.unit.firmware}, magnetometer{'s' if len(run.magnetometers) > 1 else ''} "
+                f"{names}")
         run.dut.prepare()
 
     def _acquire(self, run: RunContext) -> None:
@@ -291,11 +299,16 @@ class Sequencer:
             if not result.sufficient:
                 run.retry_advice, refusal = None, None
                 stored.refused = f"coverage {percent(result.coverage)} below the target {percent(result.target)}"
+                if len(result.coverages) > 1:  # the retry is for the worst sensor: say which
+                    worst = min(result.coverages, key=result.coverages.get)
+                    stored.refused += f" ({run.sensor_label(worst)})"
+                    run.retry_advice = (f"Coverage too low for {run.sensor_label(worst)} "
+                                        f"({percent(result.coverage)}) — {run.station.prompts.retry}")
                 continue
             started = time.monotonic()
             try:
-                run.state["fit"] = self.plugins.hook.magline_fit(run=run, samples=result.samples,
-                                                                 options=self._fit_options(run))
+                run.fits = self._fit_every_sensor(run, result)
+                run.state["fit"] = run.fits[run.magnetometers[0].device_id]
                 run.state["fit_s"] = time.monotonic() - started
                 return
             except FitRefused as exc:
@@ -309,10 +322,29 @@ class Sequencer:
         raise PhaseFailed(f"coverage {percent(run.attempts[-1].coverage)} below the target "
                           f"{percent(acq.coverage_target)} after {len(run.attempts)} attempts")
 
+    def _fit_every_sensor(self, run: RunContext, result: Acquisition) -> dict[int, FitResult]:
+        """One fit per magnetometer with the same engine; the first refusal refuses the attempt, its
+        message and advice naming the sensor (the operator's retry is for the worst sensor)."""
+        fits: dict[int, FitResult] = {}
+        for position, sensor in enumerate(run.magnetometers):
+            samples = result.samples if position == 0 else result.more.get(sensor.device_id)
+            label = run.sensor_label(sensor.device_id)
+            if samples is None or len(samples) == 0:
+                raise DutError(f"{label} sent no readings during the tumble")
+            try:
+                fits[sensor.device_id] = self.plugins.hook.magline_fit(run=run, samples=samples,
+                                                                       options=self._fit_options(run))
+            except FitRefused as exc:
+                if len(run.magnetometers) == 1:
+                    raise
+                raise FitRefused(exc.reason, f"{label}: {exc.message}", f"{label}: {exc.advice}") from exc
+        return fits
+
     def _store_attempt(self, run: RunContext, result: Acquisition, accepted: bool) -> AttemptRecord:
         stored = AttemptRecord(attempt=result.attempt, samples=len(result.samples), coverage=result.coverage,
                                target=result.target, raw=result.samples, accepted=accepted,
-                               repeats=result.repeats, sensor_rate_hz=result.sensor_rate_hz)
+                               repeats=result.repeats, sensor_rate_hz=result.sensor_rate_hz,
+                               more=dict(result.more), imu=result.imu)
         run.record.attempts.append(stored)
         self.sink.save_attempt(run.record, stored)  # raw data safe before any fitting
         return stored
@@ -328,9 +360,16 @@ class Sequencer:
                           max_direction_sigma_deg=self.station.fit.max_direction_sigma_deg)
 
     def _fit(self, run: RunContext) -> None:
-        """Record the fit that the accepted attempt produced (the acquire phase ran it)."""
+        """Record the fits that the accepted attempt produced (the acquire phase ran them)."""
         fit: FitResult = run.state["fit"]
         run.record.calibration = fit.to_dict()
+        for sensor in run.magnetometers[1:]:
+            other = run.fits[sensor.device_id]
+            prefix = run.sensor_prefix(sensor.device_id).rstrip(".")
+            run.record.calibration.setdefault("magnetometers", {})[prefix] = {
+                "device_id": sensor.device_id, **other.to_dict()}
+            run.log(f"{run.sensor_label(sensor.device_id)}: offset {other.hard_iron_ut.round(2).tolist()} µT, "
+                    f"residual rms {other.residual_rms_ut:.3f} µT")
         run.log(f"offset {fit.hard_iron_ut.round(2).tolist()} µT, field {fit.field_ut:.2f} µT, "
                 f"residual rms {fit.residual_rms_ut:.3f} µT (fitted in {run.state['fit_s'] * 1e3:.0f} ms, "
                 "during acquisition)")
@@ -347,12 +386,18 @@ class Sequencer:
         fit = run.state["fit"]
         for contribution in self.plugins.hook.magline_validate(run=run, fit=fit):
             run.record.measurements.extend(contribution)
+        for sensor in run.magnetometers[1:]:
+            prefix = run.sensor_prefix(sensor.device_id)
+            for contribution in self.plugins.hook.magline_validate(run=run, fit=run.fits[sensor.device_id]):
+                run.record.measurements.extend(prefixed(contribution, prefix, run.limits))
+        for contribution in self.plugins.hook.magline_validate_unit(run=run, fits=dict(run.fits)):
+            run.record.measurements.extend(contribution)
         failed = [m for m in verdicts(run.record.measurements) if m.verdict is Verdict.FAIL]
         review = [m for m in verdicts(run.record.measurements) if m.verdict is Verdict.REVIEW]
         for m in review:
             run.log(f"review: {m.name} = {fmt(m.value, m.unit)} is within the marginal band")
         if failed:
-            message = "; ".join(f"{m.name} = {fmt(m.value, m.unit)} outside [{fmt(m.low)}, {fmt(m.high)}]"
+            message = "; ".join(m.note or f"{m.name} = {fmt(m.value, m.unit)} outside [{fmt(m.low)}, {fmt(m.high)}]"
                                 for m in failed)
             if any(m.name == "field_error_pct" for m in failed):
                 message += (" — the field magnitude the unit measures does not match the reference: "
@@ -410,7 +455,8 @@ class Sequencer:
         run.record.persistence = {"method": report.method, "figures": report.figures,
                                   "sensor_present": report.sensor_present, "mismatches": report.mismatches}
         if not report.sensor_present:
-            raise PhaseFailed(f"magnetometer {run.unit.selected_sensor} missing after power cycle")
+            missing = ", ".join(report.missing) or f"magnetometer {run.unit.selected_sensor}"
+            raise PhaseFailed(f"{missing} missing after power cycle")
         if report.mismatches:
             raise PhaseFailed("calibration did not survive the power cycle: " + "; ".join(report.mismatches))
 
@@ -454,6 +500,37 @@ class Sequencer:
                 run.record.phases[-1].log.append(str(exc))
             except Exception as exc:
                 run.record.phases[-1].log.append(f"{action} failed: {_text(exc)}")
+
+
+def _chosen_magnetometers(run: RunContext) -> list[Magnetometer]:
+    """The magnetometers this run calibrates, the primary first: every one the unit has (``all``, the
+    default), the station file's list (device ids, or positions in the firmware's order), or only the
+    one the backend selected (``magnetometer: <id>`` alone, or a backend that knows one sensor).
+    A listed sensor the unit lacks fails the unit, naming it."""
+    unit = run.require_unit()
+    have = list(unit.magnetometers)
+    if not have:
+        return [Magnetometer(device_id=unit.selected_sensor, label="magnetometer")]
+    wanted = run.product.magnetometers
+    if wanted is None:
+        wanted = "all" if run.product.magnetometer == "primary" else [unit.selected_sensor]
+    if wanted == "all":
+        chosen = have
+    else:
+        chosen, missing = [], []
+        for entry in wanted:
+            by_id = next((m for m in have if m.device_id == entry), None)
+            found = by_id or (have[entry - 1] if 1 <= entry <= min(len(have), 9) else None)
+            if found is None:
+                missing.append(f"magnetometer {entry}")
+            elif found not in chosen:
+                chosen.append(found)
+        if missing:
+            listed = ", ".join(f"{m.label} ({m.device_id})" for m in have)
+            raise DutError(f"{', '.join(missing)} listed for {run.part} {'is' if len(missing) == 1 else 'are'} not on "
+                           f"this unit; it has {listed}")
+    primary = next((m for m in chosen if m.device_id == unit.selected_sensor), chosen[0])
+    return [primary, *(m for m in chosen if m is not primary)]
 
 
 def _text(exc: BaseException) -> str:

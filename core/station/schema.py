@@ -22,7 +22,7 @@ from pydantic import (
     model_validator,
 )
 
-from magline.core.measurements import KNOWN_LIMIT_NAMES
+from magline.core.measurements import DEFAULT_LIMITS, KNOWN_LIMIT_NAMES, known_limit_name
 
 
 class _Strict(BaseModel):
@@ -69,12 +69,13 @@ class Limit(_Strict):
 
 
 def _known_measurement(name: str) -> str:
-    if name not in KNOWN_LIMIT_NAMES:
+    if not known_limit_name(name):
         import difflib
 
         close = difflib.get_close_matches(name, sorted(KNOWN_LIMIT_NAMES), n=1, cutoff=0.6)
         hint = f" (did you mean {close[0]!r}?)" if close else ""
-        raise ValueError(f"unknown measurement {name!r}{hint}; known: {', '.join(sorted(KNOWN_LIMIT_NAMES))}")
+        raise ValueError(f"unknown measurement {name!r}{hint}; known: {', '.join(sorted(KNOWN_LIMIT_NAMES))} "
+                         "(a sensor's own: mag2.<name>; a pair's: mag1-mag2.<name>)")
     return name
 
 
@@ -94,6 +95,13 @@ class Product(_Strict):
     backend: str
     connection: str = ""
     magnetometer: str | int = "primary"
+    # ``all`` (the default unless ``magnetometer`` names one sensor): every magnetometer the unit has, in
+    # one tumble; or a list: device ids, or positions 1–9 in the firmware's order (1 = the primary).
+    magnetometers: Literal["all"] | Annotated[list[int], Field(min_length=1)] | None = None
+    # the mounting of every sensor against the unit's accelerometer: ``check`` (a wrong orientation
+    # FAILs, naming the value that fixes it), ``fix`` (that value is written and proven with the
+    # calibration), ``skip`` (not proven; recorded as skipped)
+    orientation: Literal["check", "fix", "skip"] = "check"
     soft_iron_model: Literal["auto", "full", "diagonal", "sphere"] = "auto"
     options: dict[str, Any] = Field(default_factory=dict)
     power: PowerConfig = Field(default_factory=PowerConfig)
@@ -278,8 +286,9 @@ class Station(_Strict):
         return product.model_copy(update=update)
 
     def effective_limits(self, part: str) -> dict[str, Limit]:
-        """Line-wide limits with the product's overrides applied."""
-        return {**self.limits, **self.products[part].limits}
+        """Built-in defaults (mounting, agreement), line-wide limits, then the product's overrides."""
+        defaults = {name: Limit(**rule) for name, rule in DEFAULT_LIMITS.items()}
+        return {**defaults, **self.limits, **self.products[part].limits}
 
     def content_hash(self) -> str:
         """Stable hash of the whole validated station file (comments and layout do not count),

@@ -5,6 +5,7 @@ and the same operator motions, so that "accuracy against known synthetic truth" 
 """
 
 from magline.core.synthetic.motions import MOTIONS, motion_directions
-from magline.core.synthetic.sensor import SensorTruth, earth_field_ned, random_truth
+from magline.core.synthetic.sensor import GRAVITY_MSS, SensorTruth, earth_field_ned, gravity_body, random_truth
 
-__all__ = ["MOTIONS", "SensorTruth", "earth_field_ned", "motion_directions", "random_truth"]
+__all__ = ["GRAVITY_MSS", "MOTIONS", "SensorTruth", "earth_field_ned", "gravity_body", "motion_directions",
+           "random_truth"]

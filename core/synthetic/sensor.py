@@ -54,3 +54,23 @@ def random_truth(rng: np.random.Generator, *, max_offset_ut: float = 200.0, max_
     eig = np.exp(log_eig)
     q = Rotation.random(random_state=rng).as_matrix()
     return SensorTruth(hard_iron_ut=h, soft_iron=q @ np.diag(eig) @ q.T, noise_ut=noise_ut)
+
+
+GRAVITY_MSS = 9.80665
+
+
+def gravity_body(fields_body: NDArray, field_ned: NDArray) -> NDArray:
+    """What an accelerometer at rest reads (m/s², body axes, pointing up) in an attitude that turns the
+    Earth field ``field_ned`` into each body-frame field of ``fields_body`` — the smallest such turn from
+    level.  Why: synthetic tumbles are drawn as field directions; the mounting check needs the gravity
+    that goes with each, from the same attitude."""
+    from scipy.spatial.transform import Rotation
+
+    seen = np.asarray(fields_body, float)
+    seen = seen / np.linalg.norm(seen, axis=1, keepdims=True)
+    north = np.asarray(field_ned, float) / np.linalg.norm(field_ned)
+    axis = np.cross(north, seen)
+    sin = np.linalg.norm(axis, axis=1, keepdims=True)
+    angle = np.arctan2(sin[:, 0], seen @ north)
+    turn = Rotation.from_rotvec(axis / np.maximum(sin, 1e-12) * angle[:, None])  # NED → body
+    return turn.apply([0.0, 0.0, -GRAVITY_MSS])

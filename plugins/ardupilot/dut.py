@@ -1,10 +1,13 @@
-"""The ArduPilot DUT backend: calibrate one compass through pymavlink, persist, prove it survived.
+"""The ArduPilot DUT backend: calibrate every compass through pymavlink, persist, prove it survived.
 
-Sequence as the core's phases drive it: connect (heartbeat, version, compass ids) → prepare
-(COMPASS_LEARN off, read the calibration held now) → samples (RAW_IMU / SCALED_IMU2/3 of the
-chosen compass, the firmware's correction inverted) → parameters (OFS/DIA/ODI/SCALE of the set
-whose DEV_ID is the sensor, checked against ArduPilot's limits) → commit (force-save the device
-ids) → reboot and reconnect → read back, prearm check → restore COMPASS_LEARN.
+Sequence as the core's phases drive it: connect (heartbeat, version, compass ids, orientations) →
+prepare (COMPASS_LEARN off, read the calibration each set holds now) → samples (RAW_IMU /
+SCALED_IMU2/3, one per compass set, in one stream; each compass's repeats dropped and the firmware's
+correction inverted on its own; gravity from RAW_IMU's accelerometer, since SCALED_IMU3's is empty
+on SITL) → parameters (OFS/DIA/ODI/SCALE of the set whose DEV_ID is the sensor, checked against
+ArduPilot's limits; COMPASS_ORIENTn where the mounting check fixes one) → commit (force-save the
+device ids) → reboot and reconnect → read back, every compass still there, prearm check (an
+uncalibrated or inconsistent compass is reported there) → restore COMPASS_LEARN.
 """
 
 from __future__ import annotations
@@ -14,10 +17,10 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from magline.core.dut import DutError, NotRestored, ParamValue, SampleChunk, UnitInfo, await_new_boot
+from magline.core.dut import DutError, Magnetometer, NotRestored, ParamValue, SampleChunk, UnitInfo, await_new_boot
 from magline.core.faults import StationFault
 from magline.core.fit import FitResult
-from magline.core.readings import RepeatFilter, untruncate_mg
+from magline.core.readings import RepeatFilter, SensorStreams, untruncate_mg
 from magline.core.station.schema import Product
 from magline.plugins.ardupilot.calibration import (
     SETS,
@@ -33,7 +36,9 @@ from magline.plugins.ardupilot.options import ArduPilotOptions
 # compass priority 0 / 1 / 2 (= set 1 / 2 / 3 after the boot-time reorder) streams in these messages
 STREAMS = (("RAW_IMU", ML.MAVLINK_MSG_ID_RAW_IMU), ("SCALED_IMU2", ML.MAVLINK_MSG_ID_SCALED_IMU2),
            ("SCALED_IMU3", ML.MAVLINK_MSG_ID_SCALED_IMU3))
-INT_PARAMS = ("COMPASS_DEV_ID", "COMPASS_PRIO", "COMPASS_LEARN", "COMPASS_OFFS_MAX", "COMPASS_MOTCT")
+INT_PARAMS = ("COMPASS_DEV_ID", "COMPASS_PRIO", "COMPASS_LEARN", "COMPASS_OFFS_MAX", "COMPASS_MOTCT",
+              "COMPASS_ORIENT", "COMPASS_EXTERN")
+
 CHUNK = 10
 RESTORE_RECONNECT_S = 3.0  # a vehicle that does not answer by then is reported as not restored
 COMPASS_PREARM = "PreArm: Compass"
@@ -48,12 +53,13 @@ class ArduPilotDut:
         self.product = product
         self.opts = options
         self.link = ArduPilotLink(product.connection, param_timeout_s=options.param_timeout_s)
-        self.device_id = 0
-        self.suffix = ""  # set of the calibrated compass now
-        self.suffix_written = ""  # set it had when the calibration was written
-        self.ids: dict[str, int] = {}
+        self.device_id = 0  # the primary compass being calibrated
+        self.ids: dict[str, int] = {}  # set suffix → device id, as the unit has them now
+        self.written_sets: dict[int, str] = {}  # device id → set suffix when its calibration was written
+        self.chosen: list[int] = []  # the compasses this run calibrates, primary first
         self.offs_max_mg = 1800.0
-        self.held: HeldCalibration | None = None
+        self.held: dict[int, HeldCalibration] = {}
+        self.magnetometers: list[Magnetometer] = []
         self._saved_learn: int | None = None
 
     # ------------------------------------------------------------------ link
@@ -67,12 +73,34 @@ class ArduPilotDut:
         firmware = _firmware(version.flight_sw_version) if version is not None else "unknown"
         self._read_ids()
         self.device_id = self._selected_id()
-        self.suffix = self.suffix_written = self._suffix_of(self.device_id)
+        self.chosen = [self.device_id]
+        self.written_sets = {}
         self.offs_max_mg = self.link.get("COMPASS_OFFS_MAX")
+        self.magnetometers = [self._magnetometer(suffix, dev) for suffix, dev in self.ids.items() if dev]
         return UnitInfo(autopilot="ArduPilot", firmware=firmware, sensors=[i for i in self.ids.values() if i],
                         selected_sensor=self.device_id, soft_iron_model="full",
                         extra={"compass_set": SETS.index(self.suffix) + 1,
-                               "capabilities": int(version.capabilities) if version is not None else 0})
+                               "capabilities": int(version.capabilities) if version is not None else 0},
+                        magnetometers=self.magnetometers)
+
+    def _magnetometer(self, suffix: str, device_id: int) -> Magnetometer:
+        """A compass as the firmware holds it: COMPASS_ORIENTn turns an external compass's readings into
+        the body before anything else (so the streamed field is in body axes); an internal compass
+        ignores it — its fix is COMPASS_EXTERNn = 1 together with the orientation (reference §16)."""
+        names = set_names(suffix)
+        external = int(self.link.get(names["EXTERN"][0])) != 0
+        orient = int(self.link.get(names["ORIENT"][0])) if external else 0
+        return Magnetometer(device_id=device_id, label=f"compass {SETS.index(suffix) + 1}", external=external,
+                            orientation=orient, readings_rotated=True,
+                            fix_params=names["ORIENT"] + ([] if external else names["EXTERN"]))
+
+    def use_magnetometers(self, device_ids: list[int]) -> None:
+        self.chosen = list(device_ids)
+
+    @property
+    def suffix(self) -> str:
+        """The primary compass's set now (sets move with COMPASS_PRIOn_ID at boot)."""
+        return self._suffix_of(self.device_id)
 
     def _read_ids(self) -> None:
         self.ids = {s: int(self.link.get(f"COMPASS_DEV_ID{s}")) for s in SETS}
@@ -110,8 +138,11 @@ class ArduPilotDut:
         if learn != 0:
             self.link.set("COMPASS_LEARN", 0)  # the firmware must not learn offsets during the test
             self._saved_learn = learn
-        names = [n for group in set_names(self.suffix).values() for n in group if "DEV_ID" not in n]
-        self.held = HeldCalibration.from_params({n: self.link.get(n) for n in names}, self.suffix)
+        self.held = {}
+        for device_id in self.chosen:
+            suffix = self._suffix_of(device_id)
+            names = [n for key in ("OFS", "DIA", "ODI", "SCALE") for n in set_names(suffix)[key]]
+            self.held[device_id] = HeldCalibration.from_params({n: self.link.get(n) for n in names}, suffix)
 
     def restore(self) -> None:
         """COMPASS_LEARN back to what it was (ArduPilot stores every PARAM_SET at once, so the change
@@ -128,48 +159,69 @@ class ArduPilotDut:
 
     # ------------------------------------------------------------------ data
     def samples(self, rate_hz: float) -> Iterator[SampleChunk]:
-        if self.held is None:
+        """Every chosen compass's set stream at once, plus RAW_IMU for gravity (SITL's SCALED_IMU3
+        carries no accelerometer); each compass's repeats are dropped on their own."""
+        if not self.held:
             raise DutError("prepare() must run before acquisition")
-        kind, msg_id = STREAMS[SETS.index(self.suffix)]
+        by_kind = {STREAMS[SETS.index(self._suffix_of(d))][0]: d for d in self.chosen}
+        kinds = list(dict.fromkeys(["RAW_IMU", *by_kind]))
+        ids = {kind: msg_id for kind, msg_id in STREAMS}
         self.link.drain()
-        self.link.set_message_interval(msg_id, rate_hz)
-        readings = RepeatFilter()
+        for kind in kinds:
+            self.link.set_message_interval(ids[kind], rate_hz)
+        streams = SensorStreams(self.device_id, self.chosen, lambda d, mg: self.held[d].raw_ut(mg))
         try:
-            rows: list[tuple[float, float, float]] = []
-            times: list[float] = []
             while True:
-                msg = self.link.recv(kind, self.opts.stream_timeout_s)
+                msg = self.link.recv(kinds, self.opts.stream_timeout_s)
                 if msg is None:
-                    self.link.require_alive(f"link lost during acquisition: no {kind} for "
+                    self.link.require_alive(f"link lost during acquisition: no {'/'.join(kinds)} for "
                                             f"{self.opts.stream_timeout_s:g} s")
-                    raise DutError(f"the vehicle answers but sent no {kind} for {self.opts.stream_timeout_s:g} s: "
-                                   f"compass {self.device_id} delivers no readings")
-                if not readings.accept(msg.xmag, msg.ymag, msg.zmag):
-                    continue  # the stream is faster than the compass: the same reading again
-                rows.append((msg.xmag, msg.ymag, msg.zmag))
-                times.append(msg.time_usec / 1000.0 if kind == "RAW_IMU" else float(msg.time_boot_ms))
-                if len(rows) >= CHUNK:
-                    corrected_mg = untruncate_mg(np.array(rows, float))
-                    yield SampleChunk(mag_ut=self.held.raw_ut(corrected_mg), t_ms=np.array(times),
-                                      repeats=readings.take_repeats())
-                    rows, times = [], []
+                    raise DutError(f"the vehicle answers but sent no {'/'.join(kinds)} for "
+                                   f"{self.opts.stream_timeout_s:g} s: compass {self.device_id} delivers no readings")
+                kind = msg.get_type()
+                t_ms = msg.time_usec / 1000.0 if kind == "RAW_IMU" else float(msg.time_boot_ms)
+                if kind == "RAW_IMU":
+                    streams.accel(t_ms, msg.xacc, msg.yacc, msg.zacc)
+                if kind in by_kind:  # the stream is faster than the compass: repeats are dropped
+                    streams.mag(by_kind[kind], t_ms, msg.xmag, msg.ymag, msg.zmag)
+                if streams.ready(CHUNK):
+                    yield streams.take()
         finally:
-            with contextlib.suppress(DutError):  # when the link is gone the stream stops with it
-                self.link.set_message_interval(msg_id, 0)
+            for kind in kinds:
+                with contextlib.suppress(DutError):  # when the link is gone the stream stops with it
+                    self.link.set_message_interval(ids[kind], 0)
 
     # ------------------------------------------------------------------ parameters
-    def calibration_params(self, fit: FitResult) -> dict[str, ParamValue]:
-        params = fit_to_params(fit, self.suffix)
-        check_firmware_limits(params, self.suffix, self.offs_max_mg)
-        self.suffix_written = self.suffix
+    def calibration_params(self, fit: FitResult, sensor: int | None = None) -> dict[str, ParamValue]:
+        device_id = self.device_id if sensor is None else sensor
+        suffix = self._suffix_of(device_id)
+        params = fit_to_params(fit, suffix)
+        check_firmware_limits(params, suffix, self.offs_max_mg)
+        self.written_sets[device_id] = suffix
         return dict(params)
 
+    def orientation_params(self, device_id: int, value: int) -> dict[str, ParamValue]:
+        """COMPASS_ORIENTn = the mounting found; an internal compass ignores it unless marked external."""
+        sensor = next(m for m in self.magnetometers if m.device_id == device_id)
+        suffix = self._suffix_of(device_id)
+        self.written_sets[device_id] = suffix
+        names = set_names(suffix)
+        return {names["ORIENT"][0]: int(value), **({} if sensor.external else {names["EXTERN"][0]: 1})}
+
     def read_params(self, names: list[str]) -> dict[str, ParamValue]:
+        """By the names written: a set that moved at boot (priorities) is read where it is now."""
         out: dict[str, ParamValue] = {}
         for name in names:
-            value = self.link.get(rename_for_set(name, self.suffix_written, self.suffix))
+            value = self.link.get(self._where_now(name))
             out[name] = int(value) if name.startswith(INT_PARAMS) else value
         return out
+
+    def _where_now(self, name: str) -> str:
+        for device_id, suffix in self.written_sets.items():
+            written = {n for group in set_names(suffix).values() for n in group}
+            if name in written and device_id in self.ids.values():
+                return rename_for_set(name, suffix, self._suffix_of(device_id))
+        return name
 
     def write_params(self, params: dict[str, ParamValue]) -> dict[str, ParamValue]:
         return {name: self.link.set(name, float(value)) for name, value in params.items()}
@@ -195,8 +247,6 @@ class ArduPilotDut:
 
         reconnected, uptime = await_new_boot(reconnect, self._uptime_s, since, self.opts.boot_timeout_s)
         self._read_ids()
-        if self.device_id in self.ids.values():
-            self.suffix = self._suffix_of(self.device_id)
         return {"time_to_heartbeat_s": reconnected, "uptime_at_reconnect_s": uptime}
 
     def _uptime_s(self) -> float | None:
@@ -206,10 +256,16 @@ class ArduPilotDut:
     def selected_sensor_present(self) -> bool:
         return self.device_id in self.ids.values()
 
-    def calibrated_field_ut(self, count: int) -> np.ndarray:
+    def sensors_present(self) -> list[int]:
+        return [i for i in self.ids.values() if i]
+
+    def calibrated_field_ut(self, count: int, sensor: int | None = None) -> np.ndarray | None:
         """The set's own stream after the power cycle: the field the firmware corrects with the
         calibration as it holds it now (distinct readings, truncation undone)."""
-        kind, msg_id = STREAMS[SETS.index(self.suffix)]
+        device_id = self.device_id if sensor is None else sensor
+        if device_id not in self.ids.values():
+            return None
+        kind, msg_id = STREAMS[SETS.index(self._suffix_of(device_id))]
         self.link.drain()
         self.link.set_message_interval(msg_id, 50.0)
         readings = RepeatFilter()

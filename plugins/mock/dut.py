@@ -12,7 +12,8 @@ from scipy.spatial.transform import Rotation
 
 from magline.core.dut import LinkError, NotRestored, ParamValue, SampleChunk, UnitInfo
 from magline.core.fit import FitResult
-from magline.core.synthetic import SensorTruth, earth_field_ned, motion_directions
+from magline.core.mounting import ImuSeries
+from magline.core.synthetic import GRAVITY_MSS, SensorTruth, earth_field_ned, gravity_body, motion_directions
 from magline.core.synthetic.motions import single_axis
 from magline.plugins.mock.options import MockOptions
 from magline.plugins.mock.storage import NvStorage
@@ -25,6 +26,7 @@ DEFAULTS: dict[str, ParamValue] = {**dict.fromkeys(OFFSETS, 0.0), "MAG_S11": 1.0
                                    "MAG_S33": 1.0, "MAG_S12": 0.0, "MAG_S13": 0.0, "MAG_S23": 0.0,
                                    "MAG_DEV_ID": 0, "MAG_AUTOCAL": 1}
 CHUNK = 10
+ACCEL_NOISE_MSS = 0.02  # a MEMS accelerometer's noise at these rates
 
 
 class MockDut:
@@ -94,7 +96,19 @@ class MockDut:
                 delay = t0 + sent / rate_hz - time.monotonic()
                 if delay > 0:
                     time.sleep(delay)
-            yield SampleChunk(mag_ut=raw, t_ms=t_ms)
+            yield SampleChunk(mag_ut=raw, t_ms=t_ms, imu=self._imu(block, t_ms))
+
+    def _imu(self, fields_body: np.ndarray, t_ms: np.ndarray) -> ImuSeries | None:
+        """The accelerometer at the same instants: gravity in body axes for an attitude that turns the
+        Earth field into each of the block's body-frame fields (the smallest such turn from level),
+        with the accelerometer's own noise.  A unit standing in a coil sees gravity never change."""
+        if not self.opts.accelerometer:
+            return None
+        if self.opts.coil_sim:
+            gravity = np.tile([0.0, 0.0, -GRAVITY_MSS], (len(fields_body), 1))
+        else:
+            gravity = gravity_body(fields_body, self.field_ned)
+        return ImuSeries(t_ms=t_ms, accel_mss=gravity + self.rng.normal(0.0, ACCEL_NOISE_MSS, gravity.shape))
 
     def _motion_field_chunks(self) -> Iterator[np.ndarray]:
         motion = self.opts.motions[min(self.acquisitions, len(self.opts.motions) - 1)]

@@ -39,4 +39,7 @@ class MockOptions(BaseModel):
     # recovered by the coil's full affine fit.
     misalignment_deg: Annotated[list[float], Field(min_length=3, max_length=3)] = [0.0, 0.0, 0.0]
     seed: int | None = None
+    # the unit's accelerometer beside the magnetometer (the mounting check's gravity); false: a
+    # firmware whose stream carries none
+    accelerometer: bool = True
     faults: MockFaults = Field(default_factory=MockFaults)

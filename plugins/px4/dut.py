@@ -1,10 +1,13 @@
-"""The PX4 DUT backend: calibrate one magnetometer through MAVSDK, persist, prove it survived.
+"""The PX4 DUT backend: calibrate every magnetometer through MAVSDK, persist, prove it survived.
 
 Sequence as the core's phases drive it: connect (discovery, firmware, the sensor by device id
 through the MAVLink shell or, where it does not answer, from parameters, streams and the station
 file — see :mod:`.discovery` — calibration slot by id) → prepare (SENS_MAG_AUTOCAL off) → samples
-(SCALED_IMU/2/3 of the sensor's uORB instance: raw, mG) → parameters (CAL_MAGn_* of the slot)
-→ commit (MAV_CMD_PREFLIGHT_STORAGE param1 = 1) → reboot, fresh link, read back → restore.
+(SCALED_IMU/2/3 of each sensor's uORB instance: raw, mG, in one stream with SCALED_IMU's accelerometer
+for gravity) → parameters (CAL_MAGn_* of each sensor's slot; CAL_MAGn_ROT where the mounting check
+fixes an external sensor's orientation) → commit (MAV_CMD_PREFLIGHT_STORAGE param1 = 1) → reboot,
+fresh link, read back, every sensor still there → restore.  Several sensors need their device ids,
+which only the shell tells: without it one sensor is calibrated, as the station file names it.
 
 The online bias estimator (MBE_ENABLE) is left alone: it acts on the calibrated
 vehicle_magnetometer (HIGHRES_IMU), not on the raw sensor_mag that SCALED_IMU carries, and a
@@ -22,10 +25,10 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from magline.core.dut import DutError, NotRestored, ParamValue, SampleChunk, UnitInfo, await_new_boot
+from magline.core.dut import DutError, Magnetometer, NotRestored, ParamValue, SampleChunk, UnitInfo, await_new_boot
 from magline.core.faults import StationFault
 from magline.core.fit import FitResult
-from magline.core.readings import RepeatFilter, untruncate_mg
+from magline.core.readings import SensorStreams
 from magline.core.station.schema import Product
 from magline.plugins.px4.calibration import (
     EULER_SINCE,
@@ -48,6 +51,7 @@ SYSTEM_TIME = ("SYSTEM_TIME", 2)
 HIGHRES_IMU = ("HIGHRES_IMU", 105)  # the calibrated vehicle_magnetometer, Gauss
 UT_PER_GAUSS = 100.0
 MG_PER_UT = 10.0
+
 log = logging.getLogger("magline.px4")
 CHUNK = 10
 RESTORE_RECONNECT_S = 3.0  # a vehicle that does not answer by then is reported as not restored
@@ -63,13 +67,17 @@ class Px4Dut:
         self.ident: Identified | None = None
         self.shell_answers = False
         self.present = True  # after a power cycle: is the calibrated sensor still there?
+        self.now_present: list[int] = []  # after a power cycle: the device ids the unit has
         self._streaming_count = 0  # magnetometer streams seen without the shell
         self.device_id = 0
         self.instance = 0
         self.slot = 0
+        self.sensors: dict[int, dict] = {}  # device id → instance, slot, prio, external (every sensor known)
+        self.chosen: list[int] = []  # the sensors this run calibrates, primary first
         self.with_odiag = True
         self.with_euler = False
         self._saved_autocal: int | None = None
+        self._found: list[tuple[int, bool]] = []  # (device id, external) per sensor_mag instance, from the shell
 
     # ------------------------------------------------------------------ link
     def connect(self) -> UnitInfo:
@@ -81,13 +89,38 @@ class Px4Dut:
         slot_ids = [int(self.link.get(f"CAL_MAG{n}_ID", True)) for n in range(SLOTS)]
         self.ident = self._identify(slot_ids)
         self.device_id, self.instance = self.ident.device_id, self.ident.instance
-        self.slot = choose_slot(slot_ids, self.device_id, preferred=self.instance)
-        prio = int(self.link.get(f"CAL_MAG{self.slot}_PRIO", True))
-        self.prio = prio if prio >= 1 else (PRIO_EXTERNAL if self.ident.external else PRIO_INTERNAL)
+        known = self._found if self.shell_answers else [(self.device_id, self.ident.external)]
+        instances = ([i for i, _ in enumerate(self._found)] if self.shell_answers else [self.instance])
+        self.sensors = {}
+        taken = list(slot_ids)
+        for (device_id, external), instance in zip(known, instances, strict=True):
+            slot = choose_slot(taken, device_id, preferred=instance)
+            taken[slot] = device_id  # two new sensors never share a free slot
+            prio = int(self.link.get(f"CAL_MAG{slot}_PRIO", True))
+            self.sensors[device_id] = {"instance": instance, "slot": slot, "external": external,
+                                       "prio": prio if prio >= 1 else (PRIO_EXTERNAL if external else PRIO_INTERNAL)}
+        self.slot, self.prio = self.sensors[self.device_id]["slot"], self.sensors[self.device_id]["prio"]
+        self.chosen = [self.device_id]
+        board_rot = int(self.link.get("SENS_BOARD_ROT", True))
         return UnitInfo(autopilot="PX4", firmware=firmware, sensors=list(self.ident.sensors),
                         selected_sensor=self.device_id, soft_iron_model="full" if self.with_odiag else "diagonal",
                         extra={"cal_slot": self.slot, "sensor_instance": self.instance,
-                               "identified_by": self.ident.by})
+                               "identified_by": self.ident.by},
+                        magnetometers=[self._magnetometer(d, board_rot) for d in self.sensors])
+
+    def _magnetometer(self, device_id: int, board_rot: int) -> Magnetometer:
+        """SCALED_IMU carries sensor_mag in the sensor's own axes; PX4 turns an external sensor into the
+        body with CAL_MAGn_ROT (≥ 0), an internal one with the board's rotation (no parameter of its own
+        can fix an internal sensor's mounting)."""
+        info = self.sensors[device_id]
+        rot = int(self.link.get(f"CAL_MAG{info['slot']}_ROT", True))
+        external = info["external"] if info["external"] is not None else rot >= 0
+        return Magnetometer(device_id=device_id, label=f"CAL_MAG{info['slot']}", external=external,
+                            orientation=max(rot, 0) if external else board_rot, readings_rotated=False,
+                            fix_params=[f"CAL_MAG{info['slot']}_ROT"] if external else [])
+
+    def use_magnetometers(self, device_ids: list[int]) -> None:
+        self.chosen = list(device_ids)
 
     def _has_param(self, name: str) -> bool:
         try:
@@ -105,6 +138,7 @@ class Px4Dut:
             return without_shell(self._streaming_instances(), slot_ids, self.product.magnetometer,
                                  self.opts.sensor_instance, f"the PX4 shell does not answer ({exc})")
         self.shell_answers = True
+        self._found = found
         return from_shell(found, self.product.magnetometer)
 
     def _discover(self) -> list[tuple[int, bool]]:
@@ -172,46 +206,57 @@ class Px4Dut:
 
     # ------------------------------------------------------------------ data
     def samples(self, rate_hz: float) -> Iterator[SampleChunk]:
-        kind, msg_id = STREAMS[self.instance]
-        inbox, handle = self.link.subscribe(kind)
-        self.link.require_accepted(MAV_CMD_SET_MESSAGE_INTERVAL, f"{kind} stream request", msg_id, 1e6 / rate_hz)
-        readings = RepeatFilter()
+        """Every chosen sensor's SCALED_IMU/2/3 at once, SCALED_IMU's accelerometer for gravity; each
+        sensor's repeats dropped on its own."""
+        by_kind = {STREAMS[self.sensors[d]["instance"]][0]: d for d in self.chosen}
+        kinds = list(dict.fromkeys([STREAMS[0][0], *by_kind]))
+        ids = dict(STREAMS)
+        inbox, handles = self.link.subscribe_all(kinds)
+        streams = SensorStreams(self.device_id, self.chosen, lambda _, mg: mg / MG_PER_UT)
         try:
-            rows: list[tuple[float, float, float]] = []
-            times: list[float] = []
+            for kind in kinds:
+                self.link.require_accepted(MAV_CMD_SET_MESSAGE_INTERVAL, f"{kind} stream request", ids[kind],
+                                           1e6 / rate_hz)
             while True:
                 try:
-                    msg = inbox.get(timeout=self.opts.stream_timeout_s)
+                    kind, msg = inbox.get(timeout=self.opts.stream_timeout_s)
                 except queue.Empty:
-                    self.link.require_alive(f"link lost during acquisition: no {kind} for "
+                    self.link.require_alive(f"link lost during acquisition: no {'/'.join(kinds)} for "
                                             f"{self.opts.stream_timeout_s:g} s")
-                    raise DutError(f"the vehicle answers but sent no {kind} for {self.opts.stream_timeout_s:g} s: "
-                                   f"magnetometer {self.device_id} delivers no readings") from None
+                    raise DutError(f"the vehicle answers but sent no {'/'.join(kinds)} for "
+                                   f"{self.opts.stream_timeout_s:g} s: magnetometer {self.device_id} delivers no "
+                                   "readings") from None
+                if kind == STREAMS[0][0]:
+                    streams.accel(float(msg["time_boot_ms"]), msg["xacc"], msg["yacc"], msg["zacc"])
                 # SCALED_IMU is sent whenever the IMU *or* the magnetometer updated, with the IMU's
-                # time: the same magnetometer reading repeats at the IMU's rate
-                if not readings.accept(msg["xmag"], msg["ymag"], msg["zmag"]):
-                    continue
-                rows.append((msg["xmag"], msg["ymag"], msg["zmag"]))
-                times.append(float(msg["time_boot_ms"]))
-                if len(rows) >= CHUNK:
-                    yield SampleChunk(mag_ut=untruncate_mg(np.array(rows, float)) / MG_PER_UT, t_ms=np.array(times),
-                                      repeats=readings.take_repeats())
-                    rows, times = [], []
+                # time: the same magnetometer reading repeats at the IMU's rate (dropped here)
+                if kind in by_kind:
+                    streams.mag(by_kind[kind], float(msg["time_boot_ms"]), msg["xmag"], msg["ymag"], msg["zmag"])
+                if streams.ready(CHUNK):
+                    yield streams.take()
         finally:
-            with contextlib.suppress(DutError):  # a lost link stops the stream by itself
-                self.link.command(MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, -1)
-            self.link.unsubscribe(handle)
+            for kind in kinds:
+                with contextlib.suppress(DutError):  # a lost link stops the stream by itself
+                    self.link.command(MAV_CMD_SET_MESSAGE_INTERVAL, ids[kind], -1)
+            for handle in handles:
+                self.link.unsubscribe(handle)
 
     # ------------------------------------------------------------------ parameters
-    def calibration_params(self, fit: FitResult) -> dict[str, ParamValue]:
-        params = fit_to_params(fit, self.slot, self.device_id, self.prio, self.with_odiag)
+    def calibration_params(self, fit: FitResult, sensor: int | None = None) -> dict[str, ParamValue]:
+        device_id = self.device_id if sensor is None else sensor
+        info = self.sensors[device_id]
+        params = fit_to_params(fit, info["slot"], device_id, info["prio"], self.with_odiag)
         if fit.model == "affine":  # a coil measured the misalignment too: hold it where PX4 can
-            if self.with_euler and self.ident.external:
-                params |= rotation_params(np.array(fit.extra["rotation"]), self.slot)
+            if self.with_euler and info["external"]:
+                params |= rotation_params(np.array(fit.extra["rotation"]), info["slot"])
             else:
                 log.warning("misalignment of %.2f° not written: PX4 holds a custom rotation only for external "
                             "magnetometers from firmware 1.15", fit.extra.get("misalignment_deg", 0.0))
         return params
+
+    def orientation_params(self, device_id: int, value: int) -> dict[str, ParamValue]:
+        """CAL_MAGn_ROT of the sensor's slot: how PX4 turns an external sensor into the body."""
+        return {f"CAL_MAG{self.sensors[device_id]['slot']}_ROT": int(value)}
 
     def read_params(self, names: list[str]) -> dict[str, ParamValue]:
         return {n: self.link.get(n, is_int_param(n)) for n in names}
@@ -236,9 +281,11 @@ class Px4Dut:
         # a fresh MAVSDK instance per try: nothing cached from the old boot can answer a read
         reconnected, uptime = await_new_boot(self.link.reopen, self._uptime_s, since, self.opts.boot_timeout_s)
         if self.shell_answers:
-            self.present = self.device_id in [d for d, _ in self._discover()]
+            self.now_present = [d for d, _ in self._discover()]
+            self.present = self.device_id in self.now_present
         else:  # no shell: the instance still streams (its device id is checked in the slots)
             self.present = self.instance in self._streaming_instances()
+            self.now_present = [self.device_id] if self.present else []
         return {"time_to_heartbeat_s": reconnected, "uptime_at_reconnect_s": uptime}
 
     def _uptime_s(self) -> float | None:
@@ -254,7 +301,10 @@ class Px4Dut:
     def selected_sensor_present(self) -> bool:
         return self.present
 
-    def calibrated_field_ut(self, count: int) -> np.ndarray | None:
+    def sensors_present(self) -> list[int]:
+        return list(self.now_present)
+
+    def calibrated_field_ut(self, count: int, sensor: int | None = None) -> np.ndarray | None:
         """HIGHRES_IMU's magnetic field (Gauss, calibrated by the firmware), when this sensor is the
         unit's only magnetometer: with several, it carries whichever PX4's voter selected."""
         if len(self.ident.sensors) > 1 or (not self.shell_answers and self._streaming_count > 1):
@@ -280,8 +330,11 @@ class Px4Dut:
     def persistence_problems(self) -> list[str]:
         """The firmware uses the *first* slot whose ID matches; it must be the one written."""
         ids = [int(self.link.get(f"CAL_MAG{n}_ID", True)) for n in range(SLOTS)]
-        used = ids.index(self.device_id) if self.device_id in ids else None
-        if used == self.slot:
-            return []
-        where = "no slot" if used is None else f"CAL_MAG{used}"
-        return [f"magnetometer {self.device_id} is calibrated by {where}, not by the written CAL_MAG{self.slot}"]
+        problems = []
+        for device_id in self.chosen:
+            slot = self.sensors[device_id]["slot"]
+            used = ids.index(device_id) if device_id in ids else None
+            if used != slot:
+                where = "no slot" if used is None else f"CAL_MAG{used}"
+                problems.append(f"magnetometer {device_id} is calibrated by {where}, not by the written CAL_MAG{slot}")
+        return problems

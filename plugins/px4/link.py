@@ -173,6 +173,13 @@ class Px4Link:
         handle = self.direct.subscribe_message(message, lambda msg, _: inbox.put(json.loads(msg.fields_json)))
         return inbox, handle
 
+    def subscribe_all(self, messages: list[str]) -> tuple[queue.Queue[tuple[str, dict]], list[Any]]:
+        """Several messages into one queue, in arrival order, as (name, fields); returns (queue, handles)."""
+        inbox: queue.Queue[tuple[str, dict]] = queue.Queue()
+        handles = [self.direct.subscribe_message(
+            name, lambda msg, _, name=name: inbox.put((name, json.loads(msg.fields_json)))) for name in messages]
+        return inbox, handles
+
     def unsubscribe(self, handle: Any) -> None:
         if self.is_open:
             self.direct.unsubscribe_message(handle)

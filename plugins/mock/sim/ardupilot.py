@@ -13,17 +13,24 @@ What it reproduces, because each is a trap for a factory tool:
   int16 fields are filled by a C conversion (truncation toward zero, not rounding);
 - the compass is read at 10 Hz (ArduCopter's scheduler) while a stream goes out at the rate asked
   for, so RAW_IMU at 50 Hz carries each reading about five times;
-- a reboot closes the TCP connection; the client must reconnect.
+- a reboot closes the TCP connection; the client must reconnect;
+- ``COMPASS_ORIENTn`` is applied to an external compass only, before the offsets, so the streamed
+  field is in body axes; a sensor is mounted as SITL's ``SIM_MAGn_ORIENT`` (``mounting``) and the
+  value that corrects it is that same number; SCALED_IMU3's accelerometer fields are all zero;
+- MAV_CMD_RUN_PREARM_CHECKS also reports "Compasses inconsistent" when a used compass disagrees with
+  the primary beyond AP_Compass's limits (an uncalibrated second compass does).
 """
 
 from __future__ import annotations
 
+import time
 from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from magline.core.mounting import orientation_matrix
 from magline.plugins.mock.sim.magnetometers import SimMagnetometer
 from magline.plugins.mock.sim.params import INT8, INT16, INT32, REAL32, ParamSpec, ParamValue, ccast_from_wire
 from magline.plugins.mock.sim.vehicle import ACCEPTED, UNSUPPORTED, SimulatedAutopilot, int16_mg
@@ -32,6 +39,7 @@ SETS = ("", "2", "3")
 AXES = ("X", "Y", "Z")
 MAX_SCALE_FACTOR = 1.5
 FIELD_MG_LIMITS = (185.0, 875.0)
+MAX_XYZ_ANGLE_DEG, MAX_XY_ANGLE_DEG, MAX_XY_LENGTH_MG = 90.0, 60.0, 200.0  # AP_Compass consistency limits
 
 
 def set_names(suffix: str) -> dict[str, list[str] | str]:
@@ -173,11 +181,23 @@ class ArduPilotSim(SimulatedAutopilot):
             return raw_ut
         return self.correct_mg(i, raw_ut * 10.0) / 10.0
 
+    def external(self, i: int) -> bool:
+        """An external compass (its driver says so, or ``COMPASS_EXTERNn`` forces it)."""
+        sensor = self.sets[i]
+        return bool(self.table.values[set_names(SETS[i])["EXTERNAL"]]) or bool(sensor is not None and sensor.external)
+
+    def orientation(self, i: int) -> NDArray:
+        """``COMPASS_ORIENTn`` applies to an external compass only (AP_Compass_Backend); an internal one
+        follows the board (AHRS_ORIENTATION, identity here)."""
+        if not self.external(i):
+            return np.eye(3)
+        return orientation_matrix(int(self.table.values[set_names(SETS[i])["ORIENT"]]))
+
     def correct_mg(self, i: int, raw_mg: NDArray) -> NDArray:
-        """rotate (identity here) → add OFS → SCALE if valid → DIA/ODI matrix unless all DIA are 0."""
+        """rotate (COMPASS_ORIENTn, external only) → add OFS → SCALE if valid → DIA/ODI matrix unless all DIA are 0."""
         v = self.table.values
         n = set_names(SETS[i])
-        out = raw_mg + np.array([v[x] for x in n["OFS"]])
+        out = self.orientation(i) @ raw_mg + np.array([v[x] for x in n["OFS"]])
         scale = v[n["SCALE"]]
         if 1.0 / MAX_SCALE_FACTOR <= scale <= MAX_SCALE_FACTOR:
             out = out * scale
@@ -203,7 +223,8 @@ class ArduPilotSim(SimulatedAutopilot):
             return None
         raw_ut = self.held_reading_ut(sensor, now)
         mag = int16_mg(self.correct_mg(i, raw_ut * 10.0))
-        acc = self.accel_mg(now).astype(int)
+        # SITL has two IMUs: SCALED_IMU3's accelerometer fields are all zero (shared/reference §16)
+        acc = self.accel_mg(now).astype(int) if msg_id != mavlink.MAVLINK_MSG_ID_SCALED_IMU3 else np.zeros(3, int)
         t_ms = self.time_boot_ms(now)
         if msg_id == mavlink.MAVLINK_MSG_ID_RAW_IMU:
             return self.mav.raw_imu_encode(t_ms * 1000, *acc, 0, 0, 0, *mag, 0, 2500)
@@ -250,7 +271,31 @@ class ArduPilotSim(SimulatedAutopilot):
             field_mg = np.linalg.norm(self.correct_mg(i, sensor.read_ut(self.body_field_ut(0.0), self.rng) * 10.0))
             if not FIELD_MG_LIMITS[0] <= field_mg <= FIELD_MG_LIMITS[1]:
                 out.append("Check mag field")
+        if not self.consistent():
+            out.append("Compasses inconsistent")
         return out
+
+    def consistent(self) -> bool:
+        """AP_Compass::consistent(): every used compass against the primary, in body axes — 3D angle
+        ≤ 90°, horizontal angle ≤ 60°, horizontal length within 200 mG."""
+        v = self.table.values
+        used = [i for i, sensor in enumerate(self.sets)
+                if sensor is not None and v[set_names(SETS[i])["USE"]]]
+        if len(used) < 2:
+            return True
+        body = self.body_field_ut(time.monotonic())
+        fields = {i: self.correct_mg(i, self.sets[i].read_ut(body, self.rng) * 10.0) for i in used}
+        primary = fields[used[0]]
+        for i in used[1:]:
+            other = fields[i]
+            angle = np.degrees(np.arccos(np.clip(primary @ other / np.linalg.norm(primary) / np.linalg.norm(other),
+                                                 -1, 1)))
+            xy_angle = abs((np.degrees(np.arctan2(other[1], other[0]) - np.arctan2(primary[1], primary[0])) + 180)
+                           % 360 - 180)
+            xy_length = abs(np.linalg.norm(other[:2]) - np.linalg.norm(primary[:2]))
+            if angle > MAX_XYZ_ANGLE_DEG or xy_angle > MAX_XY_ANGLE_DEG or xy_length > MAX_XY_LENGTH_MG:
+                return False
+        return True
 
     def _report_prearm(self) -> None:
         for text in dict.fromkeys(self.prearm_failures()):

@@ -19,6 +19,11 @@ class SimFaults:
     link_loss_after_s: float | None = None  # the link goes silent this long after a mag stream starts
     mag_missing_after_reboot: int | None = None  # device id that is not detected on the next boot
     swap_mags_after_reboot: bool = False  # the second sensor enumerates first on the next boot
+    # "N:K": magnetometer N (1, 2, 3 in detection order) is mounted in firmware orientation K
+    # (2 = Yaw90, 8 = Roll180) while the firmware's parameters still say it is not rotated
+    mag_mounting: list[str] = field(default_factory=list)
+    # "N:DEG": magnetometer N is turned DEG degrees about the body's Z axis (two compasses disagree)
+    mag_yaw_error: list[str] = field(default_factory=list)
 
     @classmethod
     def parse(cls, items: list[str]) -> SimFaults:
@@ -40,6 +45,17 @@ class SimFaults:
             else:
                 setattr(faults, name, float(value))
         return faults
+
+    def mountings(self) -> dict[int, tuple[int, float]]:
+        """Sensor index (0-based) → (orientation value, yaw error in degrees) from the mounting faults."""
+        out: dict[int, tuple[int, float]] = {}
+        for item in self.mag_mounting:
+            n, _, k = item.partition(":")
+            out[int(n) - 1] = (int(k), out.get(int(n) - 1, (0, 0.0))[1])
+        for item in self.mag_yaw_error:
+            n, _, deg = item.partition(":")
+            out[int(n) - 1] = (out.get(int(n) - 1, (0, 0.0))[0], float(deg))
+        return out
 
     def ignores(self, name: str) -> bool:
         return "*" in self.ignore_param_set or name in self.ignore_param_set

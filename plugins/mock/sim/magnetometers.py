@@ -48,6 +48,9 @@ class SimMagnetometer:
     range_ut: float = 1600.0
     external: bool = True
     misalignment_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)  # sensor axes vs body, rotation vector
+    # how the sensor is really mounted, as a firmware orientation value (ArduPilot SITL's SIM_MAGn_ORIENT):
+    # its readings are the body field turned by the inverse of that rotation
+    mounting: int = 0
     truth: SensorTruth = field(init=False)
 
     def __post_init__(self) -> None:
@@ -55,7 +58,15 @@ class SimMagnetometer:
         self.soft_iron = np.asarray(self.soft_iron, float)
         self.truth = SensorTruth(hard_iron_ut=self.hard_iron_ut, soft_iron=self.soft_iron,
                                  noise_ut=self.noise_ut, range_ut=self.range_ut)
-        self.rotation = Rotation.from_rotvec(np.deg2rad(self.misalignment_deg))  # sensor → body
+        self.mount(self.mounting, self.misalignment_deg)
+
+    def mount(self, mounting: int, misalignment_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> None:
+        """Mount the sensor in a firmware orientation, with a small misalignment on top."""
+        from magline.core.mounting import orientation_matrix
+
+        self.mounting, self.misalignment_deg = int(mounting), tuple(misalignment_deg)
+        self.rotation = (Rotation.from_matrix(orientation_matrix(self.mounting))
+                         * Rotation.from_rotvec(np.deg2rad(self.misalignment_deg)))  # sensor → body
 
     def read_ut(self, b_body_ut: NDArray, rng: np.random.Generator) -> NDArray:
         return self.truth.read(np.atleast_2d(self.rotation.inv().apply(b_body_ut)), rng)[0]

@@ -30,6 +30,7 @@ from numpy.typing import NDArray
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from scipy.spatial.transform import Rotation
 
+from magline.core.mounting import orientation_matrix
 from magline.plugins.mock.sim.magnetometers import SimMagnetometer
 from magline.plugins.mock.sim.params import INT32, REAL32, ParamSpec, ParamValue, bytewise_from_wire, bytewise_to_wire
 from magline.plugins.mock.sim.vehicle import ACCEPTED, DENIED, UNSUPPORTED, Power, SimulatedAutopilot, int16_mg
@@ -173,13 +174,16 @@ class Px4Sim(SimulatedAutopilot):
         return self.rotation(n, sensor) @ s @ (raw_ut / 100.0 - off_g) * 100.0
 
     def rotation(self, n: int, sensor: SimMagnetometer) -> NDArray:
-        """R of ``R·S·(raw − OFF)``: the custom Euler angles (ROT = 100) for an external sensor;
-        internal sensors follow the board rotation (identity here)."""
+        """R of ``R·S·(raw − OFF)``: an external sensor's CAL_MAGn_ROT (the custom Euler angles for 100,
+        none for −1); internal sensors follow the board rotation (SENS_BOARD_ROT)."""
         v = self.table.values
         p = f"CAL_MAG{n}_"
-        if not (self.has_euler and sensor.external and v[p + "ROT"] == 100):
-            return np.eye(3)
-        return Rotation.from_euler("ZYX", [v[p + "YAW"], v[p + "PITCH"], v[p + "ROLL"]], degrees=True).as_matrix()
+        if not sensor.external:
+            return orientation_matrix(int(v["SENS_BOARD_ROT"]))
+        rot = int(v[p + "ROT"])
+        if rot == 100 and self.has_euler:
+            return Rotation.from_euler("ZYX", [v[p + "YAW"], v[p + "PITCH"], v[p + "ROLL"]], degrees=True).as_matrix()
+        return orientation_matrix(rot) if rot >= 0 else np.eye(3)
 
     def _autocal(self, now: float) -> None:
         """SENS_MAG_AUTOCAL: an uncalibrated sensor gets the firmware's own offset estimate."""

@@ -90,6 +90,10 @@ class SimulatedAutopilot(ABC):
         self.rng = np.random.default_rng(seed)
         self.random = random.Random(seed)
         self.magnetometers = magnetometers or default_magnetometers(mag_count, self.rng)
+        self.faults = faults or SimFaults()
+        for index, (mounting, yaw_deg) in self.faults.mountings().items():
+            if index < len(self.magnetometers):
+                self.magnetometers[index].mount(mounting, (0.0, 0.0, yaw_deg))
         self.field_ned = earth_field_ned(field_ut, inclination_deg)
         self.field_ut = field_ut
         # ``shared``: the board is mounted on a (simulated) gimbal at ``motion_source`` and moves with it
@@ -100,7 +104,6 @@ class SimulatedAutopilot(ABC):
         self.follower = None
         self.speed = speed
         self.boot_time_s = boot_time_s
-        self.faults = faults or SimFaults()
         self.system_id = system_id
         self.save_duration_s = save_duration_s
         self.field_provider = field_provider  # the board stands in a coil: its field, not a tumble

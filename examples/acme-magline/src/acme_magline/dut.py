@@ -15,11 +15,13 @@ from typing import Annotated
 
 import numpy as np
 from magline.core.dut import DutError, LinkError, NotRestored, SampleChunk, UnitInfo, await_new_boot
+from magline.core.mounting import ImuSeries
 from pydantic import BaseModel, ConfigDict, Field
 
 from acme_magline.protocol import MATRIX, UT_PER_MG
 
 CHUNK = 10
+MSS_PER_MG = 9.80665 / 1000.0
 
 
 class AcmeOptions(BaseModel):
@@ -139,9 +141,11 @@ class AcmeDut:
                 while len(rows) < CHUNK:
                     parts = self._line().split()
                     if parts and parts[0] == "M":
-                        rows.append([float(v) for v in parts[1:5]])
+                        rows.append([float(v) for v in parts[1:8]])
                 block = np.array(rows)
-                yield SampleChunk(mag_ut=block[:, 1:4] * UT_PER_MG, t_ms=block[:, 0])
+                # the accelerometer beside the magnetometer: the station proves the sensor's mounting with it
+                imu = ImuSeries(t_ms=block[:, 0], accel_mss=block[:, 4:7] * MSS_PER_MG)
+                yield SampleChunk(mag_ut=block[:, 1:4] * UT_PER_MG, t_ms=block[:, 0], imu=imu)
         finally:
             if self.wire is not None:
                 with contextlib.suppress(DutError):  # the link is gone: nothing left streaming

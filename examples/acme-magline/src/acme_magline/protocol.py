@@ -1,7 +1,8 @@
 """The ACME line protocol: ASCII commands and replies, one per line, over TCP.
 
     ID?            -> ID <model> <firmware> <device id>
-    STREAM <hz>    -> M <t_ms> <x_mG> <y_mG> <z_mG>   (one line per reading, until STOP)
+    STREAM <hz>    -> M <t_ms> <x_mG> <y_mG> <z_mG> <ax_mg> <ay_mg> <az_mg>
+                      (one line per reading, until STOP; the accelerometer in milli-g, body axes)
     STOP           -> OK STOP
     GET <name>     -> VAL <name> <value>             (ERR <why> for an unknown name)
     SET <name> <v> -> VAL <name> <value as stored, float32>

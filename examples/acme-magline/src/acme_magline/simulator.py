@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from magline.testing import SensorTruth, earth_field_ned, motion_directions
+from magline.testing import SensorTruth, earth_field_ned, gravity_body, motion_directions
 
 from acme_magline.protocol import MATRIX, PARAMS, UT_PER_MG
 
@@ -33,6 +33,7 @@ class AcmeSim:
         field = earth_field_ned(field_ut, 62.0)
         # the operator tumbles the board through every orientation every 4 s, for ever
         self.directions = motion_directions("hand_tumble", int(4 * SENSOR_HZ), self.rng, field)
+        self.gravity_mg = gravity_body(self.directions, field) / 9.80665 * 1000.0  # its accelerometer, milli-g
         self.server = socket.create_server(("127.0.0.1", port))
         self.port = self.server.getsockname()[1]
         self.lock = threading.Lock()
@@ -76,6 +77,9 @@ class AcmeSim:
         body = self.directions[index % len(self.directions)] * self.field_ut
         return self.truth.read(body[None, :], self.rng)[0] / UT_PER_MG
 
+    def _gravity_mg(self, index: int) -> np.ndarray:
+        return self.gravity_mg[index % len(self.gravity_mg)]
+
     def _session(self, client: socket.socket) -> None:
         streaming = threading.Event()
         with client, client.makefile("rw", encoding="ascii", newline="\n") as wire:
@@ -90,8 +94,11 @@ class AcmeSim:
                 period = 1.0 / min(hz, SENSOR_HZ)
                 n, t0 = 0, time.monotonic()
                 while streaming.is_set() and not self._stop.is_set():
-                    x, y, z = self._reading_mg(int((time.monotonic() - self.booted_at) * SENSOR_HZ))
-                    send(f"M {int((time.monotonic() - self.booted_at) * 1000)} {x:.1f} {y:.1f} {z:.1f}")
+                    index = int((time.monotonic() - self.booted_at) * SENSOR_HZ)
+                    x, y, z = self._reading_mg(index)
+                    ax, ay, az = self._gravity_mg(index)
+                    send(f"M {int((time.monotonic() - self.booted_at) * 1000)} {x:.1f} {y:.1f} {z:.1f} "
+                         f"{ax:.1f} {ay:.1f} {az:.1f}")
                     n += 1
                     time.sleep(max(0.0, t0 + n * period - time.monotonic()))
 

@@ -1,0 +1,130 @@
+"""The mounting check's figures (issue 26), against known synthetic truth and on the simulators.
+
+1. Mounting estimate error: synthetic tumbles (0.3 µT noise, 600 readings, a 50 Hz accelerometer
+   with its noise and a hand's slow accelerations), a random misalignment up to 2° each: RMS and
+   worst angle between the estimated and the true mounting, and the inclination error.
+2. Wrong orientations: each of the 24 right-angle mountings, several seeds, while the firmware says
+   "not rotated": how often the mounting found is the true one (goal 100 %).
+3. False detections: good units (misalignment ≤ 1°) judged with the default limits (orientation,
+   mounting ≤ 3°, inclination within 2°): how many are flagged (goal 0 of 1,000).
+4. Time: a one-compass and a three-compass unit on the simulated ArduPilot (the validate phase and
+   the whole unit), goal: at most 1 s longer.
+
+    python benchmarks/mounting.py [--units 1000] [--seeds 5] [--sim-units 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from magline.core.mounting import RIGHT_ANGLE, ImuSeries, estimate_mounting, orientation_matrix
+from magline.core.mounting.orientations import rotation_angle_deg
+from magline.core.synthetic.imu import tumble_with_imu
+
+INCLINATION = 62.0
+
+
+def estimate(mounted: np.ndarray, rng: np.random.Generator, steady: bool):
+    mag, t_mag, accel, t_acc = tumble_with_imu(mounted, rng, seconds=60.0, mag_hz=10.0, steady=steady)
+    return estimate_mounting(mag, t_mag, ImuSeries(t_ms=t_acc, accel_mss=accel))
+
+
+def accuracy(units: int, rng: np.random.Generator) -> None:
+    errors, incl = [], []
+    for i in range(units):
+        truth = Rotation.from_rotvec(rng.normal(size=3) / np.sqrt(3) * np.radians(rng.uniform(0, 2.0))).as_matrix()
+        e = estimate(truth, rng, steady=bool(i % 2))
+        errors.append(rotation_angle_deg(e.data_to_body, truth))
+        incl.append(e.inclination_deg - INCLINATION)
+    errors, incl = np.array(errors), np.array(incl)
+    print(f"1. mounting estimate error over {units} tumbles (600 readings, 0.3 µT, hand accelerations "
+          f"0.1 m/s²): RMS {np.sqrt(np.mean(errors**2)):.3f}°, p95 {np.percentile(errors, 95):.3f}°, "
+          f"max {errors.max():.3f}° (goal RMS ≤ 0.3°); inclination error RMS {np.sqrt(np.mean(incl**2)):.3f}°")
+
+
+def orientations(seeds: int, rng: np.random.Generator) -> None:
+    right = total = 0
+    for matrix in RIGHT_ANGLE.values():
+        for _ in range(seeds):
+            small = Rotation.from_rotvec(rng.normal(size=3) * np.radians(0.5)).as_matrix()
+            found, _ = estimate(matrix @ small, rng, steady=True).right_angle
+            right += rotation_angle_deg(orientation_matrix(found), matrix) < 1e-6
+            total += 1
+    print(f"2. right-angle mountings named right: {right} of {total} ({100.0 * right / total:.1f} %, goal 100 %)")
+
+
+def false_detections(units: int, rng: np.random.Generator) -> None:
+    flagged = 0
+    worst = 0.0
+    for i in range(units):
+        truth = Rotation.from_rotvec(rng.normal(size=3) / np.sqrt(3) * np.radians(rng.uniform(0, 1.0))).as_matrix()
+        e = estimate(truth, rng, steady=bool(i % 2))
+        found, error = e.right_angle
+        worst = max(worst, error)
+        flagged += found != 0 or error > 3.0 or abs(e.inclination_deg - INCLINATION) > 2.0
+    print(f"3. good units flagged by the mounting check: {flagged} of {units} (goal 0); "
+          f"largest mounting error seen {worst:.2f}° against the 3° limit")
+
+
+def sim_time(units: int) -> None:
+    from magline.core.plugins import load_plugins
+    from magline.core.sequencer import Sequencer
+    from magline.core.station import load_station
+    from magline.plugins.mock.sim import create_sim
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+    from simstation import write_station
+
+    figures: dict[int, list[tuple[float, float]]] = {1: [], 3: []}
+    for mags in (1, 3):
+        for n in range(units):
+            with tempfile.TemporaryDirectory() as tmp:
+                tmp_path = Path(tmp)
+                (tmp_path / "fc").mkdir()
+                with create_sim("ardupilot", "tcp:127.0.0.1:0", workdir=tmp_path / "fc", mag_count=mags, seed=n,
+                                boot_time_s=2.0, mag_rate_hz=50.0) as sim:
+                    station = write_station("ardupilot-sim.yaml", tmp_path, sim.address,
+                                            {"connect_timeout_s": 5.0, "prearm_wait_s": 0.3},
+                                            {"acquisition": {"samples": 600, "rate_hz": 50.0, "timeout_s": 60.0}})
+                    seq = Sequencer(load_station(station), load_plugins(), tmp_path, sleep=lambda s: None)
+                    started = time.monotonic()
+                    record = seq.run_unit(f"BENCH-{mags}-{n}")
+                    seq.close()
+                    wall = time.monotonic() - started
+                    validate = next(p.duration_s for p in record.phases if p.name == "validate")
+                    figures[mags].append((wall, validate))
+                    print(f"   {mags} compass(es), unit {n}: {record.verdict}, {wall:.1f} s, validate {validate:.2f} s")
+    one = statistics.median(w for w, _ in figures[1])
+    three = statistics.median(w for w, _ in figures[3])
+    validate_one = statistics.median(v for _, v in figures[1])
+    validate_three = statistics.median(v for _, v in figures[3])
+    print(f"4. ArduPilot simulator (2 s boot, 600 readings at 50 Hz): one compass {one:.1f} s, three compasses "
+          f"{three:.1f} s per unit (+{three - one:.2f} s, goal ≤ 1 s); validate {validate_one:.2f} s vs "
+          f"{validate_three:.2f} s")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--units", type=int, default=1000)
+    parser.add_argument("--accuracy-units", type=int, default=200)
+    parser.add_argument("--seeds", type=int, default=5)
+    parser.add_argument("--sim-units", type=int, default=2)
+    args = parser.parse_args()
+    rng = np.random.default_rng(26)
+    accuracy(args.accuracy_units, rng)
+    orientations(args.seeds, rng)
+    false_detections(args.units, rng)
+    if args.sim_units:
+        sim_time(args.sim_units)
+
+
+if __name__ == "__main__":
+    main()

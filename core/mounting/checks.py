@@ -1,0 +1,133 @@
+"""The unit-level checks of the validate phase: every magnetometer's mounting against the unit's own
+accelerometer, and every pair of magnetometers against each other (hook ``magline_validate_unit``,
+registered like any plugin through the ``mounting`` entry point).
+
+What is judged, per sensor (names prefixed ``mag2.`` … for sensors after the primary):
+- ``orientation``: the firmware orientation value the sensor is really mounted in; another value than
+  the one configured FAILs, naming the parameter value that would fix it — or, with the product's
+  ``orientation: fix``, leaves it in ``run.state["orientation_fixes"]`` for the persist phase;
+- ``mounting_error_deg``: what is left between the sensor's axes and that orientation;
+- ``inclination_error_deg``: the field's inclination the unit saw against the field source's;
+and per pair ``heading_agreement_median_deg`` / ``_max_deg`` (names ``mag1-mag2.…``), the headings
+taken as the firmware will take them once each sensor's orientation is right (a wrong orientation is
+its own failure, not a second one of every pair).
+
+A coil's affine fit measures a sensor's axes against the coil itself (``misalignment_deg``): there
+gravity never turns, and the coil's proof stands instead.  No accelerometer: the station cannot prove
+the mounting — a :class:`~magline.core.faults.StationFault` (ERROR) unless the product opted out.
+"""
+
+from __future__ import annotations
+
+import itertools
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from magline.core.faults import StationFault
+from magline.core.measurements import Json, Measurement, Numeric, Verdict
+from magline.core.mounting.agreement import heading_agreement
+from magline.core.mounting.estimate import MountingUnobservable, estimate_mounting
+from magline.core.mounting.orientations import orientation_matrix, orientation_name, rotation_angle_deg
+from magline.core.plugins import hookimpl
+
+if TYPE_CHECKING:
+    from magline.core.dut import Magnetometer
+    from magline.core.fit import FitResult
+    from magline.core.sequencer.context import RunContext
+
+
+def calibrated(fit: FitResult, raw_ut: NDArray) -> NDArray:
+    """``S·(m_raw − h)`` for every row."""
+    return (np.asarray(raw_ut, float) - fit.hard_iron_ut) @ np.asarray(fit.soft_iron).T
+
+
+def applied_rotation(sensor: Magnetometer) -> NDArray:
+    """The rotation the firmware applied to the streamed readings already (ArduPilot: its orientation)."""
+    return orientation_matrix(sensor.orientation) if sensor.readings_rotated else np.eye(3)
+
+
+def fix_text(run: RunContext, sensor: Magnetometer, value: int) -> str:
+    fix = getattr(run.dut, "orientation_params", None)
+    if fix is None or not sensor.fix_params:
+        return "no parameter of this firmware can hold it: remount the sensor"
+    params = fix(sensor.device_id, value)
+    return "set " + ", ".join(f"{k} = {v}" for k, v in params.items())
+
+
+@hookimpl
+def magline_validate_unit(run: RunContext, fits: dict[int, FitResult]) -> list[Measurement]:
+    setting = run.product.orientation
+    if setting == "skip":
+        run.record.unit_info["mounting"] = "not proven: the product says orientation: skip"
+        run.log("mounting not proven (orientation: skip)")
+        return []
+    if any(f.model == "affine" for f in fits.values()):
+        run.record.unit_info["mounting"] = "proven by the coil: misalignment_deg from the affine fit"
+        return []
+    attempt = run.attempts[-1]
+    limits = run.limits
+    reference = getattr(run.field_source, "reference_inclination_deg", lambda: None)()
+    out: list[Measurement] = []
+    bodies: dict[int, tuple[NDArray, NDArray]] = {}
+    report: dict[str, dict] = {}
+    fixes: dict[int, int] = {}
+    for position, sensor in enumerate(run.magnetometers):
+        samples = attempt.samples if position == 0 else attempt.more[sensor.device_id]
+        label = run.sensor_label(sensor.device_id)
+        prefix = run.sensor_prefix(sensor.device_id)
+        cal = calibrated(fits[sensor.device_id], samples.mag_ut)
+        try:
+            estimate = estimate_mounting(cal, samples.t_ms, attempt.imu)
+        except MountingUnobservable as exc:
+            raise StationFault(f"the mounting of {label} cannot be proven: {exc} (a product without an "
+                               "accelerometer in its stream may say orientation: skip)") from None
+        applied = applied_rotation(sensor)
+        mounted = estimate.data_to_body @ applied  # sensor axes → body, as the unit really is
+        found, error_deg = estimate.right_angle_of(mounted)
+        configured = orientation_matrix(sensor.orientation)
+        right = rotation_angle_deg(orientation_matrix(found), configured) < 1e-6
+        final = orientation_matrix(found)  # the agreement is judged as the sensor will be held once right
+        note = ""
+        verdict = Verdict.PASS
+        if not right:
+            where = (f"{label} is mounted {orientation_name(found)} (orientation {found}), configured "
+                     f"{orientation_name(sensor.orientation)} ({sensor.orientation})")
+            if setting == "fix" and sensor.fix_params:
+                fixes[sensor.device_id] = found
+                note = f"{where}: {fix_text(run, sensor, found)} — written with the calibration"
+                run.log(note)
+            else:
+                verdict = Verdict.FAIL
+                note = f"{where}: {fix_text(run, sensor, found)}"
+        out.append(Numeric(name=prefix + "orientation", value=float(found),
+                           low=float(found if fixes.get(sensor.device_id) is not None else sensor.orientation),
+                           high=float(found if fixes.get(sensor.device_id) is not None else sensor.orientation),
+                           verdict=verdict, note=note))
+        out.append(Numeric.of(prefix + "mounting_error_deg", error_deg, limits))
+        out.append(Numeric.of(prefix + "mounting_sigma_deg", estimate.sigma_deg, limits))
+        out.append(Numeric.of(prefix + "inclination_deg", estimate.inclination_deg, limits))
+        if reference is not None:
+            out.append(Numeric.of(prefix + "inclination_error_deg", estimate.inclination_deg - reference, limits))
+        bodies[sensor.device_id] = (cal @ (final @ applied.T).T, np.asarray(samples.t_ms, float))
+        report[prefix.rstrip(".") or "mag1"] = {"device_id": sensor.device_id, "found": found,
+                                                "configured": sensor.orientation, **estimate.to_dict()}
+    for a, b in itertools.combinations(run.magnetometers, 2):
+        agreement = heading_agreement(*bodies[a.device_id], *bodies[b.device_id], attempt.imu)
+        if agreement is None:
+            raise StationFault(f"{run.sensor_label(a.device_id)} and {run.sensor_label(b.device_id)} have no "
+                               "readings at the same time to compare")
+        pair = f"{_tag(run, a)}-{_tag(run, b)}."
+        out.append(Numeric.of(pair + "heading_agreement_median_deg", agreement.median_deg, limits))
+        out.append(Numeric.of(pair + "heading_agreement_max_deg", agreement.max_deg, limits))
+        report[pair.rstrip(".")] = {"median_deg": agreement.median_deg, "max_deg": agreement.max_deg,
+                                    "mean_deg": agreement.mean_deg, "pairs": agreement.pairs}
+    run.state["orientation_fixes"] = fixes
+    run.record.unit_info["mounting"] = report
+    out.append(Json(name="mounting", data=report))
+    return out
+
+
+def _tag(run: RunContext, sensor: Magnetometer) -> str:
+    return run.sensor_prefix(sensor.device_id).rstrip(".") or "mag1"

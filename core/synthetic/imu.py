@@ -1,0 +1,57 @@
+"""A tumbling unit as its magnetometer *and* its accelerometer see it, with known truth.
+
+Why in core: the mounting check's tests and benchmark must draw the same tumbles, so that "the
+mounting is recovered to 0.3°" means one thing.  The attitude is the simulators' spiral
+(:func:`magline.plugins.mock.sim.magnetometers.attitude` follows the same path) at a careful
+operator's rate; the accelerometer reads gravity plus its own noise and a hand's slow accelerations.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from magline.core.synthetic.sensor import GRAVITY_MSS, earth_field_ned
+
+HAND_MSS = 0.1  # RMS of the small, slow accelerations of a hand holding the unit (smoothed over 0.5 s)
+ACCEL_NOISE_MSS = 0.05
+RATE = 0.2  # the simulators' spiral at a fifth of its speed: about 65°/s
+
+
+def tumble_with_imu(mounted: NDArray, rng: np.random.Generator, *, seconds: float = 60.0, mag_hz: float = 10.0,
+                    noise_ut: float = 0.3, steady: bool = True, field_ut: float = 48.0,
+                    inclination_deg: float = 62.0) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+    """A calibrated sensor mounted as ``mounted`` (sensor → body, ``v_body = R·v_sensor``) on a
+    tumbling unit: ``(mag_ut, t_mag_ms, accel_mss, t_acc_ms)`` — its readings at ``mag_hz`` and a 50 Hz
+    accelerometer.  ``steady``: a constant rate (a fixture); otherwise a hand that speeds up and slows
+    down."""
+    field = earth_field_ned(field_ut, inclination_deg)
+    t_mag = np.arange(0.0, seconds, 1.0 / mag_hz)
+    t_acc = np.arange(0.0, seconds, 0.02)
+    body = _poses(t_mag, steady, field).inv().apply(field)
+    mag = body @ np.asarray(mounted) + rng.normal(0.0, noise_ut, body.shape)  # rows: mountedᵀ · b
+    gravity = _poses(t_acc, steady, field).inv().apply([0.0, 0.0, -GRAVITY_MSS])
+    kernel = np.ones(25) / 25.0
+    hand = np.column_stack([np.convolve(rng.normal(0.0, 1.0, len(t_acc)), kernel, "same") for _ in range(3)])
+    hand *= HAND_MSS / hand.std()
+    accel = gravity + hand + rng.normal(0.0, ACCEL_NOISE_MSS, (len(t_acc), 3))
+    return mag, t_mag * 1000.0, accel, t_acc * 1000.0
+
+
+def _poses(t: NDArray, steady: bool, field: NDArray) -> Rotation:
+    """Body → NED attitudes along the simulators' spiral (the field sweeps the sphere pole to pole while
+    the unit spins), each the smallest turn that shows the field in that body direction."""
+    from magline.plugins.mock.sim.magnetometers import SPIN_RAD_S, SWEEP_S
+
+    t = RATE * (t if steady else t + 1.5 * np.sin(0.8 * t))
+    phase = (t / SWEEP_S) % 2.0
+    u = np.where(phase <= 1.0, phase, 2.0 - phase)
+    z = 1.0 - 2.0 * u
+    r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
+    seen = np.column_stack([r * np.cos(SPIN_RAD_S * t), r * np.sin(SPIN_RAD_S * t), z])
+    north = field / np.linalg.norm(field)
+    axis = np.cross(north, seen)
+    sin = np.linalg.norm(axis, axis=1, keepdims=True)
+    angle = np.arctan2(sin[:, 0], seen @ north)
+    return Rotation.from_rotvec(axis / np.maximum(sin, 1e-12) * angle[:, None]).inv()  # NED → body, inverted

@@ -1,0 +1,295 @@
+"""Every magnetometer's mounting proven against the unit's accelerometer, and the sensors against each
+other (issue 26): the estimator on known synthetic truth, then whole units on the simulated ArduPilot
+and PX4 over real MAVLink, and the mock's bad-input cases."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+from simstation import FAST_SENSOR_HZ, run_unit, write_station
+from sqlalchemy import create_engine, select
+
+from magline.core.measurements import Verdict
+from magline.core.mounting import (
+    RIGHT_ANGLE,
+    ImuSeries,
+    MountingUnobservable,
+    estimate_mounting,
+    heading_agreement,
+    orientation_matrix,
+    orientation_name,
+)
+from magline.core.mounting.orientations import rotation_angle_deg
+from magline.core.record import Outcome
+from magline.core.results import raw_blob
+from magline.core.results.tables import attempt_streams
+from magline.core.synthetic.imu import tumble_with_imu
+from magline.plugins.mock.sim import SimFaults, create_sim
+
+AP_OPTIONS = {"connect_timeout_s": 5.0, "boot_timeout_s": 10.0, "prearm_wait_s": 0.3}
+PX4_OPTIONS = {"connect_timeout_s": 5.0, "boot_timeout_s": 10.0, "save_settle_s": 0.1}
+
+
+def tumble(mounted: np.ndarray, rng: np.random.Generator, **kwargs) -> tuple[np.ndarray, np.ndarray, ImuSeries]:
+    mag, t_mag, accel, t_acc = tumble_with_imu(mounted, rng, **kwargs)
+    return mag, t_mag, ImuSeries(t_ms=t_acc, accel_mss=accel)
+
+
+def test_orientation_table_is_the_firmwares_rotate():
+    v = np.array([1.0, 2.0, 3.0])
+    assert orientation_matrix(2) @ v == pytest.approx([-2.0, 1.0, 3.0])  # Yaw90: x' = −y, y' = x
+    assert orientation_matrix(8) @ v == pytest.approx([1.0, -2.0, -3.0])  # Roll180
+    assert orientation_matrix(10) @ v == pytest.approx([2.0, 1.0, -3.0])  # Roll180Yaw90
+    assert orientation_name(2) == "Yaw90" and orientation_name(8) == "Roll180"
+    assert len(RIGHT_ANGLE) == 24
+    assert all(rotation_angle_deg(a, b) > 80 for i, a in RIGHT_ANGLE.items() for j, b in RIGHT_ANGLE.items() if i < j)
+
+
+def test_a_small_misalignment_and_the_inclination_are_recovered(rng):
+    truth = Rotation.from_rotvec(np.radians([1.2, -0.8, 2.0])).as_matrix()
+    mag, t_ms, imu = tumble(truth, rng)
+    estimate = estimate_mounting(mag, t_ms, imu)
+    assert rotation_angle_deg(estimate.data_to_body, truth) < 0.3
+    assert estimate.right_angle[0] == 0
+    assert estimate.right_angle[1] == pytest.approx(rotation_angle_deg(truth, np.eye(3)), abs=0.3)
+    assert estimate.inclination_deg == pytest.approx(62.0, abs=0.3)
+
+
+@pytest.mark.parametrize("value", sorted(RIGHT_ANGLE))
+def test_every_right_angle_mounting_is_named(value, rng):
+    mag, t_ms, imu = tumble(orientation_matrix(value), rng, seconds=30.0)
+    found, residual = estimate_mounting(mag, t_ms, imu).right_angle
+    assert rotation_angle_deg(orientation_matrix(found), orientation_matrix(value)) < 1e-6
+    assert residual < 0.5
+
+
+def test_without_an_accelerometer_the_mounting_is_not_guessed(rng):
+    mag, t_ms, imu = tumble(np.eye(3), rng, seconds=10.0)
+    with pytest.raises(MountingUnobservable, match="no accelerometer"):
+        estimate_mounting(mag, t_ms, None)
+    with pytest.raises(MountingUnobservable, match="all zero"):
+        estimate_mounting(mag, t_ms, ImuSeries(t_ms=imu.t_ms, accel_mss=np.zeros_like(imu.accel_mss)))
+    still = ImuSeries(t_ms=imu.t_ms, accel_mss=np.tile([0.0, 0.0, -9.81], (len(imu), 1)))
+    with pytest.raises(MountingUnobservable):  # gravity never turns: a unit that was not tumbled
+        estimate_mounting(mag[:, [0, 1, 2]] * 0 + [30.0, 0.0, 40.0] + rng.normal(0, 0.3, mag.shape), t_ms, still)
+
+
+def test_two_sensors_four_degrees_apart_in_yaw_are_told_apart(rng):
+    a, t_ms, imu = tumble(np.eye(3), rng)
+    turned = Rotation.from_euler("Z", 4.0, degrees=True).as_matrix()
+    b, _, _ = tumble(turned, np.random.default_rng(1))
+    same = heading_agreement(a, t_ms, tumble(np.eye(3), np.random.default_rng(2))[0], t_ms, imu)
+    apart = heading_agreement(a, t_ms, b, t_ms, imu)
+    assert same.median_deg < 0.5 and same.max_deg < 1.5
+    # a 4° turn about the body's Z changes the heading by 4° when level, less or more when tilted
+    # (a turn about a tilted axis moves the field's horizontal part by more): the default limits catch it
+    assert apart.median_deg > 1.0 and apart.max_deg > 3.0
+
+
+# --------------------------------------------------------------------------- whole units
+
+
+def ardupilot(tmp_path, faults: str = "", mags: int = 3):
+    workdir = tmp_path / "fc"
+    workdir.mkdir()
+    return create_sim("ardupilot", "tcp:127.0.0.1:0", mag_rate_hz=FAST_SENSOR_HZ, workdir=workdir, mag_count=mags,
+                      seed=11, boot_time_s=0.3, speed=5.0,
+                      faults=SimFaults.parse(faults.split()) if faults else None).start()
+
+
+def measured(record, name: str):
+    return next(m for m in record.measurements if getattr(m, "name", None) == name)
+
+
+def test_a_good_three_compass_ardupilot_unit_passes_with_every_compass_calibrated(tmp_path):
+    with ardupilot(tmp_path) as sim:
+        record = run_unit(write_station("ardupilot-sim.yaml", tmp_path, sim.address, AP_OPTIONS))
+        assert record.verdict is Outcome.PASS, record.cause
+        assert sim.prearm_failures() == []  # the firmware's own check: calibrated and consistent
+        for suffix in ("", "2", "3"):
+            assert f"COMPASS_OFS{suffix}_X" in record.params_read_back
+            assert sim.configured(("", "2", "3").index(suffix))
+        for prefix in ("", "mag2.", "mag3."):
+            assert measured(record, prefix + "orientation").verdict is Verdict.PASS
+            assert measured(record, prefix + "mounting_error_deg").value < 1.0
+            assert abs(measured(record, prefix + "inclination_error_deg").value) < 1.0
+        for pair in ("mag1-mag2.", "mag1-mag3.", "mag2-mag3."):
+            assert measured(record, pair + "heading_agreement_median_deg").value < 1.0
+        # every sensor's readings and the accelerometer's are kept with the attempt
+        engine = create_engine(f"sqlite:///{tmp_path / 'results.sqlite'}")
+        with engine.connect() as conn:
+            rows = conn.execute(select(attempt_streams).where(attempt_streams.c.run_id == record.run_id)).all()
+        engine.dispose()
+        streams = {r.stream for r in rows}
+        assert {f"mag:{m.device_id}" for m in sim.magnetometers[1:]} | {"imu"} <= streams
+        imu = raw_blob.decode_imu(next(r.raw for r in rows if r.stream == "imu"))
+        assert np.median(np.linalg.norm(imu.accel_mss, axis=1)) == pytest.approx(9.81, abs=0.2)
+
+
+def test_calibrating_only_the_primary_of_three_fails_as_the_firmware_does(tmp_path):
+    """Reference §16: with only compass 1 written, ArduPilot's prearm says the compasses disagree."""
+    with ardupilot(tmp_path) as sim:
+        station = write_station("ardupilot-sim.yaml", tmp_path, sim.address, AP_OPTIONS,
+                                {"products": {"AP-QUAD-200": {"magnetometers": [1]}}})
+        record = run_unit(station)
+        assert record.verdict is Outcome.FAIL
+        assert "Compass" in record.cause and next(p.name for p in record.phases if p.outcome == "fail") == "verify"
+
+
+def test_a_compass_turned_90_degrees_fails_naming_the_fix_and_nothing_is_written(tmp_path):
+    with ardupilot(tmp_path, "mag_mounting=2:2") as sim:
+        before = sim.read_storage()
+        record = run_unit(write_station("ardupilot-sim.yaml", tmp_path, sim.address, AP_OPTIONS))
+        assert record.verdict is Outcome.FAIL
+        assert "compass 2" in record.cause and "Yaw90" in record.cause
+        assert "COMPASS_ORIENT2 = 2" in record.cause and "COMPASS_EXTERN2 = 1" in record.cause
+        assert measured(record, "mag2.orientation").value == 2
+        assert measured(record, "orientation").verdict is Verdict.PASS
+        assert record.params_written == {} and sim.read_storage() == before
+
+
+def test_orientation_fix_writes_the_orientation_and_proves_it_after_the_power_cycle(tmp_path):
+    with ardupilot(tmp_path, "mag_mounting=2:2,3:8") as sim:
+        station = write_station("ardupilot-sim.yaml", tmp_path, sim.address, AP_OPTIONS,
+                                {"products": {"AP-QUAD-200": {"orientation": "fix"}}})
+        record = run_unit(station)
+        assert record.verdict is Outcome.PASS, record.cause
+        stored = sim.read_storage()
+        assert stored["COMPASS_ORIENT2"] == 2 and stored["COMPASS_EXTERN2"] == 1
+        assert stored["COMPASS_ORIENT3"] == 8 and stored["COMPASS_EXTERN3"] == 1
+        assert sim.prearm_failures() == []
+        # the firmware's own corrected output of every compass now reads the Earth field in body axes
+        for i, sensor in enumerate(sim.sets):
+            b = sim.body_field_ut(0.0)
+            corrected = sim.correct_mg(i, sensor.read_ut(b, np.random.default_rng(0)) * 10.0) / 10.0
+            assert np.degrees(np.arccos(corrected @ b / np.linalg.norm(corrected) / np.linalg.norm(b))) < 3.0
+
+
+def test_a_compass_gone_after_the_power_cycle_fails_naming_it(tmp_path):
+    with ardupilot(tmp_path) as sim:
+        gone = sim.magnetometers[2].device_id
+        sim.faults.mag_missing_after_reboot = gone
+        record = run_unit(write_station("ardupilot-sim.yaml", tmp_path, sim.address, AP_OPTIONS))
+        assert record.verdict is Outcome.FAIL
+        assert f"compass 3 ({gone}) missing after power cycle" in record.cause
+
+
+def test_two_compasses_that_disagree_by_five_degrees_fail(tmp_path):
+    with ardupilot(tmp_path, "mag_yaw_error=2:5") as sim:
+        record = run_unit(write_station("ardupilot-sim.yaml", tmp_path, sim.address, AP_OPTIONS))
+        assert record.verdict is Outcome.FAIL
+        assert measured(record, "mag1-mag2.heading_agreement_median_deg").verdict is Verdict.FAIL
+        assert measured(record, "mag2.mounting_error_deg").value == pytest.approx(5.0, abs=0.5)
+        assert measured(record, "mag1-mag3.heading_agreement_max_deg").verdict is Verdict.PASS
+
+
+def test_a_listed_compass_the_unit_lacks_fails_naming_it(tmp_path):
+    with ardupilot(tmp_path, mags=2) as sim:
+        station = write_station("ardupilot-sim.yaml", tmp_path, sim.address, AP_OPTIONS,
+                                {"products": {"AP-QUAD-200": {"magnetometers": [1, 3]}}})
+        record = run_unit(station)
+        assert record.verdict is Outcome.FAIL
+        assert "magnetometer 3 listed for AP-QUAD-200 is not on this unit" in record.cause
+
+
+def test_a_sensors_own_limit_judges_that_sensor_only(tmp_path):
+    with ardupilot(tmp_path, mags=2) as sim:
+        station = write_station("ardupilot-sim.yaml", tmp_path, sim.address, AP_OPTIONS,
+                                {"products": {"AP-QUAD-200": {"limits": {"mag2.hard_iron_norm_ut": {"le": 1.0}}}}})
+        record = run_unit(station)
+        assert record.verdict is Outcome.FAIL
+        assert measured(record, "mag2.hard_iron_norm_ut").verdict is Verdict.FAIL
+        assert measured(record, "hard_iron_norm_ut").verdict is Verdict.PASS
+        assert record.cause.startswith("mag2.hard_iron_norm_ut")
+
+
+def test_a_two_magnetometer_px4_unit_passes_and_a_turned_external_one_names_cal_mag_rot(tmp_path):
+    workdir = tmp_path / "fc"
+    workdir.mkdir()
+    with create_sim("px4", "udp:127.0.0.1:0", mag_rate_hz=FAST_SENSOR_HZ, workdir=workdir, mag_count=2, seed=3,
+                    boot_time_s=0.3, speed=5.0) as sim:
+        host, port = sim.address.split(":")[1:]
+        record = run_unit(write_station("px4-sim.yaml", tmp_path, f"udpout://{host}:{port}", PX4_OPTIONS))
+        assert record.verdict is Outcome.PASS, record.cause
+        for sensor in sim.magnetometers:
+            slot = sim.slot_of(sensor.device_id)
+            assert slot is not None and record.params_read_back[f"CAL_MAG{slot}_ID"] == sensor.device_id
+        assert measured(record, "mag1-mag2.heading_agreement_median_deg").value < 1.0
+        sim.magnetometers[0].mount(2)  # the GPS mast turned 90° on the next unit
+        (tmp_path / "b").mkdir()
+        record = run_unit(write_station("px4-sim.yaml", tmp_path / "b", f"udpout://{host}:{port}", PX4_OPTIONS))
+        assert record.verdict is Outcome.FAIL
+        assert "CAL_MAG0_ROT = 2" in record.cause
+
+
+def test_no_accelerometer_is_an_error_unless_the_product_opts_out(make_station):
+    from magline.core.plugins import load_plugins
+    from magline.core.sequencer import Sequencer
+    from magline.core.station import load_station
+
+    def run(changes):
+        path = make_station({"products": {"MOCK-100": changes}})
+        seq = Sequencer(load_station(path), load_plugins(), path.parent, sleep=lambda s: None)
+        try:
+            return seq.run_unit("NO-IMU")
+        finally:
+            seq.close()
+
+    record = run({"options": {"accelerometer": False}})
+    assert record.verdict is Outcome.ERROR
+    assert "mounting of magnetometer" in record.cause and "cannot be proven" in record.cause
+    assert record.params_written == {}
+    skipped = run({"options": {"accelerometer": False}, "orientation": "skip"})
+    assert skipped.verdict is Outcome.PASS, skipped.cause
+    assert "orientation: skip" in skipped.unit_info["mounting"]
+
+
+def test_a_mock_unit_mounted_upside_down_fails_naming_the_orientation(make_station):
+    from magline.core.plugins import load_plugins
+    from magline.core.sequencer import Sequencer
+    from magline.core.station import load_station
+
+    path = make_station({"products": {"MOCK-100": {"options": {"misalignment_deg": [180.0, 0.0, 0.0]}}}})
+    seq = Sequencer(load_station(path), load_plugins(), path.parent, sleep=lambda s: None)
+    try:
+        record = seq.run_unit("UPSIDE-DOWN")
+    finally:
+        seq.close()
+    assert record.verdict is Outcome.FAIL
+    assert "mounted Roll180 (orientation 8)" in record.cause
+    assert "no parameter of this firmware can hold it" in record.cause
+
+
+def test_a_plugin_judges_the_whole_unit_through_magline_validate_unit(make_station):
+    """A third-party check sees every sensor's fit at once; a station fault it raises is an ERROR."""
+    from magline.core.faults import StationFault
+    from magline.core.measurements import Numeric
+    from magline.core.plugins import hookimpl, load_plugins
+    from magline.core.sequencer import Sequencer
+    from magline.core.station import load_station
+
+    class SpreadOfOffsets:
+        def __init__(self) -> None:
+            self.seen: dict = {}
+
+        @hookimpl
+        def magline_validate_unit(self, run, fits):
+            self.seen.update(fits)
+            if run.serial == "BROKEN-FIXTURE":
+                raise StationFault("the fixture's tilt sensor does not answer")
+            return [Numeric(name="offsets_spread_ut", value=float(np.ptp([f.hard_iron_ut[0] for f in fits.values()])))]
+
+    plugin = SpreadOfOffsets()
+    path = make_station()
+    seq = Sequencer(load_station(path), load_plugins(extra=[plugin]), path.parent, sleep=lambda s: None)
+    try:
+        good = seq.run_unit("WHOLE-1")
+        broken = seq.run_unit("BROKEN-FIXTURE")
+    finally:
+        seq.close()
+    assert good.verdict is Outcome.PASS, good.cause
+    assert list(plugin.seen) == [good.unit_info["selected_sensor"]]
+    assert measured(good, "offsets_spread_ut").value == 0.0
+    assert measured(good, "mounting_error_deg").verdict is Verdict.PASS  # the core's own check still ran
+    assert broken.verdict is Outcome.ERROR and "tilt sensor" in broken.cause
