@@ -24,6 +24,7 @@ from magline.core.fit.samples_csv import SampleFileError, read_samples
 from magline.core.plugins import PluginError, Plugins, load_plugins
 from magline.core.record import Outcome
 from magline.core.results.sinks import close_sink, open_results
+from magline.core.serials import SerialRefused, clean_serial
 from magline.core.station import Station, StationError
 from magline.core.station.checks import did_you_mean, station_problems
 from magline.core.station.loader import read_station_text
@@ -117,8 +118,12 @@ def main(argv: list[str] | None = None) -> int:
 
 def _run_filter_arguments(parser: argparse.ArgumentParser, part_help: str) -> None:
     """Which runs a reading command looks at (``RunFilter``)."""
-    parser.add_argument("--since", help="runs started at or after this ISO time (e.g. 2026-11-24 or 2026-11-24T06:00)")
-    parser.add_argument("--until", help="runs started before this ISO time")
+    from magline.core.results.instants import instant_argument
+
+    when = ("an ISO time (a time without offset is this computer's local time; Z or +01:00 say otherwise), "
+            "a date, today, yesterday, or a time ago: 8h, 7d")
+    parser.add_argument("--since", type=instant_argument, help=f"runs started at or after: {when}")
+    parser.add_argument("--until", type=instant_argument, help=f"runs started before: {when}")
     parser.add_argument("--part", help=part_help)
     parser.add_argument("--station-id", help="only this writing station's runs (a shared store holds several)")
 
@@ -178,7 +183,13 @@ def _run(args: argparse.Namespace, plugins: Plugins) -> int:
                         if not records:
                             break
                     else:
-                        records = [sequencer.run_unit(unit[""], args.part, args.operator)]
+                        try:
+                            records = [sequencer.run_unit(unit[""], args.part, args.operator)]
+                        except SerialRefused as exc:  # nothing recorded: say the rule, take the next scan
+                            _err(str(exc))
+                            if not args.loop:
+                                return 2
+                            continue
                     for record in records:
                         batch.add(record)
                     if sequencer.abort.requested is not None:
@@ -237,7 +248,7 @@ def _slot_batches(args: argparse.Namespace, station: Station) -> Iterator[dict[s
         if slot.strip() not in ids:
             raise ValueError(f"--serial {item}: no slot {slot.strip()!r} on station {station.station.id} "
                              f"(slots: {', '.join(ids)}){did_you_mean(slot.strip(), ids)}")
-        given[slot.strip()] = serial.strip()
+        given[slot.strip()] = clean_serial(serial, station.slot_product(station.slot(slot.strip())))
     if given:
         yield given
         if not args.loop:
@@ -252,10 +263,16 @@ def _ask_slots(station: Station) -> dict[str, str] | None:
     """One serial per slot from the operator (or a scanner); None when every slot is left empty."""
     load: dict[str, str] = {}
     for slot in station.slots:
-        try:
-            load[slot.id] = input(f"slot {slot.id} ({slot.part}) — {station.prompts.serial} (empty: no unit): ").strip()
-        except EOFError:
-            break
+        while True:
+            try:
+                typed = input(f"slot {slot.id} ({slot.part}) — {station.prompts.serial} (empty: no unit): ")
+            except EOFError:
+                return load if any(load.values()) else None
+            try:
+                load[slot.id] = clean_serial(typed, station.slot_product(slot)) if typed.strip() else ""
+                break
+            except SerialRefused as exc:  # nothing recorded: say the rule and ask this slot again
+                _err(str(exc))
     return load if any(load.values()) else None
 
 
@@ -375,6 +392,7 @@ def _history(args: argparse.Namespace, plugins: Plugins) -> int:
         _err(str(exc))
         return 2
     try:
+        args.serial = args.serial.strip()  # a scanned or pasted serial with its spaces finds the unit
         runs = sink.history(args.serial)
     finally:
         close_sink(sink)
@@ -460,7 +478,7 @@ def _with_store(args: argparse.Namespace, plugins: Plugins, use: Callable[..., i
 def _show(args: argparse.Namespace, plugins: Plugins) -> int:
     from magline.core.results.commands import show
 
-    return _with_store(args, plugins, lambda store, *_: show(store, args.run, args.json))
+    return _with_store(args, plugins, lambda store, *_: show(store, args.run.strip(), args.json))
 
 
 def _export(args: argparse.Namespace, plugins: Plugins) -> int:
@@ -481,7 +499,7 @@ def _spc(args: argparse.Namespace, plugins: Plugins) -> int:
 def _report(args: argparse.Namespace, plugins: Plugins) -> int:
     from magline.core.reports.commands import report
 
-    return _with_store(args, plugins, lambda store, station, _: report(store, station, args.run, args.output))
+    return _with_store(args, plugins, lambda store, station, _: report(store, station, args.run.strip(), args.output))
 
 
 def _station(args: argparse.Namespace, plugins: Plugins) -> int:

@@ -100,14 +100,17 @@ def _stream(dut: Any, count: int, rate_hz: float) -> tuple[np.ndarray, np.ndarra
     mags, times, got = [], [], 0
     started = time.monotonic()
     stream = dut.samples(rate_hz)
+    _stream.more, _stream.imu = {}, []
     try:
         for chunk in stream:
             assert isinstance(chunk, SampleChunk), f"samples() must yield SampleChunk (got {type(chunk).__name__})"
-            mag, t_ms = np.atleast_2d(np.asarray(chunk.mag_ut, float)), np.atleast_1d(np.asarray(chunk.t_ms, float))
-            assert mag.shape[1:] == (3,) and len(t_ms) == len(mag), "a chunk holds (n, 3) readings and n times"
-            assert np.all(np.isfinite(mag)) and np.all(np.isfinite(t_ms)), "readings and times must be finite"
+            mag, t_ms = _rows(chunk, "the primary magnetometer")
             mags.append(mag)
             times.append(t_ms)
+            for device_id, more in chunk.more.items():
+                _stream.more.setdefault(device_id, []).append(_rows(more, f"magnetometer {device_id} (more)"))
+            if chunk.imu is not None:
+                _stream.imu.append(chunk.imu)
             got += len(mag)
             if got >= count:
                 break
@@ -119,10 +122,55 @@ def _stream(dut: Any, count: int, rate_hz: float) -> tuple[np.ndarray, np.ndarra
     return np.vstack(mags)[:count], t_ms[:count], wall
 
 
+def _rows(chunk: Any, what: str) -> tuple[np.ndarray, np.ndarray]:
+    mag, t_ms = np.atleast_2d(np.asarray(chunk.mag_ut, float)), np.atleast_1d(np.asarray(chunk.t_ms, float))
+    if mag.size == 0:
+        mag = mag.reshape(0, 3)
+    assert mag.shape[1:] == (3,) and len(t_ms) == len(mag), f"{what}: a chunk holds (n, 3) readings and n times"
+    assert np.all(np.isfinite(mag)) and np.all(np.isfinite(t_ms)), f"{what}: readings and times must be finite"
+    return mag, t_ms
+
+
+def _check_more_and_imu(info: Any, t_ms: np.ndarray, field_ut: float, accelerometer: bool) -> dict:
+    """Several magnetometers: each listed one streams in ``more`` on the same clock, in µT; the
+    accelerometer: gravity in m/s² (body axes) over the same time."""
+    from magline.core.fit import FitOptions, FitRefused, fit_calibration
+
+    figures: dict[str, Any] = {}
+    others = [m.device_id for m in info.magnetometers if m.device_id != info.selected_sensor]
+    for device_id in others:
+        parts = _stream.more.get(device_id)
+        assert parts, (f"magnetometer {device_id} is in UnitInfo.magnetometers but samples() sent none of its "
+                       "readings in SampleChunk.more (after use_magnetometers)")
+        mag = np.vstack([m for m, _ in parts])
+        times = np.concatenate([t for _, t in parts])
+        assert np.all(np.diff(times) > 0), f"magnetometer {device_id}: t_ms must increase (each reading once)"
+        assert times[0] < t_ms[-1] and times[-1] > t_ms[0], (
+            f"magnetometer {device_id}'s time stamps do not overlap the primary's: one clock for every sensor")
+        try:
+            fit = fit_calibration(mag, FitOptions(field_ut=field_ut, coverage_bins=40))
+        except FitRefused as exc:
+            raise AssertionError(f"magnetometer {device_id}'s readings do not determine a calibration "
+                                 f"({exc.message})") from None
+        ratio = fit.field_estimate_ut / field_ut
+        assert 0.7 < ratio < 1.3, f"magnetometer {device_id}'s readings have a radius of {ratio:.2f}× the field: µT"
+        figures[f"fit_{device_id}"] = fit
+    if accelerometer:
+        assert _stream.imu, ("samples() sent no accelerometer readings (SampleChunk.imu): the station cannot prove "
+                             "the mounting (pass accelerometer=False for a device without one)")
+        acc = np.vstack([np.asarray(i.accel_mss, float) for i in _stream.imu])
+        acc_t = np.concatenate([np.asarray(i.t_ms, float) for i in _stream.imu])
+        g = float(np.median(np.linalg.norm(acc, axis=1)))
+        assert 8.5 < g < 11.0, f"the accelerometer reads {g:.3g} at rest: it must be in m/s² (9.81 = 1 g)"
+        assert acc_t[0] < t_ms[-1] and acc_t[-1] > t_ms[0], "the accelerometer's time stamps are on another clock"
+        figures["gravity_mss"] = g
+    return figures
+
+
 def check_dut_backend(open_dut: Callable[[], Any], field_ut: float, *, samples: int = 400, rate_hz: float = 50.0,
                       prepare_params: tuple[str, ...] | list[str] = (), hard_iron_ut: Any = None,
                       power_cycle: Callable[[Any], dict] | None = None, tolerance_pct: float = 3.0,
-                      unsaved_writes: str = "lost") -> dict:
+                      unsaved_writes: str = "lost", accelerometer: bool = True) -> dict:
     """Run the DUT-backend contract (:class:`magline.core.dut.DutBackend`) against ``open_dut()``, a
     backend connected to a device (or its simulator) that is being tumbled in a field of
     ``field_ut`` µT.  Checks, in order, each failing with the rule it breaks:
@@ -136,8 +184,11 @@ def check_dut_backend(open_dut: Callable[[], Any], field_ut: float, *, samples: 
     ``mavlink-reboot`` method.  ``unsaved_writes``: what a power cycle does to a write that was not
     committed — ``"lost"`` (the firmware saves only on ``commit()``), ``"kept"`` (it stores every
     write at once, as ArduPilot) or ``"unspecified"`` (it saves on its own schedule, as PX4's
-    autosave 300 ms after a change: only ``commit()`` is a guarantee).  Returns figures (fit, boots)
-    for the author's own assertions."""
+    autosave 300 ms after a change: only ``commit()`` is a guarantee).  Several magnetometers
+    (``UnitInfo.magnetometers``): after ``use_magnetometers`` with all of them, each streams in
+    ``SampleChunk.more`` on the same clock, in µT; ``accelerometer``: the stream carries gravity in m/s²
+    (``SampleChunk.imu``) for the mounting check.  Returns figures (fit, boots) for the author's own
+    assertions."""
     from magline.core.dut import DutBackend
     from magline.core.fit import FitOptions, FitRefused, fit_calibration
 
@@ -155,9 +206,14 @@ def check_dut_backend(open_dut: Callable[[], Any], field_ut: float, *, samples: 
         assert info.soft_iron_model in ("full", "diagonal"), "UnitInfo.soft_iron_model is 'full' or 'diagonal'"
         original = dut.read_params(list(prepare_params))
         assert set(original) == set(prepare_params), f"read_params({list(prepare_params)}) returned {original}"
+        if info.magnetometers:
+            assert info.selected_sensor in [m.device_id for m in info.magnetometers], (
+                "UnitInfo.magnetometers must list the selected sensor")
+            dut.use_magnetometers([m.device_id for m in info.magnetometers])
         dut.prepare()
 
         mag, t_ms, wall = _stream(dut, samples, rate_hz)
+        figures |= _check_more_and_imu(info, t_ms, field_ut, accelerometer)
         span_s = (t_ms[-1] - t_ms[0]) / 1000.0
         assert wall >= 0.5 * span_s, (f"{samples} readings spanning {span_s:.1f} s of the device's clock arrived in "
                                       f"{wall:.1f} s: samples() must follow the sensor, not run ahead of it")

@@ -44,6 +44,14 @@ def test_a_wrong_sign_in_the_conversion_is_caught(tmp_path, monkeypatch):
         check_dut_backend(lambda: MockDut(options), options.field_ut, rate_hz=200.0)
 
 
+def test_a_stream_without_an_accelerometer_is_caught_unless_the_device_has_none(tmp_path):
+    options = MockOptions(motions=["hand_tumble"], realtime=True, storage=str(tmp_path / "nv.json"), seed=4,
+                          accelerometer=False)
+    with pytest.raises(AssertionError, match="no accelerometer readings"):
+        check_dut_backend(lambda: MockDut(options), options.field_ut, rate_hz=200.0)
+    check_dut_backend(lambda: MockDut(options), options.field_ut, rate_hz=200.0, accelerometer=False)
+
+
 def _backend(path, part):
     station, plugins = load_station(path), load_plugins()
     product = station.products[part]
@@ -52,7 +60,7 @@ def _backend(path, part):
 
 
 def test_the_px4_backend_meets_the_contract_on_its_simulator(magline_px4, tmp_path):
-    fc = magline_px4()
+    fc = magline_px4(mag_count=2)  # several magnetometers: each streams in SampleChunk.more
     path = station_file(tmp_path, {"products": {"PX4-X500-100": {"connection": fc.connection, "options": {
         "connect_timeout_s": 5.0, "boot_timeout_s": 10.0}}}}, base="px4-sim.yaml")
     mag = fc.sim.magnetometers[0]
@@ -61,7 +69,7 @@ def test_the_px4_backend_meets_the_contract_on_its_simulator(magline_px4, tmp_pa
 
 
 def test_the_ardupilot_backend_meets_the_contract_on_its_simulator(magline_ardupilot, tmp_path):
-    fc = magline_ardupilot()
+    fc = magline_ardupilot(mag_count=3)
     path = station_file(tmp_path, {"products": {"AP-QUAD-200": {"connection": fc.connection, "options": {
         "connect_timeout_s": 5.0, "boot_timeout_s": 10.0, "prearm_wait_s": 0.3}}}}, base="ardupilot-sim.yaml")
     mag = fc.sim.magnetometers[0]

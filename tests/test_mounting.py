@@ -125,6 +125,15 @@ def test_a_good_three_compass_ardupilot_unit_passes_with_every_compass_calibrate
         assert {f"mag:{m.device_id}" for m in sim.magnetometers[1:]} | {"imu"} <= streams
         imu = raw_blob.decode_imu(next(r.raw for r in rows if r.stream == "imu"))
         assert np.median(np.linalg.norm(imu.accel_mss, axis=1)) == pytest.approx(9.81, abs=0.2)
+        # the unit report draws a residual chart per compass and the mounting table
+        from magline.core.reports.commands import write_report
+
+        engine = create_engine(f"sqlite:///{tmp_path / 'results.sqlite'}")
+        page = write_report(engine, str(record.run_id), None, tmp_path / "reports").read_text(encoding="utf-8")
+        engine.dispose()
+        for plot in ('id="residual"', 'id="residual-mag2"', 'id="residual-mag3"'):
+            assert plot in page
+        assert "Residual — compass 2" in page and "heading agreement" in page
 
 
 def test_calibrating_only_the_primary_of_three_fails_as_the_firmware_does(tmp_path):

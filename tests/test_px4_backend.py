@@ -95,6 +95,18 @@ def test_old_firmware_without_odiag_gets_a_diagonal_fit(tmp_path):
         assert not any("ODIAG" in k for k in record.params_written)
 
 
+def test_an_untagged_build_reporting_0_0_0_gets_the_full_model_its_parameters_hold(tmp_path):
+    """Reference §17: PX4 SITL and every custom build say 0.0.0; the parameter list decides."""
+    with start_sim(tmp_path, untagged=True) as sim:
+        record = run_unit(station(tmp_path, sim))
+        assert record.verdict is Outcome.PASS, record.cause
+        assert record.unit_info["firmware"] == "0.0.0"
+        assert record.unit_info["soft_iron_model"] == "full" and record.calibration["model"] == "full"
+        assert any("ODIAG" in k for k in record.params_written)
+        connect_log = next(p.log for p in record.phases if p.name == "connect")
+        assert "soft iron model full: the firmware has CAL_MAG0_XODIAG" in connect_log
+
+
 def test_sensors_keyed_by_id_when_enumeration_order_changes_at_reboot(tmp_path):
     with start_sim(tmp_path, mags=2, faults=SimFaults(swap_mags_after_reboot=True)) as sim:
         target = sim.magnetometers[1].device_id

@@ -70,11 +70,39 @@ def _measurements(run: dict[str, Any]) -> str:
     return "".join(out)
 
 
-def _residual_chart(run: dict[str, Any]) -> str:
-    residual = next((json.loads(m["data"]) for m in run["measurements"]
-                     if m["kind"] == "array" and m["name"] == "residual_ut" and m["data"]), None)
-    if not residual:
+def _residual_charts(run: dict[str, Any]) -> str:
+    """One residual chart per magnetometer (the primary's ``residual_ut``, then ``mag2.residual_ut`` …)."""
+    arrays = [m for m in run["measurements"] if m["kind"] == "array" and m["data"]
+              and (m["name"] == "residual_ut" or m["name"].endswith(".residual_ut"))]
+    if not arrays:
         return "<h2>Residual</h2><p class=note>no fit: no residual to show</p>"
+    labels = {(s.get("prefix") or "mag1"): f"{s.get('label', 'magnetometer')} ({s.get('device_id')})"
+              for s in (run.get("unit_info") or {}).get("magnetometers", [])}
+    out = []
+    for m in arrays:
+        prefix = m["name"].removesuffix("residual_ut").rstrip(".") or "mag1"
+        title = f"Residual — {labels[prefix]}" if len(arrays) > 1 and prefix in labels else "Residual"
+        plot_id = "residual" if prefix == "mag1" else f"residual-{prefix}"
+        out.append(_residual_chart(json.loads(m["data"]), title, plot_id))
+    return "".join(out) + _mounting(run)
+
+
+def _mounting(run: dict[str, Any]) -> str:
+    """Each sensor's mounting and each pair's agreement, as the validate phase judged them."""
+    mounting = (run.get("unit_info") or {}).get("mounting")
+    if not isinstance(mounting, dict):
+        return f"<h2>Mounting</h2><p class=note>{html.escape(str(mounting))}</p>" if mounting else ""
+    rows = []
+    for key, v in mounting.items():
+        if "found" in v:
+            rows.append([key, f"orientation {v['found']} (configured {v['configured']})",
+                         f"{v['from_nearest_deg']:.2f}° ± {v['sigma_deg']:.2f}°", f"{v['inclination_deg']:.2f}°"])
+        else:
+            rows.append([key, "heading agreement", f"median {v['median_deg']:.2f}°, max {v['max_deg']:.2f}°", ""])
+    return "<h2>Mounting</h2>" + table(["sensor / pair", "found", "misalignment", "inclination"], rows)
+
+
+def _residual_chart(residual: list[float], title: str, name: str) -> str:
     r = np.asarray(residual, dtype=float)
     stats = f"mean {fmt(float(r.mean()), 'µT')}, std {fmt(float(r.std(ddof=1)), 'µT')}, " \
             f"p2p {fmt(float(np.ptp(r)), 'µT')}"
@@ -85,7 +113,7 @@ def _residual_chart(run: dict[str, Any]) -> str:
         fig.add_hline(y=float(r.mean() + k * r.std(ddof=1)), line={"color": "#0969da", "dash": "dash", "width": 1})
     fig.update_layout(title=f"|m_cal| − field per sample: {stats}", height=360, xaxis_title="sample",
                       yaxis_title="µT", margin={"l": 60, "r": 30, "t": 50, "b": 40})
-    return "<h2>Residual</h2>" + figure_html(fig, "residual")
+    return f"<h2>{html.escape(title)}</h2>" + figure_html(fig, name)
 
 
 def _sphere_mesh(n: int = 24) -> np.ndarray:
@@ -176,7 +204,7 @@ def write_unit_page(run: dict[str, Any], path: Path) -> Path:
     raw arrays (``run_attempts(..., with_samples=True)``)."""
     cal = run.get("calibration")
     accepted = next((a for a in run["attempts"] if a["accepted"] and a.get("raw") is not None), None)
-    sections = [_identity(run), _measurements(run), _residual_chart(run)]
+    sections = [_identity(run), _measurements(run), _residual_charts(run)]
     if cal and accepted is not None:
         sections += ["<h2>Samples</h2>", _samples_3d(cal, accepted["raw"]), "<h2>Coverage</h2>",
                      _coverage_3d(cal, accepted["raw"])]

@@ -10,6 +10,7 @@ from typing import Any
 from magline.core.faults import UnitAborted
 from magline.core.screen.state import ScreenState
 from magline.core.sequencer import Sequencer
+from magline.core.serials import clean_serial
 
 
 class Busy(Exception):
@@ -26,11 +27,10 @@ class UnitRunner:
         self.standing()
 
     def start(self, serial: str, part: str | None, operator: str = "") -> None:
-        serial = serial.strip()
-        if not serial:
-            raise ValueError("scan or type the unit's serial number")
         if part is not None and part not in self.sequencer.station.products:
             raise ValueError(f"unknown part {part!r} (this station tests {', '.join(self.sequencer.station.products)})")
+        station = self.sequencer.station
+        serial = clean_serial(serial, station.products[part or self.state.state["station"]["default_part"]])
         with self._lock:
             if self._thread is not None and self._thread.is_alive():
                 raise Busy("a unit is under test: wait for its verdict or abort it")
@@ -50,7 +50,8 @@ class UnitRunner:
         unknown = [s for s in serials if s not in known]
         if unknown:
             raise ValueError(f"no slot {unknown[0]!r} on this station (slots: {', '.join(known)})")
-        load = {slot: serial.strip() for slot, serial in serials.items() if serial.strip()}
+        load = {slot: clean_serial(serial, station.products[known[slot]]) for slot, serial in serials.items()
+                if serial.strip()}
         if not load:
             raise ValueError("scan the serial of at least one slot's unit")
         with self._lock:

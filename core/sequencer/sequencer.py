@@ -34,6 +34,7 @@ from magline.core.sequencer.abort import AbortSwitch
 from magline.core.sequencer.context import Acquisition, AcquisitionAborted, RunContext
 from magline.core.sequencer.rounds import MotionRounds
 from magline.core.sequencer.unit_log import unit_log_capture
+from magline.core.serials import clean_serial
 from magline.core.station.schema import Slot, Station
 from magline.core.text import fmt, percent
 
@@ -93,6 +94,7 @@ class Sequencer:
         part = slot.part if slot is not None else part or self.station.default_part or next(iter(self.station.products))
         known = part in self.station.products
         product = self.station.slot_product(slot) if slot is not None else self.station.products.get(part)
+        serial = clean_serial(serial, product)  # SerialRefused before any record exists
         record = RunRecord(serial=serial, part=part, station_id=self.station.station.id,
                            line=self.station.station.line, operator=operator,
                            software_version=__version__,
@@ -264,6 +266,8 @@ class Sequencer:
         names = ", ".join(run.sensor_label(m.device_id) for m in run.magnetometers)
         run.log(f"{run.unit.autopilot} {run.unit.firmware}, magnetometer{'s' if len(run.magnetometers) > 1 else ''} "
                 f"{names}")
+        why = run.unit.extra.get("soft_iron_model_why")
+        run.log(f"soft iron model {self._fit_options(run).model}" + (f": {why}" if why else ""))
         run.dut.prepare()
 
     def _acquire(self, run: RunContext) -> None:

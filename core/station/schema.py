@@ -102,6 +102,21 @@ class Product(_Strict):
     # FAILs, naming the value that fixes it), ``fix`` (that value is written and proven with the
     # calibration), ``skip`` (not proven; recorded as skipped)
     orientation: Literal["check", "fix", "skip"] = "check"
+    # the serial rule of this part (see core/serials.py): a full-match regular expression and a length
+    serial_pattern: str | None = None
+    serial_max_length: Annotated[int, Field(ge=1, le=256)] = 64
+
+    @field_validator("serial_pattern")
+    @classmethod
+    def _pattern_compiles(cls, pattern: str | None) -> str | None:
+        if pattern is not None:
+            import re
+
+            try:
+                re.compile(pattern)
+            except re.error as exc:
+                raise ValueError(f"not a regular expression: {exc}") from None
+        return pattern
     soft_iron_model: Literal["auto", "full", "diagonal", "sphere"] = "auto"
     options: dict[str, Any] = Field(default_factory=dict)
     power: PowerConfig = Field(default_factory=PowerConfig)

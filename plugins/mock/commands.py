@@ -39,6 +39,8 @@ def add_sim_command(subparsers: argparse._SubParsersAction) -> None:
                           "a faster stream repeats readings, as real vehicles do")
     sim.add_argument("--seed", type=int, default=7, help="seed of the sensors' distortion and noise")
     sim.add_argument("--firmware", default="1.15.0", help="px4 only: firmware version (ODIAG from 1.12)")
+    sim.add_argument("--untagged", action="store_true",
+                     help="px4 only: report version 0.0.0, as a build from an untagged tree (SITL) does")
     sim.add_argument("--no-shell", action="store_true",
                      help="px4 only: the MAVLink shell answers nothing, as on POSIX builds (SITL)")
     sim.add_argument("--preset-ids", action="store_true",
@@ -98,7 +100,8 @@ def run_sim(args: argparse.Namespace) -> int:
                                    "faults": SimFaults.parse(args.fault), "mag_rate_hz": args.mag_rate,
                                    "motion_source": args.gimbal}
         if args.flavour == "px4":
-            options.update(firmware=args.firmware, shell=not args.no_shell, preset_ids=args.preset_ids)
+            options.update(firmware=args.firmware, shell=not args.no_shell, preset_ids=args.preset_ids,
+                           untagged=args.untagged)
         sim = create_sim(args.flavour, args.listen, **options)
         for mag in sim.magnetometers:
             mag.truth.noise_ut = args.noise_ut

@@ -31,8 +31,6 @@ from magline.core.fit import FitResult
 from magline.core.readings import SensorStreams
 from magline.core.station.schema import Product
 from magline.plugins.px4.calibration import (
-    EULER_SINCE,
-    ODIAG_SINCE,
     PRIO_EXTERNAL,
     PRIO_INTERNAL,
     SLOTS,
@@ -84,8 +82,10 @@ class Px4Dut:
         self.link.open()
         version = self.link.firmware()
         firmware = ".".join(map(str, version)) if version else "unknown"
-        self.with_odiag = version >= ODIAG_SINCE if version else self._has_param("CAL_MAG0_XODIAG")
-        self.with_euler = version >= EULER_SINCE if version else self._has_param("CAL_MAG0_ROLL")
+        # what the firmware can hold, read from its own parameter list: a build from an untagged tree
+        # reports 0.0.0 whatever it has, and a version string proves nothing (reference §17)
+        self.with_odiag = self._has_param("CAL_MAG0_XODIAG")
+        self.with_euler = self._has_param("CAL_MAG0_ROLL")
         slot_ids = [int(self.link.get(f"CAL_MAG{n}_ID", True)) for n in range(SLOTS)]
         self.ident = self._identify(slot_ids)
         self.device_id, self.instance = self.ident.device_id, self.ident.instance
@@ -105,7 +105,9 @@ class Px4Dut:
         return UnitInfo(autopilot="PX4", firmware=firmware, sensors=list(self.ident.sensors),
                         selected_sensor=self.device_id, soft_iron_model="full" if self.with_odiag else "diagonal",
                         extra={"cal_slot": self.slot, "sensor_instance": self.instance,
-                               "identified_by": self.ident.by},
+                               "identified_by": self.ident.by,
+                               "soft_iron_model_why": "the firmware has CAL_MAG0_XODIAG" if self.with_odiag else
+                               "the firmware has no CAL_MAGn_xODIAG (diagonal soft iron only)"},
                         magnetometers=[self._magnetometer(d, board_rot) for d in self.sensors])
 
     def _magnetometer(self, device_id: int, board_rot: int) -> Magnetometer:

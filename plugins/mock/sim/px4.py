@@ -70,10 +70,13 @@ class Px4Sim(SimulatedAutopilot):
 
     def __init__(self, *args: Any, firmware: str = "1.15.0", autocal_after_s: float = 30.0,
                  autosave_interval_s: float = 2.0, shell: bool = True, preset_ids: bool = False,
-                 **kwargs: Any) -> None:
+                 untagged: bool = False, **kwargs: Any) -> None:
         self.shell = shell  # False: SERIAL_CONTROL is ignored (a POSIX build's pxh shell)
         self.preset_ids = preset_ids
         self.firmware_version = tuple(int(x) for x in firmware.split("."))[:3]  # type: ignore[assignment]
+        # a build from an untagged tree (SITL, any developer's or custom build) says 0.0.0 in
+        # AUTOPILOT_VERSION whatever parameters it has (reference §17)
+        self.reported_version = (0, 0, 0) if untagged else self.firmware_version
         self.autocal_after_s = autocal_after_s
         self.autosave_interval_s = autosave_interval_s  # PX4: 2 s; a test may stretch it
         self._save_due: float | None = None

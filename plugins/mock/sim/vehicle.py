@@ -528,7 +528,7 @@ class SimulatedAutopilot(ABC):
     firmware_version: tuple[int, int, int] = (1, 0, 0)
 
     def _send_version(self) -> None:
-        major, minor, patch = self.firmware_version
+        major, minor, patch = getattr(self, "reported_version", self.firmware_version)
         sw = (major << 24) | (minor << 16) | (patch << 8) | mavlink.FIRMWARE_VERSION_TYPE_OFFICIAL
         self.mav.autopilot_version_send(self.capabilities, sw, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8,
                                         0x1209, 0x5741, 0x4D41474C494E45)
