@@ -16,6 +16,8 @@ from importlib.resources import as_file, files
 from pathlib import Path
 from typing import Any
 
+from sqlalchemy.exc import SQLAlchemyError
+
 from magline.core import __version__
 from magline.core.faults import StationFault, UnitAborted
 from magline.core.fit import FitOptions, FitRefused, fit_calibration
@@ -24,6 +26,7 @@ from magline.core.fit.samples_csv import SampleFileError, read_samples
 from magline.core.plugins import PluginError, Plugins, load_plugins
 from magline.core.record import Outcome
 from magline.core.results.sinks import close_sink, open_results
+from magline.core.results.store import reason
 from magline.core.serials import SerialRefused, clean_serial
 from magline.core.station import Station, StationError
 from magline.core.station.checks import did_you_mean, station_problems
@@ -155,6 +158,7 @@ def _run(args: argparse.Namespace, plugins: Plugins) -> int:
     from magline.core.console import OperatorConsole
     from magline.core.sequencer import Sequencer
     from magline.core.sequencer.batch import Batch
+    from magline.core.sequencer.hold import StationBusy
 
     console = OperatorConsole()
     plugins.pm.register(console)
@@ -185,7 +189,7 @@ def _run(args: argparse.Namespace, plugins: Plugins) -> int:
                     else:
                         try:
                             records = [sequencer.run_unit(unit[""], args.part, args.operator)]
-                        except SerialRefused as exc:  # nothing recorded: say the rule, take the next scan
+                        except (SerialRefused, StationBusy) as exc:  # nothing recorded: say why, take the next scan
                             _err(str(exc))
                             if not args.loop:
                                 return 2
@@ -470,6 +474,10 @@ def _with_store(args: argparse.Namespace, plugins: Plugins, use: Callable[..., i
         return use(store, station, where)
     except StationFault as exc:
         _err(str(exc))
+        return 2
+    except SQLAlchemyError as exc:  # a store that fails while being read: its words, never a traceback
+        _err(f"results store {getattr(store, 'where', '')}: {reason(exc)} — if the file is damaged, restore it "
+             "from a backup")
         return 2
     finally:
         store.close()

@@ -218,6 +218,7 @@ def await_new_boot(reconnect: Callable[[float], None], uptime_s: Callable[[], fl
     Returns (seconds from the command to the new boot's link, its uptime then).
     """
     deadline = started + timeout_s
+    told = False  # did the vehicle ever say its uptime?
     while True:
         time.sleep(poll_s)
         try:
@@ -229,7 +230,11 @@ def await_new_boot(reconnect: Callable[[float], None], uptime_s: Callable[[], fl
         uptime = uptime_s()
         if uptime is not None and uptime < reconnected:
             return reconnected, uptime
+        told = told or uptime is not None
         if time.monotonic() > deadline:
+            if not told:  # no answer is no proof of an old boot: the station could not judge
+                raise LinkError(f"the vehicle answered after the power cycle but never said its uptime within "
+                                f"{timeout_s:g} s: the new boot is not proven")
             raise DutError(f"the vehicle still runs its old boot {timeout_s:g} s after the reboot command "
                            "(reboot refused?)")
 

@@ -18,6 +18,15 @@ def demo_config() -> dict:
     return yaml.safe_load(DEMO.read_text(encoding="utf-8"))
 
 
+@pytest.fixture(scope="session", autouse=True)
+def own_run_locks(tmp_path_factory):
+    """Each test worker holds its station and vehicle locks (core/sequencer/hold.py) in a folder of its
+    own: the workers run the same station files side by side, which on a real line would be refused."""
+    import os
+
+    os.environ["MAGLINE_LOCK_DIR"] = str(tmp_path_factory.mktemp("run-locks"))
+
+
 @pytest.fixture
 def make_station(tmp_path, monkeypatch):
     """Write a demo-derived station file into a temp dir (cwd too) and return its path."""

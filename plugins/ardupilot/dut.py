@@ -17,7 +17,16 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from magline.core.dut import DutError, Magnetometer, NotRestored, ParamValue, SampleChunk, UnitInfo, await_new_boot
+from magline.core.dut import (
+    DutError,
+    LinkError,
+    Magnetometer,
+    NotRestored,
+    ParamValue,
+    SampleChunk,
+    UnitInfo,
+    await_new_boot,
+)
 from magline.core.faults import StationFault
 from magline.core.fit import FitResult
 from magline.core.readings import RepeatFilter, SensorStreams, untruncate_mg
@@ -61,6 +70,7 @@ class ArduPilotDut:
         self.held: dict[int, HeldCalibration] = {}
         self.magnetometers: list[Magnetometer] = []
         self._saved_learn: int | None = None
+        self.system_id = 0  # the unit's MAVLink system id: another one answering later is another vehicle
 
     # ------------------------------------------------------------------ link
     def connect(self) -> UnitInfo:
@@ -69,6 +79,7 @@ class ArduPilotDut:
             self.link.close()
             raise StationFault(f"the vehicle on {self.product.connection} is not ArduPilot "
                            f"(MAV_AUTOPILOT {heartbeat.autopilot}); check the product's backend")
+        self.system_id = self.link.target_system
         version = self.link.request_message(ML.MAVLINK_MSG_ID_AUTOPILOT_VERSION, "AUTOPILOT_VERSION")
         firmware = _firmware(version.flight_sw_version) if version is not None else "unknown"
         self._read_ids()
@@ -246,6 +257,10 @@ class ArduPilotDut:
             self.link.open(remaining_s)
 
         reconnected, uptime = await_new_boot(reconnect, self._uptime_s, since, self.opts.boot_timeout_s)
+        if self.link.target_system != self.system_id:  # another vehicle on the link: nothing it says is this unit's
+            raise LinkError(f"after the power cycle a vehicle with MAVLink system id {self.link.target_system} "
+                            f"answered on {self.product.connection}, not the unit under test (system id "
+                            f"{self.system_id}): the unit's calibration is not proven")
         self._read_ids()
         return {"time_to_heartbeat_s": reconnected, "uptime_at_reconnect_s": uptime}
 

@@ -128,7 +128,9 @@ class ArduPilotLink:
 
     def _wait_autopilot_heartbeat(self, deadline: float) -> Any | None:
         while time.monotonic() < deadline:
-            msg = self.recv("HEARTBEAT", deadline - time.monotonic())
+            # any system id: a vehicle need not be system 1 (SYSID_THISMAV), and after a power cycle the
+            # backend compares who answers with the unit it tested
+            msg = self.recv("HEARTBEAT", deadline - time.monotonic(), any_system=True)
             if msg is not None and msg.get_srcComponent() == ML.MAV_COMP_ID_AUTOPILOT1 \
                     and msg.autopilot != ML.MAV_AUTOPILOT_INVALID:
                 self.target_system = msg.get_srcSystem()
@@ -152,8 +154,9 @@ class ArduPilotLink:
             except OSError as exc:
                 raise self._lost(exc) from exc
 
-    def recv(self, kind: str | list[str], timeout_s: float) -> Any | None:
-        """Next message of ``kind`` within ``timeout_s`` (heartbeats keep going out meanwhile)."""
+    def recv(self, kind: str | list[str], timeout_s: float, any_system: bool = False) -> Any | None:
+        """Next message of ``kind`` from the vehicle (``any_system``: from any) within ``timeout_s``
+        (heartbeats keep going out meanwhile)."""
         if self.conn is None:
             raise LinkError(f"link to {self.connection} is closed")
         deadline = time.monotonic() + max(timeout_s, 0.0)
@@ -168,7 +171,7 @@ class ArduPilotLink:
                 self.last_rx = time.monotonic()
                 if msg.get_type() == "STATUSTEXT":
                     self.statustexts.append(msg.text)
-                if msg.get_type() in kinds and msg.get_srcSystem() == self.target_system:
+                if msg.get_type() in kinds and (any_system or msg.get_srcSystem() == self.target_system):
                     return msg
             if time.monotonic() >= deadline:
                 return None

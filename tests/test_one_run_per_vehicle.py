@@ -1,0 +1,117 @@
+"""One vehicle, one run (issue 31): a second run on the same vehicle or station slot is refused
+before it records anything, naming the holder; the lock goes with the process that held it."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import threading
+
+from simstation import FAST_SENSOR_HZ, write_station
+from sqlalchemy import create_engine, select
+
+from magline.core.cli import main
+from magline.core.plugins import hookimpl, load_plugins
+from magline.core.results.tables import runs
+from magline.core.sequencer import Sequencer
+from magline.core.sequencer.hold import StationBusy, holder_of, holding, run_locks
+from magline.core.station import load_station
+from magline.plugins.mock.sim import create_sim
+
+AP = {"connect_timeout_s": 5.0, "boot_timeout_s": 10.0, "prearm_wait_s": 0.3}
+
+
+def test_a_second_run_on_a_vehicle_under_test_is_refused_naming_the_holder(tmp_path, capsys):
+    workdir = tmp_path / "fc"
+    workdir.mkdir()
+    with create_sim("ardupilot", "tcp:127.0.0.1:0", mag_rate_hz=FAST_SENSOR_HZ, workdir=workdir, seed=2,
+                    boot_time_s=0.3, speed=5.0) as sim:
+        first_station = write_station("ardupilot-sim.yaml", tmp_path, sim.address, AP)
+        (tmp_path / "second").mkdir()
+        second_station = write_station("ardupilot-sim.yaml", tmp_path / "second", sim.address, AP,
+                                       {"station": {"id": "sim-ardupilot-02"}})
+        outcome: dict = {}
+        acquiring = threading.Event()
+
+        class Signal:
+            @hookimpl
+            def magline_acquisition_progress(self, run, attempt, samples, coverage, target):
+                acquiring.set()
+
+        def first() -> None:
+            seq = Sequencer(load_station(first_station), load_plugins(extra=[Signal()]), tmp_path,
+                            sleep=lambda s: None)
+            try:
+                outcome["record"] = seq.run_unit("PX-DUP-3")
+            finally:
+                seq.close()
+
+        worker = threading.Thread(target=first)
+        worker.start()
+        assert acquiring.wait(30)
+        assert main(["run", str(second_station), "--serial", "PX-DUP-4"]) == 2
+        worker.join(60)
+    err = capsys.readouterr().err
+    assert f"the vehicle on {sim.address} is busy: station sim-ardupilot-01 is testing serial PX-DUP-3" in err
+    assert outcome["record"].verdict == "pass", outcome["record"].cause
+    engine = create_engine(f"sqlite:///{tmp_path / 'second' / 'results.sqlite'}")
+    with engine.connect() as conn:
+        assert conn.execute(select(runs.c.serial)).all() == []  # the refused run recorded nothing
+    engine.dispose()
+
+
+def test_the_same_station_slot_twice_is_refused_and_freed_after(tmp_path):
+    keys = run_locks("demo-01", None, "in-process")
+    assert [k for k, _ in keys] == ["station-demo-01-unit"]  # the mock's in-process link is no shared vehicle
+    with holding(keys, holder_of("SN-1", "demo-01", None)):
+        try:
+            with holding(keys, holder_of("SN-2", "demo-01", None)):
+                raise AssertionError("a second holder got the lock")
+        except StationBusy as exc:
+            assert "demo-01 is busy: station demo-01 is testing serial SN-1" in str(exc)
+    with holding(keys, holder_of("SN-2", "demo-01", None)):
+        pass  # released when the first run ended
+
+
+def test_a_lock_dies_with_the_process_that_held_it(tmp_path):
+    script = ("import time; from magline.core.sequencer.hold import holding, holder_of, run_locks\n"
+              "with holding(run_locks('st-9', 'A', 'tcp:127.0.0.1:9'), holder_of('SN-9', 'st-9', 'A')):\n"
+              "    print('held', flush=True); time.sleep(60)\n")
+    child = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
+    try:
+        assert child.stdout.readline().strip() == "held"
+        try:
+            with holding(run_locks("st-9", "A", "tcp:127.0.0.1:9"), holder_of("SN-10", "st-9", "A")):
+                raise AssertionError("the slot was free while the other process held it")
+        except StationBusy as exc:
+            assert "st-9 slot A is busy" in str(exc) and f"pid {child.pid}" in str(exc)
+    finally:
+        child.kill()
+        child.wait()
+    # the operating system released it with the process: no stale lock file blocks the slot
+    with holding(run_locks("st-9", "A", "tcp:127.0.0.1:9"), holder_of("SN-10", "st-9", "A")):
+        pass
+
+
+def test_another_vehicle_answering_after_the_power_cycle_is_an_error_not_a_verdict(tmp_path):
+    workdir = tmp_path / "fc"
+    workdir.mkdir()
+    with create_sim("ardupilot", "tcp:127.0.0.1:0", mag_rate_hz=FAST_SENSOR_HZ, workdir=workdir, seed=2,
+                    boot_time_s=0.3, speed=5.0) as sim:
+
+        boot = sim._boot
+
+        def another_board_boots(now, first=False):  # the link reaches another board after the power cycle
+            boot(now, first)
+            if not first:
+                sim.system_id = sim.mav.srcSystem = 7
+
+        sim._boot = another_board_boots
+        station = write_station("ardupilot-sim.yaml", tmp_path, sim.address, AP)
+        seq = Sequencer(load_station(station), load_plugins(), tmp_path, sleep=lambda s: None)
+        try:
+            record = seq.run_unit("SN-SWAP")
+        finally:
+            seq.close()
+    assert record.verdict == "error", record.cause
+    assert "MAVLink system id 7 answered" in record.cause and "not the unit under test (system id 1)" in record.cause
