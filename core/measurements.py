@@ -56,6 +56,19 @@ CATALOGUE: dict[str, tuple[str, str]] = {
     "heading_agreement_median_deg": ("°", "median heading difference between two calibrated magnetometers"),
     "heading_agreement_max_deg": ("°", "largest heading difference between two magnetometers (1 s windows)"),
 }
+# The values a measurement can take at all: a limit outside them is a station-file mistake (every unit
+# would fail, or the limit would never bite), caught by ``magline check``.
+POSSIBLE: dict[str, tuple[float, float]] = {
+    "hard_iron_norm_ut": (0.0, float("inf")), "hard_iron_sigma_ut": (0.0, float("inf")),
+    "axis_ratio": (1.0, float("inf")), "soft_iron_offdiag_max": (0.0, float("inf")),
+    "residual_rms_ut": (0.0, float("inf")), "residual_max_ut": (0.0, float("inf")), "field_ut": (0.0, float("inf")),
+    "coverage": (0.0, 1.0), "direction_sigma_deg": (0.0, float("inf")), "rejected_fraction": (0.0, 1.0),
+    "attempts": (1.0, float("inf")), "misalignment_deg": (0.0, 180.0), "model_misfit_deg": (0.0, 180.0),
+    "mounting_error_deg": (0.0, 180.0), "mounting_sigma_deg": (0.0, float("inf")),
+    "inclination_deg": (-90.0, 90.0), "inclination_error_deg": (-180.0, 180.0),
+    "heading_agreement_median_deg": (0.0, 180.0), "heading_agreement_max_deg": (0.0, 180.0),
+    "residual_ut.std": (0.0, float("inf")), "residual_ut.ptp": (0.0, float("inf")),
+}
 # Limits that apply when a station file declares none (the mounting and agreement checks of issue 26).
 DEFAULT_LIMITS: dict[str, dict[str, Any]] = {
     "mounting_error_deg": {"le": 3.0},

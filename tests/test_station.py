@@ -123,3 +123,27 @@ def test_fit_settings_are_checked_with_their_line():
     assert len(out) == 1 and out[0].startswith("line7.yaml:15: fit.gain_sigma:")
     station = load_station_text(GOOD + "fit:\n  gain_sigma: 0.01\n", "ok.yaml")
     assert station.fit.gain_sigma == 0.01 and station.fit.max_direction_sigma_deg == 1.0
+
+
+def test_an_empty_or_impossible_acceptance_window_is_a_check_error(make_station):
+    from magline.testing import check_station
+
+    path = make_station({"limits": {"hard_iron_sigma_ut": {"le": -0.5, "ge": 1}, "coverage": {"ge": 1.5},
+                                    "mag2.rejected_fraction": {"le": -0.1}}})
+    found = {p.key: p.message for p in check_station(path)}
+    assert "empty acceptance window" in found["limits.hard_iron_sigma_ut"]
+    assert "no value can lie in [1.5, —]: coverage is always within [0, 1]" in found["limits.coverage"]
+    assert "rejected_fraction is always within [0, 1]" in found["limits.mag2.rejected_fraction"]
+
+
+def test_every_mistake_is_reported_in_one_pass_each_at_its_own_line(make_station):
+    from magline.testing import check_station
+
+    path = make_station({"default_part": "MOCK-10", "acquisition": {"samples": 5}, "limits": {"coverage": {"ge": 2}}})
+    problems = check_station(path)
+    keys = [p.key for p in problems]
+    assert "default_part" in keys and "acquisition.samples" in keys and "limits.coverage" in keys
+    default = next(p for p in problems if p.key == "default_part")
+    assert "did you mean 'MOCK-100'?" in default.message
+    text = path.read_text(encoding="utf-8").splitlines()
+    assert text[default.line - 1].startswith("default_part:")

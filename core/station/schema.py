@@ -17,12 +17,14 @@ from pydantic import (
     BeforeValidator,
     ConfigDict,
     Field,
+    ValidationError,
     ValidationInfo,
+    WrapValidator,
     field_validator,
     model_validator,
 )
 
-from magline.core.measurements import DEFAULT_LIMITS, KNOWN_LIMIT_NAMES, known_limit_name
+from magline.core.measurements import DEFAULT_LIMITS, KNOWN_LIMIT_NAMES, POSSIBLE, base_name, known_limit_name
 
 
 class _Strict(BaseModel):
@@ -57,6 +59,9 @@ class Limit(_Strict):
             raise ValueError("a limit needs ge, le or range")
         if self.range is not None and self.range[0] > self.range[1]:
             raise ValueError("range must be [low, high] with low <= high")
+        if self.ge is not None and self.le is not None and self.ge > self.le:
+            raise ValueError(f"empty acceptance window: no value is both ≥ {self.ge:g} and ≤ {self.le:g} "
+                             "(every unit would fail)")
         return self
 
     @property
@@ -79,7 +84,41 @@ def _known_measurement(name: str) -> str:
     return name
 
 
-LimitSet = dict[Annotated[str, AfterValidator(_known_measurement)], Limit]
+def _possible_windows(limits: Any, handler: Any) -> dict[str, Limit]:
+    """A window no value of the measurement can reach (``coverage: {ge: 1.5}``) fails every unit: said at
+    the limit's own line, together with whatever else is wrong in the same limit set (one pass)."""
+    impossible = []
+    for name, rule in (limits or {}).items() if isinstance(limits, dict) else ():
+        if not isinstance(rule, dict):
+            continue
+        low = rule.get("ge", (rule.get("range") or [None, None])[0])
+        high = rule.get("le", (rule.get("range") or [None, None])[1])
+        lowest, highest = POSSIBLE.get(base_name(str(name)), (float("-inf"), float("inf")))
+        numbers = all(v is None or isinstance(v, int | float) for v in (low, high))
+        empty = numbers and low is not None and high is not None and low > high  # the Limit itself says so
+        if numbers and not empty and ((low is not None and low > highest) or (high is not None and high < lowest)):
+            impossible.append((name, f"no value can lie in [{_bound(low)}, {_bound(high)}]: {base_name(str(name))} is "
+                                     f"always within [{_bound(lowest)}, {_bound(highest)}] (every unit would fail)"))
+    errors = [{"type": "value_error", "loc": (name,), "input": limits[name], "ctx": {"error": ValueError(text)}}
+              for name, text in impossible]
+    try:
+        result = handler(limits)
+    except ValidationError as exc:
+        if not errors:
+            raise
+        errors += [{"type": e["type"], "loc": e["loc"], "input": e["input"],
+                    **({"ctx": e["ctx"]} if "ctx" in e else {})} for e in exc.errors()]
+        raise ValidationError.from_exception_data(exc.title, errors) from None
+    if errors:
+        raise ValidationError.from_exception_data("limits", errors)
+    return result
+
+
+def _bound(value: float | None) -> str:
+    return "—" if value is None or abs(value) == float("inf") else f"{value:g}"
+
+
+LimitSet = Annotated[dict[Annotated[str, AfterValidator(_known_measurement)], Limit], WrapValidator(_possible_windows)]
 
 
 class PowerConfig(_Strict):
@@ -248,11 +287,18 @@ class Station(_Strict):
     motion: Motion = Field(default_factory=Motion)
     slots: list[Slot] = Field(default_factory=list)
 
-    @model_validator(mode="after")
-    def _consistent(self) -> Station:
-        if self.default_part is not None and self.default_part not in self.products:
-            raise ValueError(f"default_part {self.default_part!r} is not one of the products")
-        return self
+    @field_validator("default_part")
+    @classmethod
+    def _a_product(cls, part: str | None, info: ValidationInfo) -> str | None:
+        """Reported at ``default_part``'s own line, with the other problems of the file."""
+        products = info.data.get("products") or {}
+        if part is not None and products and part not in products:
+            import difflib
+
+            close = difflib.get_close_matches(part, list(products), n=1, cutoff=0.6)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            raise ValueError(f"{part!r} is not one of the products{hint}; products: {', '.join(products)}")
+        return part
 
     @field_validator("results")
     @classmethod
