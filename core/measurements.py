@@ -43,7 +43,8 @@ CATALOGUE: dict[str, tuple[str, str]] = {
     "field_error_pct": ("%", "raw field estimate vs the reference field"),
     "coverage": ("", "fraction of direction bins covered"),
     "direction_sigma_deg": ("°", "predicted 1σ heading error over the orientations seen"),
-    "rejected_fraction": ("", "share of samples excluded (clipped, spikes)"),
+    "rejected_fraction": ("", "share of samples judged bad and excluded (clipped, spikes)"),
+    "warm_up_fraction": ("", "share of the earliest samples left out because the offset was still drifting"),
     "attempts": ("", "acquisition attempts needed"),
     "misalignment_deg": ("°", "sensor axes rotated against the coil frame (Helmholtz affine fit only)"),
     "model_misfit_deg": ("°", "heading cost of the diagonal / sphere model the autopilot holds, against "
@@ -63,7 +64,7 @@ POSSIBLE: dict[str, tuple[float, float]] = {
     "axis_ratio": (1.0, float("inf")), "soft_iron_offdiag_max": (0.0, float("inf")),
     "residual_rms_ut": (0.0, float("inf")), "residual_max_ut": (0.0, float("inf")), "field_ut": (0.0, float("inf")),
     "coverage": (0.0, 1.0), "direction_sigma_deg": (0.0, float("inf")), "rejected_fraction": (0.0, 1.0),
-    "attempts": (1.0, float("inf")), "misalignment_deg": (0.0, 180.0), "model_misfit_deg": (0.0, 180.0),
+    "attempts": (1.0, float("inf")), "warm_up_fraction": (0.0, 1.0), "misalignment_deg": (0.0, 180.0), "model_misfit_deg": (0.0, 180.0),
     "mounting_error_deg": (0.0, 180.0), "mounting_sigma_deg": (0.0, float("inf")),
     "inclination_deg": (-90.0, 90.0), "inclination_error_deg": (-180.0, 180.0),
     "heading_agreement_median_deg": (0.0, 180.0), "heading_agreement_max_deg": (0.0, 180.0),
