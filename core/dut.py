@@ -75,6 +75,9 @@ class Magnetometer:
     orientation: int = 0
     readings_rotated: bool = False
     fix_params: list[str] = field(default_factory=list)
+    # the largest field the readings can carry (µT): beyond it a reading is clipped.  A MAVLink int16
+    # milligauss field ends at ±3276.7 µT; None: not known (the fit then guesses from plateaus)
+    range_ut: float | None = None
 
 
 @dataclass

@@ -26,6 +26,7 @@ from magline.core.dut import SampleChunk
 from magline.core.mounting.estimate import ImuSeries
 
 MSS_PER_MG = 9.80665 / 1000.0  # MAVLink IMU messages carry the accelerometer in milli-g
+INT16_MG_RANGE_UT = 32767 / 10.0  # the largest field an int16 milligauss MAVLink field carries
 
 
 def untruncate_mg(values_mg: NDArray) -> NDArray:

@@ -105,3 +105,22 @@ def test_a_sensor_too_slow_for_the_timeout_is_a_station_error_that_says_why(tmp_
     assert "the stream carried each about 5 times" in record.cause
     assert "raise acquisition.timeout_s or lower acquisition.samples" in record.cause
     assert record.attempts and record.attempts[0].refused.startswith("interrupted: only")
+
+
+def test_an_extreme_reading_repeated_by_chance_is_not_called_clipped(rng):
+    """Issue 31: int16 milligauss readings (0.1 µT steps) repeat their extreme by chance; judged
+    against the range the readings can carry (the backends say ±3276.7 µT), nothing is clipped."""
+    from magline.core.fit import FitOptions, fit_calibration
+    from magline.core.readings import INT16_MG_RANGE_UT
+    from magline.core.synthetic import earth_field_ned, motion_directions, random_truth
+
+    truth = random_truth(rng, max_offset_ut=40.0)
+    m = truth.read(motion_directions("full_sphere", 600, rng, earth_field_ned(48.0, 62.0)) * 48.0, rng)
+    m = np.round(m * 10.0) / 10.0  # what an int16 mG field carries
+    top = int(np.argmax(m[:, 0]))
+    near = np.argsort(np.abs(m[:, 0] - m[top, 0]))[1:3]
+    m[near, 0] = m[top, 0]  # the largest x reading appears three times, as it does now and then
+    guessed = fit_calibration(m, FitOptions(field_ut=48.0))
+    judged = fit_calibration(m, FitOptions(field_ut=48.0, range_ut=INT16_MG_RANGE_UT))
+    assert guessed.rejected.get("clipped") == 3  # the plateau guess without a range: three good readings lost
+    assert "clipped" not in judged.rejected and judged.samples_used == 600

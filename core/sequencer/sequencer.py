@@ -340,7 +340,7 @@ class Sequencer:
                 raise DutError(f"{label} sent no readings during the tumble")
             try:
                 fits[sensor.device_id] = self.plugins.hook.magline_fit(run=run, samples=samples,
-                                                                       options=self._fit_options(run))
+                                                                       options=self._fit_options(run, sensor))
             except FitRefused as exc:
                 if len(run.magnetometers) == 1:
                     raise
@@ -356,12 +356,15 @@ class Sequencer:
         self.sink.save_attempt(run.record, stored)  # raw data safe before any fitting
         return stored
 
-    def _fit_options(self, run: RunContext) -> FitOptions:
+    def _fit_options(self, run: RunContext, sensor: Magnetometer | None = None) -> FitOptions:
+        """The fit's settings for a sensor: clipping is judged against the station's ``range_ut``, else
+        the range the backend says the sensor's readings can carry."""
         model = run.product.soft_iron_model
         if model == "auto":
             model = run.unit.soft_iron_model if run.unit else "full"
+        sensor = sensor or (run.magnetometers[0] if run.magnetometers else None)
         return FitOptions(model=model, field_ut=run.reference_field_ut,
-                          range_ut=self.station.acquisition.range_ut,
+                          range_ut=self.station.acquisition.range_ut or (sensor.range_ut if sensor else None),
                           coverage_bins=self.station.acquisition.coverage_bins,
                           gain_sigma=self.station.fit.gain_sigma,
                           max_direction_sigma_deg=self.station.fit.max_direction_sigma_deg)

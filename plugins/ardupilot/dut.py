@@ -29,7 +29,7 @@ from magline.core.dut import (
 )
 from magline.core.faults import StationFault
 from magline.core.fit import FitResult
-from magline.core.readings import RepeatFilter, SensorStreams, untruncate_mg
+from magline.core.readings import INT16_MG_RANGE_UT, RepeatFilter, SensorStreams, untruncate_mg
 from magline.core.station.schema import Product
 from magline.plugins.ardupilot.calibration import (
     SETS,
@@ -103,7 +103,8 @@ class ArduPilotDut:
         orient = int(self.link.get(names["ORIENT"][0])) if external else 0
         return Magnetometer(device_id=device_id, label=f"compass {SETS.index(suffix) + 1}", external=external,
                             orientation=orient, readings_rotated=True,
-                            fix_params=names["ORIENT"] + ([] if external else names["EXTERN"]))
+                            fix_params=names["ORIENT"] + ([] if external else names["EXTERN"]),
+                            range_ut=INT16_MG_RANGE_UT)
 
     def use_magnetometers(self, device_ids: list[int]) -> None:
         self.chosen = list(device_ids)

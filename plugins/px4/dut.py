@@ -28,7 +28,7 @@ import numpy as np
 from magline.core.dut import DutError, Magnetometer, NotRestored, ParamValue, SampleChunk, UnitInfo, await_new_boot
 from magline.core.faults import StationFault
 from magline.core.fit import FitResult
-from magline.core.readings import SensorStreams
+from magline.core.readings import INT16_MG_RANGE_UT, SensorStreams
 from magline.core.station.schema import Product
 from magline.plugins.px4.calibration import (
     PRIO_EXTERNAL,
@@ -119,7 +119,8 @@ class Px4Dut:
         external = info["external"] if info["external"] is not None else rot >= 0
         return Magnetometer(device_id=device_id, label=f"CAL_MAG{info['slot']}", external=external,
                             orientation=max(rot, 0) if external else board_rot, readings_rotated=False,
-                            fix_params=[f"CAL_MAG{info['slot']}_ROT"] if external else [])
+                            fix_params=[f"CAL_MAG{info['slot']}_ROT"] if external else [],
+                            range_ut=INT16_MG_RANGE_UT)
 
     def use_magnetometers(self, device_ids: list[int]) -> None:
         self.chosen = list(device_ids)
