@@ -22,7 +22,7 @@ from magline.core import __version__
 from magline.core.faults import StationFault, UnitAborted
 from magline.core.fit import FitOptions, FitRefused, fit_calibration
 from magline.core.fit.affine import fit_affine
-from magline.core.fit.samples_csv import SampleFileError, read_samples
+from magline.core.fit.samples_csv import SampleFileError, parse_samples, select_export_rows
 from magline.core.plugins import PluginError, Plugins, load_plugins
 from magline.core.record import Outcome
 from magline.core.results.sinks import close_sink, open_results
@@ -67,6 +67,11 @@ def main(argv: list[str] | None = None) -> int:
     fit.add_argument("--bins", type=int, default=100, help="coverage bins (Fibonacci sphere)")
     fit.add_argument("--gain-sigma", type=float, default=FitOptions.gain_sigma,
                      help="1σ spread of the raw-to-reference field ratio (with --field-ut)")
+    fit.add_argument("--run", help="a magline export --raw file: the run to fit (its UUID or first characters)")
+    fit.add_argument("--serial", help="a magline export --raw file: the serial whose run to fit")
+    fit.add_argument("--attempt", type=int, help="a magline export --raw file: this attempt (else the accepted one)")
+    fit.add_argument("--with-refused", action="store_true",
+                     help="a magline export --raw file: pool refused attempts too")
 
     sub.add_parser("plugins", help="list loaded plugins and their hooks (JSON)")
 
@@ -321,7 +326,9 @@ def _check(args: argparse.Namespace, plugins: Plugins) -> int:
 
 def _fit(args: argparse.Namespace, plugins: Plugins) -> int:
     try:
-        samples = read_samples(args.csv)
+        text, chosen = select_export_rows(_read_text(args.csv), args.csv, args.run, args.serial, args.attempt,
+                                          args.with_refused)
+        samples = parse_samples(text, args.csv)
         options = FitOptions(model=args.model, field_ut=args.field_ut, range_ut=args.range_ut,
                              coverage_bins=args.bins, gain_sigma=args.gain_sigma)
         if samples.applied_ut is not None:  # a coil applied known vectors: the full affine model
@@ -337,11 +344,25 @@ def _fit(args: argparse.Namespace, plugins: Plugins) -> int:
         _err(f"calibration refused: {exc.message}\n{exc.advice}")
         return 1
     doc = result.to_dict()
+    doc["fitted"] = chosen or args.csv
+    doc["field_from"] = "--field-ut" if args.field_ut else "the readings' own radius (no --field-ut given)"
     if args.json:
         print(json.dumps(doc))
         return 0
+    if chosen:
+        print(f"fitted       {chosen}")
     print(_fit_summary(doc))
+    if not args.field_ut:
+        print(f"field from   the readings' own radius, {doc['field_ut']:.3f} µT (give --field-ut to normalise "
+              "to the reference)")
     return 0
+
+
+def _read_text(path: str) -> str:
+    try:
+        return Path(path).read_text(encoding="utf-8")
+    except OSError as exc:
+        raise SampleFileError(f"{path}: cannot read: {exc.strerror}") from exc
 
 
 def _fit_summary(doc: dict) -> str:

@@ -82,3 +82,24 @@ def test_diagonal_model_on_rotated_soft_iron_warns_instead_of_blaming_the_operat
     assert "not axis-aligned" in out and "--model full" in out
     assert main(["fit", str(tmp_path / "raw.csv"), "--model", "full"]) == 0
     assert "not axis-aligned" not in capsys.readouterr().out
+
+
+def test_fit_on_an_export_fits_one_run_and_says_which(make_station, tmp_path, capsys):
+    """Issue 31: an export holds every run and every attempt; pooled, two units fit no ellipsoid."""
+    station = make_station()
+    for serial in ("E-1", "E-2"):
+        assert main(["run", str(station), "--serial", serial]) == 0
+    export = tmp_path / "export.csv"
+    capsys.readouterr()
+    assert main(["export", "--station", str(station), "--raw"]) == 0
+    export.write_text(capsys.readouterr().out, encoding="utf-8")
+
+    assert main(["fit", str(export)]) == 2
+    err = capsys.readouterr().err
+    assert "2 runs in the file — choose one with --run UUID" in err and "E-1 attempt 2" in err
+    assert main(["fit", str(export), "--serial", "E-2", "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["fitted"].endswith("serial E-2 attempt 2") and doc["samples"]["total"] == 600  # the accepted attempt only
+    assert doc["field_from"].startswith("the readings' own radius")
+    assert main(["fit", str(export), "--serial", "E-2", "--attempt", "1"]) == 1  # the refused single-axis spin
+    assert "calibration refused" in capsys.readouterr().err

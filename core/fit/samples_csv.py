@@ -97,3 +97,46 @@ def format_samples(samples: RawSamples) -> str:
             row += [f"{v:.4f}" for v in samples.applied_ut[i]]
         writer.writerow(row)
     return out.getvalue()
+
+
+EXPORT_KEYS = ("run_uuid", "serial", "attempt", "accepted")  # what ``magline export --raw`` adds per row
+
+
+def select_export_rows(text: str, name: str, run: str | None = None, serial: str | None = None,
+                       attempt: int | None = None, with_refused: bool = False) -> tuple[str, str]:
+    """One run's readings out of a ``magline export --raw`` file, as CSV text, and what was chosen.
+
+    Why: an export holds every run of every serial and every attempt, the refused ones too; pooled,
+    two units' readings fit no ellipsoid, and the fit's advice ("keep magnets away") is a physical
+    diagnosis of a file problem.  A file without the export's columns is returned as it is."""
+    rows = list(csv.reader(io.StringIO(text)))
+    header = [h.strip() for h in rows[0]] if rows else []
+    if not all(k in header for k in EXPORT_KEYS):
+        if run or serial or attempt is not None:
+            raise SampleFileError(f"{name}: --run, --serial and --attempt choose from a magline export --raw file "
+                                  f"(columns {', '.join(EXPORT_KEYS)}); this file has {', '.join(header)}")
+        return text, ""
+    col = {k: header.index(k) for k in EXPORT_KEYS}
+    body = [r for r in rows[1:] if r and any(c.strip() for c in r)]
+    if run:
+        body = [r for r in body if r[col["run_uuid"]].startswith(run.strip())]
+    if serial:
+        body = [r for r in body if r[col["serial"]].strip() == serial.strip()]
+    if attempt is not None:
+        body = [r for r in body if r[col["attempt"]].strip() == str(attempt)]
+    elif not with_refused:
+        body = [r for r in body if r[col["accepted"]].strip() == "1"]
+    runs = {}
+    for r in body:
+        runs.setdefault(r[col["run_uuid"]], (r[col["serial"]], set()))[1].add(r[col["attempt"]])
+    if not runs:
+        raise SampleFileError(f"{name}: no readings match (an accepted attempt unless --attempt or --with-refused; "
+                              "see the file's run_uuid, serial and attempt columns)")
+    if len(runs) > 1:
+        listed = "; ".join(f"{u[:8]} {sn} attempt {', '.join(sorted(a))}" for u, (sn, a) in list(runs.items())[:12])
+        raise SampleFileError(f"{name}: {len(runs)} runs in the file — choose one with --run UUID (its first "
+                              f"characters) or --serial SN: {listed}{' …' if len(runs) > 12 else ''}")
+    (uuid, (sn, chosen)), = runs.items()
+    out = io.StringIO()
+    csv.writer(out, lineterminator="\n").writerows([header, *body])
+    return out.getvalue(), f"run {uuid[:8]} serial {sn} attempt {', '.join(sorted(chosen))}"
