@@ -99,7 +99,8 @@ def test_fit_on_an_export_fits_one_run_and_says_which(make_station, tmp_path, ca
     assert "2 runs in the file — choose one with --run UUID" in err and "E-1 attempt 2" in err
     assert main(["fit", str(export), "--serial", "E-2", "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
-    assert doc["fitted"].endswith("serial E-2 attempt 2") and doc["samples"]["total"] == 600  # the accepted attempt only
+    assert doc["fitted"].endswith("serial E-2 attempt 2")
+    assert doc["samples"]["total"] == 600  # the accepted attempt only
     assert doc["field_from"].startswith("the readings' own radius")
     assert main(["fit", str(export), "--serial", "E-2", "--attempt", "1"]) == 1  # the refused single-axis spin
     assert "calibration refused" in capsys.readouterr().err

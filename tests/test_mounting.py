@@ -102,9 +102,10 @@ def measured(record, name: str):
     return next(m for m in record.measurements if getattr(m, "name", None) == name)
 
 
-def test_a_good_three_compass_ardupilot_unit_passes_with_every_compass_calibrated(tmp_path):
+def test_a_good_three_compass_ardupilot_unit_passes_with_every_compass_calibrated(tmp_path, capsys):
     with ardupilot(tmp_path) as sim:
-        record = run_unit(write_station("ardupilot-sim.yaml", tmp_path, sim.address, AP_OPTIONS))
+        station = write_station("ardupilot-sim.yaml", tmp_path, sim.address, AP_OPTIONS)
+        record = run_unit(station)
         assert record.verdict is Outcome.PASS, record.cause
         assert sim.prearm_failures() == []  # the firmware's own check: calibrated and consistent
         for suffix in ("", "2", "3"):
@@ -134,6 +135,18 @@ def test_a_good_three_compass_ardupilot_unit_passes_with_every_compass_calibrate
         for plot in ('id="residual"', 'id="residual-mag2"', 'id="residual-mag3"'):
             assert plot in page
         assert "Residual — compass 2" in page and "heading agreement" in page
+        # the export has a column per sensor's measurement and per pair
+        from magline.core.cli import main
+
+        capsys.readouterr()
+        assert main(["export", "--station", str(station)]) == 0
+        import csv
+        import io
+
+        header, row = list(csv.reader(io.StringIO(capsys.readouterr().out)))[:2]
+        cells = dict(zip(header, row, strict=True))
+        assert float(cells["mag3.hard_iron_x_ut"]) == pytest.approx(measured(record, "mag3.hard_iron_x_ut").value)
+        assert float(cells["mag2-mag3.heading_agreement_max_deg"]) < 3.0
 
 
 def test_calibrating_only_the_primary_of_three_fails_as_the_firmware_does(tmp_path):

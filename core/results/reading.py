@@ -70,7 +70,13 @@ def find_run(conn: Connection, run: str) -> dict[str, Any] | None:
     return out
 
 
-NUMERIC_NAMES = (*sorted(CATALOGUE), "residual_ut.mean", "residual_ut.std", "residual_ut.ptp")
+_PAIRED = ("heading_agreement_median_deg", "heading_agreement_max_deg")
+_PER_SENSOR = (*sorted(n for n in CATALOGUE if n not in _PAIRED), "residual_ut.mean", "residual_ut.std",
+               "residual_ut.ptp")
+# the primary magnetometer's names, then the second's and the third's (``mag2.…``), then every pair's:
+# a CSV's columns are fixed before the first row, so every sensor of a three-compass unit has its own
+NUMERIC_NAMES = (*_PER_SENSOR, *(f"{p}.{n}" for p in ("mag2", "mag3") for n in _PER_SENSOR),
+                 *(f"{pair}.{n}" for pair in ("mag1-mag2", "mag1-mag3", "mag2-mag3") for n in _PAIRED))
 RUN_COLUMNS = ("run_uuid", "id", "serial", "part", "station_id", "line", "operator", "software_version",
                "limit_hash", "started", "finished", "verdict", "cause")
 

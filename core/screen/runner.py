@@ -86,11 +86,15 @@ class UnitRunner:
         finally:
             self.standing()
 
-    def abort(self) -> bool:
+    def busy(self) -> bool:
+        """Is a unit (or a load of slots) under test?"""
+        return self._thread is not None and self._thread.is_alive()
+
+    def abort(self, reason: str = "aborted by the operator") -> bool:
         """Ask the unit under test to stop; False when none is."""
-        if self._thread is None or not self._thread.is_alive():
+        if not self.busy():
             return False
-        self.sequencer.abort.request("aborted by the operator")  # a slot runner passes it to every slot
+        self.sequencer.abort.note(reason)  # the unit runs on its own thread; a slot runner passes it on
         return True
 
     def wait(self, timeout: float | None = None) -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import ipaddress
 import secrets
 import sys
+import threading
 from pathlib import Path
 from typing import Any
 
@@ -50,8 +51,37 @@ def serve(station: Station, where: Path, plugins: Plugins, host: str, port: int)
         print(f"operator token (shown once): {token}\nopen {address}?token={token}", flush=True)
     else:
         print(f"station screen on {address}", flush=True)
+    server = _station_server(uvicorn, uvicorn.Config(app, host=host, port=port, log_level="warning"), runner)
     try:
-        uvicorn.run(app, host=host, port=port, log_level="warning")
+        server.run()
     finally:
         runner.close()
     return 0
+
+
+STOP_WAIT_S = 60.0  # a unit aborted by a stop signal gets this long to be restored and recorded
+
+
+def _station_server(uvicorn: Any, config: Any, runner: UnitRunner) -> Any:
+    """uvicorn's server, with a stop signal (``systemctl stop``, a PC shutting down, Ctrl-C) first
+    aborting every unit under test — restored where the backend can, recorded ABORTED with its raw
+    data, exactly as ``magline run`` does — and only then shutting the server down.  uvicorn alone
+    would stop serving and re-raise the signal, killing the process with the unit mid-run: a record
+    left INCOMPLETE without phases or readings.  A second signal stops at once."""
+
+    class StationServer(uvicorn.Server):
+        stopping = False
+
+        def handle_exit(self, sig: int, frame: Any) -> None:
+            if self.stopping or not runner.busy():
+                super().handle_exit(sig, frame)
+                return
+            self.stopping = True
+            runner.abort("stopped: the station was shut down")
+            threading.Thread(target=self._exit_when_recorded, name="magline-stop", daemon=True).start()
+
+        def _exit_when_recorded(self) -> None:
+            runner.wait(STOP_WAIT_S)
+            self.should_exit = True
+
+    return StationServer(config)

@@ -31,6 +31,11 @@ class AbortSwitch:
         if not self._shield and threading.current_thread() is threading.main_thread():
             raise UnitAborted(reason)
 
+    def note(self, reason: str) -> None:
+        """Ask the unit running on another thread to stop, whatever thread asks (a server's signal
+        handler runs on the main thread but must not raise there): honoured at the unit's next check."""
+        self.requested = reason
+
     def check(self) -> None:
         """A safe point: raise :class:`UnitAborted` when a stop was requested."""
         if self.requested is not None and not self._shield:
