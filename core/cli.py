@@ -97,6 +97,8 @@ def main(argv: list[str] | None = None) -> int:
     spc.add_argument("--last", type=int, default=10_000, help="the latest N runs (default 10000)")
     spc.add_argument("--baseline", type=int, default=50, help="units that set the centre line and limits")
     spc.add_argument("--html", metavar="FILE", help="also write the charts as one self-contained HTML page")
+    spc.add_argument("--json", action="store_true", help="print the report as one JSON object (per measurement: "
+                     "chart kind, n, centre, limits, signals with each unit's serial)")
     rep = sub.add_parser("report", help="one self-contained HTML report of a run (by run id, UUID or serial)")
     rep.add_argument("run", metavar="RUN_ID|SERIAL")
     rep.add_argument("--station", help="station file naming the results store (default: demo)")

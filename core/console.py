@@ -11,6 +11,7 @@ from __future__ import annotations
 from rich.console import Console
 from rich.panel import Panel
 from rich.progress import BarColumn, Progress, TaskID, TextColumn
+from rich.text import Text
 
 from magline.core.console_slots import STYLE, SlotBoard
 from magline.core.measurements import Verdict, verdicts
@@ -111,11 +112,10 @@ class OperatorConsole:
         title = record.verdict.upper() + (" · REVIEW" if record.review else "")
         if record.slot is not None:
             title = f"slot {record.slot} · {title}"
-        panel = Panel("\n".join(verdict_lines(record)), title=f"[bold {style}]{title}[/]", border_style=style,
-                      expand=False)
+        panel = verdict_panel(record, title, style)
         if run.slot is not None:
             return self.slots.finished(run, record, panel)
-        self.console.print(panel)
+        self.console.print(panel, soft_wrap=False)  # wrapped inside the panel: no sentence cut at the edge
 
     @hookimpl
     def magline_motion_started(self, round: int, slots: list[str], motion: str) -> None:
@@ -130,6 +130,13 @@ class OperatorConsole:
 
     def batch_summary(self, batch: Batch) -> None:
         self.console.print(f"[bold]{batch.summary()}[/]")
+
+
+def verdict_panel(record: RunRecord, title: str, style: str) -> Panel:
+    """The panel as printed: its lines wrap at the terminal's width (the console itself never wraps log
+    lines, which would crop a panel's long sentences — a safety note, a refusal's advice — at the edge)."""
+    return Panel(Text("\n".join(verdict_lines(record)), overflow="fold"), title=f"[bold {style}]{title}[/]",
+                 border_style=style, expand=False)
 
 
 def verdict_lines(record: RunRecord) -> list[str]:

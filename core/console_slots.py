@@ -128,7 +128,7 @@ class SlotBoard:
         """The unit's verdict panel (printed above the live board); the board ends with the last slot."""
         with self._lock:
             self.views[run.slot].verdict = str(record.verdict)
-            self.console.print(panel)
+            self.console.print(panel, soft_wrap=False)  # wrapped inside the panel, never cropped
             self._refresh()
             if all(v.verdict for v in self.views.values()) and self._board is not None:
                 self._board.stop()

@@ -92,8 +92,8 @@ def test_a_report_that_cannot_be_written_is_said_and_the_unit_keeps_its_verdict(
 
 
 def test_the_batch_report_draws_every_chart_offline(make_station, tmp_path, browser, capsys):
-    station = make_station()
-    for serial in ("B-1", "B-2", "B-3", "B-4"):
+    for i, serial in enumerate(("B-1", "B-2", "B-3", "B-4")):
+        station = make_station(seed=40 + i)  # four different units (one seed would repeat one unit: constants)
         assert main(["run", str(station), "--serial", serial]) == 0
     page = tmp_path / "spc.html"
     assert main(["spc", "--station", str(station), "--html", str(page)]) == 0

@@ -32,16 +32,17 @@ def test_imr_chart_by_hand():
 
 def test_cpk_and_ppk_by_hand_with_bissell_intervals():
     sigma_within = 1.5 / 1.128
-    cap = capability(SMALL, 5.0, 20.0, sigma_within)
+    cap = capability(SMALL, 5.0, 20.0, sigma_within, min_units=2)  # the formulas; the 25-unit rule is below
     cpk = (11.6 - 5.0) / (3 * sigma_within)  # the lower side is nearer
     half = 1.959963984540054 * math.sqrt(1 / (9 * 5) + cpk ** 2 / (2 * 4))
     assert cap.cpk.value == pytest.approx(cpk) and cap.cpk.low == pytest.approx(cpk - half)
     assert cap.cpk.high == pytest.approx(cpk + half)
     s = math.sqrt(5.2 / 4)  # squared deviations 2.56 + .16 + .36 + 1.96 + .16
     assert cap.sigma_overall == pytest.approx(s) and cap.ppk.value == pytest.approx(6.6 / (3 * s))
-    upper_only = capability(SMALL, None, 20.0, sigma_within)
+    upper_only = capability(SMALL, None, 20.0, sigma_within, min_units=2)
     assert upper_only.cpk.value == pytest.approx((20.0 - 11.6) / (3 * sigma_within))  # CPU
-    assert capability(SMALL, None, None, sigma_within).cpk is None
+    assert capability(SMALL, None, None, sigma_within, min_units=2).cpk is None
+    assert capability(SMALL, 5.0, 20.0, sigma_within).cpk is None  # 5 units: too few to state a capability
 
 
 @pytest.mark.parametrize(("rule", "points", "first"), [
@@ -155,3 +156,58 @@ def test_magline_spc_reads_the_store_and_flags_a_drifting_offset(make_station, s
     norm = next(line for line in out.splitlines() if line.startswith("hard_iron_norm_ut"))
     assert "[—, 150]" in norm  # Cpk against the limits of the station file (the product's 150 µT)
     assert "st-a" in out and "st-b" in out and html.stat().st_size > 4_000_000
+
+
+def _thirty_units_one_failure(make_station):
+    """30 judged demo units; unit 15 has a large offset σ (outside its limit) and rejected readings."""
+    from magline.core.measurements import Numeric, Verdict
+    from magline.core.results.sqlite_sink import SqliteSink
+    from magline.testing import make_record
+
+    station = make_station()
+    store = SqliteSink(station.parent / "magline-demo-results.sqlite")
+    rng = np.random.default_rng(30)
+    for i in range(30):
+        bad = i == 14
+        sigma = 0.6 if bad else float(rng.normal(0.04, 0.003))
+        record = make_record(f"U-{i:02d}", part="MOCK-100", verdict="fail" if bad else "pass", measurements=[
+            Numeric("hard_iron_sigma_ut", sigma, "µT", None, 0.5, Verdict.FAIL if bad else Verdict.PASS),
+            Numeric("hard_iron_x_ut", float(rng.normal(35.0, 0.2)), "µT"),
+            Numeric("rejected_fraction", 0.25 if bad else 0.0, "", None, 0.05, Verdict.FAIL if bad else Verdict.PASS),
+            Numeric("field_ut", 48.0, "µT"), Numeric("attempts", 2.0, "")])
+        store.finish(record)
+    store.close()
+    return station
+
+
+def test_one_failed_unit_gives_one_signal_and_counts_are_charted_as_counts(make_station, capsys):
+    """Issue 30: one out-of-limit unit once moved the centre line and raised 18 '8 on one side'
+    signals; a fraction got an LCL below 0; settings were charted with σ 0."""
+    from magline.core.cli import main
+
+    station = _thirty_units_one_failure(make_station)
+    capsys.readouterr()
+    assert main(["spc", "--station", str(station), "--json"]) == 0
+    report = __import__("json").loads(capsys.readouterr().out)
+    by_name = {m["name"]: m for m in report["measurements"]}
+    sigma = by_name["hard_iron_sigma_ut"]
+    assert sigma["chart"] == "I-MR" and sigma["n"] == 30
+    assert [s["serial"] for s in sigma["signals"]] == ["U-14"]  # one signal, at the failed unit
+    assert sigma["centre"] == pytest.approx(0.04, abs=0.003)  # the failure did not move the centre line
+    assert sigma["lcl"] >= 0.0  # a σ cannot be negative
+    rejected = by_name["rejected_fraction"]
+    assert rejected["chart"] == "p (units with any)" and rejected["units"] == ["U-14"] and rejected["lcl"] == 0.0
+    assert {c["name"] for c in report["constants"]} == {"field_ut", "attempts"}
+    assert "field_ut" not in by_name
+
+
+def test_too_few_units_for_capability_and_an_unknown_measurement_are_said(make_station, capsys):
+    from magline.core.cli import main
+
+    station = _thirty_units_one_failure(make_station)
+    capsys.readouterr()
+    assert main(["spc", "--station", str(station), "--last", "3", "--measurement", "nope",
+                 "--measurement", "hard_iron_x_ut"]) == 0
+    out = capsys.readouterr().out
+    assert "n = 3: capability needs at least 25 judged units (AIAG SPC manual: 25 subgroups)" in out
+    assert "no such measurement in the store: nope" in out

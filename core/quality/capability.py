@@ -37,9 +37,15 @@ class Capability:
     ppk: Index | None
 
 
+# Fewer judged units than this and no capability is stated: AIAG's SPC manual (2nd ed.) asks 25 subgroups
+# before limits are computed at all; a Cpk from three units (once printed as 1388 [27.8, 2750]) is noise.
+MIN_UNITS = 25
+MIN_UNITS_SOURCE = "AIAG SPC manual: 25 subgroups"
+
+
 def _index(mean: float, sigma: float, low: float | None, high: float | None, n: int,
-           confidence: float) -> Index | None:
-    if sigma <= 0 or n < 2 or (low is None and high is None):
+           confidence: float, min_units: int) -> Index | None:
+    if sigma <= 0 or n < max(min_units, 2) or (low is None and high is None):
         return None
     sides = [(high - mean) / (3 * sigma)] if high is not None else []
     sides += [(mean - low) / (3 * sigma)] if low is not None else []
@@ -50,11 +56,12 @@ def _index(mean: float, sigma: float, low: float | None, high: float | None, n: 
 
 
 def capability(values: np.ndarray, low: float | None, high: float | None, sigma_within: float,
-               confidence: float = 0.95) -> Capability:
+               confidence: float = 0.95, min_units: int = MIN_UNITS) -> Capability:
+    """Cpk / Ppk with their intervals; None for an index below ``min_units`` values (see MIN_UNITS)."""
     x = np.asarray(values, dtype=float)
     x = x[np.isfinite(x)]
     mean = float(x.mean()) if x.size else math.nan
     overall = float(x.std(ddof=1)) if x.size > 1 else 0.0
     return Capability(n=int(x.size), mean=mean, sigma_within=sigma_within, sigma_overall=overall,
-                      cpk=_index(mean, sigma_within, low, high, x.size, confidence),
-                      ppk=_index(mean, overall, low, high, x.size, confidence))
+                      cpk=_index(mean, sigma_within, low, high, x.size, confidence, min_units),
+                      ppk=_index(mean, overall, low, high, x.size, confidence, min_units))

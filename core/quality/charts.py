@@ -29,14 +29,15 @@ class ImrChart:
     mr_bar: float
     baseline: int  # how many points set the centre and the limits
     signals: list[Signal] = field(default_factory=list)
+    bounds: tuple[float, float] = (-np.inf, np.inf)  # what the measurement can take (a fraction: [0, 1])
 
     @property
     def ucl(self) -> float:
-        return self.centre + 3 * self.sigma
+        return min(self.centre + 3 * self.sigma, self.bounds[1])
 
     @property
     def lcl(self) -> float:
-        return self.centre - 3 * self.sigma
+        return max(self.centre - 3 * self.sigma, self.bounds[0])
 
     @property
     def mr_ucl(self) -> float:
@@ -47,18 +48,26 @@ class ImrChart:
         return np.abs(np.diff(self.values))
 
 
-def imr_chart(name: str, values: np.ndarray, baseline: int = 50) -> ImrChart | None:
+def imr_chart(name: str, values: np.ndarray, baseline: int = 50, outside: np.ndarray | None = None,
+              bounds: tuple[float, float] = (-np.inf, np.inf)) -> ImrChart | None:
     """The chart of ``values`` (NaN skipped), its limits from the first ``baseline`` points, and
-    the rule signals over every point; None when fewer than three values exist."""
+    the rule signals over every point; None when fewer than three values exist.  ``outside`` marks
+    units that failed the measurement's own limits: they are plotted and signalled as themselves,
+    but never set the centre line (one failed unit would otherwise move it and raise a run of false
+    "8 on one side" signals on every good unit after it)."""
     values = np.asarray(values, dtype=float)
     index = np.flatnonzero(np.isfinite(values))
     x = values[index]
     if x.size < 3:
         return None
+    failed = np.zeros(values.size, bool) if outside is None else np.asarray(outside, bool)
     base = x[: max(3, min(baseline, x.size))]
+    in_limits = base[~failed[index][: base.size]]
+    base = in_limits if in_limits.size >= 3 else base
     centre = float(base.mean())
     mr_bar = float(np.abs(np.diff(base)).mean())
     sigma = mr_bar / D2
-    chart = ImrChart(name=name, values=x, index=index, centre=centre, sigma=sigma, mr_bar=mr_bar, baseline=base.size)
+    chart = ImrChart(name=name, values=x, index=index, centre=centre, sigma=sigma, mr_bar=mr_bar, baseline=base.size,
+                     bounds=bounds)
     chart.signals = evaluate(x, centre, sigma) if sigma > 0 else []
     return chart

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 from typing import Any
 
 from magline.core.faults import StationFault
-from magline.core.quality.spc import build, format_text
+from magline.core.quality.spc import build, format_text, to_json
 from magline.core.results.reading import RunFilter
 from magline.core.results.series import Limit
 from magline.core.station import Station
@@ -39,7 +40,10 @@ def spc(store: Any, station: Station, args: argparse.Namespace) -> int:
     title = f"part {part}" + (f", station {args.station_id}" if args.station_id else ", every station") + \
         f", latest {len(series)} runs"
     report = build(series, title, args.measurement, args.baseline)
-    print(format_text(report))
+    if getattr(args, "json", False):
+        print(json.dumps(to_json(report), default=float))
+    else:
+        print(format_text(report))
     if args.html:
         from magline.core.reports.spc_page import write_spc_page
 

@@ -11,8 +11,10 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
-from magline.core.measurements import CATALOGUE
-from magline.core.quality.capability import Capability, capability
+import numpy as np
+
+from magline.core.measurements import CATALOGUE, POSSIBLE, base_name
+from magline.core.quality.capability import MIN_UNITS, MIN_UNITS_SOURCE, Capability, capability
 from magline.core.quality.charts import ImrChart, imr_chart
 from magline.core.quality.rules import RULES
 from magline.core.quality.yields import YieldRow, ranked_causes, yields
@@ -30,6 +32,32 @@ class MeasurementReport:
 
 
 @dataclass
+class AttributeReport:
+    """A count-like or zero-inflated measurement (rejected readings, attempts, warm-up, orientation):
+    charted as what it is — the share of units where it happened — not as a normal variable."""
+
+    name: str
+    n: int
+    units: list[int]  # positions (in the run selection) of the units where it happened
+    what: str
+
+    @property
+    def proportion(self) -> float:
+        return len(self.units) / self.n if self.n else 0.0
+
+    @property
+    def ucl(self) -> float:  # a p chart of single units: p̄ + 3·√(p̄(1 − p̄)), never above 1
+        p = self.proportion
+        return min(1.0, p + 3 * (p * (1 - p)) ** 0.5)
+
+
+# measurement → (what "happened" means, the test on a value)
+ATTRIBUTES = {"rejected_fraction": ("units with readings rejected", lambda v: v > 0),
+              "warm_up_fraction": ("units with a warm-up set aside", lambda v: v > 0),
+              "attempts": ("units that needed another tumble", lambda v: v > 1)}
+
+
+@dataclass
 class SpcReport:
     title: str
     series: RunSeries
@@ -37,27 +65,48 @@ class SpcReport:
     yields: dict[str, list[YieldRow]] = field(default_factory=dict)
     refusals: list[tuple[str, int]] = field(default_factory=list)
     failed: list[tuple[str, int]] = field(default_factory=list)
+    constants: list[tuple[str, float, str]] = field(default_factory=list)  # (name, value, unit): not charted
+    attributes: list[AttributeReport] = field(default_factory=list)
+    missing: list[str] = field(default_factory=list)  # names asked for that the store does not hold
 
 
 def _order(name: str) -> tuple[int, str]:
     names = list(CATALOGUE)
-    return (names.index(name) if name in names else len(names), name)
+    return (names.index(base_name(name)) if base_name(name) in names else len(names), name)
 
 
 def build(series: RunSeries, title: str, names: Sequence[str] | None = None, baseline: int = 50) -> SpcReport:
     report = SpcReport(title=title, series=series)
     judged = [i for i, r in enumerate(series.runs) if r["verdict"] in ("pass", "fail")]
+    report.missing = [n for n in names or () if n not in series.values]
     for name in sorted(names or series.values, key=_order):
         values = series.values.get(name)
         if values is None:
             continue
-        chart = imr_chart(name, values[judged], baseline)  # a station fault's run is not the process
+        x = values[judged]  # a station fault's run is not the process
+        limit = series.limits.get(name, Limit(None, None, None))
+        unit = limit.unit or CATALOGUE.get(base_name(name), ("", ""))[0]
+        finite = x[np.isfinite(x)]
+        if finite.size and np.all(finite == finite[0]):
+            report.constants.append((name, float(finite[0]), unit))  # a setting, not a process figure
+            continue
+        if base_name(name) in ATTRIBUTES:
+            what, happened = ATTRIBUTES[base_name(name)]
+            present = np.flatnonzero(np.isfinite(x))
+            report.attributes.append(AttributeReport(name, int(present.size),
+                                                     [judged[i] for i in present if happened(x[i])], what))
+            continue
+        outside = np.zeros(x.size, bool)
+        if limit.low is not None:
+            outside |= x < limit.low
+        if limit.high is not None:
+            outside |= x > limit.high
+        chart = imr_chart(name, x, baseline, outside, POSSIBLE.get(base_name(name), (-np.inf, np.inf)))
         if chart is None:
             continue
-        limit = series.limits.get(name, Limit(None, None, None))
         chart.index = [judged[i] for i in chart.index]
         report.measurements.append(MeasurementReport(
-            name=name, unit=limit.unit or CATALOGUE.get(name, ("", ""))[0], limit=limit, chart=chart,
+            name=name, unit=unit, limit=limit, chart=chart,
             capability=capability(chart.values, limit.low, limit.high, chart.sigma)))
     for by in ("station_id", "operator", "part"):
         report.yields[by] = yields(series, by)
@@ -91,9 +140,23 @@ def format_text(report: SpcReport) -> str:
         lines.append(f"{m.name:<24} {c.values.size:>6} {fmt(c.centre):>11} {fmt(c.sigma):>10} {fmt(c.lcl):>10} "
                      f"{fmt(c.ucl):>10} {limits:>18}  {_interval(m.capability.cpk):<20} "
                      f"{_interval(m.capability.ppk):<20} {where}")
+    if report.missing:
+        lines.append(f"no such measurement in the store: {', '.join(report.missing)}")
+    judged = max((m.capability.n for m in report.measurements), default=0)
+    if judged < MIN_UNITS:
+        lines.append(f"n = {judged}: capability needs at least {MIN_UNITS} judged units ({MIN_UNITS_SOURCE}); "
+                     "Cpk and Ppk are not stated")
+    if report.attributes:
+        lines += ["", f"{'counted':<24} {'n':>6} {'units':>6} {'share':>7} {'UCL':>7}  what"]
+        lines += [f"{a.name:<24} {a.n:>6} {len(a.units):>6} {percent(a.proportion):>7} {percent(a.ucl):>7}  {a.what}"
+                  for a in report.attributes]
+    if report.constants:
+        lines += ["", "constant: " + "; ".join(f"{n} {fmt(v, u)}" for n, v, u in report.constants)]
+    baseline = report.measurements[0].chart.baseline if report.measurements else None
     lines += ["", "rules: " + "; ".join(f"{k} = {v}" for k, v in RULES.items()),
-              "limits from the first " + (f"{report.measurements[0].chart.baseline}" if report.measurements else "—")
-              + " judged units (baseline); station faults (error / aborted / incomplete) are not plotted", ""]
+              (f"limits from the first {baseline} judged units within their limits (baseline)" if baseline else
+               "no chart: no measurement varies over these units")
+              + "; station faults (error / aborted / incomplete) are not plotted", ""]
     for by, rows in report.yields.items():
         lines.append(f"{'by ' + by.replace('_id', ''):<24} {'runs':>6} {'judged':>7} {'FPY':>7} {'retry rate':>11} "
                      f"{'station faults':>15}")
@@ -106,3 +169,34 @@ def format_text(report: SpcReport) -> str:
     lines.append("measurements that failed units:")
     lines += [f"  {count:>6}  {name}" for name, count in report.failed] or ["  none"]
     return "\n".join(lines)
+
+
+def to_json(report: SpcReport) -> dict:
+    """The report as data (``magline spc --json``) for a spreadsheet or an MES: per measurement its
+    chart kind, centre, limits and every signal with the unit's serial."""
+    runs = report.series.runs
+
+    def serial(position: int) -> str:
+        return runs[position]["serial"]
+
+    measurements = []
+    for m in report.measurements:
+        c = m.chart
+        measurements.append({
+            "name": m.name, "unit": m.unit, "n": int(c.values.size), "chart": "I-MR", "centre": c.centre,
+            "lcl": c.lcl, "ucl": c.ucl, "sigma_within": c.sigma, "limits": [m.limit.low, m.limit.high],
+            "cpk": None if m.capability.cpk is None else vars(m.capability.cpk),
+            "ppk": None if m.capability.ppk is None else vars(m.capability.ppk),
+            "signals": [{"rule": s.rule, "serial": serial(c.index[s.point]), "value": float(c.values[s.point])}
+                        for s in c.signals]})
+    for a in report.attributes:
+        measurements.append({"name": a.name, "n": a.n, "chart": "p (units with any)", "centre": a.proportion,
+                             "lcl": 0.0, "ucl": a.ucl, "what": a.what,
+                             "units": [serial(i) for i in a.units], "signals": []})
+    return {"title": report.title, "runs": len(runs), "measurements": measurements,
+            "constants": [{"name": n, "value": v, "unit": u} for n, v, u in report.constants],
+            "capability_needs": {"units": MIN_UNITS, "source": MIN_UNITS_SOURCE},
+            "missing": report.missing,
+            "yields": {by: [vars(r) for r in rows] for by, rows in report.yields.items()},
+            "refusals": [{"cause": c, "count": n} for c, n in report.refusals],
+            "failed": [{"measurement": n, "count": k} for n, k in report.failed]}

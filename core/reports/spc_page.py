@@ -9,6 +9,7 @@ import numpy as np
 import plotly.graph_objects as go
 from plotly.subplots import make_subplots
 
+from magline.core.quality.capability import MIN_UNITS, MIN_UNITS_SOURCE
 from magline.core.quality.rules import RULES
 from magline.core.quality.spc import MeasurementReport, SpcReport
 from magline.core.reports.page import figure_html, table, write_page
@@ -71,6 +72,18 @@ def write_spc_page(report: SpcReport, path: Path) -> Path:
     sections += ["<h2>Capability</h2>",
                  table(("measurement", "n", "centre", "σ within", "limits", "Cpk [95% CI]", "Ppk [95% CI]",
                         "rule signals"), rows, numeric=(1, 2, 3, 7))]
+    judged = max((m.capability.n for m in report.measurements), default=0)
+    if judged < MIN_UNITS:
+        sections.append(f"<p class=note>n = {judged}: capability needs at least {MIN_UNITS} judged units "
+                        f"({html.escape(MIN_UNITS_SOURCE)}); Cpk and Ppk are not stated.</p>")
+    if report.attributes:
+        sections += ["<h2>Counted per unit</h2>",
+                     table(("measurement", "n", "units", "share", "UCL", "what"),
+                           [(a.name, a.n, len(a.units), percent(a.proportion), percent(a.ucl), a.what)
+                            for a in report.attributes], numeric=(1, 2, 3, 4))]
+    if report.constants:
+        sections.append("<p>constant: " + html.escape("; ".join(f"{n} {fmt(v, u)}" for n, v, u in report.constants))
+                        + "</p>")
     sections.append("<h2>Yield</h2>")
     for by, yrows in report.yields.items():
         sections.append(table((by.replace("_id", ""), "runs", "judged", "first-pass yield", "retry rate",

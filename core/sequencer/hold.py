@@ -25,7 +25,8 @@ from typing import IO
 
 from magline.core.faults import StationFault
 
-NOT_A_LINK = ("", "in-process")  # connections that are no shared vehicle (the mock's own)
+# a vehicle link: a MAVLink / serial address (a mock's "in-process" or a description is no shared vehicle)
+VEHICLE_LINK = re.compile(r"^(tcp|tcpin|tcpout|udp|udpin|udpout|serial|com|/dev/)", re.IGNORECASE)
 
 
 class StationBusy(StationFault):
@@ -88,6 +89,6 @@ def run_locks(station_id: str, slot: str | None, connection: str) -> list[tuple[
     """The locks a unit's run holds: its station slot, and its vehicle link where it has one."""
     keys = [(f"station-{station_id}-{slot or 'unit'}",
              f"{station_id}" + (f" slot {slot}" if slot else ""))]
-    if connection.strip() not in NOT_A_LINK:
+    if VEHICLE_LINK.match(connection.strip()):
         keys.append((f"link-{connection.strip()}", f"the vehicle on {connection.strip()}"))
     return keys

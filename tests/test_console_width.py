@@ -1,0 +1,44 @@
+"""Every sentence of the verdict panel is whole on any terminal from 60 columns up (issue 30): the
+panel wraps its lines instead of the console cropping them at the edge."""
+
+from __future__ import annotations
+
+import io
+import re
+
+import pytest
+from rich.console import Console
+
+from magline.core.console import verdict_panel
+from magline.core.measurements import Numeric, Verdict
+from magline.core.record import Outcome
+from magline.testing import make_record
+
+SENTENCES = [
+    "only 310 of 600 readings within 60 s: the sensor delivers about 10 readings/s; the stream carried each about "
+    "5 times, so 600 readings take about 60 s — raise acquisition.timeout_s or lower acquisition.samples",
+    "the unit now holds a new, unverified calibration (10 parameters: COMPASS_OFS_X, COMPASS_OFS_Y, COMPASS_OFS_Z, "
+    "COMPASS_DIA_X); re-test the unit",
+    "no process review: 0 passing MOCK-100 units on line DEMO in the store, 30 needed",
+]
+
+
+def rendered(width: int) -> str:
+    record = make_record("SN-WIDE", verdict=Outcome.ERROR, cause=f"{SENTENCES[0]} — {SENTENCES[1]}",
+                         review_note=SENTENCES[2], store="/var/lib/magline/a-rather-long-path/results.sqlite run 17",
+                         measurements=[Numeric(name="mag2.heading_agreement_median_deg", value=0.4, unit="°", high=1.0,
+                                               verdict=Verdict.PASS)])
+    out = io.StringIO()
+    console = Console(file=out, width=width, soft_wrap=True, color_system=None)  # as the station builds it
+    console.print(verdict_panel(record, "ERROR", "magenta"), soft_wrap=False)
+    return out.getvalue()
+
+
+@pytest.mark.parametrize("width", [60, 80, 250])
+def test_every_sentence_is_whole_at_any_width(width):
+    text = rendered(width)
+    assert all(len(line) <= width for line in text.splitlines())
+    inside = " ".join(re.sub(r"^[│╭╰]\s?|\s?[│╮╯]$", "", line).strip() for line in text.splitlines())
+    flowing = re.sub(r"\s+", " ", inside)
+    for sentence in SENTENCES:
+        assert sentence in flowing.replace("- ", "-") or sentence in flowing, (width, sentence)
