@@ -1,0 +1,139 @@
+"""Good units pass (issue 28): how many good simulated units the station rejects, and why.
+
+Good units — distortions, noise and sensor rates inside what the station accepts, tumbled through all
+orientations — go through the whole station (the sequencer with the shipped limits, the mounting
+check included): ``--mock`` of them on the in-process mock (seeds, motions, 10–200 Hz sensors, noise
+0.1–0.5 µT), ``--sim`` each on the simulated PX4 and ArduPilot over real MAVLink.  Printed: PASS /
+FAIL / ERROR counts, the cause of every non-PASS, and the drift test's statistic against its χ²₃
+reference (its nominal false-alarm rate 10⁻³).  Goal: ≤ 1 false reject in 1,000 mock units, none on
+the simulators.
+
+    python benchmarks/false_reject.py [--mock 1000] [--sim 100] [--seed 28]
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from magline.core.plugins import load_plugins
+from magline.core.sequencer import Sequencer
+from magline.core.station import load_station
+
+REPO = Path(__file__).resolve().parents[1]
+MOTIONS = ("hand_tumble", "full_sphere")
+
+
+def _station(example: str, work: Path, product_changes: dict, acquisition: dict) -> Path:
+    cfg = yaml.safe_load((REPO / "stations" / example).read_text(encoding="utf-8"))
+    part = cfg["default_part"]
+    for key, value in product_changes.items():
+        if isinstance(value, dict):
+            cfg["products"][part].setdefault(key, {}).update(value)
+        else:
+            cfg["products"][part][key] = value
+    cfg["acquisition"].update(acquisition)
+    cfg["results"] = {"sink": "sqlite", "path": str(work / "results.sqlite")}
+    cfg["review"] = {"enabled": False}
+    path = work / f"{example}-{time.monotonic_ns()}.yaml"
+    path.write_text(yaml.safe_dump(cfg, sort_keys=False), encoding="utf-8")
+    return path
+
+
+def _good_mock_options(rng: np.random.Generator, work: Path, i: int) -> dict:
+    """A unit inside the limits: offset ≤ 100 µT, axis ratio ≤ 1.2, noise 0.1–0.5 µT, a mounting within 1°."""
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    s = q @ np.diag(np.exp(rng.uniform(-0.08, 0.08, 3))) @ q.T
+    return {"hard_iron_ut": [float(v) for v in rng.uniform(-55, 55, 3)], "soft_iron": s.round(6).tolist(),
+            "noise_ut": float(rng.uniform(0.1, 0.5)), "motions": [str(rng.choice(MOTIONS))], "realtime": False,
+            "misalignment_deg": [float(v) for v in rng.normal(0, 0.4, 3)], "seed": int(rng.integers(1 << 30)),
+            "storage": str(work / f"mock-{i}.json"), "inclination_deg": 63.0}
+
+
+def _tally(name: str, records: list, started: float) -> None:
+    verdicts = collections.Counter(str(r.verdict) for r in records)
+    drift = np.array([r.calibration["drift"]["statistic"] for r in records
+                      if r.calibration and r.calibration.get("drift") and r.calibration["drift"].get("statistic")
+                      is not None])
+    print(f"{name}: {len(records)} good units in {time.monotonic() - started:.0f} s — "
+          + ", ".join(f"{v.upper()} {n}" for v, n in sorted(verdicts.items())))
+    for r in records:
+        if str(r.verdict) != "pass":
+            print(f"   {r.serial}: {str(r.verdict).upper()} {r.cause[:300]}")
+    if drift.size:
+        from scipy.stats import chi2
+
+        threshold = float(chi2.ppf(1 - 1e-3, 3))
+        print(f"   drift statistic: median {np.median(drift):.2f} (χ²₃ median {chi2.median(3):.2f}), "
+              f"p99 {np.percentile(drift, 99):.1f} (χ²₃ {chi2.ppf(0.99, 3):.1f}), above the 10⁻³ threshold "
+              f"{threshold:.2f}: {int((drift > threshold).sum())} of {drift.size}")
+
+
+def mock_units(count: int, rng: np.random.Generator) -> None:
+    started = time.monotonic()
+    records = []
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(tmp)
+        for i in range(count):
+            rate = float(rng.choice([10.0, 25.0, 50.0, 100.0, 200.0]))
+            station = _station("demo.yaml", work, {"options": _good_mock_options(rng, work, i)},
+                               {"rate_hz": rate, "retry_delay_s": 0.0})
+            seq = Sequencer(load_station(station), load_plugins(), work, sleep=lambda s: None)
+            try:
+                records.append(seq.run_unit(f"GOOD-{i:05d}"))
+            finally:
+                seq.close()
+    _tally("mock", records, started)
+
+
+def sim_units(flavour: str, count: int, rng: np.random.Generator) -> None:
+    from magline.plugins.mock.sim import create_sim
+
+    started = time.monotonic()
+    records = []
+    example, scheme = {"px4": ("px4-sim.yaml", "udp"), "ardupilot": ("ardupilot-sim.yaml", "tcp")}[flavour]
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(tmp)
+        for i in range(count):
+            (work / f"fc{i}").mkdir()
+            mags = int(rng.integers(1, 4))
+            with create_sim(flavour, f"{scheme}:127.0.0.1:0", workdir=work / f"fc{i}", mag_count=mags,
+                            seed=int(rng.integers(1 << 30)), boot_time_s=0.3, speed=float(rng.uniform(0.5, 2.0)),
+                            mag_rate_hz=float(rng.choice([25.0, 50.0, 100.0])),
+                            motions=(str(rng.choice(["tumble", "gimbal"])),)) as sim:
+                host, port = sim.address.split(":")[1:]
+                url = f"udpout://{host}:{port}" if flavour == "px4" else f"tcp:{host}:{port}"
+                station = _station(example, work, {"connection": url, "options": {"connect_timeout_s": 5.0}},
+                                   {"samples": 300, "rate_hz": 200.0, "timeout_s": 60.0, "retry_delay_s": 0.0})
+                seq = Sequencer(load_station(station), load_plugins(), work, sleep=lambda s: None)
+                try:
+                    records.append(seq.run_unit(f"{flavour.upper()}-{i:04d}"))
+                finally:
+                    seq.close()
+    _tally(flavour, records, started)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--mock", type=int, default=1000)
+    parser.add_argument("--sim", type=int, default=100)
+    parser.add_argument("--seed", type=int, default=28)
+    args = parser.parse_args()
+    rng = np.random.default_rng(args.seed)
+    if args.mock:
+        mock_units(args.mock, rng)
+    for flavour in ("px4", "ardupilot"):
+        if args.sim:
+            sim_units(flavour, args.sim, rng)
+    sys.stdout.flush()
+
+
+if __name__ == "__main__":
+    main()
