@@ -115,3 +115,28 @@ def test_another_vehicle_answering_after_the_power_cycle_is_an_error_not_a_verdi
             seq.close()
     assert record.verdict == "error", record.cause
     assert "MAVLink system id 7 answered" in record.cause and "not the unit under test (system id 1)" in record.cause
+
+
+def test_another_px4_answering_after_the_power_cycle_is_an_error_not_a_verdict(tmp_path):
+    workdir = tmp_path / "fc"
+    workdir.mkdir()
+    with create_sim("px4", "udp:127.0.0.1:0", mag_rate_hz=FAST_SENSOR_HZ, workdir=workdir, seed=2,
+                    boot_time_s=0.3, speed=5.0) as sim:
+        boot = sim._boot
+
+        def another_board_boots(now, first=False):
+            boot(now, first)
+            if not first:
+                sim.system_id = sim.mav.srcSystem = 9
+
+        sim._boot = another_board_boots
+        host, port = sim.address.split(":")[1:]
+        station = write_station("px4-sim.yaml", tmp_path, f"udpout://{host}:{port}",
+                                {"connect_timeout_s": 5.0, "boot_timeout_s": 10.0, "save_settle_s": 0.1})
+        seq = Sequencer(load_station(station), load_plugins(), tmp_path, sleep=lambda s: None)
+        try:
+            record = seq.run_unit("PX-SWAP")
+        finally:
+            seq.close()
+    assert record.verdict == "error", record.cause
+    assert "MAVLink system id 9 answered" in record.cause

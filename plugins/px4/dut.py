@@ -25,7 +25,16 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from magline.core.dut import DutError, Magnetometer, NotRestored, ParamValue, SampleChunk, UnitInfo, await_new_boot
+from magline.core.dut import (
+    DutError,
+    LinkError,
+    Magnetometer,
+    NotRestored,
+    ParamValue,
+    SampleChunk,
+    UnitInfo,
+    await_new_boot,
+)
 from magline.core.faults import StationFault
 from magline.core.fit import FitResult
 from magline.core.readings import INT16_MG_RANGE_UT, SensorStreams
@@ -75,11 +84,13 @@ class Px4Dut:
         self.with_odiag = True
         self.with_euler = False
         self._saved_autocal: int | None = None
+        self.system_id = 0
         self._found: list[tuple[int, bool]] = []  # (device id, external) per sensor_mag instance, from the shell
 
     # ------------------------------------------------------------------ link
     def connect(self) -> UnitInfo:
         self.link.open()
+        self.system_id = self.link.target_system  # another one answering later is another vehicle
         version = self.link.firmware()
         firmware = ".".join(map(str, version)) if version else "unknown"
         # what the firmware can hold, read from its own parameter list: a build from an untagged tree
@@ -283,6 +294,10 @@ class Px4Dut:
     def await_boot(self, since: float) -> dict[str, float]:
         # a fresh MAVSDK instance per try: nothing cached from the old boot can answer a read
         reconnected, uptime = await_new_boot(self.link.reopen, self._uptime_s, since, self.opts.boot_timeout_s)
+        if self.link.target_system != self.system_id:  # another vehicle on the link: nothing it says is this unit's
+            raise LinkError(f"after the power cycle a vehicle with MAVLink system id {self.link.target_system} "
+                            f"answered on {self.product.connection}, not the unit under test (system id "
+                            f"{self.system_id}): the unit's calibration is not proven")
         if self.shell_answers:
             self.now_present = [d for d, _ in self._discover()]
             self.present = self.device_id in self.now_present
