@@ -147,6 +147,7 @@ def test_a_good_three_compass_ardupilot_unit_passes_with_every_compass_calibrate
         cells = dict(zip(header, row, strict=True))
         assert float(cells["mag3.hard_iron_x_ut"]) == pytest.approx(measured(record, "mag3.hard_iron_x_ut").value)
         assert float(cells["mag2-mag3.heading_agreement_max_deg"]) < 3.0
+        assert float(cells["soft_iron_12"]) == pytest.approx(record.calibration["soft_iron"][0][1])  # written matrix
 
 
 def test_calibrating_only_the_primary_of_three_fails_as_the_firmware_does(tmp_path):

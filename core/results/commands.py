@@ -94,14 +94,23 @@ def export(store: Any, where: RunFilter, fmt_name: str, raw: bool, out: TextIO |
                                          *samples.mag_ut[i].tolist(), t])
                 count += 1
             return _done(count)
-        writer.writerow([*RUN_COLUMNS, *NUMERIC_NAMES, "failed"])
+        writer.writerow([*RUN_COLUMNS, *NUMERIC_NAMES, *SOFT_IRON_COLUMNS, "failed"])
         for run in export_runs(conn, where):
             m = run["measurements"]
             failed = ";".join(sorted(k for k, v in m.items() if v["verdict"] == "fail"))
             writer.writerow([run[c] for c in RUN_COLUMNS] + [m.get(n, {}).get("value", "") for n in NUMERIC_NAMES]
-                            + [failed])
+                            + _soft_iron(run.get("calibration")) + [failed])
             count += 1
     return _done(count)
+
+
+# the soft-iron matrix written to the unit (the primary's), one named column per element
+SOFT_IRON_COLUMNS = tuple(f"soft_iron_{i}{j}" for i in (1, 2, 3) for j in (1, 2, 3))
+
+
+def _soft_iron(calibration: Any) -> list[Any]:
+    matrix = calibration.get("soft_iron") if isinstance(calibration, dict) else None
+    return [v for row in matrix for v in row] if matrix else [""] * len(SOFT_IRON_COLUMNS)
 
 
 def _raw_attempt(attempt: dict) -> dict:
