@@ -242,6 +242,15 @@ def await_new_boot(reconnect: Callable[[float], None], uptime_s: Callable[[], fl
                            "(reboot refused?)")
 
 
+def require_same_vehicle(system_id: int, answered: int, connection: str) -> None:
+    """After a power cycle: the vehicle that answered must be the unit under test.  Another MAVLink
+    system on the link (a cable moved, a second board) proves nothing about this unit: an ERROR."""
+    if answered != system_id:
+        raise LinkError(f"after the power cycle a vehicle with MAVLink system id {answered} answered on "
+                        f"{connection}, not the unit under test (system id {system_id}): the unit's calibration "
+                        "is not proven")
+
+
 def validated_options(model: type[OptionsModel], options: dict[str, Any], owner: str) -> OptionsModel:
     """Validate a plugin's ``options`` from the station file; the error names every bad key."""
     try:

@@ -93,20 +93,25 @@ def test_a_lock_dies_with_the_process_that_held_it(tmp_path):
         pass
 
 
+def another_board_after_the_power_cycle(sim, system_id: int) -> None:
+    """From its next boot on, the simulator answers as another vehicle (a cable moved, a second board)."""
+    boot = sim._boot
+
+    def another_board_boots(now, first=False):
+        boot(now, first)
+        if not first:
+            sim.system_id = sim.mav.srcSystem = system_id
+
+    sim._boot = another_board_boots
+
+
 def test_another_vehicle_answering_after_the_power_cycle_is_an_error_not_a_verdict(tmp_path):
     workdir = tmp_path / "fc"
     workdir.mkdir()
     with create_sim("ardupilot", "tcp:127.0.0.1:0", mag_rate_hz=FAST_SENSOR_HZ, workdir=workdir, seed=2,
                     boot_time_s=0.3, speed=5.0) as sim:
 
-        boot = sim._boot
-
-        def another_board_boots(now, first=False):  # the link reaches another board after the power cycle
-            boot(now, first)
-            if not first:
-                sim.system_id = sim.mav.srcSystem = 7
-
-        sim._boot = another_board_boots
+        another_board_after_the_power_cycle(sim, 7)
         station = write_station("ardupilot-sim.yaml", tmp_path, sim.address, AP)
         seq = Sequencer(load_station(station), load_plugins(), tmp_path, sleep=lambda s: None)
         try:
@@ -122,14 +127,7 @@ def test_another_px4_answering_after_the_power_cycle_is_an_error_not_a_verdict(t
     workdir.mkdir()
     with create_sim("px4", "udp:127.0.0.1:0", mag_rate_hz=FAST_SENSOR_HZ, workdir=workdir, seed=2,
                     boot_time_s=0.3, speed=5.0) as sim:
-        boot = sim._boot
-
-        def another_board_boots(now, first=False):
-            boot(now, first)
-            if not first:
-                sim.system_id = sim.mav.srcSystem = 9
-
-        sim._boot = another_board_boots
+        another_board_after_the_power_cycle(sim, 9)
         host, port = sim.address.split(":")[1:]
         station = write_station("px4-sim.yaml", tmp_path, f"udpout://{host}:{port}",
                                 {"connect_timeout_s": 5.0, "boot_timeout_s": 10.0, "save_settle_s": 0.1})

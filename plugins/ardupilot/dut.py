@@ -19,13 +19,13 @@ import numpy as np
 
 from magline.core.dut import (
     DutError,
-    LinkError,
     Magnetometer,
     NotRestored,
     ParamValue,
     SampleChunk,
     UnitInfo,
     await_new_boot,
+    require_same_vehicle,
 )
 from magline.core.faults import StationFault
 from magline.core.fit import FitResult
@@ -258,10 +258,7 @@ class ArduPilotDut:
             self.link.open(remaining_s)
 
         reconnected, uptime = await_new_boot(reconnect, self._uptime_s, since, self.opts.boot_timeout_s)
-        if self.link.target_system != self.system_id:  # another vehicle on the link: nothing it says is this unit's
-            raise LinkError(f"after the power cycle a vehicle with MAVLink system id {self.link.target_system} "
-                            f"answered on {self.product.connection}, not the unit under test (system id "
-                            f"{self.system_id}): the unit's calibration is not proven")
+        require_same_vehicle(self.system_id, self.link.target_system, self.product.connection)
         self._read_ids()
         return {"time_to_heartbeat_s": reconnected, "uptime_at_reconnect_s": uptime}
 

@@ -27,13 +27,13 @@ import numpy as np
 
 from magline.core.dut import (
     DutError,
-    LinkError,
     Magnetometer,
     NotRestored,
     ParamValue,
     SampleChunk,
     UnitInfo,
     await_new_boot,
+    require_same_vehicle,
 )
 from magline.core.faults import StationFault
 from magline.core.fit import FitResult
@@ -294,10 +294,7 @@ class Px4Dut:
     def await_boot(self, since: float) -> dict[str, float]:
         # a fresh MAVSDK instance per try: nothing cached from the old boot can answer a read
         reconnected, uptime = await_new_boot(self.link.reopen, self._uptime_s, since, self.opts.boot_timeout_s)
-        if self.link.target_system != self.system_id:  # another vehicle on the link: nothing it says is this unit's
-            raise LinkError(f"after the power cycle a vehicle with MAVLink system id {self.link.target_system} "
-                            f"answered on {self.product.connection}, not the unit under test (system id "
-                            f"{self.system_id}): the unit's calibration is not proven")
+        require_same_vehicle(self.system_id, self.link.target_system, self.product.connection)
         if self.shell_answers:
             self.now_present = [d for d, _ in self._discover()]
             self.present = self.device_id in self.now_present
