@@ -37,8 +37,12 @@ EXIT = {Outcome.PASS: 0, Outcome.FAIL: 1, Outcome.ERROR: 2, Outcome.SKIPPED: 2}
 DEMO = "demo.yaml"
 
 
+DESCRIPTION = ("Calibrate drone magnetometers at the end of a production line: run a station, check a station "
+               "file, fit a CSV, read the results (history, show, export, spc, report), serve the station screen.")
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="magline", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="magline", description=DESCRIPTION)
     parser.add_argument("--version", action="version", version=f"magline {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 

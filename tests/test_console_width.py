@@ -42,3 +42,12 @@ def test_every_sentence_is_whole_at_any_width(width):
     flowing = re.sub(r"\s+", " ", inside)
     for sentence in SENTENCES:
         assert sentence in flowing.replace("- ", "-") or sentence in flowing, (width, sentence)
+
+
+def test_the_help_speaks_plainly(capsys):
+    from magline.core.cli import main
+
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    out = capsys.readouterr().out
+    assert "``" not in out and "Calibrate drone magnetometers" in out
