@@ -70,6 +70,11 @@ class Sequencer:
             "motion", station.motion.type, station.motion.options, "motion.options"))
         self.stopped: str | None = None  # why the batch was stopped (the cell's field is not trusted)
         self.shared_lock = threading.RLock()  # slots running side by side share the field source
+        # Slots create their backends and open their links one at a time: MAVSDK's native instance
+        # creation crashed the process (segfault, illegal instruction) when it ran while another slot
+        # thread imported pymavlink or created its own instance — about one four-board load in five.
+        # A link opens in about a second; the shared tumble, which is what slots save time on, is unaffected.
+        self.connect_lock = threading.Lock()
 
     def rounds(self, slots: list[str]) -> MotionRounds:
         """The shared motion's rounds for these slots (listeners hear each round start and stop)."""
@@ -252,9 +257,10 @@ class Sequencer:
         run.power = power_factory(power, self.station_dir, self.plugins.options(
             "power control", power.method, power.options, f"products.{run.part}.power.options"))
         run.power.power_up()
-        run.dut = factory(run.product, self.plugins.options("dut backend", run.product.backend, run.product.options,
-                                                            f"products.{run.part}.options"))
-        run.unit = run.dut.connect()
+        with self.connect_lock:  # slots open their links one at a time (see __init__)
+            run.dut = factory(run.product, self.plugins.options("dut backend", run.product.backend,
+                                                                run.product.options, f"products.{run.part}.options"))
+            run.unit = run.dut.connect()
         run.record.unit_info = {
             "autopilot": run.unit.autopilot, "firmware": run.unit.firmware,
             "sensors": run.unit.sensors, "selected_sensor": run.unit.selected_sensor,

@@ -37,6 +37,10 @@ SHELL_PROMPTS = ("nsh> ", "pxh> ")  # NuttX boards; POSIX builds (which rarely a
 SILENCE_S = 2.5  # PX4 sends HEARTBEAT at 1 Hz: this long without one means the link is gone
 
 _routed = False
+# mavsdk_create / mavsdk_destroy of the native library are not safe to run on several threads at once:
+# four slots connecting together segfaulted the station now and then (seen in the four-board slot test,
+# once in five to ten runs).  Creating and destroying instances one at a time costs milliseconds.
+NATIVE_LOCK = threading.Lock()
 
 
 def _route_mavsdk_logs() -> None:
@@ -62,7 +66,8 @@ class Px4Link:
     def open(self, timeout_s: float | None = None) -> None:
         _route_mavsdk_logs()
         timeout_s = self.connect_timeout_s if timeout_s is None else timeout_s
-        self.mavsdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
+        with NATIVE_LOCK:  # two Mavsdk instances created at once crash the process (slots connect together)
+            self.mavsdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
         result = self.mavsdk.add_any_connection(self.url)
         if result != ConnectionResult.SUCCESS:
             self.close()
@@ -91,7 +96,8 @@ class Px4Link:
 
     def close(self) -> None:
         if self.mavsdk is not None:
-            self.mavsdk.destroy()
+            with NATIVE_LOCK:
+                self.mavsdk.destroy()
         self.mavsdk = None
         self.system = None
 
