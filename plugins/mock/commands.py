@@ -10,6 +10,8 @@ from __future__ import annotations
 import argparse
 import signal
 import sys
+import threading
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -57,24 +59,27 @@ def add_sim_command(subparsers: argparse._SubParsersAction) -> None:
     sim.set_defaults(handler=run_sim)
 
 
-class _Terminated(Exception):
-    """SIGTERM arrived: leave the wait, then stop the simulator in ``finally``."""
+_STOP_REQUESTED = threading.Event()  # set by SIGTERM; polled, never waited on inside a signal handler
 
 
 def _terminate(signum: int, frame: object) -> None:
-    # Raise rather than stop here: the handler runs on the main thread, possibly inside
-    # Event.wait() holding the event's lock, and Event.set() from here would deadlock on it.
-    raise _Terminated
+    # Only note it: raising out of a handler that interrupted Event.wait() could leave the event's lock
+    # in a state its own Event.set() then blocks on (a simulator that once ignored SIGTERM for 10 s in
+    # the suite); the serving loop polls the flag instead.  Event.set() here is safe: the main thread
+    # never holds this event's lock (nothing waits on it).
+    _STOP_REQUESTED.set()
 
 
 def _serve(lines: list[str], wait: Callable[[], None], stop: Callable[[], None]) -> int:
-    """Announce (first line: ``listening on …``), run until Ctrl-C or SIGTERM, then stop; exit 0."""
+    """Announce (first line: ``listening on …``), run until Ctrl-C or SIGTERM, then stop; exit 0.
+    ``wait`` is the simulator's own blocking wait (kept for callers; the loop here polls instead)."""
     signal.signal(signal.SIGTERM, _terminate)  # before "listening on": a caller may stop us at once
     try:
         for line in lines:
             print(line, flush=True)
-        wait()
-    except (KeyboardInterrupt, _Terminated):
+        while not _STOP_REQUESTED.is_set():
+            time.sleep(0.1)
+    except KeyboardInterrupt:
         pass
     finally:
         stop()
