@@ -19,7 +19,7 @@ from magline.core.plugins import hookimpl
 from magline.core.record import Outcome, PhaseResult, RunRecord
 from magline.core.sequencer.batch import Batch
 from magline.core.sequencer.context import RunContext
-from magline.core.text import fmt, percent, seconds
+from magline.core.text import fmt, percent, seconds, stop_line
 
 MARK = {Verdict.PASS: "✓", Verdict.FAIL: "✗", Verdict.REVIEW: "!", Verdict.INFO: "·"}
 WAIT_EVERY_S = 5  # plain-text consoles print a countdown line this often
@@ -101,6 +101,15 @@ class OperatorConsole:
             self._attempt = attempt
         self._progress.update(self._task, completed=pct, samples=samples)
 
+    @hookimpl
+    def magline_acquisition_stopped(self, run: RunContext, attempt: int, reason: str, after_s: float,
+                                    readings: int) -> None:
+        line = stop_line(reason, after_s, readings)
+        if run.slot is not None:
+            return self.slots.note(run, line)
+        self._stop_progress()
+        self.console.print(f"    [bold green]{line}[/]" if reason == "determined" else f"    {line}")
+
     def _stop_progress(self) -> None:
         if self._progress is not None:
             self._progress.stop()
@@ -180,3 +189,4 @@ def verdict_lines(record: RunRecord) -> list[str]:
     if record.report or record.report_error:
         lines.append(f"  report: {record.report}" if record.report else f"  {record.report_error}")
     return lines
+

@@ -114,6 +114,13 @@ class SlotBoard:
                 self._say(run.slot, f"attempt {attempt}: {samples} readings, coverage {pct}% "
                                     f"(target {percent(target)})")
 
+    def note(self, run: RunContext, line: str) -> None:
+        """A one-off line for a slot (its tumble ended), also shown as the slot's message."""
+        with self._lock:
+            self.views[run.slot].message = line
+            self._refresh()
+            self._say(run.slot, line)
+
     def waiting(self, run: RunContext, what: str, elapsed_s: float, limit_s: float | None) -> None:
         with self._lock:
             left = f", {max(limit_s - elapsed_s, 0):.0f} s left" if limit_s else ""

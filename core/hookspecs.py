@@ -240,6 +240,22 @@ def magline_acquisition_progress(run: RunContext, attempt: int, samples: int, co
 
 
 @hookspec
+def magline_acquisition_stopped(run: RunContext, attempt: int, reason: str, after_s: float, readings: int,
+                                predicted: dict[str, dict[str, float]]) -> None:
+    """An attempt's tumble ended, before its fit is judged: an operator view says "determined after
+    N s" (or that the most readings were taken) and can tell the operator to stop moving the unit.
+
+    :param reason: ``"determined"`` (coverage and predicted uncertainties inside the station's
+        limits), ``"samples"`` (``acquisition.samples`` read), or ``"stream ended"``.
+    :param after_s: seconds of tumbling (from the motion's start for this unit).
+    :param readings: distinct readings of the primary magnetometer.
+    :param predicted: when determined, the running fit's predicted σ per sensor (its measurement
+        prefix, ``""`` for the primary) by measurement name (``direction_sigma_deg``,
+        ``hard_iron_sigma_ut``); empty otherwise.
+    """
+
+
+@hookspec
 def magline_waiting(run: RunContext, what: str, elapsed_s: float, limit_s: float | None) -> None:
     """A long wait of the station is under way (the power cycle and the new boot): called about once
     a second, from a timer thread, so that an operator view can show a countdown.

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 import time
-from contextlib import closing
+from contextlib import closing, nullcontext
 from dataclasses import replace
 
 import numpy as np
@@ -18,31 +18,43 @@ from magline.core.dut import DutError, ParamValue, SampleChunk
 from magline.core.faults import StationFault, UnitAborted
 from magline.core.fit import CoverageTracker, FitOptions, FitResult, coverage_of, fit_calibration
 from magline.core.fit.coverage import covered_bins
+from magline.core.fit.running import PREDICTED, RunningFit, StopRule
 from magline.core.fit.samples_csv import RawSamples
-from magline.core.measurements import Array, Json, Measurement, Numeric
+from magline.core.measurements import Array, Json, Measurement, Numeric, limit_for
 from magline.core.mounting import ImuSeries, orientation_matrix
 from magline.core.plugins import hookimpl
 from magline.core.record import PersistReport, VerifyReport
 from magline.core.sequencer.context import Acquisition, AcquisitionAborted, RunContext
 
+# The running fit is handed the tumble at checkpoints of the primary's count, every 2.5 % more
+# readings (at least 3): at 10 Hz about every half second, at 200 Hz every tenth.  Counts, not
+# seconds, so that the same readings stop at the same point on any machine.
+CHECK_EVERY_FRACTION, CHECK_EVERY_MIN = 0.025, 3
+AHEAD_S = 0.5  # a stream this far ahead of the wall clock runs in simulated time: the fit is awaited
+
 
 @hookimpl(trylast=True)
 def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
-    """Read distinct readings until ``acquisition.samples`` arrived (the count is of readings, not
-    of stream messages: a stream faster than the sensor repeats readings, which the backend drops).
+    """Read distinct readings until the calibration is determined (``acquisition.stop: determined``:
+    coverage and the running fit's predicted σ inside the station's limits with a margin, see
+    :mod:`magline.core.fit.running`) or ``acquisition.samples`` arrived.  The count is of readings,
+    not of stream messages: a stream faster than the sensor repeats readings, which the backend drops.
 
-    With several magnetometers the primary's count ends the tumble; every other sensor keeps all its
-    readings of the same tumble, and the coverage shown and judged is the worst sensor's."""
+    With several magnetometers the primary's count is the one kept to; every other sensor keeps all
+    its readings of the same tumble, the stop waits for the last of them to be determined, and the
+    coverage shown and judged is the worst sensor's."""
     cfg = run.station.acquisition
     dut = run.require_dut()
     run.prompt(run.station.prompts.tumble if attempt == 1 else run.retry_advice or run.station.prompts.retry)
     tracker = CoverageTracker(cfg.coverage_bins)
     others: dict[int, CoverageTracker] = {}
     got = _Readings(run.unit.selected_sensor if run.unit is not None else 0)
+    running = _running_fit(run) if cfg.stop == "determined" else None
+    reason, tumble_s = "stream ended", 0.0
     try:
-        with run.shared_motion(), closing(dut.samples(cfg.rate_hz)) as stream:
+        with run.shared_motion(), closing(dut.samples(cfg.rate_hz)) as stream, running or nullcontext():
             started = time.monotonic()  # the fixture moves from here (a slot may have waited for the others)
-            deadline = started + cfg.timeout_s
+            deadline, checkpoint = started + cfg.timeout_s, cfg.min_samples
             for chunk in stream:
                 taken = got.add(chunk, room=cfg.samples - got.count)
                 coverage = tracker.add(taken)
@@ -51,21 +63,71 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
                                    .add(np.atleast_2d(more.mag_ut)))
                 bins = tracker.bins if not others else min([tracker, *others.values()], key=lambda t: len(t.bins)).bins
                 run.progress(attempt, got.count, coverage, cfg.coverage_target, bins, cfg.coverage_bins)
+                now = time.monotonic()
+                tumble_s = now - started
                 if got.count >= cfg.samples:
+                    reason = "samples"
                     break
-                if time.monotonic() > deadline:
-                    raise StationFault(_too_slow(got, cfg.samples, cfg.timeout_s, time.monotonic() - started))
+                if running is not None:
+                    if running.determined is not None:
+                        reason = "determined"
+                        break
+                    if coverage >= running.rule.coverage_target and got.count >= checkpoint:
+                        checkpoint = got.count + max(CHECK_EVERY_MIN, int(got.count * CHECK_EVERY_FRACTION))
+                        snapshot = got.snapshot(run)
+                        if len(snapshot) == max(1, len(run.magnetometers)):  # every sensor has readings
+                            ahead = _stream_s(snapshot[""]) > tumble_s + AHEAD_S
+                            running.offer(got.count, tumble_s, snapshot, wait=ahead)
+                            if running.determined is not None:
+                                reason = "determined"
+                                break
+                if now > deadline:
+                    raise StationFault(_too_slow(got, cfg.samples, cfg.timeout_s, now - started))
                 run.check_abort()
     except (Exception, UnitAborted) as exc:
         raise AcquisitionAborted(got.acquisition(attempt, cfg.coverage_bins, cfg.coverage_target), exc) from exc
     if got.count == 0:
         raise DutError("the DUT sent no samples")
     result = got.acquisition(attempt, cfg.coverage_bins, cfg.coverage_target)
+    result.stopped, result.tumble_s = reason, tumble_s
+    if reason == "determined" and running is not None and running.determined is not None:
+        result.predicted = running.determined.predicted
     worst = min(result.coverages, key=result.coverages.get) if result.coverages else None
     mags = result.more[worst].mag_ut if worst in result.more else result.samples.mag_ut
     bins = covered_bins(mags, cfg.coverage_bins)  # the end adds its own checkpoint
     run.progress(attempt, got.count, result.coverage, cfg.coverage_target, bins, cfg.coverage_bins)
+    run.acquisition_stopped(result)
     return result
+
+
+def _stream_s(samples: RawSamples) -> float:
+    """Seconds the readings span on their own clock (0 without time stamps)."""
+    t = samples.t_ms
+    return float((t[-1] - t[0]) / 1000.0) if t is not None and len(t) > 1 and np.all(np.isfinite(t[[0, -1]])) else 0.0
+
+
+def _running_fit(run: RunContext) -> RunningFit:
+    """The fit beside the tumble: the station's own fit hook and settings for each sensor, judged
+    against each sensor's σ limits (and the fit's own heading refusal) with the station's margin."""
+    cfg = run.station.acquisition
+    sensors = {run.sensor_prefix(m.device_id): m for m in run.magnetometers} or {"": None}
+    limits: dict[str, dict[str, float]] = {}
+    coverage: dict[str, float] = {}
+    for prefix in sensors:
+        if (floor := limit_for(prefix + "coverage", run.limits)) is not None and floor.low is not None:
+            coverage[prefix] = floor.low  # the tumble that stops must also pass the coverage limit
+        own = {name: limit.high for name in PREDICTED
+               if (limit := limit_for(prefix + name, run.limits)) is not None and limit.high is not None}
+        refusal = run.station.fit.max_direction_sigma_deg  # the fit refuses above it: never stop there
+        own["direction_sigma_deg"] = min(own.get("direction_sigma_deg", refusal), refusal)
+        limits[prefix] = own
+    rule = StopRule(min_samples=cfg.min_samples, coverage_target=cfg.coverage_target,
+                    margin=cfg.sigma_margin, limits=limits, coverage=coverage)
+
+    def fitter(prefix: str, samples: RawSamples) -> FitResult:
+        return run.plugins.hook.magline_fit(run=run, samples=samples, options=run.fit_options(sensors[prefix]))
+
+    return RunningFit(rule, fitter)
 
 
 class _Stream:
@@ -111,6 +173,16 @@ class _Readings(_Stream):
         if chunk.imu is not None and len(chunk.imu):
             self.imu.append(chunk.imu)
         return super().add(chunk, room)
+
+    def snapshot(self, run: RunContext) -> dict[str, RawSamples]:
+        """Every calibrated sensor's readings so far, by measurement prefix (what the running fit fits)."""
+        out = {}
+        for position, sensor in enumerate(run.magnetometers or [None]):
+            if position == 0:
+                out[""] = self.samples()
+            elif sensor is not None and sensor.device_id in self.more:
+                out[run.sensor_prefix(sensor.device_id)] = self.more[sensor.device_id].samples()
+        return out
 
     def acquisition(self, attempt: int, bins: int, target: float) -> Acquisition:
         samples = self.samples()

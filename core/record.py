@@ -55,6 +55,9 @@ class AttemptRecord:
     sensor_rate_hz: float | None = None  # distinct readings per second actually received
     more: dict[int, RawSamples] = field(default_factory=dict)  # the other magnetometers' readings, by device id
     imu: Any = None  # the accelerometer's readings (an ImuSeries), when the stream has them
+    stopped: str | None = None  # why the tumble ended: "determined", "samples", "stream ended"
+    tumble_s: float | None = None  # seconds of tumbling
+    predicted: dict[str, dict[str, float]] = field(default_factory=dict)  # the running fit's σ when determined
 
 
 @dataclass

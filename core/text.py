@@ -34,3 +34,12 @@ def seconds(value: float) -> str:
     if value < 10:
         return f"{value:.1f} s"
     return f"{value:.0f} s"
+
+
+def stop_line(reason: str, after_s: float, readings: int) -> str:
+    """How the operator is told the tumble ended: "determined after 6 s — stop moving the unit"."""
+    if reason == "determined":
+        return f"determined after {after_s:.0f} s ({readings} readings) — stop moving the unit"
+    if reason == "samples":
+        return f"tumble complete: {readings} readings in {after_s:.0f} s"
+    return f"the stream ended after {readings} readings"

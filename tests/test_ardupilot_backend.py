@@ -119,7 +119,8 @@ def test_ignored_parameter_fails_the_unit_and_rolls_back(tmp_path):
         assert "previous values restored" in record.cause
         stored = load_json(sim.storage_path)
         assert not any(k.startswith(("COMPASS_OFS_", "COMPASS_DIA_")) for k in stored)  # nothing half-written
-        assert stored_attempts(tmp_path / "results.sqlite", "SN-ODI")[0][0] == 400  # raw data kept
+        kept = stored_attempts(tmp_path / "results.sqlite", "SN-ODI")[0][0]
+        assert kept == record.attempts[0].samples > 0  # raw data kept
 
 
 def test_lost_link_mid_acquisition_is_an_error_keeps_the_raw_data_and_says_what_is_left_changed(tmp_path):

@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+from simstation import attempt_rows
 
 from magline.core.cli import main
 from magline.core.fit.samples_csv import RawSamples, format_samples
@@ -100,7 +101,8 @@ def test_fit_on_an_export_fits_one_run_and_says_which(make_station, tmp_path, ca
     assert main(["fit", str(export), "--serial", "E-2", "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     assert doc["fitted"].endswith("serial E-2 attempt 2")
-    assert doc["samples"]["total"] == 600  # the accepted attempt only
+    accepted = [a for a in attempt_rows(tmp_path / "magline-demo-results.sqlite", "E-2") if a["accepted"]]
+    assert doc["samples"]["total"] == accepted[0]["samples"]  # the accepted attempt only, not both
     assert doc["field_from"].startswith("the readings' own radius")
     assert main(["fit", str(export), "--serial", "E-2", "--attempt", "1"]) == 1  # the refused single-axis spin
     assert "calibration refused" in capsys.readouterr().err

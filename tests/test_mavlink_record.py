@@ -38,13 +38,13 @@ def test_an_ardupilot_unit_is_recorded_both_ways_and_replays_to_the_backend(tmp_
     station_side = [m for m in recorded if m.get_srcSystem() != 1]
     assert any(m.get_type() == "HEARTBEAT" and m.autopilot == mavutil.mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA
                for m in vehicle)
-    assert sum(m.get_type() == "RAW_IMU" for m in vehicle) >= 300
+    (_, line_raw), = stored_attempts(tmp_path / "results.sqlite", "REC-1")
+    assert sum(m.get_type() == "RAW_IMU" for m in vehicle) >= len(line_raw) > 0
     assert any(m.get_type() == "PARAM_SET" and m.param_id == "COMPASS_OFS_X" for m in station_side)
     assert any(m.get_type() == "COMMAND_LONG" and m.command == REBOOT for m in station_side)
     assert all(b.t >= a.t for a, b in zip(read_tlog(tlog), read_tlog(tlog)[1:], strict=False))
 
     # the same unit's vehicle, replayed: the backend reads exactly the readings the line stored
-    (_, line_raw), = stored_attempts(tmp_path / "results.sqlite", "REC-1")
     product = load_station(station).products["AP-QUAD-200"]
     plugins = load_plugins()
     options = plugins.options("dut backend", "ardupilot", product.options, "options")
@@ -57,11 +57,11 @@ def test_an_ardupilot_unit_is_recorded_both_ways_and_replays_to_the_backend(tmp_
             got = []
             for chunk in dut.samples(200.0):
                 got.append(chunk.mag_ut)
-                if sum(map(len, got)) >= 300:
+                if sum(map(len, got)) >= len(line_raw):
                     break
         finally:
             dut.close()
-    assert np.allclose(np.vstack(got)[:300], line_raw.mag_ut, atol=1e-4)
+    assert np.allclose(np.vstack(got)[:len(line_raw)], line_raw.mag_ut, atol=1e-4)
 
 
 def test_a_px4_unit_over_mavsdk_is_recorded_both_ways(tmp_path):

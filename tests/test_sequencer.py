@@ -50,7 +50,13 @@ def test_demo_command_passes_after_exactly_one_retry(tmp_path):
     assert [(a["attempt"], a["accepted"]) for a in attempts] == [(1, 0), (2, 1)]
     assert attempts[0]["coverage"] < 0.6 <= attempts[1]["coverage"]
     raw = attempts[1]["raw"]
-    assert len(raw) == 600
+    # the first attempt (a spin about one axis) never reaches the coverage: it reads the most asked;
+    # the second stops once determined, with every reading up to the stop kept
+    assert (attempts[0]["stopped"], attempts[0]["samples"]) == ("samples", 600)
+    assert attempts[1]["stopped"] == "determined" and 100 <= len(raw) == attempts[1]["samples"] < 600
+    predicted = json.loads(attempts[1]["predicted"])[""]
+    assert predicted["direction_sigma_deg"] <= 0.7 * 0.5 and attempts[1]["tumble_s"] > 0
+    assert "determined after" in proc.stdout
     truth = demo_config()["products"]["MOCK-100"]["options"]
     cal = json.loads(calibration)
     sigma = np.array(cal["hard_iron_sigma_ut"])

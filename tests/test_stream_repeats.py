@@ -51,7 +51,8 @@ def test_truncated_int16_is_undone_on_average(rng):
 
 def test_a_clean_unit_at_50_hz_stream_and_10_hz_sensor_passes_with_honest_sigma(tmp_path):
     """ArduPilot's real ratio: each reading arrives five times.  The unit passes, nothing is cut as
-    warm-up, the attempt counts distinct readings, and σ is that of 150 readings, not of 750."""
+    warm-up, the attempt counts distinct readings, and σ is that of the distinct readings (at most
+    150), not of five times as many."""
     readings, noise = 150, 0.3
     with create_sim("ardupilot", "tcp:127.0.0.1:0", workdir=tmp_path / "fc", seed=11, boot_time_s=0.3,
                     speed=2.0) as sim:
@@ -61,15 +62,15 @@ def test_a_clean_unit_at_50_hz_stream_and_10_hz_sensor_passes_with_honest_sigma(
         record = run(station)
     assert record.verdict is Outcome.PASS, record.cause
     attempt = record.attempts[-1]
-    assert attempt.samples == readings
-    assert 3.0 <= attempt.repeats / readings <= 5.0  # about four copies dropped per reading
+    assert attempt.samples <= readings  # the most asked (a determined tumble may stop before)
+    assert 3.0 <= attempt.repeats / attempt.samples <= 5.0  # about four copies dropped per reading
     assert attempt.sensor_rate_hz == pytest.approx(10.0, rel=0.15)
     cal = record.calibration
-    assert "warm_up" not in cal["samples"]["rejected"] and cal["samples"]["used"] >= readings - 3
+    assert "warm_up" not in cal["samples"]["rejected"] and cal["samples"]["used"] >= attempt.samples - 3
     assert not (cal["drift"] or {}).get("modelled")
     assert cal["noise_ut"] == pytest.approx(noise, rel=0.3)  # the scatter of distinct readings
     # an offset fitted to N independent readings on a full tumble has 1σ ≈ noise·√(3/N) per axis
-    predicted = noise * np.sqrt(3.0 / readings) * np.sqrt(3.0)
+    predicted = noise * np.sqrt(3.0 / attempt.samples) * np.sqrt(3.0)
     assert 0.6 * predicted < np.linalg.norm(cal["hard_iron_sigma_ut"]) < 1.8 * predicted
 
 
@@ -84,8 +85,8 @@ def test_the_truncation_no_longer_biases_the_calibration(tmp_path, hard_iron_ut)
     with create_sim("ardupilot", "tcp:127.0.0.1:0", workdir=tmp_path / "fc", seed=5, boot_time_s=0.3,
                     speed=5.0, mag_rate_hz=100.0, magnetometers=[sensor]) as sim:
         station = write_station("ardupilot-sim.yaml", tmp_path, sim.address, AP,
-                                {"acquisition": {"samples": 600, "rate_hz": 200.0}})
-        record = run(station)
+                                {"acquisition": {"samples": 600, "rate_hz": 200.0, "stop": "samples"}})
+        record = run(station)  # 600 readings: a bias of 0.05 % shows above their noise
         assert record.verdict is Outcome.PASS, record.cause
         radius = np.linalg.norm(sim.corrected_sphere(sensor.device_id, n=4000), axis=1)
     assert abs(radius.mean() / sim.field_ut - 1.0) < 0.0005

@@ -117,7 +117,9 @@ class SqlStore:
             conn.execute(attempts.insert().values(
                 run_id=record.run_id, attempt=attempt.attempt, samples=attempt.samples, coverage=attempt.coverage,
                 target=attempt.target, accepted=int(attempt.accepted), raw=raw_blob.encode(attempt.raw),
-                refused=attempt.refused, repeats=attempt.repeats, sensor_rate_hz=attempt.sensor_rate_hz))
+                refused=attempt.refused, repeats=attempt.repeats, sensor_rate_hz=attempt.sensor_rate_hz,
+                stopped=attempt.stopped, tumble_s=attempt.tumble_s,
+                predicted=json.dumps(attempt.predicted) if attempt.predicted else None))
             _insert(conn, attempt_streams, streams)
 
         self._write("storing the attempt's raw data", write)

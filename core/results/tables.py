@@ -58,6 +58,8 @@ attempts = Table(
     Column("coverage", Float), Column("target", Float), Column("accepted", Integer),
     Column("raw", LargeBinary),  # the samples as a .npy float32 array (raw_blob)
     Column("refused", Text), Column("repeats", Integer), Column("sensor_rate_hz", Float),
+    # why and when the tumble ended, and the running fit's predicted σ then (JSON; see migration 0011)
+    Column("stopped", Text), Column("tumble_s", Float), Column("predicted", Text),
 )
 
 # The other streams of an attempt: each further magnetometer's readings (``stream`` = "mag:<device id>",

@@ -21,7 +21,7 @@ from magline.core.plugins import hookimpl
 from magline.core.record import PhaseResult, RunRecord
 from magline.core.sequencer.batch import Batch
 from magline.core.sequencer.sequencer import PHASES
-from magline.core.text import fmt
+from magline.core.text import fmt, stop_line
 
 RECENT = 12  # units listed on the screen
 
@@ -122,6 +122,15 @@ class ScreenState:
                            target_samples=run.station.acquisition.samples, bins=list(bins or []),
                            progress_at_ms=time.time() * 1e3)  # when these samples reached the sequencer
             self._changed()
+
+    @hookimpl
+    def magline_acquisition_stopped(self, run: Any, attempt: int, reason: str, after_s: float, readings: int) -> None:
+        with self._lock:
+            current = self._run_of(run)
+            if current is not None:
+                current["stopped"] = {"attempt": attempt, "reason": reason, "after_s": round(after_s, 1),
+                                      "readings": readings, "line": stop_line(reason, after_s, readings)}
+                self._changed()
 
     @hookimpl
     def magline_operator_prompt(self, run: Any, message: str) -> None:

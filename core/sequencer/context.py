@@ -19,7 +19,7 @@ from magline.core.fit.samples_csv import RawSamples
 if TYPE_CHECKING:
     from magline.core.dut import DutBackend, Magnetometer, UnitInfo
     from magline.core.field import FieldSource
-    from magline.core.fit import FitResult
+    from magline.core.fit import FitOptions, FitResult
     from magline.core.mounting import ImuSeries
     from magline.core.plugins import Plugins
     from magline.core.power import PowerControl
@@ -47,6 +47,11 @@ class Acquisition:
     more: dict[int, RawSamples] = field(default_factory=dict)
     imu: ImuSeries | None = None
     coverages: dict[int, float] = field(default_factory=dict)  # per device id; ``coverage`` is the worst
+    # why the tumble ended ("determined", "samples": the most asked for, "stream ended"), after how
+    # long, and the running fit's predicted uncertainties per sensor prefix when it was determined
+    stopped: str | None = None
+    tumble_s: float | None = None
+    predicted: dict[str, dict[str, float]] = field(default_factory=dict)
 
     @property
     def sufficient(self) -> bool:
@@ -139,6 +144,18 @@ class RunContext:
             done.set()
             ticker.join(timeout=2.0)
 
+    def acquisition_stopped(self, result: Acquisition) -> None:
+        """The tumble of an attempt ended: say why and when to the log and to every listener."""
+        if result.stopped == "determined":
+            worst = max(result.predicted.values(), key=lambda f: f.get("direction_sigma_deg", 0.0), default={})
+            self.log(f"determined after {result.tumble_s:.1f} s: {len(result.samples)} readings, predicted heading "
+                     f"σ {worst.get('direction_sigma_deg', float('nan')):.2f}°")
+        elif result.stopped == "samples":
+            self.log(f"tumble ended at {len(result.samples)} readings after {result.tumble_s:.1f} s")
+        self.plugins.hook.magline_acquisition_stopped(run=self, attempt=result.attempt, reason=result.stopped or "",
+                                                      after_s=result.tumble_s or 0.0, readings=len(result.samples),
+                                                      predicted=dict(result.predicted))
+
     def progress(self, attempt: int, samples: int, coverage: float, target: float,
                  bins: Sequence[int] | None = None, n_bins: int | None = None) -> None:
         self.plugins.hook.magline_acquisition_progress(run=self, attempt=attempt, samples=samples,
@@ -150,6 +167,21 @@ class RunContext:
         if self.power is None:
             raise RuntimeError("no power control is set up")
         return self.power
+
+    def fit_options(self, sensor: Magnetometer | None = None) -> FitOptions:
+        """The fit's settings for a sensor (the primary by default): clipping is judged against the
+        station's ``range_ut``, else the range the backend says the sensor's readings can carry."""
+        from magline.core.fit import FitOptions
+
+        model = self.product.soft_iron_model
+        if model == "auto":
+            model = self.unit.soft_iron_model if self.unit else "full"
+        sensor = sensor or (self.magnetometers[0] if self.magnetometers else None)
+        acq = self.station.acquisition
+        return FitOptions(model=model, field_ut=self.reference_field_ut,
+                          range_ut=acq.range_ut or (sensor.range_ut if sensor else None),
+                          coverage_bins=acq.coverage_bins, gain_sigma=self.station.fit.gain_sigma,
+                          max_direction_sigma_deg=self.station.fit.max_direction_sigma_deg)
 
     def sensor_prefix(self, device_id: int) -> str:
         """The measurement-name prefix of a sensor: ``""`` for the primary, ``mag2.`` for the second…"""

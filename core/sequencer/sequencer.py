@@ -23,7 +23,7 @@ from magline.core import __version__
 from magline.core.dut import DutError, Magnetometer, NotRestored
 from magline.core.faults import StationFault, UnitAborted
 from magline.core.field import FieldSourceError
-from magline.core.fit import FitOptions, FitRefused, FitResult
+from magline.core.fit import FitRefused, FitResult
 from magline.core.measurements import Json, Verdict, prefixed, verdicts
 from magline.core.plugins import Plugins
 from magline.core.quality.review import review
@@ -276,7 +276,7 @@ class Sequencer:
         run.log(f"{run.unit.autopilot} {run.unit.firmware}, magnetometer{'s' if len(run.magnetometers) > 1 else ''} "
                 f"{names}")
         why = run.unit.extra.get("soft_iron_model_why")
-        run.log(f"soft iron model {self._fit_options(run).model}" + (f": {why}" if why else ""))
+        run.log(f"soft iron model {run.fit_options().model}" + (f": {why}" if why else ""))
         run.dut.prepare()
 
     def _acquire(self, run: RunContext) -> None:
@@ -346,7 +346,7 @@ class Sequencer:
                 raise DutError(f"{label} sent no readings during the tumble")
             try:
                 fits[sensor.device_id] = self.plugins.hook.magline_fit(run=run, samples=samples,
-                                                                       options=self._fit_options(run, sensor))
+                                                                       options=run.fit_options(sensor))
             except FitRefused as exc:
                 if len(run.magnetometers) == 1:
                     raise
@@ -357,23 +357,11 @@ class Sequencer:
         stored = AttemptRecord(attempt=result.attempt, samples=len(result.samples), coverage=result.coverage,
                                target=result.target, raw=result.samples, accepted=accepted,
                                repeats=result.repeats, sensor_rate_hz=result.sensor_rate_hz,
-                               more=dict(result.more), imu=result.imu)
+                               more=dict(result.more), imu=result.imu, stopped=result.stopped,
+                               tumble_s=result.tumble_s, predicted=dict(result.predicted))
         run.record.attempts.append(stored)
         self.sink.save_attempt(run.record, stored)  # raw data safe before any fitting
         return stored
-
-    def _fit_options(self, run: RunContext, sensor: Magnetometer | None = None) -> FitOptions:
-        """The fit's settings for a sensor: clipping is judged against the station's ``range_ut``, else
-        the range the backend says the sensor's readings can carry."""
-        model = run.product.soft_iron_model
-        if model == "auto":
-            model = run.unit.soft_iron_model if run.unit else "full"
-        sensor = sensor or (run.magnetometers[0] if run.magnetometers else None)
-        return FitOptions(model=model, field_ut=run.reference_field_ut,
-                          range_ut=self.station.acquisition.range_ut or (sensor.range_ut if sensor else None),
-                          coverage_bins=self.station.acquisition.coverage_bins,
-                          gain_sigma=self.station.fit.gain_sigma,
-                          max_direction_sigma_deg=self.station.fit.max_direction_sigma_deg)
 
     def _fit(self, run: RunContext) -> None:
         """Record the fits that the accepted attempt produced (the acquire phase ran them)."""

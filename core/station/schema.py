@@ -168,6 +168,16 @@ class FieldSource(_Strict):
 
 
 class Acquisition(_Strict):
+    """How a tumble is read.
+
+    ``stop: determined`` (the default) ends the tumble as soon as every magnetometer's coverage is at
+    ``coverage_target`` and the running fit's predicted σ (heading, offset) are at most
+    ``sigma_margin`` × the station's limits for them, never before ``min_samples`` readings;
+    ``samples`` is then the most it takes.  ``stop: samples`` always reads ``samples`` readings."""
+
+    stop: Literal["determined", "samples"] = "determined"
+    min_samples: Annotated[int, Field(ge=12)] = 100
+    sigma_margin: Annotated[float, Field(gt=0, le=1)] = 0.7
     samples: Annotated[int, Field(ge=12)] = 600
     rate_hz: Annotated[float, Field(gt=0, le=1000)] = 50.0
     coverage_bins: Annotated[int, Field(ge=4, le=10000)] = 100
@@ -176,6 +186,13 @@ class Acquisition(_Strict):
     retry_delay_s: Annotated[float, Field(ge=0)] = 1.0
     timeout_s: Annotated[float, Field(gt=0)] = 120.0
     range_ut: Annotated[float, Field(gt=0)] | None = None
+
+    @model_validator(mode="after")
+    def _min_within_samples(self) -> Acquisition:
+        if self.stop == "determined" and self.min_samples > self.samples:
+            raise ValueError(f"min_samples ({self.min_samples}) cannot exceed samples ({self.samples}), "
+                             "the most a determined tumble reads")
+        return self
 
 
 class FitSettings(_Strict):

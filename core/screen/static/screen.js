@@ -67,15 +67,30 @@ function slotPanel(slot, entry) {
       + `<div class="word">${esc(v.verdict.toUpperCase())}</div><div class="cause">${esc(v.cause || "")}</div>${items}</div>`;
   }
   const running = run.phases.find((p) => p.state === "running");
-  const fraction = run.target_samples ? Math.min(1, run.samples / run.target_samples) : 0;
+  const fraction = progressFraction(run);
   return `<div class="slot" data-slot="${esc(slot.id)}"><h3>slot ${esc(slot.id)} · ${esc(run.serial)} <small>${esc(run.part)}</small></h3>`
     + `<div class="phase">${esc(running ? running.name : "…")}${run.waiting ? ` · ${esc(run.waiting.what)} ${run.waiting.elapsed_s} s` : ""}</div>`
     + `<div class="attempt">${run.attempt ? `attempt ${run.attempt}` : ""}</div>`
     + `<div class="bar"><div style="width:${fraction * 100}%"></div></div>`
-    + `<div>${run.target_samples ? `${run.samples} / ${run.target_samples} samples` : ""}`
+    + `<div>${run.target_samples ? `${run.samples} readings (at most ${run.target_samples})` : ""}`
     + `${run.n_bins ? `, coverage ${pct(run.coverage)} (target ${pct(run.target)})` : ""}</div>`
-    + `<div class="prompt">${esc(run.prompt)}</div></div>`;
+    + `<div class="prompt">${esc(promptOf(run))}</div></div>`;
 }
+
+// Progress toward the stop: coverage against its target where directions are judged (a determined
+// tumble can end long before the most samples), else the sample count.
+function progressFraction(run) {
+  if (!run) { return 0; }
+  if (stoppedNow(run)) { return 1; }
+  if (run.n_bins && run.target) { return Math.min(1, run.coverage / run.target); }
+  return run.target_samples ? Math.min(1, run.samples / run.target_samples) : 0;
+}
+
+function stoppedNow(run) { return run && run.stopped && run.stopped.attempt === run.attempt; }
+
+// Once the tumble of this attempt ended the operator is told so ("determined after 6 s — stop
+// moving the unit") instead of the tumble prompt.
+function promptOf(run) { return stoppedNow(run) ? run.stopped.line : (run ? run.prompt : ""); }
 
 let slotInputsMade = false;
 function renderSlots(s) {
@@ -129,11 +144,11 @@ function render(s) {
 
   const run = s.run;
   $("unit").textContent = run ? `${run.serial} · ${run.part}` : "";
-  $("prompt").textContent = run ? run.prompt : "";
+  $("prompt").textContent = promptOf(run);
   $("attempt").textContent = run && run.attempt ? `attempt ${run.attempt}` : "";
-  const fraction = run && run.target_samples ? Math.min(1, run.samples / run.target_samples) : 0;
+  const fraction = progressFraction(run);
   $("progress-bar").style.width = `${fraction * 100}%`;
-  $("progress-text").textContent = run && run.target_samples ? `${run.samples} / ${run.target_samples} samples` : "";
+  $("progress-text").textContent = run && run.target_samples ? `${run.samples} readings (at most ${run.target_samples})` : "";
   $("phases").innerHTML = run ? run.phases.map((p) =>
     `<li class="${esc(p.state)}">${esc(p.name)} — ${esc(p.state)}${p.duration_s != null ? ` (${p.duration_s} s)` : ""}`
     + `${p.state === "running" && run.waiting ? ` · ${esc(run.waiting.what)} ${run.waiting.elapsed_s} s` : ""}</li>`).join("") : "";

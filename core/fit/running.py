@@ -1,0 +1,163 @@
+"""The fit that runs beside a tumble, and the rule that says the tumble has determined the calibration.
+
+Why: a line is paid by the second, and a fixed sample count is either too many (a fast sensor on a
+good tumble, already determined after a few seconds) or too few.  The fit knows its own
+uncertainty, so the tumble can end the moment every magnetometer's predicted σ is inside the
+station's limits with a margin and the coverage target is met, never before ``min_samples``.
+
+The fits run on a worker thread, on snapshots of what arrived so far: the stream keeps being read
+while a fit runs (nothing is dropped, nothing waits), and a snapshot that arrives while the worker
+is busy replaces the one waiting, so the worker always fits the newest readings.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+
+from magline.core.fit.result import FitRefused, FitResult
+from magline.core.fit.samples_csv import RawSamples
+
+# The predicted uncertainties a station's limits can hold, each read off a fit the same way the
+# validate phase measures it.
+PREDICTED: dict[str, Callable[[FitResult], float]] = {
+    "direction_sigma_deg": lambda fit: float(fit.direction_sigma_deg),
+    "hard_iron_sigma_ut": lambda fit: float((fit.hard_iron_sigma_ut ** 2).sum() ** 0.5),
+}
+
+
+@dataclass(frozen=True)
+class StopRule:
+    """When a tumble has determined the calibration: every sensor's coverage at its target, and each
+    predicted σ at most ``margin`` × its limit, after at least ``min_samples`` readings.
+
+    ``limits``: per sensor (its measurement prefix, ``""`` for the primary, ``mag2.``…) the upper
+    limit of each of :data:`PREDICTED` the station holds for it; ``coverage``: per sensor, the
+    coverage it needs where more than ``coverage_target`` (a ``coverage`` limit of the station)."""
+
+    min_samples: int
+    coverage_target: float
+    margin: float
+    limits: Mapping[str, Mapping[str, float]]
+    coverage: Mapping[str, float] = field(default_factory=dict)
+
+    def targets(self, sensor: str) -> dict[str, float]:
+        return {name: self.margin * limit for name, limit in self.limits.get(sensor, {}).items()}
+
+    def judge(self, fits: Mapping[str, FitResult]) -> dict[str, dict[str, float]] | None:
+        """Every sensor's predicted figures when each meets its targets, else None."""
+        predicted: dict[str, dict[str, float]] = {}
+        for sensor, fit in fits.items():
+            if fit.coverage < max(self.coverage_target, self.coverage.get(sensor, 0.0)):
+                return None
+            figures = {name: read(fit) for name, read in PREDICTED.items()}
+            if any(not figures[name] <= target for name, target in self.targets(sensor).items()):
+                return None
+            predicted[sensor] = figures
+        return predicted
+
+
+@dataclass
+class Determination:
+    """The running fit's answer: the tumble is determined after ``readings`` of the primary, at
+    ``after_s`` seconds of tumbling, with these predicted figures per sensor."""
+
+    readings: int
+    after_s: float
+    predicted: dict[str, dict[str, float]] = field(default_factory=dict)
+
+
+Fitter = Callable[[str, RawSamples], FitResult]
+
+
+class RunningFit:
+    """Fits snapshots of the tumble on a worker thread until one is determined.
+
+    ``fitter(sensor, samples)`` is the station's fit (the same engine as the final one);
+    ``offer`` hands over a snapshot without waiting; ``determined`` is set once a snapshot met the
+    rule.  Use as a context manager: leaving stops the worker (a fit under way finishes on its own,
+    its answer ignored)."""
+
+    def __init__(self, rule: StopRule, fitter: Fitter) -> None:
+        self.rule = rule
+        self.fitter = fitter
+        self.determined: Determination | None = None
+        self.fits_run = 0
+        self.last_error: str | None = None  # the last snapshot's refusal (said only when asked)
+        self._pending: tuple[int, float, dict[str, RawSamples]] | None = None
+        self._cond = threading.Condition()
+        self._closed = False
+        self._busy = False
+        self.fit_s = 0.0  # how long the last snapshot's fits took
+        self._thread = threading.Thread(target=self._work, name="magline-running-fit", daemon=True)
+
+    def __enter__(self) -> RunningFit:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+
+    @property
+    def idle(self) -> bool:
+        """Nothing waiting and nothing being fitted: a new snapshot would be fitted at once."""
+        with self._cond:
+            return self._pending is None and not self._busy
+
+    def offer(self, readings: int, after_s: float, snapshot: dict[str, RawSamples], wait: bool = False) -> None:
+        """The tumble so far (``readings`` of the primary, ``after_s`` seconds in), by sensor name.
+
+        ``wait``: return only once this snapshot is judged.  For a stream that runs ahead of real
+        time (a replay, a simulator in simulated time) waiting costs no reading, and it makes the
+        stop the same on any machine; a live stream never waits."""
+        if readings < self.rule.min_samples or self.determined is not None:
+            return
+        with self._cond:
+            self._pending = (readings, after_s, snapshot)
+            self._cond.notify_all()
+            while wait and (self._pending is not None or self._busy) and not self._closed:
+                self._cond.wait()
+
+    def _work(self) -> None:
+        # The fit's statistical tests import scipy.stats on first use (about a second, kept out of
+        # every CLI start): paid here while the tumble begins, not by the first snapshot.
+        import scipy.stats  # noqa: F401
+
+        while True:
+            with self._cond:
+                while self._pending is None and not self._closed:
+                    self._cond.wait()
+                if self._closed:
+                    return
+                readings, after_s, snapshot = self._pending
+                self._pending = None
+                self._busy = True
+            try:
+                self._judge(readings, after_s, snapshot)
+            finally:
+                with self._cond:
+                    self._busy = False
+                    self._cond.notify_all()
+
+    def _judge(self, readings: int, after_s: float, snapshot: dict[str, RawSamples]) -> None:
+        fits: dict[str, FitResult] = {}
+        started = time.monotonic()
+        try:
+            for sensor, samples in snapshot.items():
+                fits[sensor] = self.fitter(sensor, samples)
+        except FitRefused as exc:  # not determined yet: the next snapshot may be
+            self.last_error = exc.message
+            return
+        except Exception as exc:  # a fit that crashes here crashes the final fit too, which says it
+            self.last_error = f"{type(exc).__name__}: {exc}"
+            return
+        finally:
+            self.fits_run += 1
+            self.fit_s = time.monotonic() - started
+        predicted = self.rule.judge(fits)
+        if predicted is not None:
+            self.determined = Determination(readings=readings, after_s=after_s, predicted=predicted)

@@ -1,0 +1,165 @@
+"""Issue 27: the tumble stops when the calibration is determined, and the record says why and when."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from simstation import attempt_rows, write_station
+
+from magline.core.fit import FitOptions, FitRefused, fit_calibration
+from magline.core.fit.running import PREDICTED, RunningFit, StopRule
+from magline.core.fit.samples_csv import RawSamples
+from magline.core.plugins import hookimpl, load_plugins
+from magline.core.record import Outcome
+from magline.core.sequencer import Sequencer
+from magline.core.station import StationError, load_station
+from magline.core.synthetic import motion_directions, random_truth
+from magline.plugins.mock.sim import SimMagnetometer, create_sim
+from magline.plugins.mock.sim.magnetometers import DEFAULT_IDS
+
+AP = {"connect_timeout_s": 5.0, "boot_timeout_s": 10.0, "prearm_wait_s": 0.3}
+RULE = StopRule(min_samples=50, coverage_target=0.5, margin=0.7,
+                limits={"": {"direction_sigma_deg": 0.5, "hard_iron_sigma_ut": 0.5}})
+
+
+class StopListener:
+    def __init__(self) -> None:
+        self.stops: list[dict] = []
+
+    @hookimpl
+    def magline_acquisition_stopped(self, run, attempt, reason, after_s, readings, predicted):
+        self.stops.append({"attempt": attempt, "reason": reason, "after_s": after_s, "readings": readings,
+                           "predicted": predicted})
+
+
+def run_with(station, listener=None, serial="SN-DET"):
+    seq = Sequencer(load_station(station), load_plugins(extra=[listener] if listener else []), station.parent,
+                    sleep=lambda s: None)
+    try:
+        return seq.run_unit(serial)
+    finally:
+        seq.close()
+
+
+def tumble(n: int, noise_ut: float, seed: int) -> RawSamples:
+    rng = np.random.default_rng(seed)
+    truth = random_truth(rng, noise_ut=noise_ut)
+    mag = truth.read(motion_directions("full_sphere", n, rng, np.array([0.4, 0.0, 0.9])) * 48.0, rng)
+    return RawSamples(mag_ut=mag, t_ms=np.arange(n) * 20.0)
+
+
+def fitted(samples: RawSamples):
+    return fit_calibration(samples.mag_ut, FitOptions(model="full", field_ut=48.0), t_ms=samples.t_ms)
+
+
+def test_the_rule_needs_coverage_and_every_sigma_inside_its_margin_for_every_sensor():
+    good, noisy = fitted(tumble(300, 0.3, 1)), fitted(tumble(60, 1.0, 2))
+    assert RULE.targets("") == {"direction_sigma_deg": pytest.approx(0.35), "hard_iron_sigma_ut": pytest.approx(0.35)}
+    predicted = RULE.judge({"": good})
+    assert predicted is not None and set(predicted[""]) == set(PREDICTED)
+    assert predicted[""]["direction_sigma_deg"] == pytest.approx(good.direction_sigma_deg)
+    assert PREDICTED["hard_iron_sigma_ut"](noisy) > 0.35 and RULE.judge({"": noisy}) is None
+    two = StopRule(50, 0.5, 0.7, {"": RULE.limits[""], "mag2.": RULE.limits[""]})
+    assert two.judge({"": good, "mag2.": noisy}) is None  # the stop waits for the last sensor
+    assert StopRule(50, 0.99, 0.7, RULE.limits).judge({"": good}) is None  # coverage short of its target
+    # a station's coverage limit above the target: a tumble that stops must pass it too
+    assert StopRule(50, 0.05, 0.7, RULE.limits, coverage={"": 0.99}).judge({"": good}) is None
+
+
+def test_the_running_fit_ignores_early_snapshots_and_answers_from_its_own_thread():
+    calls = []
+
+    def fitter(sensor, samples):
+        calls.append(len(samples))
+        return fitted(samples)
+
+    samples = tumble(300, 0.3, 3)
+    with RunningFit(RULE, fitter) as running:
+        running.offer(40, 0.8, {"": samples})  # below min_samples: not fitted
+        running.offer(300, 6.0, {"": samples})
+        for _ in range(200):
+            if running.determined is not None:
+                break
+            import time
+            time.sleep(0.05)
+    assert calls == [300]
+    assert running.determined.readings == 300 and running.determined.after_s == 6.0
+    assert running.determined.predicted[""]["direction_sigma_deg"] <= 0.35
+
+
+def test_a_demo_unit_stops_once_determined_and_the_record_keeps_why_when_and_the_prediction(make_station, tmp_path):
+    listener = StopListener()
+    station = make_station()
+    record = run_with(station, listener)
+    assert record.verdict is Outcome.PASS, record.cause
+    first, second = record.attempts
+    assert (first.stopped, first.samples) == ("samples", 600)  # a spin about one axis never gets there
+    assert second.stopped == "determined" and 100 <= second.samples < 600  # min_samples, then determined
+    assert [s["reason"] for s in listener.stops] == ["samples", "determined"]
+    assert listener.stops[1]["readings"] == second.samples and listener.stops[1]["predicted"] == second.predicted
+    predicted = second.predicted[""]
+    assert predicted["direction_sigma_deg"] <= 0.7 * 0.5 and predicted["hard_iron_sigma_ut"] <= 0.7 * 0.5
+    final = {m.name: m.value for m in record.measurements if hasattr(m, "value")}
+    # the final fit uses every reading up to the stop: its σ is the prediction's or better, inside the limit
+    assert final["direction_sigma_deg"] <= predicted["direction_sigma_deg"] * 1.05
+    rows = attempt_rows(tmp_path / "magline-demo-results.sqlite", "SN-DET")
+    assert [r["stopped"] for r in rows] == ["samples", "determined"]
+    assert json.loads(rows[1]["predicted"]) == second.predicted and rows[1]["tumble_s"] == pytest.approx(
+        second.tumble_s)
+    assert any("determined after" in line for p in record.phases for line in p.log)
+
+
+def test_stop_samples_keeps_reading_the_full_count(make_station):
+    record = run_with(make_station({"acquisition": {"stop": "samples"}}))
+    assert record.verdict is Outcome.PASS, record.cause
+    assert [(a.stopped, a.samples) for a in record.attempts] == [("samples", 600), ("samples", 600)]
+    assert record.attempts[1].predicted == {}
+
+
+def test_a_limit_the_readings_cannot_meet_is_never_called_determined(make_station):
+    """A σ limit far below what the noise allows: the tumble reads its most, and the unit is judged
+    on its limits as before (a FAIL on that limit, not an early stop)."""
+    record = run_with(make_station({"limits": {"direction_sigma_deg": {"le": 0.001}}}))
+    assert [a.stopped for a in record.attempts] == ["samples", "samples"]
+    assert record.verdict is Outcome.FAIL and "direction_sigma_deg" in record.cause
+
+
+def test_min_samples_above_samples_is_a_check_error_at_its_line(make_station):
+    station = make_station({"acquisition": {"min_samples": 700}})
+    with pytest.raises(StationError) as err:
+        load_station(station)
+    assert "min_samples (700) cannot exceed samples (600)" in str(err.value) and "acquisition" in str(err.value)
+
+
+def test_with_three_compasses_the_stop_waits_for_the_noisiest(tmp_path):
+    """Compass 3 is almost three times noisier than the others: the tumble goes on until it is determined
+    too, and every compass's prediction is inside its target when it stops."""
+    q = np.eye(3)
+    mags = [SimMagnetometer(device_id=DEFAULT_IDS[i], hard_iron_ut=np.array([10.0, -5.0, 3.0]) * (i + 1),
+                            soft_iron=q, noise_ut=0.3 if i < 2 else 0.8, external=i > 0) for i in range(3)]
+    with create_sim("ardupilot", "tcp:127.0.0.1:0", workdir=tmp_path / "fc", seed=11, boot_time_s=0.3, speed=5.0,
+                    mag_rate_hz=100.0, magnetometers=mags) as sim:
+        station = write_station("ardupilot-sim.yaml", tmp_path, sim.address, AP,
+                                {"acquisition": {"samples": 1500, "min_samples": 50}})
+        record = run_with(station)
+        assert record.verdict is Outcome.PASS, record.cause
+    attempt = record.attempts[-1]
+    assert attempt.stopped == "determined" and set(attempt.predicted) == {"", "mag2.", "mag3."}
+    for figures in attempt.predicted.values():
+        assert figures["direction_sigma_deg"] <= 0.35 and figures["hard_iron_sigma_ut"] <= 0.35
+    # the primary alone was determined well before: the stop waited for compass 3
+    primary, third = attempt.raw, attempt.more[mags[2].device_id]
+    alone = next(n for n in range(50, len(primary), 10) if determined(primary, primary.t_ms[n - 1]))
+    assert not determined(third, primary.t_ms[alone - 1])
+    assert attempt.samples > alone
+
+
+def determined(samples: RawSamples, until_ms: float) -> bool:
+    """Whether the readings up to ``until_ms`` alone meet the stop rule (a refused fit does not)."""
+    keep = samples.t_ms <= until_ms
+    try:
+        return RULE.judge({"": fitted(RawSamples(samples.mag_ut[keep], samples.t_ms[keep]))}) is not None
+    except FitRefused:
+        return False
