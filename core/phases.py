@@ -51,6 +51,7 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
     got = _Readings(run.unit.selected_sensor if run.unit is not None else 0)
     running = _running_fit(run) if cfg.stop == "determined" else None
     reason, tumble_s = "stream ended", 0.0
+    stall = _Stall(cfg.min_samples, cfg.coverage_target)
     try:
         with run.shared_motion(), closing(dut.samples(cfg.rate_hz)) as stream, running or nullcontext():
             started = time.monotonic()  # the fixture moves from here (a slot may have waited for the others)
@@ -69,6 +70,9 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
                     reason = "samples"
                     break
                 if running is not None:
+                    if stall.stalled(got.count, coverage):
+                        reason = "stalled"
+                        break
                     if running.determined is not None:
                         reason = "determined"
                         break
@@ -98,6 +102,24 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
     run.progress(attempt, got.count, result.coverage, cfg.coverage_target, bins, cfg.coverage_bins)
     run.acquisition_stopped(result)
     return result
+
+
+class _Stall:
+    """A tumble whose coverage stopped growing short of its target: no new direction over the last
+    half of its readings (at least ``min_samples`` of them).  Reading on cannot reach the target, so
+    a determined tumble ends there and the operator is asked again at once (a spin about one axis
+    covers its ring in one turn, then repeats it)."""
+
+    def __init__(self, min_samples: int, target: float) -> None:
+        self.min_samples, self.target = min_samples, target
+        self.history: list[tuple[int, float]] = []  # (readings, coverage) at each change of coverage
+
+    def stalled(self, count: int, coverage: float) -> bool:
+        if not self.history or coverage > self.history[-1][1]:
+            self.history.append((count, coverage))
+        since = self.history[-1][0]  # readings when the coverage last grew
+        return coverage < self.target and count >= 2 * self.min_samples and count - since >= max(
+            self.min_samples, count // 2)
 
 
 def _stream_s(samples: RawSamples) -> float:

@@ -40,6 +40,8 @@ def stop_line(reason: str, after_s: float, readings: int) -> str:
     """How the operator is told the tumble ended: "determined after 6 s — stop moving the unit"."""
     if reason == "determined":
         return f"determined after {after_s:.0f} s ({readings} readings) — stop moving the unit"
+    if reason == "stalled":
+        return f"coverage stopped growing after {after_s:.0f} s ({readings} readings)"
     if reason == "samples":
         return f"tumble complete: {readings} readings in {after_s:.0f} s"
     return f"the stream ended after {readings} readings"

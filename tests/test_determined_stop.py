@@ -95,9 +95,10 @@ def test_a_demo_unit_stops_once_determined_and_the_record_keeps_why_when_and_the
     record = run_with(station, listener)
     assert record.verdict is Outcome.PASS, record.cause
     first, second = record.attempts
-    assert (first.stopped, first.samples) == ("samples", 600)  # a spin about one axis never gets there
+    # a spin about one axis covers its ring, then nothing new: the tumble ends there, asked again at once
+    assert first.stopped == "stalled" and 200 <= first.samples < 600 and first.coverage < 0.6
     assert second.stopped == "determined" and 100 <= second.samples < 600  # min_samples, then determined
-    assert [s["reason"] for s in listener.stops] == ["samples", "determined"]
+    assert [s["reason"] for s in listener.stops] == ["stalled", "determined"]
     assert listener.stops[1]["readings"] == second.samples and listener.stops[1]["predicted"] == second.predicted
     predicted = second.predicted[""]
     assert predicted["direction_sigma_deg"] <= 0.7 * 0.5 and predicted["hard_iron_sigma_ut"] <= 0.7 * 0.5
@@ -105,7 +106,7 @@ def test_a_demo_unit_stops_once_determined_and_the_record_keeps_why_when_and_the
     # the final fit uses every reading up to the stop: its σ is the prediction's or better, inside the limit
     assert final["direction_sigma_deg"] <= predicted["direction_sigma_deg"] * 1.05
     rows = attempt_rows(tmp_path / "magline-demo-results.sqlite", "SN-DET")
-    assert [r["stopped"] for r in rows] == ["samples", "determined"]
+    assert [r["stopped"] for r in rows] == ["stalled", "determined"]
     assert json.loads(rows[1]["predicted"]) == second.predicted and rows[1]["tumble_s"] == pytest.approx(
         second.tumble_s)
     assert any("determined after" in line for p in record.phases for line in p.log)
@@ -122,7 +123,7 @@ def test_a_limit_the_readings_cannot_meet_is_never_called_determined(make_statio
     """A σ limit far below what the noise allows: the tumble reads its most, and the unit is judged
     on its limits as before (a FAIL on that limit, not an early stop)."""
     record = run_with(make_station({"limits": {"direction_sigma_deg": {"le": 0.001}}}))
-    assert [a.stopped for a in record.attempts] == ["samples", "samples"]
+    assert [a.stopped for a in record.attempts] == ["stalled", "samples"]  # the spin, then the full tumble
     assert record.verdict is Outcome.FAIL and "direction_sigma_deg" in record.cause
 
 
@@ -163,3 +164,15 @@ def determined(samples: RawSamples, until_ms: float) -> bool:
         return RULE.judge({"": fitted(RawSamples(samples.mag_ut[keep], samples.t_ms[keep]))}) is not None
     except FitRefused:
         return False
+
+
+def test_a_tumble_stalls_only_when_its_coverage_stopped_growing_for_half_its_readings():
+    from magline.core.phases import _Stall
+
+    growing = _Stall(min_samples=100, target=0.6)
+    assert not any(growing.stalled(n, min(0.59, n / 1000)) for n in range(10, 600, 10))  # slow but growing
+    flat = _Stall(min_samples=100, target=0.6)
+    stops = [n for n in range(10, 600, 10) if flat.stalled(n, min(0.3, n / 500))]  # grows until 150, then flat
+    assert stops[0] == 300  # 150 readings without a new direction, half of the tumble
+    reached = _Stall(min_samples=100, target=0.6)
+    assert not any(reached.stalled(n, 0.7) for n in range(10, 600, 10))  # at the target: the fit decides

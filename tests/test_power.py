@@ -73,6 +73,18 @@ def test_reboot_keeps_a_running_save_a_power_cut_loses_it(tmp_path):
         assert supply.output is True  # final state "on" (the default)
 
 
+def test_a_commanded_reboot_goes_straight_on_after_the_forced_save(tmp_path):
+    """Issue 27: the save's fixed wait is only for a supply cut.  A commanded reboot waits for the save
+    by itself (PX4's shutdown lock): with a slow flash and a 20 s settle time the calibration survives
+    and nothing waited the 20 s (a wait that long would show in the phases whatever the machine)."""
+    with px4_sim(tmp_path / "fc") as sim:
+        record = run_unit(px4_station(tmp_path, sim, {"save_settle_s": 20.0}))
+        assert record.verdict is Outcome.PASS, record.cause
+        assert record.persistence["method"] == "mavlink-reboot"
+    durations = {p.name: p.duration_s for p in record.phases}
+    assert durations["persist"] + durations["verify"] < 20.0
+
+
 @pytest.mark.parametrize("fault,expect", [("dead_board", "draws 0.000 A after power-on, outside [0.05, 1.2] A "
                                                          "(dead board or not connected)"),
                                           ("short", "draws 1.500 A after power-on, outside [0.05, 1.2] A "

@@ -74,6 +74,7 @@ class Px4Dut:
         self.ident: Identified | None = None
         self.shell_answers = False
         self.present = True  # after a power cycle: is the calibrated sensor still there?
+        self._saved_at: float | None = None  # when the forced save was asked (a supply cut waits after it)
         self.now_present: list[int] = []  # after a power cycle: the device ids the unit has
         self._streaming_count = 0  # magnetometer streams seen without the shell
         self.device_id = 0
@@ -279,16 +280,26 @@ class Px4Dut:
         return {n: self.link.set(n, v, is_int_param(n)) for n, v in params.items()}
 
     def commit(self) -> None:
-        """Force the save: the echo only means "in RAM", and autosave may be held back 2 s."""
+        """Force the save: the echo only means "in RAM", and autosave may be held back 2 s.
+
+        No wait here: a commanded reboot waits by itself for the save (PX4's shutdown lock, held by
+        the save), so the usual power cycle goes straight on; only a supply cut waits, in
+        :meth:`release_link`."""
         if self.opts.force_save:  # param1 = 1 saves; 3 would reset every calibration
             self.link.require_accepted(MAV_CMD_PREFLIGHT_STORAGE, "forced parameter save", 1)
-            time.sleep(self.opts.save_settle_s)  # the ACK precedes the save; only the read-back proves it
+            self._saved_at = time.monotonic()
 
     # ------------------------------------------------------------------ power cycle and proof
     def reboot(self) -> None:
         self.link.reboot()
 
     def release_link(self) -> None:
+        """The power is about to be cut.  PREFLIGHT_STORAGE is ACKed before its save runs and PX4 sends
+        nothing when the save ends (reference §: autosave), so no event exists to wait for: the
+        cut waits ``save_settle_s`` after the save was asked, then the read-back after the boot proves it."""
+        if self._saved_at is not None:
+            time.sleep(max(0.0, self._saved_at + self.opts.save_settle_s - time.monotonic()))
+            self._saved_at = None
         self.link.close()
 
     def await_boot(self, since: float) -> dict[str, float]:

@@ -1,0 +1,192 @@
+"""Cycle time per unit on every backend, ``acquisition.stop: samples`` against ``stop: determined``
+(issue 27): units per hour and the median time of each phase, at the shipped station files with the
+simulators' shipped defaults (boot time, sensor rate), real MAVLink on loopback.  Figures only.
+
+* demo: ``stations/demo.yaml``, the in-process mock (real time), as the README's first command;
+* px4 / ardupilot: ``stations/px4-sim.yaml`` / ``ardupilot-sim.yaml`` against ``magline sim``;
+* four slots: ``stations/slots-sim.yaml`` (two PX4, two ArduPilot boards on one gimbal), against the
+  same four boards calibrated one slot at a time.
+
+Goals of the issue: ArduPilot unit ≤ 25 s, PX4 unit ≤ 10 s, demo unit ≤ 4 s, four slots ≥ 3.5 × one.
+
+    python benchmarks/cycle_time.py [--units 3] [--loads 1] [--skip-slots]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import yaml
+
+from magline.core.plugins import load_plugins
+from magline.core.record import RunRecord
+from magline.core.sequencer import Sequencer
+from magline.core.sequencer.slots import SlotRunner
+from magline.core.station import load_station
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(Path(__file__).parent))
+from slots import BOARDS, start  # noqa: E402  (the four-board fixture of the slots benchmark)
+
+STOPS = ("samples", "determined")
+GOALS_S = {"demo": 4.0, "px4": 10.0, "ardupilot": 25.0}
+SLOT_SPEEDUP_GOAL = 3.5
+
+
+@dataclass
+class Figures:
+    walls: list[float] = field(default_factory=list)  # per unit, including the restore / close after phases
+    phases: dict[str, list[float]] = field(default_factory=dict)
+    tumbles: list[float] = field(default_factory=list)  # the accepted attempt's tumbling time
+    readings: list[int] = field(default_factory=list)
+    verdicts: list[str] = field(default_factory=list)
+
+    def add(self, record: RunRecord, wall: float) -> None:
+        self.walls.append(wall)
+        self.verdicts.append(f"{record.verdict}" + ("" if str(record.verdict) == "pass" else f" ({record.cause})"))
+        for p in record.phases:
+            self.phases.setdefault(p.name, []).append(p.duration_s)
+        accepted = [a for a in record.attempts if a.accepted] or record.attempts[-1:]
+        if accepted:
+            self.tumbles.append(accepted[0].tumble_s or 0.0)
+            self.readings.append(accepted[0].samples)
+
+    def line(self, name: str, stop: str) -> str:
+        wall = statistics.median(self.walls)
+        phases = "  ".join(f"{n} {statistics.median(v):.1f}" for n, v in self.phases.items()
+                           if statistics.median(v) >= 0.05)
+        passed = sum(v == "pass" for v in self.verdicts)
+        return (f"{name:<10} {stop:<10} {passed}/{len(self.walls)} pass  unit {wall:5.1f} s  "
+                f"{3600 / wall:6.0f} units/h  "
+                f"tumble {statistics.median(self.tumbles):4.1f} s ({statistics.median(self.readings):.0f} readings)  "
+                f"phases: {phases}")
+
+
+def write(cfg: dict, path: Path, stop: str) -> Path:
+    cfg["acquisition"]["stop"] = stop
+    cfg.setdefault("review", {})["enabled"] = False
+    path.write_text(yaml.safe_dump(cfg, sort_keys=False), encoding="utf-8")
+    return path
+
+
+def run_units(path: Path, units: int, label: str) -> Figures:
+    figures = Figures()
+    seq = Sequencer(load_station(path), load_plugins(), path.parent)
+    try:
+        for i in range(units):
+            started = time.perf_counter()
+            record = seq.run_unit(f"{label}-{i}")
+            figures.add(record, time.perf_counter() - started)
+    finally:
+        seq.close()
+    return figures
+
+
+def demo(work: Path, stop: str, units: int) -> Figures:
+    cfg = yaml.safe_load((REPO / "stations" / "demo.yaml").read_text(encoding="utf-8"))
+    cfg["results"]["path"] = str(work / f"demo-{stop}.sqlite")
+    return run_units(write(cfg, work / f"demo-{stop}.yaml", stop), units, f"DEMO-{stop}")
+
+
+def simulated(work: Path, flavour: str, stop: str, units: int) -> Figures:
+    listen = "udp:127.0.0.1:0" if flavour == "px4" else "tcp:127.0.0.1:0"
+    proc, address = start([flavour, "--listen", listen, "--workdir", str(work / f"fc-{flavour}-{stop}")])
+    try:
+        cfg = yaml.safe_load((REPO / "stations" / f"{flavour}-sim.yaml").read_text(encoding="utf-8"))
+        _, host, port = address.split(":")
+        part = cfg["default_part"]
+        cfg["products"][part]["connection"] = f"udpout://{host}:{port}" if flavour == "px4" else f"tcp:{host}:{port}"
+        cfg["results"]["path"] = str(work / f"{flavour}-{stop}.sqlite")
+        return run_units(write(cfg, work / f"{flavour}-{stop}.yaml", stop), units, f"{flavour.upper()}-{stop}")
+    finally:
+        proc.terminate()
+        proc.wait(10)
+
+
+def slots(work: Path, stop: str, loads: int) -> tuple[float, float, list[RunRecord]]:
+    """Seconds for the four boards one slot at a time, then four together; the four-slot records."""
+    procs = []
+    try:
+        gimbal_proc, gimbal = start(["gimbal", "--listen", "tcp:127.0.0.1:0"])
+        procs.append(gimbal_proc)
+        addresses = {}
+        for slot, flavour in BOARDS.items():
+            listen = "udp:127.0.0.1:0" if flavour == "px4" else "tcp:127.0.0.1:0"
+            proc, addresses[slot] = start([flavour, "--listen", listen, "--gimbal", gimbal, "--workdir",
+                                           str(work / f"fc-{slot}-{stop}"), "--seed", str(ord(slot))])
+            procs.append(proc)
+
+        def station(chosen: list[str]) -> Path:
+            cfg = yaml.safe_load((REPO / "stations" / "slots-sim.yaml").read_text(encoding="utf-8"))
+            cfg["slots"] = [s for s in cfg["slots"] if s["id"] in chosen]
+            for s in cfg["slots"]:
+                _, host, port = addresses[s["id"]].split(":")
+                s["connection"] = f"udpout://{host}:{port}" if BOARDS[s["id"]] == "px4" else f"tcp:{host}:{port}"
+            _, host, port = gimbal.split(":")
+            cfg["motion"]["options"]["resource"] = f"TCPIP0::{host}::{port}::SOCKET"
+            cfg["results"]["path"] = str(work / f"slots-{stop}.sqlite")
+            return write(cfg, work / f"slots-{''.join(chosen)}-{stop}.yaml", stop)
+
+        def run(path: Path, loads_: list[dict[str, str]]) -> tuple[float, list[RunRecord]]:
+            seq = Sequencer(load_station(path), load_plugins(), path.parent)
+            started = time.perf_counter()
+            try:
+                records = [r for load in loads_ for r in SlotRunner(seq).run(load)]
+            finally:
+                seq.close()
+            return time.perf_counter() - started, records
+
+        one_s = sum(run(station([s]), [{s: f"ONE-{s}-{i}-{stop}"} for i in range(loads)])[0] for s in BOARDS)
+        four_s, records = run(station(list(BOARDS)), [{s: f"FOUR-{s}-{i}-{stop}" for s in BOARDS}
+                                                      for i in range(loads)])
+        return one_s, four_s, records
+    finally:
+        for proc in procs:
+            proc.terminate()
+            proc.wait(10)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--units", type=int, default=3, help="units per backend and stop mode")
+    parser.add_argument("--loads", type=int, default=1, help="fixture loads of four units (slots)")
+    parser.add_argument("--skip-slots", action="store_true")
+    args = parser.parse_args()
+    medians: dict[tuple[str, str], float] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(tmp)
+        for name in ("demo", "px4", "ardupilot"):
+            for stop in STOPS:
+                figures = demo(work, stop, args.units) if name == "demo" else simulated(work, name, stop, args.units)
+                medians[name, stop] = statistics.median(figures.walls)
+                print(figures.line(name, stop), flush=True)
+                for verdict in figures.verdicts:
+                    if verdict != "pass":
+                        print(f"{'':<21} not passed: {verdict}")
+        speedups = {}
+        if not args.skip_slots:
+            for stop in STOPS:
+                one_s, four_s, records = slots(work, stop, args.loads)
+                units = 4 * args.loads
+                speedups[stop] = one_s / four_s
+                passed = sum(str(r.verdict) == "pass" for r in records)
+                print(f"four slots {stop:<10} {passed}/{len(records)} pass  one slot {units / one_s * 3600:5.0f} "
+                      f"units/h, four slots {units / four_s * 3600:5.0f} units/h: {one_s / four_s:.1f}×", flush=True)
+    print("goals (stop: determined, shipped station files):")
+    for name, goal in GOALS_S.items():
+        got = medians[name, "determined"]
+        print(f"  {name:<10} unit ≤ {goal:g} s: {got:.1f} s {'met' if got <= goal else 'NOT MET'}")
+    if speedups:
+        got = speedups["determined"]
+        verdict = "met" if got >= SLOT_SPEEDUP_GOAL else "NOT MET"
+        print(f"  four slots ≥ {SLOT_SPEEDUP_GOAL}× one slot: {got:.1f}× {verdict}")
+
+
+if __name__ == "__main__":
+    main()
