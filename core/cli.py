@@ -74,6 +74,8 @@ def main(argv: list[str] | None = None) -> int:
     fit.add_argument("--run", help="a magline export --raw file: the run to fit (its UUID or first characters)")
     fit.add_argument("--serial", help="a magline export --raw file: the serial whose run to fit")
     fit.add_argument("--attempt", type=int, help="a magline export --raw file: this attempt (else the accepted one)")
+    fit.add_argument("--sensor", help="a magline export --raw file: this magnetometer (mag1, the primary, by default; "
+                                      "mag2, mag3 as in the measurements)")
     fit.add_argument("--with-refused", action="store_true",
                      help="a magline export --raw file: pool refused attempts too")
 
@@ -82,8 +84,8 @@ def main(argv: list[str] | None = None) -> int:
     sync = sub.add_parser("sync", help="forward the station's queued records to its results server")
     sync.add_argument("--station", help="station file naming the results store (default: demo)")
 
-    show = sub.add_parser("show", help="a run's whole record (by run id or UUID)")
-    show.add_argument("run")
+    show = sub.add_parser("show", help="a run's whole record (by run id, UUID, or serial: its latest run)")
+    show.add_argument("run", help="run id, UUID, or serial")
     show.add_argument("--station", help="station file naming the results store (default: demo)")
     show.add_argument("--json", action="store_true", help="one JSON object")
 
@@ -333,7 +335,7 @@ def _check(args: argparse.Namespace, plugins: Plugins) -> int:
 def _fit(args: argparse.Namespace, plugins: Plugins) -> int:
     try:
         text, chosen = select_export_rows(_read_text(args.csv), args.csv, args.run, args.serial, args.attempt,
-                                          args.with_refused)
+                                          args.with_refused, args.sensor)
         samples = parse_samples(text, args.csv)
         options = FitOptions(model=args.model, field_ut=args.field_ut, range_ut=args.range_ut,
                              coverage_bins=args.bins, gain_sigma=args.gain_sigma)

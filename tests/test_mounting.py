@@ -4,6 +4,8 @@ and PX4 over real MAVLink, and the mock's bad-input cases."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -148,6 +150,26 @@ def test_a_good_three_compass_ardupilot_unit_passes_with_every_compass_calibrate
         assert float(cells["mag3.hard_iron_x_ut"]) == pytest.approx(measured(record, "mag3.hard_iron_x_ut").value)
         assert float(cells["mag2-mag3.heading_agreement_max_deg"]) < 3.0
         assert float(cells["soft_iron_12"]) == pytest.approx(record.calibration["soft_iron"][0][1])  # written matrix
+        # the raw export holds every compass's readings, and `magline fit` refits any one of them
+        assert main(["export", "--station", str(station), "--raw"]) == 0
+        raw_rows = list(csv.DictReader(io.StringIO(capsys.readouterr().out)))
+        accepted = record.attempts[-1]
+        counts = {name: sum(r["sensor"] == name and r["accepted"] == "1" for r in raw_rows)
+                  for name in ("mag1", "mag2", "mag3")}
+        assert counts == {"mag1": accepted.samples, "mag2": len(accepted.more[sim.magnetometers[1].device_id]),
+                          "mag3": len(accepted.more[sim.magnetometers[2].device_id])}
+        export = tmp_path / "raw.csv"
+        with export.open("w", newline="", encoding="utf-8") as f:
+            writer = csv.DictWriter(f, fieldnames=list(raw_rows[0]))
+            writer.writeheader()
+            writer.writerows(raw_rows)
+        assert main(["fit", str(export), "--sensor", "mag3", "--json", "--field-ut", "48"]) == 0
+        refit = json.loads(capsys.readouterr().out)
+        assert refit["fitted"].endswith("sensor mag3")
+        assert refit["hard_iron_ut"] == pytest.approx(record.calibration["magnetometers"]["mag3"]["hard_iron_ut"],
+                                                      abs=0.05)
+        assert main(["fit", str(export), "--sensor", "mag7"]) == 2
+        assert "no readings of sensor 'mag7' (the file has mag1, mag2, mag3)" in capsys.readouterr().err
 
 
 def test_calibrating_only_the_primary_of_three_fails_as_the_firmware_does(tmp_path):

@@ -168,6 +168,9 @@ def test_show_and_export_read_the_store_on_each_engine(make_station, store_url, 
     out = capsys.readouterr().out
     assert "unit X-1" in out and "PASS" in out and "params written:" in out and "params read_back:" in out
     assert "attempts:" in out and "not used (coverage" in out  # the demo's first, single-axis attempt
+    persistence = next(line for line in out.splitlines() if line.startswith("persistence: "))
+    figures = json.loads(persistence.removeprefix("persistence: "))["figures"]
+    assert all(v == float(f"{v:.4g}") for v in figures.values())  # for reading, not 15-digit floats
     assert main(["show", "1", "--station", str(good), "--json"]) == 0
     whole = json.loads(capsys.readouterr().out)
     assert whole["serial"] == "X-1" and len(whole["attempts"]) == 2 and whole["params"]["written"]
@@ -175,6 +178,16 @@ def test_show_and_export_read_the_store_on_each_engine(make_station, store_url, 
     assert whole["params"]["echoed"] == pytest.approx(whole["params"]["written"])
     assert main(["show", whole["run_uuid"], "--station", str(good), "--json"]) == 0  # by UUID too
     assert json.loads(capsys.readouterr().out)["id"] == 1
+    # by serial (its latest run), whatever spaces were typed; each attempt says why its tumble ended
+    assert main(["show", " X-2 ", "--station", str(good), "--json"]) == 0
+    x2 = json.loads(capsys.readouterr().out)
+    assert main(["show", " X-2 ", "--station", str(good)]) == 0
+    out = capsys.readouterr().out
+    assert "unit X-2" in out and "coverage stopped growing after" in out and "accepted — " in out
+    assert "determined after" in out and "predicted heading σ" in out
+    assert main(["show", "NOPE", "--station", str(good)]) == 1
+    err = capsys.readouterr().err
+    assert "no run or serial 'NOPE'" in err and "magline history lists a unit's runs" in err
 
     assert main(["export", "--station", str(good)]) == 0
     rows = list(csv.DictReader(io.StringIO(capsys.readouterr().out)))
@@ -187,7 +200,9 @@ def test_show_and_export_read_the_store_on_each_engine(make_station, store_url, 
     assert len(capsys.readouterr().out.splitlines()) == 1  # the header only
     assert main(["export", "--station", str(good), "--raw", "--part", "MOCK-100"]) == 0
     samples = list(csv.DictReader(io.StringIO(capsys.readouterr().out)))
-    assert len(samples) == 2 * (2 * 600) and {s["serial"] for s in samples} == {"X-1", "X-2"}
+    stored = {r["serial"]: sum(a["samples"] for a in r["attempts"]) for r in (whole, x2)}
+    assert len(samples) == sum(stored.values()) and {s["serial"] for s in samples} == {"X-1", "X-2"}
+    assert {s["sensor"] for s in samples} == {"mag1"}  # the mock has one magnetometer
     assert abs(float(samples[0]["mag_x_ut"])) < 500
 
 

@@ -103,7 +103,8 @@ EXPORT_KEYS = ("run_uuid", "serial", "attempt", "accepted")  # what ``magline ex
 
 
 def select_export_rows(text: str, name: str, run: str | None = None, serial: str | None = None,
-                       attempt: int | None = None, with_refused: bool = False) -> tuple[str, str]:
+                       attempt: int | None = None, with_refused: bool = False,
+                       sensor: str | None = None) -> tuple[str, str]:
     """One run's readings out of a ``magline export --raw`` file, as CSV text, and what was chosen.
 
     Why: an export holds every run of every serial and every attempt, the refused ones too; pooled,
@@ -118,6 +119,15 @@ def select_export_rows(text: str, name: str, run: str | None = None, serial: str
         return text, ""
     col = {k: header.index(k) for k in EXPORT_KEYS}
     body = [r for r in rows[1:] if r and any(c.strip() for c in r)]
+    if "sensor" in header:  # every magnetometer of the unit is in the file: one is fitted (the primary by default)
+        at = header.index("sensor")
+        present = sorted({r[at].strip() for r in body})
+        wanted = (sensor or "mag1").strip()
+        if wanted not in present:
+            raise SampleFileError(f"{name}: no readings of sensor {wanted!r} (the file has {', '.join(present)})")
+        body = [r for r in body if r[at].strip() == wanted]
+    elif sensor not in (None, "mag1"):
+        raise SampleFileError(f"{name}: --sensor chooses from a magline export --raw file with a sensor column")
     if run:
         body = [r for r in body if r[col["run_uuid"]].startswith(run.strip())]
     if serial:
@@ -139,4 +149,5 @@ def select_export_rows(text: str, name: str, run: str | None = None, serial: str
     (uuid, (sn, chosen)), = runs.items()
     out = io.StringIO()
     csv.writer(out, lineterminator="\n").writerows([header, *body])
-    return out.getvalue(), f"run {uuid[:8]} serial {sn} attempt {', '.join(sorted(chosen))}"
+    which = f" sensor {(sensor or 'mag1').strip()}" if "sensor" in header else ""
+    return out.getvalue(), f"run {uuid[:8]} serial {sn} attempt {', '.join(sorted(chosen))}{which}"

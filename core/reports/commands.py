@@ -8,12 +8,11 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from sqlalchemy import Connection, select
+from sqlalchemy import Connection
 
 from magline.core.faults import StationFault
 from magline.core.reports.unit_page import write_unit_page
-from magline.core.results.reading import find_run, run_attempts
-from magline.core.results.tables import runs
+from magline.core.results.reading import find_run_or_serial, run_attempts
 from magline.core.station import Station
 
 UNSAFE = re.compile(r"[^A-Za-z0-9._-]+")
@@ -21,10 +20,7 @@ UNSAFE = re.compile(r"[^A-Za-z0-9._-]+")
 
 def stored_run(conn: Connection, wanted: str) -> dict[str, Any] | None:
     """A run by local id or UUID, else the latest run of a serial; with its attempts' raw arrays."""
-    found = find_run(conn, wanted)
-    if found is None:
-        latest = conn.execute(select(runs.c.id).where(runs.c.serial == wanted).order_by(runs.c.id.desc())).first()
-        found = find_run(conn, str(latest[0])) if latest is not None else None
+    found = find_run_or_serial(conn, wanted)
     if found is not None:
         found["attempts"] = run_attempts(conn, found["id"], with_samples=True)
     return found

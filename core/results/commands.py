@@ -12,8 +12,16 @@ import sys
 from typing import Any, TextIO
 
 from magline.core.faults import StationFault
-from magline.core.results.reading import NUMERIC_NAMES, RUN_COLUMNS, RunFilter, export_runs, find_run, run_attempts
-from magline.core.text import fmt, seconds
+from magline.core.results.reading import (
+    NUMERIC_NAMES,
+    RUN_COLUMNS,
+    RunFilter,
+    attempt_sensor_streams,
+    export_runs,
+    find_run_or_serial,
+    run_attempts,
+)
+from magline.core.text import fmt, seconds, stop_line
 
 
 def engine_of(store: Any) -> Any:
@@ -26,9 +34,10 @@ def engine_of(store: Any) -> Any:
 def show(store: Any, run: str, as_json: bool, out: TextIO | None = None) -> int:
     out = out or sys.stdout
     with engine_of(store).connect() as conn:
-        record = find_run(conn, run)
+        record = find_run_or_serial(conn, run)
     if record is None:
-        print(f"no run {run} in {store.where}", file=sys.stderr)
+        print(f"no run or serial {run.strip()!r} in {store.where} (magline history lists a unit's runs)",
+              file=sys.stderr)
         return 1
     if as_json:
         out.write(json.dumps(record, default=str) + "\n")
@@ -46,9 +55,10 @@ def show(store: Any, run: str, as_json: bool, out: TextIO | None = None) -> int:
     lines += [f"  {p['name']:<9} {str(p['outcome']).upper():<8} {seconds(p['duration_s'] or 0.0):>7}"
               + (f"  {p['message']}" if p["message"] else "") for p in record["phases"]]
     lines.append("attempts:")
-    lines += [f"  {a['attempt']}: {a['samples']} readings, coverage {a['coverage']:.0%}"
+    lines += [f"  {a['attempt']}: " + ("accepted" if a["accepted"] else f"not used ({a['refused'] or 'superseded'})")
+              + f" — {a['samples']} readings, coverage {a['coverage']:.0%}"
               + (f", {a['repeats']} repeats dropped" if a.get("repeats") else "")
-              + (" accepted" if a["accepted"] else f" not used ({a['refused'] or 'superseded'})")
+              + (f", {_stopped(a)}" if a.get("stopped") else "")
               for a in record["attempts"]]
     lines.append("measurements:")
     for m in record["measurements"]:
@@ -62,12 +72,31 @@ def show(store: Any, run: str, as_json: bool, out: TextIO | None = None) -> int:
         if values:
             lines.append(f"params {stage}: " + ", ".join(f"{k}={fmt(v, digits=7)}" for k, v in sorted(values.items())))
     if record.get("persistence"):
-        lines.append(f"persistence: {json.dumps(record['persistence'])}")
+        lines.append(f"persistence: {json.dumps(_rounded(record['persistence']), ensure_ascii=False)}")
     for key, title in (("left_changed", "NOT RESTORED"), ("unverified_params", "UNVERIFIED")):
         if record.get(key):
             lines.append(f"{title}: {record[key]}")
     out.write("\n".join(lines) + "\n")
     return 0
+
+
+def _rounded(value: Any) -> Any:
+    """A stored JSON value with its floats at 4 significant digits, for reading (the record keeps them whole)."""
+    if isinstance(value, float):
+        return float(f"{value:.4g}")
+    if isinstance(value, dict):
+        return {k: _rounded(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_rounded(v) for v in value]
+    return value
+
+
+def _stopped(attempt: dict) -> str:
+    """Why and when the attempt's tumble ended, with the running fit's predicted heading σ."""
+    line = stop_line(attempt["stopped"], attempt.get("tumble_s") or 0.0, attempt["samples"]).split(" — ")[0]
+    predicted = json.loads(attempt["predicted"]) if attempt.get("predicted") else {}
+    worst = max((f.get("direction_sigma_deg", 0.0) for f in predicted.values()), default=None)
+    return line + (f", predicted heading σ {worst:.2f}°" if worst is not None else "")
 
 
 def export(store: Any, where: RunFilter, fmt_name: str, raw: bool, out: TextIO | None = None) -> int:
@@ -83,15 +112,20 @@ def export(store: Any, where: RunFilter, fmt_name: str, raw: bool, out: TextIO |
                 count += 1
             return _done(count)
         writer = csv.writer(out, lineterminator="\n")
-        if raw:
-            writer.writerow(["run_uuid", "serial", "attempt", "accepted", "mag_x_ut", "mag_y_ut", "mag_z_ut", "t_ms"])
+        if raw:  # every magnetometer's readings: the primary is "mag1", the others named as in the measurements
+            writer.writerow(["run_uuid", "serial", "attempt", "accepted", "sensor", "mag_x_ut", "mag_y_ut", "mag_z_ut",
+                             "t_ms"])
             for run in export_runs(conn, where):
+                names = _sensor_names(run.get("calibration"))
                 for a in run_attempts(conn, run["id"], with_samples=True):
-                    samples = a["raw"]
-                    for i in range(len(samples) if samples is not None else 0):
-                        t = samples.t_ms[i] if samples.t_ms is not None and len(samples.t_ms) else ""
-                        writer.writerow([run["run_uuid"], run["serial"], a["attempt"], a["accepted"],
-                                         *samples.mag_ut[i].tolist(), t])
+                    streams = [("mag1", a["raw"])] + [
+                        (names.get(device_id, f"mag:{device_id}"), samples)
+                        for device_id, samples in attempt_sensor_streams(conn, run["id"], a["attempt"]).items()]
+                    for sensor, samples in streams:
+                        for i in range(len(samples) if samples is not None else 0):
+                            t = samples.t_ms[i] if samples.t_ms is not None and len(samples.t_ms) else ""
+                            writer.writerow([run["run_uuid"], run["serial"], a["attempt"], a["accepted"], sensor,
+                                             *samples.mag_ut[i].tolist(), t])
                 count += 1
             return _done(count)
         writer.writerow([*RUN_COLUMNS, *NUMERIC_NAMES, *SOFT_IRON_COLUMNS, "failed"])
@@ -102,6 +136,12 @@ def export(store: Any, where: RunFilter, fmt_name: str, raw: bool, out: TextIO |
                             + _soft_iron(run.get("calibration")) + [failed])
             count += 1
     return _done(count)
+
+
+def _sensor_names(calibration: Any) -> dict[int, str]:
+    """Device id → the name a further magnetometer has in the measurements (``mag2``…), from the record."""
+    sensors = calibration.get("magnetometers") if isinstance(calibration, dict) else None
+    return {int(v["device_id"]): k for k, v in (sensors or {}).items() if isinstance(v, dict) and "device_id" in v}
 
 
 # the soft-iron matrix written to the unit (the primary's), one named column per element

@@ -15,9 +15,10 @@ from typing import Any
 
 from sqlalchemy import Connection, select
 
+from magline.core.fit.samples_csv import RawSamples
 from magline.core.measurements import CATALOGUE
 from magline.core.results import raw_blob
-from magline.core.results.tables import attempts, measurements, params, phases, runs
+from magline.core.results.tables import attempt_streams, attempts, measurements, params, phases, runs
 
 BATCH = 500
 JSON_COLUMNS = ("unit_info", "calibration", "persistence", "left_changed", "unverified_params", "review")
@@ -70,6 +71,16 @@ def find_run(conn: Connection, run: str) -> dict[str, Any] | None:
     return out
 
 
+def find_run_or_serial(conn: Connection, wanted: str) -> dict[str, Any] | None:
+    """A run by local id or UUID, else the latest run of a serial (surrounding spaces ignored)."""
+    wanted = wanted.strip()
+    found = find_run(conn, wanted)
+    if found is None:
+        latest = conn.execute(select(runs.c.id).where(runs.c.serial == wanted).order_by(runs.c.id.desc())).first()
+        found = find_run(conn, str(latest[0])) if latest is not None else None
+    return found
+
+
 _PAIRED = ("heading_agreement_median_deg", "heading_agreement_max_deg")
 _PER_SENSOR = (*sorted(n for n in CATALOGUE if n not in _PAIRED), "residual_ut.mean", "residual_ut.std",
                "residual_ut.ptp")
@@ -111,6 +122,18 @@ def run_attempts(conn: Connection, run_id: int, with_samples: bool = False) -> l
             blob = row["raw"]
             row["raw"] = raw_blob.decode(bytes(blob)) if blob is not None else None
         found.append(row)
+    return found
+
+
+def attempt_sensor_streams(conn: Connection, run_id: int, attempt: int) -> dict[int, RawSamples]:
+    """The readings of an attempt's other magnetometers (``attempt_streams`` rows ``mag:<device id>``),
+    by device id, in the order they were stored."""
+    found: dict[int, RawSamples] = {}
+    rows = conn.execute(select(attempt_streams.c.stream, attempt_streams.c.raw).where(
+        (attempt_streams.c.run_id == run_id) & (attempt_streams.c.attempt == attempt)))
+    for stream, blob in rows:
+        if stream.startswith("mag:") and blob is not None:
+            found[int(stream.removeprefix("mag:"))] = raw_blob.decode(bytes(blob))
     return found
 
 
