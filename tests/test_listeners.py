@@ -69,5 +69,5 @@ def test_listeners_and_registries(make_station, tmp_path):
     prompts = [e[1] for e in rec.events if e[0] == "prompt"]
     assert prompts[0].startswith("Tumble") and prompts[1].startswith("Coverage too low")
     progress = [e for e in rec.events if e[0] == "progress"]
-    assert {p[1] for p in progress} == {1, 2} and progress[-1][2] >= 600
+    assert {p[1] for p in progress} == {1, 2} and progress[-1][2] >= 100  # at least min_samples
     assert sink.attempts == [1, 2] and sink.finished == ["L-1"]

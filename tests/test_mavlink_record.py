@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 from pymavlink import mavutil
-from simstation import FAST_SENSOR_HZ, stored_attempts, write_station
+from simstation import FAST_SENSOR_HZ, attempt_rows, write_station
 
 from magline.core.cli import main
 from magline.core.plugins import load_plugins
@@ -38,7 +38,9 @@ def test_an_ardupilot_unit_is_recorded_both_ways_and_replays_to_the_backend(tmp_
     station_side = [m for m in recorded if m.get_srcSystem() != 1]
     assert any(m.get_type() == "HEARTBEAT" and m.autopilot == mavutil.mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA
                for m in vehicle)
-    (_, line_raw), = stored_attempts(tmp_path / "results.sqlite", "REC-1")
+    stored = attempt_rows(tmp_path / "results.sqlite", "REC-1")
+    assert len(stored) == 1, [(a["attempt"], a["samples"], a["coverage"], a["stopped"], a["refused"]) for a in stored]
+    line_raw = stored[0]["raw"]
     assert sum(m.get_type() == "RAW_IMU" for m in vehicle) >= len(line_raw) > 0
     assert any(m.get_type() == "PARAM_SET" and m.param_id == "COMPASS_OFS_X" for m in station_side)
     assert any(m.get_type() == "COMMAND_LONG" and m.command == REBOOT for m in station_side)

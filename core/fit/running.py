@@ -16,6 +16,7 @@ import threading
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 from magline.core.fit.result import FitRefused, FitResult
 from magline.core.fit.samples_csv import RawSamples
@@ -70,23 +71,29 @@ class Determination:
 
 
 Fitter = Callable[[str, RawSamples], FitResult]
+# After the fits met the rule: what else must be determined before the tumble may end (the mounting),
+# given the fits, the snapshot and the accelerometer's readings; more predicted figures per sensor,
+# or None while not yet determined.
+Confirm = Callable[[dict[str, FitResult], dict[str, RawSamples], Any], "dict[str, dict[str, float]] | None"]
 
 
 class RunningFit:
     """Fits snapshots of the tumble on a worker thread until one is determined.
 
     ``fitter(sensor, samples)`` is the station's fit (the same engine as the final one);
-    ``offer`` hands over a snapshot without waiting; ``determined`` is set once a snapshot met the
-    rule.  Use as a context manager: leaving stops the worker (a fit under way finishes on its own,
-    its answer ignored)."""
+    ``confirm`` (optional) judges what the fits alone do not (see :data:`Confirm`); ``offer`` hands
+    over a snapshot without waiting; ``determined`` is set once a snapshot met the rule.  Use as a
+    context manager: leaving stops the worker (a fit under way finishes on its own, its answer
+    ignored)."""
 
-    def __init__(self, rule: StopRule, fitter: Fitter) -> None:
+    def __init__(self, rule: StopRule, fitter: Fitter, confirm: Confirm | None = None) -> None:
         self.rule = rule
         self.fitter = fitter
+        self.confirm = confirm
         self.determined: Determination | None = None
         self.fits_run = 0
         self.last_error: str | None = None  # the last snapshot's refusal (said only when asked)
-        self._pending: tuple[int, float, dict[str, RawSamples]] | None = None
+        self._pending: tuple[int, float, dict[str, RawSamples], Any] | None = None
         self._cond = threading.Condition()
         self._closed = False
         self._busy = False
@@ -108,8 +115,10 @@ class RunningFit:
         with self._cond:
             return self._pending is None and not self._busy
 
-    def offer(self, readings: int, after_s: float, snapshot: dict[str, RawSamples], wait: bool = False) -> None:
-        """The tumble so far (``readings`` of the primary, ``after_s`` seconds in), by sensor name.
+    def offer(self, readings: int, after_s: float, snapshot: dict[str, RawSamples], wait: bool = False,
+              imu: Any = None) -> None:
+        """The tumble so far (``readings`` of the primary, ``after_s`` seconds in), by sensor name,
+        with the accelerometer's readings (``imu``) for ``confirm``.
 
         ``wait``: return only once this snapshot is judged.  For a stream that runs ahead of real
         time (a replay, a simulator in simulated time) waiting costs no reading, and it makes the
@@ -117,7 +126,7 @@ class RunningFit:
         if readings < self.rule.min_samples or self.determined is not None:
             return
         with self._cond:
-            self._pending = (readings, after_s, snapshot)
+            self._pending = (readings, after_s, snapshot, imu)
             self._cond.notify_all()
             while wait and (self._pending is not None or self._busy) and not self._closed:
                 self._cond.wait()
@@ -133,17 +142,17 @@ class RunningFit:
                     self._cond.wait()
                 if self._closed:
                     return
-                readings, after_s, snapshot = self._pending
+                readings, after_s, snapshot, imu = self._pending
                 self._pending = None
                 self._busy = True
             try:
-                self._judge(readings, after_s, snapshot)
+                self._judge(readings, after_s, snapshot, imu)
             finally:
                 with self._cond:
                     self._busy = False
                     self._cond.notify_all()
 
-    def _judge(self, readings: int, after_s: float, snapshot: dict[str, RawSamples]) -> None:
+    def _judge(self, readings: int, after_s: float, snapshot: dict[str, RawSamples], imu: Any) -> None:
         fits: dict[str, FitResult] = {}
         started = time.monotonic()
         try:
@@ -159,5 +168,16 @@ class RunningFit:
             self.fits_run += 1
             self.fit_s = time.monotonic() - started
         predicted = self.rule.judge(fits)
-        if predicted is not None:
-            self.determined = Determination(readings=readings, after_s=after_s, predicted=predicted)
+        if predicted is None:
+            return
+        if self.confirm is not None:
+            try:
+                more = self.confirm(fits, snapshot, imu)
+            except Exception as exc:  # the validate phase meets the same fault and says it
+                self.last_error = f"{type(exc).__name__}: {exc}"
+                return
+            if more is None:
+                return
+            for sensor, figures in more.items():
+                predicted.setdefault(sensor, {}).update(figures)
+        self.determined = Determination(readings=readings, after_s=after_s, predicted=predicted)
