@@ -242,13 +242,19 @@ def await_new_boot(reconnect: Callable[[float], None], uptime_s: Callable[[], fl
                            "(reboot refused?)")
 
 
-def require_same_vehicle(system_id: int, answered: int, connection: str) -> None:
+def require_same_vehicle(system_id: int, answered: int, connection: str, uid: int = 0, answered_uid: int = 0) -> None:
     """After a power cycle: the vehicle that answered must be the unit under test.  Another MAVLink
-    system on the link (a cable moved, a second board) proves nothing about this unit: an ERROR."""
+    system on the link (a cable moved, a second board) proves nothing about this unit: an ERROR.
+    Boards of one product usually share a system id, so the hardware UID (AUTOPILOT_VERSION ``uid``)
+    is compared too where both boots report one (0: the firmware does not say)."""
     if answered != system_id:
         raise LinkError(f"after the power cycle a vehicle with MAVLink system id {answered} answered on "
                         f"{connection}, not the unit under test (system id {system_id}): the unit's calibration "
                         "is not proven")
+    if uid and answered_uid and uid != answered_uid:
+        raise LinkError(f"after the power cycle the vehicle on {connection} reports hardware UID {answered_uid:#x}, "
+                        f"not the unit under test's ({uid:#x}): another board with the same system id; the unit's "
+                        "calibration is not proven")
 
 
 def validated_options(model: type[OptionsModel], options: dict[str, Any], owner: str) -> OptionsModel:

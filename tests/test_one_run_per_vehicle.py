@@ -7,6 +7,7 @@ import subprocess
 import sys
 import threading
 
+import pytest
 from simstation import FAST_SENSOR_HZ, write_station
 from sqlalchemy import create_engine, select
 
@@ -103,6 +104,44 @@ def another_board_after_the_power_cycle(sim, system_id: int) -> None:
             sim.system_id = sim.mav.srcSystem = system_id
 
     sim._boot = another_board_boots
+
+
+def another_board_with_the_same_system_id(sim) -> None:
+    """From its next boot on, another board of the same product answers: the same MAVLink system id,
+    another hardware UID (a swapped board, a second unit on the same cable)."""
+    boot = sim._boot
+
+    def another_board_boots(now, first=False):
+        boot(now, first)
+        if not first:
+            sim.uid += 1
+
+    sim._boot = another_board_boots
+
+
+@pytest.mark.parametrize("flavour", ["ardupilot", "px4"])
+def test_another_board_with_the_same_system_id_is_found_by_its_uid(tmp_path, flavour):
+    """Issue 31: boards of one product share a system id; the hardware UID tells them apart."""
+    workdir = tmp_path / "fc"
+    workdir.mkdir()
+    listen = "tcp:127.0.0.1:0" if flavour == "ardupilot" else "udp:127.0.0.1:0"
+    with create_sim(flavour, listen, mag_rate_hz=FAST_SENSOR_HZ, workdir=workdir, seed=2, boot_time_s=0.3,
+                    speed=5.0) as sim:
+        uid = sim.uid
+        another_board_with_the_same_system_id(sim)
+        if flavour == "ardupilot":
+            station = write_station("ardupilot-sim.yaml", tmp_path, sim.address, AP)
+        else:
+            host, port = sim.address.split(":")[1:]
+            station = write_station("px4-sim.yaml", tmp_path, f"udpout://{host}:{port}",
+                                    {"connect_timeout_s": 5.0, "boot_timeout_s": 10.0, "save_settle_s": 0.1})
+        seq = Sequencer(load_station(station), load_plugins(), tmp_path, sleep=lambda s: None)
+        try:
+            record = seq.run_unit("UID-SWAP")
+        finally:
+            seq.close()
+    assert record.verdict == "error", record.cause
+    assert f"reports hardware UID {uid + 1:#x}, not the unit under test's ({uid:#x})" in record.cause
 
 
 def test_another_vehicle_answering_after_the_power_cycle_is_an_error_not_a_verdict(tmp_path):

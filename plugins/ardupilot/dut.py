@@ -71,6 +71,7 @@ class ArduPilotDut:
         self.magnetometers: list[Magnetometer] = []
         self._saved_learn: int | None = None
         self.system_id = 0  # the unit's MAVLink system id: another one answering later is another vehicle
+        self.uid = 0  # the board's hardware UID (AUTOPILOT_VERSION), compared after the power cycle
 
     # ------------------------------------------------------------------ link
     def connect(self) -> UnitInfo:
@@ -82,6 +83,7 @@ class ArduPilotDut:
         self.system_id = self.link.target_system
         version = self.link.request_message(ML.MAVLINK_MSG_ID_AUTOPILOT_VERSION, "AUTOPILOT_VERSION")
         firmware = _firmware(version.flight_sw_version) if version is not None else "unknown"
+        self.uid = int(version.uid) if version is not None else 0  # the board's hardware UID (0: not said)
         self._read_ids()
         self.device_id = self._selected_id()
         self.chosen = [self.device_id]
@@ -258,7 +260,9 @@ class ArduPilotDut:
             self.link.open(remaining_s)
 
         reconnected, uptime = await_new_boot(reconnect, self._uptime_s, since, self.opts.boot_timeout_s)
-        require_same_vehicle(self.system_id, self.link.target_system, self.product.connection)
+        version = self.link.request_message(ML.MAVLINK_MSG_ID_AUTOPILOT_VERSION, "AUTOPILOT_VERSION")
+        require_same_vehicle(self.system_id, self.link.target_system, self.product.connection, self.uid,
+                             int(version.uid) if version is not None else 0)
         self._read_ids()
         return {"time_to_heartbeat_s": reconnected, "uptime_at_reconnect_s": uptime}
 

@@ -86,6 +86,7 @@ class Px4Dut:
         self.with_euler = False
         self._saved_autocal: int | None = None
         self.system_id = 0
+        self.uid = 0
         self._found: list[tuple[int, bool]] = []  # (device id, external) per sensor_mag instance, from the shell
 
     # ------------------------------------------------------------------ link
@@ -93,6 +94,7 @@ class Px4Dut:
         self.link.open()
         self.system_id = self.link.target_system  # another one answering later is another vehicle
         version = self.link.firmware()
+        self.uid = self.link.hardware_uid()  # the board itself: a second one may share the system id
         firmware = ".".join(map(str, version)) if version else "unknown"
         # what the firmware can hold, read from its own parameter list: a build from an untagged tree
         # reports 0.0.0 whatever it has, and a version string proves nothing (reference §17)
@@ -305,7 +307,8 @@ class Px4Dut:
     def await_boot(self, since: float) -> dict[str, float]:
         # a fresh MAVSDK instance per try: nothing cached from the old boot can answer a read
         reconnected, uptime = await_new_boot(self.link.reopen, self._uptime_s, since, self.opts.boot_timeout_s)
-        require_same_vehicle(self.system_id, self.link.target_system, self.product.connection)
+        require_same_vehicle(self.system_id, self.link.target_system, self.product.connection, self.uid,
+                             self.link.hardware_uid())
         if self.shell_answers:
             self.now_present = [d for d, _ in self._discover()]
             self.present = self.device_id in self.now_present

@@ -118,6 +118,15 @@ class Px4Link:
         finally:
             self.unsubscribe(handle)
 
+    def hardware_uid(self) -> int:
+        """AUTOPILOT_VERSION's ``uid`` as MAVSDK's Info reports it (``legacy_uid``); 0 when not said."""
+        for _ in range(10):  # like the version, it arrives shortly after discovery
+            try:
+                return int(self.info.get_identification().legacy_uid)
+            except Exception:  # InfoError while the information is not in yet
+                time.sleep(0.1)
+        return 0
+
     def firmware(self) -> tuple[int, int, int] | None:
         for _ in range(10):  # AUTOPILOT_VERSION arrives shortly after discovery
             try:

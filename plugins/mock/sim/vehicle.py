@@ -105,6 +105,8 @@ class SimulatedAutopilot(ABC):
         self.speed = speed
         self.boot_time_s = boot_time_s
         self.system_id = system_id
+        # the board's hardware UID (AUTOPILOT_VERSION.uid): one per simulated board, from its seed
+        self.uid = 0x4D41474C_00000000 + ((seed or 0) & 0xFFFFFF) * 256 + system_id
         self.save_duration_s = save_duration_s
         self.field_provider = field_provider  # the board stands in a coil: its field, not a tumble
         self.mag_rate_hz = mag_rate_hz  # overrides the firmware's / driver's sensor rate
@@ -531,4 +533,4 @@ class SimulatedAutopilot(ABC):
         major, minor, patch = getattr(self, "reported_version", self.firmware_version)
         sw = (major << 24) | (minor << 16) | (patch << 8) | mavlink.FIRMWARE_VERSION_TYPE_OFFICIAL
         self.mav.autopilot_version_send(self.capabilities, sw, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8,
-                                        0x1209, 0x5741, 0x4D41474C494E45)
+                                        0x1209, 0x5741, self.uid)
