@@ -261,3 +261,38 @@ def test_a_slot_station_shows_one_panel_per_slot_and_starts_a_load_from_the_keyb
     screenshot(page, tmp_path / "slots.png")
     assert (tmp_path / "slot-a.json").exists() and not (tmp_path / "slot-b.json").exists()
     assert opened.outside(LOCAL) == []
+
+
+def test_idle_screen_second_scan_and_what_to_do_after_the_verdict(screen, browser, tmp_path):
+    """Issue 30: the idle screen says what to do at two metres; a second scan while a unit runs gets
+    an answer and keeps the serial; the verdict says what to do with the unit (the station file's words
+    where it sets them); ABORTED and ERROR have colours of their own; "1 unit"."""
+    served, _ = screen({**REALTIME, "prompts": {"verdicts": {"aborted": "Back to the rack, then test again"}}})
+    page = open_page(browser, served.url).page
+    page.wait_for_selector("#station-name:has-text('demo-01')")
+    assert page.inner_text("#idle-what") == "Scan the unit's serial number"
+    size = page.evaluate("parseFloat(getComputedStyle(document.getElementById('idle-what')).fontSize)")
+    largest = page.evaluate("Math.max(...[...document.querySelectorAll('body *')].filter((e) => e.offsetParent)"
+                            ".map((e) => parseFloat(getComputedStyle(e).fontSize)))")
+    assert size >= 32 and size == largest  # the largest text on the idle screen says what to do
+    assert page.inner_text("#idle-shift") == "0 units this shift"
+    page.keyboard.type("SCR-1")
+    page.keyboard.press("Enter")
+    page.wait_for_selector("#attempt:has-text('attempt 1')")
+    assert page.is_hidden("#idle")
+    page.fill("#serial", "SCR-2")  # the next unit scanned too early
+    page.press("#serial", "Enter")
+    page.wait_for_selector("#form-error:has-text('SCR-2 was not started')")
+    assert page.inner_text("#form-error") == "SCR-2 was not started: SCR-1 is under test — finish or abort it first"
+    assert page.input_value("#serial") == "SCR-2"  # not lost: Enter again once the verdict is in
+    page.click("#abort")
+    page.wait_for_selector("#verdict:not([hidden])", timeout=30_000)
+    assert page.inner_text("#verdict-word") == "ABORTED"
+    assert page.inner_text("#verdict-action") == "Back to the rack, then test again"
+    colour = "getComputedStyle(document.querySelector(%r)).%s"
+    aborted = page.evaluate(colour % ("#verdict", "backgroundColor"))
+    assert aborted == page.evaluate(colour % ("#recent li.aborted", "color")) == "rgb(87, 96, 106)"
+    page.evaluate("document.getElementById('verdict').className = 'error'")
+    assert page.evaluate(colour % ("#verdict", "backgroundColor")) == "rgb(110, 84, 148)" != aborted
+    assert page.inner_text("#shift").startswith("1 unit, ")
+    screenshot(page, tmp_path / "aborted-what-to-do.png")

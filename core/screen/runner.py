@@ -33,7 +33,8 @@ class UnitRunner:
         serial = clean_serial(serial, station.products[part or self.state.state["station"]["default_part"]])
         with self._lock:
             if self._thread is not None and self._thread.is_alive():
-                raise Busy("a unit is under test: wait for its verdict or abort it")
+                current = (self.state.state.get("run") or {}).get("serial") or "a unit"
+                raise Busy(f"{serial} was not started: {current} is under test — finish or abort it first")
             part = part or self.state.state["station"]["default_part"]
             self.sequencer.abort.clear()
             self.state.unit_started(serial, part)

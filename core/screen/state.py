@@ -28,11 +28,13 @@ RECENT = 12  # units listed on the screen
 
 class ScreenState:
     def __init__(self, station: Any) -> None:
+        self.prompts = station.prompts
         self._lock = threading.Condition()
         self.version = 0
         self.batch = Batch()
         self.state: dict[str, Any] = {
             "station": {"id": station.station.id, "line": station.station.line, "parts": list(station.products),
+                        "serial_prompt": station.prompts.serial,
                         "default_part": station.default_part or next(iter(station.products)),
                         "slots": [{"id": s.id, "part": s.part} for s in station.slots]},
             "busy": False, "run": None, "result": None, "recent": [], "shift": {"units": 0, "fpy": None},
@@ -174,6 +176,7 @@ class ScreenState:
             shown = "review" if str(record.verdict) == "pass" and items else str(record.verdict)
             result = {"verdict": shown, "serial": record.serial, "part": record.part, "slot": record.slot,
                       "cause": record.cause, "items": items, "store": record.store or "NOT stored",
+                      "action": self.prompts.action(shown),
                       "report": record.report.rsplit("/", 1)[-1] if record.report else None}
             self.state["recent"] = ([{"serial": record.serial, "part": record.part, "verdict": shown,
                                       "slot": record.slot, "finished": record.finished}]

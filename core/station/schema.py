@@ -280,10 +280,28 @@ class Slot(_Strict):
     power: PowerConfig | None = None
 
 
+VERDICT_ACTIONS = {
+    "pass": "Put the unit with the good units",
+    "review": "Put the unit with the good units; engineering reviews the flagged figures",
+    "fail": "Put the unit in the reject bin",
+    "error": "The station could not judge the unit: test it again; call the technician if it happens again",
+    "aborted": "Test the unit again",
+    "incomplete": "Test the unit again",
+}
+
+
 class Prompts(_Strict):
+    """What the operator is told.  ``verdicts``: what to do with the unit after each verdict (pass,
+    review, fail, error, aborted), in the line's own words where it sets them."""
+
     serial: str = "Scan the unit's serial number"
     tumble: str = "Tumble the unit slowly through all orientations"
     retry: str = "Coverage too low — tumble again, covering every side"
+    verdicts: dict[Literal["pass", "review", "fail", "error", "aborted", "incomplete"], str] = Field(
+        default_factory=dict)
+
+    def action(self, verdict: str) -> str:
+        return self.verdicts.get(verdict) or VERDICT_ACTIONS.get(verdict, "")  # type: ignore[call-overload]
 
 
 class Station(_Strict):

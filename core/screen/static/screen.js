@@ -64,7 +64,8 @@ function slotPanel(slot, entry) {
   if (v) {
     const items = (v.items || []).map((m) => `<div>${esc(m.name)} ${esc(m.value)} ${esc(m.limit)} ${esc(m.verdict)}</div>`).join("");
     return `<div class="slot ${esc(v.verdict)}" data-slot="${esc(slot.id)}"><h3>slot ${esc(slot.id)} · ${esc(v.serial)}</h3>`
-      + `<div class="word">${esc(v.verdict.toUpperCase())}</div><div class="cause">${esc(v.cause || "")}</div>${items}</div>`;
+      + `<div class="word">${esc(v.verdict.toUpperCase())}</div><div class="action">${esc(v.action || "")}</div>`
+      + `<div class="cause">${esc(v.cause || "")}</div>${items}</div>`;
   }
   const running = run.phases.find((p) => p.state === "running");
   const fraction = progressFraction(run);
@@ -110,7 +111,7 @@ function renderSlots(s) {
     }));
     inputs[0].focus();
   }
-  $("slot-start").disabled = s.busy;
+  // slot-start stays enabled while units run: a second load gets an answer, never silence
   $("slot-abort").disabled = !s.busy;
   $("slots").innerHTML = slots.map((slot) => slotPanel(slot, (s.slots || {})[slot.id])).join("");
   const r = s.round;
@@ -133,16 +134,24 @@ function render(s) {
     for (const p of s.station.parts) { part.add(new Option(p, p, p === s.station.default_part, p === s.station.default_part)); }
     part.hidden = false;
   }
-  $("start").disabled = s.busy;
+  // Start stays enabled while a unit runs: a second scan gets an answer, never silence
   $("abort").disabled = !s.busy;
 
   const sh = s.shift || {};
-  $("shift").textContent = `${sh.units || 0} units, first-pass yield ${pct(sh.fpy)}`;
+  const units = sh.units || 0;
+  $("shift").textContent = `${units} unit${units === 1 ? "" : "s"}, first-pass yield ${pct(sh.fpy)}`;
   $("recent").innerHTML = (s.recent || []).map((r) => `<li class="${esc(r.verdict)}">${r.slot ? `${esc(r.slot)}: ` : ""}`
     + `${esc(r.serial)} ${esc(r.verdict.toUpperCase())} <small>${esc(r.part)}</small></li>`).join("");
   if (s.station.slots && s.station.slots.length) { renderSlots(s); return; }
 
   const run = s.run;
+  $("idle").hidden = Boolean(run) || s.busy;
+  $("idle-what").textContent = s.station.serial_prompt;
+  $("idle-shift").textContent = `${units} unit${units === 1 ? "" : "s"} this shift`
+    + (sh.fpy != null ? `, first-pass yield ${pct(sh.fpy)}` : "");
+  const last = (s.recent || [])[0];
+  $("idle-last").textContent = last ? `last: ${last.serial} ${last.verdict.toUpperCase()}` : "";
+  $("idle-last").className = last ? last.verdict : "";
   $("unit").textContent = run ? `${run.serial} · ${run.part}` : "";
   $("prompt").textContent = promptOf(run);
   $("attempt").textContent = run && run.attempt ? `attempt ${run.attempt}` : "";
@@ -162,6 +171,7 @@ function render(s) {
     $("verdict-word").textContent = v.verdict.toUpperCase();
     $("verdict-serial").textContent = v.serial;
     $("verdict-part").textContent = v.part || "";
+    $("verdict-action").textContent = v.action || "";
     $("verdict-cause").textContent = v.cause || "";
     $("verdict-items").innerHTML = (v.items || []).map((m) =>
       `<tr><td>${esc(m.name)}</td><td>${esc(m.value)}</td><td>${esc(m.limit)}</td><td>${esc(m.verdict)}</td><td>${esc(m.why)}</td></tr>`).join("");
