@@ -55,6 +55,7 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
     running = _running_fit(run) if cfg.stop == "determined" else None
     reason, tumble_s = "stream ended", 0.0
     stall = _Stall(cfg.min_samples, cfg.coverage_target)
+    final = None  # the determination of every reading the tumble ends with
     try:
         with run.shared_motion(), closing(dut.samples(cfg.rate_hz)) as stream, running or nullcontext():
             started = time.monotonic()  # the fixture moves from here (a slot may have waited for the others)
@@ -76,16 +77,19 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
                     if stall.stalled(got.count, coverage):
                         reason = "stalled"
                         break
-                    if running.determined is not None:
-                        reason = "determined"
-                        break
+                    if running.determined is not None:  # a snapshot was: are all the readings?
+                        final = running.confirm_now(got.count, tumble_s, got.snapshot(run), got.imu_series())
+                        if final is not None:
+                            reason = "determined"
+                            break
                     if coverage >= running.rule.coverage_target and got.count >= checkpoint:
                         checkpoint = got.count + max(CHECK_EVERY_MIN, int(got.count * CHECK_EVERY_FRACTION))
                         snapshot = got.snapshot(run)
                         if len(snapshot) == max(1, len(run.magnetometers)):  # every sensor has readings
                             ahead = _stream_s(snapshot[""]) > tumble_s + AHEAD_S
                             running.offer(got.count, tumble_s, snapshot, wait=ahead, imu=got.imu_series())
-                            if running.determined is not None:
+                            if ahead and running.determined is not None and running.determined.readings == got.count:
+                                final = running.determined
                                 reason = "determined"
                                 break
                 if now > deadline:
@@ -97,8 +101,8 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
         raise DutError("the DUT sent no samples")
     result = got.acquisition(attempt, cfg.coverage_bins, cfg.coverage_target)
     result.stopped, result.tumble_s = reason, tumble_s
-    if reason == "determined" and running is not None and running.determined is not None:
-        result.predicted = running.determined.predicted
+    if reason == "determined" and final is not None:
+        result.predicted = final.predicted
     worst = min(result.coverages, key=result.coverages.get) if result.coverages else None
     mags = result.more[worst].mag_ut if worst in result.more else result.samples.mag_ut
     bins = covered_bins(mags, cfg.coverage_bins)  # the end adds its own checkpoint

@@ -107,8 +107,9 @@ def test_a_demo_unit_stops_once_determined_and_the_record_keeps_why_when_and_the
     mounting = next(m for m in record.measurements if getattr(m, "name", "") == "mounting_sigma_deg")
     assert mounting.value <= 3.0 and record.unit_info["mounting"]["mag1"]["found"] == 0
     final = {m.name: m.value for m in record.measurements if hasattr(m, "value")}
-    # the final fit uses every reading up to the stop: its σ is the prediction's or better, inside the limit
-    assert final["direction_sigma_deg"] <= predicted["direction_sigma_deg"] * 1.05
+    # the tumble ends only when every reading it ends with is determined: the final fit is the prediction
+    assert final["direction_sigma_deg"] == pytest.approx(predicted["direction_sigma_deg"], rel=1e-9)
+    assert final["hard_iron_sigma_ut"] == pytest.approx(predicted["hard_iron_sigma_ut"], rel=1e-9)
     rows = attempt_rows(tmp_path / "magline-demo-results.sqlite", "SN-DET")
     assert [r["stopped"] for r in rows] == ["stalled", "determined"]
     assert json.loads(rows[1]["predicted"]) == second.predicted and rows[1]["tumble_s"] == pytest.approx(
@@ -160,9 +161,12 @@ def test_with_three_compasses_the_stop_waits_for_the_noisiest(tmp_path):
         assert record.verdict is Outcome.PASS, record.cause
     attempt = record.attempts[-1]
     assert attempt.stopped == "determined" and set(attempt.predicted) == {"", "mag2.", "mag3."}
-    for figures in attempt.predicted.values():
+    measured = {m.name: m.value for m in record.measurements if hasattr(m, "value")}
+    for prefix, figures in attempt.predicted.items():
         assert figures["direction_sigma_deg"] <= 0.35 and figures["hard_iron_sigma_ut"] <= 0.35
         assert figures["mounting_sigma_deg"] <= 0.7 * 3.0
+        # a live stream: readings arrived while a snapshot was fitted, and the stop was confirmed on all of them
+        assert measured[prefix + "direction_sigma_deg"] == pytest.approx(figures["direction_sigma_deg"], rel=1e-9)
     # the primary alone was determined well before: the stop waited for compass 3
     primary, third = attempt.raw, attempt.more[mags[2].device_id]
     alone = next(n for n in range(50, len(primary), 10) if determined(primary, primary.t_ms[n - 1]))

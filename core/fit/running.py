@@ -152,7 +152,21 @@ class RunningFit:
                     self._busy = False
                     self._cond.notify_all()
 
-    def _judge(self, readings: int, after_s: float, snapshot: dict[str, RawSamples], imu: Any) -> None:
+    def confirm_now(self, readings: int, after_s: float, snapshot: dict[str, RawSamples],
+                    imu: Any = None) -> Determination | None:
+        """Judge the whole tumble so far on the caller's thread, once a snapshot was determined.
+
+        Why: the readings that arrived while the snapshot was fitted change the fit a little — and
+        near a statistical threshold (the warm-up drift test) a little can flip a decision.  The
+        tumble ends only when the readings it ends with are determined, so the final fit (the same
+        code on the same readings) is the prediction.  Not determined: the tumble goes on."""
+        found = self.determined
+        if found is not None and found.readings == readings:
+            return found  # the snapshot was already every reading (a stream in simulated time waited for it)
+        self.determined = None  # the worker may still answer an older snapshot: asked again next time
+        return self._judge(readings, after_s, snapshot, imu)
+
+    def _judge(self, readings: int, after_s: float, snapshot: dict[str, RawSamples], imu: Any) -> Determination | None:
         fits: dict[str, FitResult] = {}
         started = time.monotonic()
         try:
@@ -160,24 +174,25 @@ class RunningFit:
                 fits[sensor] = self.fitter(sensor, samples)
         except FitRefused as exc:  # not determined yet: the next snapshot may be
             self.last_error = exc.message
-            return
+            return None
         except Exception as exc:  # a fit that crashes here crashes the final fit too, which says it
             self.last_error = f"{type(exc).__name__}: {exc}"
-            return
+            return None
         finally:
             self.fits_run += 1
             self.fit_s = time.monotonic() - started
         predicted = self.rule.judge(fits)
         if predicted is None:
-            return
+            return None
         if self.confirm is not None:
             try:
                 more = self.confirm(fits, snapshot, imu)
             except Exception as exc:  # the validate phase meets the same fault and says it
                 self.last_error = f"{type(exc).__name__}: {exc}"
-                return
+                return None
             if more is None:
-                return
+                return None
             for sensor, figures in more.items():
                 predicted.setdefault(sensor, {}).update(figures)
         self.determined = Determination(readings=readings, after_s=after_s, predicted=predicted)
+        return self.determined
