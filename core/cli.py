@@ -162,6 +162,16 @@ def _load(path: str | None, plugins: Plugins) -> tuple[Station, Path]:
     return station, where
 
 
+def _not_used(refused: str | None) -> str:
+    """Why an attempt was not used, in one word for the history line: a tumble cut short (timeout,
+    lost link, abort) was never judged, so it is not called refused."""
+    if not refused:
+        return ""
+    if refused.startswith("interrupted"):
+        return " cut short"
+    return " low coverage" if refused.startswith("coverage") else " refused"
+
+
 def _run(args: argparse.Namespace, plugins: Plugins) -> int:
     """Run units until the batch ends: one unit, or with ``--loop`` until an empty serial / EOF.
 
@@ -282,7 +292,7 @@ def _ask_slots(station: Station) -> dict[str, str] | None:
     for slot in station.slots:
         while True:
             try:
-                typed = input(f"slot {slot.id} ({slot.part}) — {station.prompts.serial} (empty: no unit): ")
+                typed = _ask(f"slot {slot.id} ({slot.part}) — {station.prompts.serial} (empty: no unit): ")
             except EOFError:
                 return load if any(load.values()) else None
             try:
@@ -312,9 +322,24 @@ def _serials(args: argparse.Namespace, station: Station) -> Iterator[str]:
         yield serial
 
 
+def _ask(prompt: str) -> str:
+    """``input`` that ends its line on a pipe too: a terminal echoes the operator's Enter, a pipe
+    (a scanner script, a log) does not, and the next line would run on after the prompt."""
+    piped = not sys.stdin.isatty()
+    try:
+        typed = input(prompt)
+    except EOFError:  # the end of the scans: the prompt's line ends before what follows
+        if piped:
+            print(flush=True)
+        raise
+    if piped:
+        print(typed, flush=True)
+    return typed
+
+
 def _ask_serial(station: Station) -> str | None:
     try:
-        serial = input(f"{station.prompts.serial}: ").strip()
+        serial = _ask(f"{station.prompts.serial}: ").strip()
     except EOFError:
         return None
     return serial or None
@@ -433,7 +458,7 @@ def _history(args: argparse.Namespace, plugins: Plugins) -> int:
         print(f"no runs for {args.serial}")
         return 1
     for run in runs:
-        cov = ", ".join(percent(a["coverage"]) + (" refused" if a.get("refused") else "") for a in run["attempts"])
+        cov = ", ".join(percent(a["coverage"]) + _not_used(a.get("refused")) for a in run["attempts"])
         where_aborted = f" during {run['aborted_phase']}" if run.get("aborted_phase") else ""
         cal = run.get("calibration") or {}
         offsets = (" offset [" + ", ".join(fmt(v) for v in cal["hard_iron_ut"]) + "] µT") if cal.get(

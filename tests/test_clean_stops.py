@@ -118,6 +118,17 @@ def test_loop_without_terminal_or_serials_tests_nothing_and_says_so(tmp_path):
     assert "DEMO-" not in proc.stdout  # no serial invented
 
 
+def test_serials_read_from_a_pipe_end_their_prompt_line(tmp_path):
+    """Issue 30: a scanner script or a log has no terminal echo: the prompt's line ends with the serial."""
+    proc = subprocess.run([sys.executable, "-m", "magline.core.cli", "run", "--loop"], cwd=tmp_path,
+                          input="PIPE-1\n", capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    lines = proc.stdout.splitlines()
+    assert "Scan the unit's serial number: PIPE-1" in lines  # not run together with the next line
+    assert "Scan the unit's serial number: " in lines  # EOF at the next prompt ends the batch, on its own line
+    assert lines[-1].startswith("batch: 1 unit")
+
+
 def test_history_names_the_store_it_searched_and_never_creates_one(tmp_path, monkeypatch, capsys):
     from magline.core.cli import main
 

@@ -202,7 +202,17 @@ def test_loop_mode_prompts_for_serials_until_eof(make_station, monkeypatch, caps
     serials = [r[0] for r in rows(tmp_path / "magline-demo-results.sqlite", "SELECT serial FROM runs")]
     assert serials == ["A-1", "A-2"]
     assert main(["history", "A-2", "--station", str(path)]) == 0
-    assert "PASS" in capsys.readouterr().out
+    shown = capsys.readouterr().out
+    assert "PASS" in shown and "% low coverage, " in shown  # the one-axis spin: not a fit's refusal
+
+
+def test_history_calls_an_attempt_cut_short_by_its_cause_not_refused():
+    from magline.core.cli import _not_used
+
+    assert _not_used("interrupted: only 12 of 600 readings within 5 s") == " cut short"
+    assert _not_used("coverage 25% below the target 60%") == " low coverage"
+    assert _not_used("undetermined: the orientations covered do not determine the calibration") == " refused"
+    assert _not_used(None) == ""
 
 
 def test_a_unit_that_does_not_answer_is_an_error_not_a_fail(make_station):
