@@ -14,7 +14,7 @@ from rich.progress import BarColumn, Progress, TaskID, TextColumn
 from rich.text import Text
 
 from magline.core.console_slots import STYLE, SlotBoard
-from magline.core.measurements import Verdict, verdicts
+from magline.core.measurements import Verdict, base_name, verdicts
 from magline.core.plugins import hookimpl
 from magline.core.record import Outcome, PhaseResult, RunRecord
 from magline.core.sequencer.batch import Batch
@@ -158,13 +158,17 @@ def verdict_lines(record: RunRecord) -> list[str]:
     if record.cause:
         lines.append(f"  cause: {record.cause}")
     process = {f["name"]: f for f in record.review}
-    for m in verdicts(record.measurements):
-        limit = f"[{fmt(m.low)}, {fmt(m.high)}]" if m.low is not None or m.high is not None else "no limit"
-        flag = "  FAIL" if m.verdict is Verdict.FAIL else ""
-        if m.verdict is Verdict.REVIEW:
-            flag = (f"  REVIEW ({abs(process[m.name]['z']):.1f}σ from the process)" if m.name in process
-                    else "  REVIEW (marginal)")
-        lines.append(f"  {MARK[m.verdict]} {m.name:<24} {fmt(m.value, m.unit):>14}  {limit}{flag}")
+    sensors = sensor_headers(record)
+    for prefix, measured in by_sensor(verdicts(record.measurements)).items():
+        if len(sensors) > 1:  # several magnetometers: a section each, then the pairs
+            lines.append(f"  — {sensors.get(prefix) or 'agreement ' + prefix.rstrip('.').replace('-', ' and ')}")
+        for m in measured:
+            limit = f"[{fmt(m.low)}, {fmt(m.high)}]" if m.low is not None or m.high is not None else "no limit"
+            flag = "  FAIL" if m.verdict is Verdict.FAIL else ""
+            if m.verdict is Verdict.REVIEW:
+                flag = (f"  REVIEW ({abs(process[m.name]['z']):.1f}σ from the process)" if m.name in process
+                        else "  REVIEW (marginal)")
+            lines.append(f"  {MARK[m.verdict]} {m.name:<24} {fmt(m.value, m.unit):>14}  {limit}{flag}")
     if record.review:
         lines.append("  FLAGGED FOR ENGINEERING REVIEW (the unit passes):")
         lines += [f"    {f['reason']}" for f in record.review]
@@ -176,6 +180,9 @@ def verdict_lines(record: RunRecord) -> list[str]:
         lines.append(f"  hard iron [{h}] µT, field {fmt(cal['field_ut'], 'µT')}, attempts {len(record.attempts)}")
         for i, row in enumerate(cal["soft_iron"]):
             lines.append(f"  {'soft iron' if i == 0 else '':<9} [" + ", ".join(f"{v:8.4f}" for v in row) + "]")
+        for name, other in (cal.get("magnetometers") or {}).items():
+            h = ", ".join(fmt(v, digits=4) for v in other["hard_iron_ut"])
+            lines.append(f"  {name} ({other['device_id']}): hard iron [{h}] µT")
         affine = cal.get("affine")
         if affine:
             lines.append(f"  coil misalignment {fmt(affine['misalignment_deg'], '°', 3)}")
@@ -190,3 +197,19 @@ def verdict_lines(record: RunRecord) -> list[str]:
         lines.append(f"  report: {record.report}" if record.report else f"  {record.report_error}")
     return lines
 
+
+def by_sensor(measured: list) -> dict[str, list]:
+    """Measurements grouped by sensor prefix (``""`` the primary, ``mag2.``, then pairs ``mag1-mag2.``),
+    in the order they were measured."""
+    groups: dict[str, list] = {}
+    for m in measured:
+        groups.setdefault(m.name[: len(m.name) - len(base_name(m.name))], []).append(m)
+    return groups
+
+
+def sensor_headers(record: RunRecord) -> dict[str, str]:
+    """Each calibrated magnetometer's section title, by prefix: "compass 2: HMC5883 (458786)"."""
+    sensors = record.unit_info.get("magnetometers") if isinstance(record.unit_info, dict) else None
+    return {(str(m.get("prefix") or "") + "." if m.get("prefix") else ""):
+            f"compass {i + 1}: {m.get('label', 'magnetometer')} ({m.get('device_id')})"
+            for i, m in enumerate(sensors or []) if isinstance(m, dict)}

@@ -119,6 +119,14 @@ def test_a_good_three_compass_ardupilot_unit_passes_with_every_compass_calibrate
             assert abs(measured(record, prefix + "inclination_error_deg").value) < 1.0
         for pair in ("mag1-mag2.", "mag1-mag3.", "mag2-mag3."):
             assert measured(record, pair + "heading_agreement_median_deg").value < 1.0
+        # the verdict panel: a section per compass, then the pairs, and each compass's hard iron
+        from magline.core.console import verdict_lines
+
+        panel = "\n".join(verdict_lines(record))
+        order = ["— compass 1: ", " hard_iron_x_ut", "— compass 2: ", "mag2.hard_iron_x_ut", "— compass 3: ",
+                 "— agreement mag1 and mag2"]
+        assert [panel.index(part) for part in order] == sorted(panel.index(part) for part in order)
+        assert f"mag3 ({sim.magnetometers[2].device_id}): hard iron [" in panel
         # every sensor's readings and the accelerometer's are kept with the attempt
         engine = create_engine(f"sqlite:///{tmp_path / 'results.sqlite'}")
         with engine.connect() as conn:
