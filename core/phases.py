@@ -160,6 +160,32 @@ def _running_fit(run: RunContext) -> RunningFit:
     return RunningFit(rule, fitter, confirm)
 
 
+# How many σ of its estimate an error measurement must sit inside its limit, so that a good unit's
+# noise alone crosses the limit in about 10⁻³ of units: a rotation's size (three axes, Maxwell tail)
+# and a signed angle (one axis, two-sided normal).
+ROTATION_Z, ONE_AXIS_Z = 4.0, 3.3
+
+
+def _limit_over(run: RunContext, name: str, z: float) -> float:
+    """The σ an estimate may have so that noise alone stays inside the limit of ``name`` (∞: no limit)."""
+    limit = limit_for(name, run.limits)
+    if limit is None:
+        return float("inf")
+    bound = min(abs(v) for v in (limit.low, limit.high) if v is not None) if (
+        limit.low is not None or limit.high is not None) else float("inf")
+    return bound / z
+
+
+def _mounting_sigma_target(run: RunContext, prefix: str, margin: float) -> float:
+    """The mounting σ a determined tumble needs: inside the margin of what the check accepts (its
+    ``mounting_sigma_deg`` limit, at most the estimator's bound) and small enough that a good unit's
+    ``mounting_error_deg`` does not cross its limit by noise."""
+    limit = limit_for(prefix + "mounting_sigma_deg", run.limits)
+    bound = min(MOUNTING_MAX_SIGMA_DEG, limit.high if limit is not None and limit.high is not None
+                else MOUNTING_MAX_SIGMA_DEG)
+    return min(margin * bound, _limit_over(run, prefix + "mounting_error_deg", ROTATION_Z))
+
+
 def _mounting_determined(run: RunContext, margin: float):
     """The mounting is proven from the same tumble (core/mounting): the tumble goes on until every
     sensor's mounting σ is within the margin of what the check needs (its ``mounting_sigma_deg``
@@ -172,17 +198,16 @@ def _mounting_determined(run: RunContext, margin: float):
         for prefix, fit in fits.items():
             if fit.model == "affine":
                 return {}
-            limit = limit_for(prefix + "mounting_sigma_deg", run.limits)
-            bound = min(MOUNTING_MAX_SIGMA_DEG, limit.high if limit is not None and limit.high is not None
-                        else MOUNTING_MAX_SIGMA_DEG)
             samples = snapshot[prefix]
             try:
                 estimate = estimate_mounting(calibrated(fit, samples.mag_ut), samples.t_ms, imu)
             except MountingUnobservable:
                 return None
-            if estimate.sigma_deg > margin * bound:
+            if estimate.sigma_deg > _mounting_sigma_target(run, prefix, margin) or \
+                    estimate.inclination_sigma_deg > _limit_over(run, prefix + "inclination_error_deg", ONE_AXIS_Z):
                 return None
-            figures[prefix] = {"mounting_sigma_deg": estimate.sigma_deg}
+            figures[prefix] = {"mounting_sigma_deg": estimate.sigma_deg,
+                               "inclination_sigma_deg": estimate.inclination_sigma_deg}
         return figures
 
     return confirm

@@ -53,8 +53,12 @@ def test_inverse_correction_matches_the_simulated_firmware(tmp_path, rng):
 
 
 def test_end_to_end_pass_writes_the_fit_and_it_survives_the_reboot(tmp_path):
+    # the firmware's calibrated output is checked to 1 % in whatever attitude the unit rests after the
+    # reboot: that needs the whole tumble's calibration (a determined tumble is as good as the station's
+    # limits ask, 3 % by default, and its partial coverage once read 48.5 µT there)
     with start_sim(tmp_path) as sim:
-        record = run_unit(write_station("ardupilot-sim.yaml", tmp_path, sim.address, OPTIONS))
+        record = run_unit(write_station("ardupilot-sim.yaml", tmp_path, sim.address, OPTIONS,
+                                        {"acquisition": {"stop": "samples"}}))
         assert record.verdict is Outcome.PASS, record.cause
         h = np.array(record.calibration["hard_iron_ut"])
         s = np.array(record.calibration["soft_iron"])
