@@ -32,7 +32,7 @@ from magline.core.station import load_station
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).parent))
-from slots import BOARDS, start  # noqa: E402  (the four-board fixture of the slots benchmark)
+from slots import BOARDS, start, start_fixture  # noqa: E402  (the slots benchmark's four-board fixture)
 
 STOPS = ("samples", "determined")
 GOALS_S = {"demo": 4.0, "px4": 10.0, "ardupilot": 25.0}
@@ -113,14 +113,7 @@ def slots(work: Path, stop: str, loads: int) -> tuple[float, float, list[RunReco
     """Seconds for the four boards one slot at a time, then four together; the four-slot records."""
     procs = []
     try:
-        gimbal_proc, gimbal = start(["gimbal", "--listen", "tcp:127.0.0.1:0"])
-        procs.append(gimbal_proc)
-        addresses = {}
-        for slot, flavour in BOARDS.items():
-            listen = "udp:127.0.0.1:0" if flavour == "px4" else "tcp:127.0.0.1:0"
-            proc, addresses[slot] = start([flavour, "--listen", listen, "--gimbal", gimbal, "--workdir",
-                                           str(work / f"fc-{slot}-{stop}"), "--seed", str(ord(slot))])
-            procs.append(proc)
+        gimbal, addresses = start_fixture(work / stop, procs)
 
         def station(chosen: list[str]) -> Path:
             cfg = yaml.safe_load((REPO / "stations" / "slots-sim.yaml").read_text(encoding="utf-8"))

@@ -45,6 +45,21 @@ def start(args: list[str]) -> tuple[subprocess.Popen, str]:
     return proc, first.removeprefix("listening on ")
 
 
+def start_fixture(work: Path, procs: list[subprocess.Popen],
+                  extra: list[str] | None = None) -> tuple[str, dict[str, str]]:
+    """The gimbal and the four boards mounted on it, each a ``magline sim`` process (added to ``procs``,
+    which the caller stops), with ``extra`` options for every board; the gimbal's and each slot's address."""
+    gimbal_proc, gimbal = start(["gimbal", "--listen", "tcp:127.0.0.1:0"])
+    procs.append(gimbal_proc)
+    addresses = {}
+    for slot, flavour in BOARDS.items():
+        listen = "udp:127.0.0.1:0" if flavour == "px4" else "tcp:127.0.0.1:0"
+        proc, addresses[slot] = start([flavour, "--listen", listen, "--gimbal", gimbal, "--workdir",
+                                       str(work / f"fc-{slot}"), *(extra or []), "--seed", str(ord(slot))])
+        procs.append(proc)
+    return gimbal, addresses
+
+
 def children_cpu_s() -> float:
     """User + system CPU of this process's live children (mavsdk_server), from /proc."""
     total = 0.0
@@ -119,15 +134,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         try:
-            gimbal_proc, gimbal = start(["gimbal", "--listen", "tcp:127.0.0.1:0"])
-            procs.append(gimbal_proc)
-            addresses = {}
-            for slot, flavour in BOARDS.items():
-                listen = "udp:127.0.0.1:0" if flavour == "px4" else "tcp:127.0.0.1:0"
-                proc, addresses[slot] = start([flavour, "--listen", listen, "--gimbal", gimbal, "--workdir",
-                                               str(work / f"fc-{slot}"), "--boot-time", str(args.boot_time),
-                                               "--mag-rate", "50", "--seed", str(ord(slot))])
-                procs.append(proc)
+            gimbal, addresses = start_fixture(work, procs, ["--boot-time", str(args.boot_time), "--mag-rate", "50"])
             serial = iter(range(1_000_000))
             one_cpu, four_cpu = AcquisitionCpu(), AcquisitionCpu()
             one_s, one_records = 0.0, []
