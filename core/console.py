@@ -14,7 +14,7 @@ from rich.progress import BarColumn, Progress, TaskID, TextColumn
 from rich.text import Text
 
 from magline.core.console_slots import STYLE, SlotBoard
-from magline.core.measurements import Verdict, base_name, verdicts
+from magline.core.measurements import Verdict, by_sensor, verdicts
 from magline.core.plugins import hookimpl
 from magline.core.record import Outcome, PhaseResult, RunRecord
 from magline.core.sequencer.batch import Batch
@@ -158,7 +158,7 @@ def verdict_lines(record: RunRecord) -> list[str]:
     if record.cause:
         lines.append(f"  cause: {record.cause}")
     process = {f["name"]: f for f in record.review}
-    sensors = sensor_headers(record)
+    sensors = record.sensor_titles()
     for prefix, measured in by_sensor(verdicts(record.measurements)).items():
         if len(sensors) > 1:  # several magnetometers: a section each, then the pairs
             lines.append(f"  — {sensors.get(prefix) or 'agreement ' + prefix.rstrip('.').replace('-', ' and ')}")
@@ -196,20 +196,3 @@ def verdict_lines(record: RunRecord) -> list[str]:
     if record.report or record.report_error:
         lines.append(f"  report: {record.report}" if record.report else f"  {record.report_error}")
     return lines
-
-
-def by_sensor(measured: list) -> dict[str, list]:
-    """Measurements grouped by sensor prefix (``""`` the primary, ``mag2.``, then pairs ``mag1-mag2.``),
-    in the order they were measured."""
-    groups: dict[str, list] = {}
-    for m in measured:
-        groups.setdefault(m.name[: len(m.name) - len(base_name(m.name))], []).append(m)
-    return groups
-
-
-def sensor_headers(record: RunRecord) -> dict[str, str]:
-    """Each calibrated magnetometer's section title, by prefix: "compass 2: HMC5883 (458786)"."""
-    sensors = record.unit_info.get("magnetometers") if isinstance(record.unit_info, dict) else None
-    return {(str(m.get("prefix") or "") + "." if m.get("prefix") else ""):
-            f"compass {i + 1}: {m.get('label', 'magnetometer')} ({m.get('device_id')})"
-            for i, m in enumerate(sensors or []) if isinstance(m, dict)}

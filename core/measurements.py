@@ -91,6 +91,15 @@ def base_name(name: str) -> str:
     return SENSOR_PREFIX.sub("", name)
 
 
+def by_sensor(measured: list[Measurement]) -> dict[str, list[Measurement]]:
+    """Measurements grouped by sensor prefix (``""`` the primary, ``mag2.``, then pairs ``mag1-mag2.``),
+    in the order they were measured: the console's sections and the screen's cards per compass."""
+    groups: dict[str, list[Measurement]] = {}
+    for m in measured:
+        groups.setdefault(m.name[: len(m.name) - len(base_name(m.name))], []).append(m)
+    return groups
+
+
 def known_limit_name(name: str) -> bool:
     return base_name(name) in KNOWN_LIMIT_NAMES
 

@@ -120,3 +120,16 @@ class RunRecord:
     report_error: str = ""  # why the report the station should have written is missing
     slot: str | None = None  # the fixture position on a station with slots
     slot_group: str | None = None  # the units that shared the motion with this one carry the same id
+
+    def sensor_titles(self) -> dict[str, str]:
+        """Each calibrated magnetometer's section title by measurement prefix (``""`` the primary,
+        ``mag2.`` …): "compass 2: HMC5883 (458786)". The console and the screen title their sections
+        per compass with it, so both name a sensor the same way."""
+        sensors = self.unit_info.get("magnetometers") if isinstance(self.unit_info, dict) else None
+        titles = {}
+        for i, m in enumerate(s for s in sensors or [] if isinstance(s, dict)):
+            label = str(m.get("label") or "magnetometer")
+            named = "" if label == f"compass {i + 1}" else f"{label} "  # no "compass 1: compass 1"
+            titles[str(m.get("prefix") or "") + "." if m.get("prefix") else ""] = \
+                f"compass {i + 1}: {named}({m.get('device_id')})"
+        return titles

@@ -302,3 +302,38 @@ def test_idle_screen_second_scan_and_what_to_do_after_the_verdict(screen, browse
     assert page.evaluate(colour % ("#verdict", "backgroundColor")) == "rgb(110, 84, 148)" != aborted
     assert page.inner_text("#shift").startswith("1 unit, ")
     screenshot(page, tmp_path / "aborted-what-to-do.png")
+
+
+def test_a_three_compass_unit_shows_a_card_per_compass_naming_the_one_that_failed(browser, tmp_path):
+    """Issue 26: the verdict says which compass to look at. Compass 2 of a simulated ArduPilot is mounted
+    turned 90° about Z: its card is FAIL with its orientation, compasses 1 and 3 PASS with their hard iron."""
+    from simstation import FAST_SENSOR_HZ, write_station
+
+    from magline.plugins.mock.sim import SimFaults, create_sim
+
+    workdir = tmp_path / "fc"
+    workdir.mkdir()
+    with create_sim("ardupilot", "tcp:127.0.0.1:0", mag_rate_hz=FAST_SENSOR_HZ, workdir=workdir, mag_count=3,
+                    seed=26, boot_time_s=0.3, speed=5.0, faults=SimFaults.parse(["mag_mounting=2:2"])).start() as sim:
+        path = write_station("ardupilot-sim.yaml", tmp_path, sim.address,
+                             {"connect_timeout_s": 5.0, "boot_timeout_s": 10.0, "prearm_wait_s": 0.3})
+        app, runner = build(load_station(path), path.parent, load_plugins(), None)
+        served = Served(app, free_port())
+        try:
+            page = open_page(browser, served.url).page
+            page.fill("#serial", "SCR-3MAG")
+            page.press("#serial", "Enter")
+            page.wait_for_selector("#verdict:not([hidden])", timeout=60_000)
+            assert page.inner_text("#verdict-word") == "FAIL"
+            cards = page.eval_on_selector_all("#verdict-sensors .sensor", "els => els.map(e => ({cls: e.className, "
+                                              "title: e.querySelector('h3').textContent, text: e.innerText}))")
+            compasses = [c for c in cards if c["title"].startswith("compass")]
+            assert [c["title"].split(":")[0] for c in compasses] == ["compass 1", "compass 2", "compass 3"]
+            assert [c["cls"] for c in compasses] == ["sensor pass", "sensor fail", "sensor pass"]
+            assert "mag2.orientation" in compasses[1]["text"] and "hard iron [" in compasses[0]["text"]
+            assert any(c["title"].startswith("agreement") for c in cards)
+            assert page.inner_text("#verdict-items") == ""  # the failures are in their compass's card, once
+            screenshot(page, tmp_path / "three-compasses.png")
+        finally:
+            served.stop()
+            runner.close()

@@ -16,7 +16,7 @@ import threading
 import time
 from typing import Any
 
-from magline.core.measurements import Verdict, verdicts
+from magline.core.measurements import Verdict, by_sensor, verdicts
 from magline.core.plugins import hookimpl
 from magline.core.record import PhaseResult, RunRecord
 from magline.core.sequencer.batch import Batch
@@ -168,14 +168,11 @@ class ScreenState:
         with self._lock:
             self.batch.add(record)
             passed, judged = self.batch.first_pass_yield()
-            flags = {f["name"]: f["reason"] for f in record.review}
-            items = [{"name": m.name, "value": fmt(m.value, m.unit), "limit": f"[{fmt(m.low)}, {fmt(m.high)}]",
-                      "verdict": str(m.verdict), "why": flags.get(m.name, "within the marginal band"
-                                                                  if m.verdict is Verdict.REVIEW else "")}
-                     for m in verdicts(record.measurements) if m.verdict in (Verdict.FAIL, Verdict.REVIEW)]
+            items = verdict_items(record, verdicts(record.measurements))
             shown = "review" if str(record.verdict) == "pass" and items else str(record.verdict)
             result = {"verdict": shown, "serial": record.serial, "part": record.part, "slot": record.slot,
-                      "cause": record.cause, "items": items, "store": record.store or "NOT stored",
+                      "cause": record.cause, "items": items, "sensors": sensor_cards(record),
+                      "store": record.store or "NOT stored",
                       "action": self.prompts.action(shown),
                       "report": record.report.rsplit("/", 1)[-1] if record.report else None}
             self.state["recent"] = ([{"serial": record.serial, "part": record.part, "verdict": shown,
@@ -195,6 +192,37 @@ class ScreenState:
         with self._lock:
             self.state["busy"] = False
             self._changed()
+
+
+def verdict_items(record: RunRecord, measured: list) -> list[dict[str, str]]:
+    """The measurements the operator must see: every FAIL and REVIEW, with why a REVIEW was flagged."""
+    flags = {f["name"]: f["reason"] for f in record.review}
+    return [{"name": m.name, "value": fmt(m.value, m.unit), "limit": f"[{fmt(m.low)}, {fmt(m.high)}]",
+             "verdict": str(m.verdict),
+             "why": flags.get(m.name, "within the marginal band" if m.verdict is Verdict.REVIEW else "")}
+            for m in measured if m.verdict in (Verdict.FAIL, Verdict.REVIEW)]
+
+
+def sensor_cards(record: RunRecord) -> list[dict[str, Any]]:
+    """A unit with several magnetometers: one card per compass, then one per pair's agreement, each with
+    its own verdict, its hard iron and what failed in it — so the operator sees *which* compass to look at
+    (the GPS mast's, the board's). One magnetometer: no cards (the verdict says it all)."""
+    titles = record.sensor_titles()
+    if len(titles) < 2:
+        return []
+    hard_iron = {"": (record.calibration or {}).get("hard_iron_ut")}
+    for prefix, other in ((record.calibration or {}).get("magnetometers") or {}).items():
+        hard_iron[prefix + "."] = other.get("hard_iron_ut")
+    cards = []
+    for prefix, measured in by_sensor(verdicts(record.measurements)).items():
+        failed = any(m.verdict is Verdict.FAIL for m in measured)
+        marginal = any(m.verdict is Verdict.REVIEW for m in measured)
+        h = hard_iron.get(prefix)
+        cards.append({"title": titles.get(prefix) or "agreement " + prefix.rstrip(".").replace("-", " and "),
+                      "verdict": "fail" if failed else "review" if marginal else "pass",
+                      "hard_iron": ("hard iron [" + ", ".join(fmt(v, digits=3) for v in h) + "] µT") if h else "",
+                      "items": verdict_items(record, measured)})
+    return cards
 
 
 def bin_centres(n_bins: int) -> list[list[float]]:

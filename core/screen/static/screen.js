@@ -119,6 +119,11 @@ function renderSlots(s) {
   if (s.result && !s.busy && s.result.cause) { $("form-error").textContent = s.result.cause; }
 }
 
+function itemRows(items) {
+  return (items || []).map((m) => `<tr><td>${esc(m.name)}</td><td>${esc(m.value)}</td><td>${esc(m.limit)}</td>`
+    + `<td>${esc(m.verdict)}</td><td>${esc(m.why)}</td></tr>`).join("");
+}
+
 function render(s) {
   $("station-name").textContent = `${s.station.id} · line ${s.station.line}`;
   const f = s.field || {};
@@ -173,8 +178,12 @@ function render(s) {
     $("verdict-part").textContent = v.part || "";
     $("verdict-action").textContent = v.action || "";
     $("verdict-cause").textContent = v.cause || "";
-    $("verdict-items").innerHTML = (v.items || []).map((m) =>
-      `<tr><td>${esc(m.name)}</td><td>${esc(m.value)}</td><td>${esc(m.limit)}</td><td>${esc(m.verdict)}</td><td>${esc(m.why)}</td></tr>`).join("");
+    const cards = v.sensors || [];
+    // several magnetometers: a card per compass and per pair, each with its own verdict and failures
+    $("verdict-items").innerHTML = cards.length ? "" : itemRows(v.items);
+    $("verdict-sensors").innerHTML = cards.map((c) => `<div class="sensor ${esc(c.verdict)}"><h3>${esc(c.title)}</h3>`
+      + `<div class="word">${esc(c.verdict.toUpperCase())}</div><div>${esc(c.hard_iron)}</div>`
+      + (c.items.length ? `<table>${itemRows(c.items)}</table>` : "") + "</div>").join("");
     $("verdict-store").textContent = v.store ? `record: ${v.store}` : "";
     const link = $("verdict-report");
     link.hidden = !v.report;
