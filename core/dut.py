@@ -78,6 +78,9 @@ class Magnetometer:
     # the largest field the readings can carry (µT): beyond it a reading is clipped.  A MAVLink int16
     # milligauss field ends at ±3276.7 µT; None: not known (the fit then guesses from plateaus)
     range_ut: float | None = None
+    # the rotation the firmware applies where it is no discrete value (PX4's CAL_MAGn_ROT = 100 with its
+    # custom Euler angles): ``v_body = rotation · v_sensor``, rows; None: ``orientation`` says it all
+    rotation: list[list[float]] | None = None
 
 
 @dataclass
@@ -187,6 +190,9 @@ class DutBackend(Protocol):
     # ``orientation_params(device_id, value) -> dict`` — the parameters that make the firmware take the
     #   sensor as mounted in orientation ``value`` (names from ``Magnetometer.fix_params``);
     # ``sensors_present() -> list[int]`` — after a power cycle: the device ids the unit has now.
+    # ``rotation_params(device_id, rotation) -> dict`` — the parameters that make the firmware turn the
+    #   sensor's axes into the body by ``rotation`` (3×3, any angle: PX4's custom Euler angles), for a
+    #   product with ``misalignment: write``; raises DutError saying why when this sensor cannot hold one.
 
     # Optional: ``calibrated_field_ut(count) -> NDArray | None`` — after the power cycle, ``count``
     # readings (µT, rows) of the firmware's own *calibrated* output for this sensor (ArduPilot's

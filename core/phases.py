@@ -356,8 +356,9 @@ def _same(written: ParamValue, echoed: ParamValue) -> bool:
 
 
 def calibration_to_write(run: RunContext, fit: FitResult) -> dict[str, ParamValue]:
-    """Every fitted magnetometer's parameters (the primary's fit is ``fit``), and the orientations the
-    mounting check asked to fix.  A sensor whose firmware calibrates in its *rotated* frame (ArduPilot)
+    """Every fitted magnetometer's parameters (the primary's fit is ``fit``), the orientations the
+    mounting check asked to fix, and the custom rotations it measured where the product writes them.
+    A sensor whose firmware calibrates in its *rotated* frame (ArduPilot)
     gets its fit turned into the new frame with its new orientation: ``h' = P·h``, ``S' = P·S·Pᵀ``."""
     dut = run.require_dut()
     if not run.unit or not run.unit.magnetometers:
@@ -372,6 +373,7 @@ def calibration_to_write(run: RunContext, fit: FitResult) -> dict[str, ParamValu
         params |= dut.calibration_params(this, sensor=sensor.device_id)
         if sensor.device_id in fixes:
             params |= dut.orientation_params(sensor.device_id, fixes[sensor.device_id])
+        params |= run.state.get("rotation_writes", {}).get(sensor.device_id, {})  # misalignment: write
     return params
 
 

@@ -28,6 +28,12 @@ class Cell:
     """A coil with its fluxgate, on free loopback ports."""
 
     def __init__(self, **coil_options) -> None:
+        # The station's waits are not waited in these tests (``sleep`` is a no-op), the warm-up wait
+        # included: a coil still warming up (its constant falling 0.2 % over 5 s) would drift *during*
+        # the schedule, by as much as the machine is slow, and the schedule's order (z from +1 to −1)
+        # turned that drift into a z offset (the rare 4σ miss under load). The coil is warm unless a
+        # test is about warming up.
+        coil_options.setdefault("warmup_drop", 0.0)
         self.coil = CoilSim("tcp:127.0.0.1:0", seed=1, **coil_options).start()
         self.fluxgate = FluxgateSim("tcp:127.0.0.1:0", self.coil.true_field_ut, noise_ut=0.005, seed=2).start()
 

@@ -346,3 +346,51 @@ def test_a_plugin_judges_the_whole_unit_through_magline_validate_unit(make_stati
     assert measured(good, "offsets_spread_ut").value == 0.0
     assert measured(good, "mounting_error_deg").verdict is Verdict.PASS  # the core's own check still ran
     assert broken.verdict is Outcome.ERROR and "tilt sensor" in broken.cause
+
+
+def test_misalignment_write_holds_an_external_px4_compass_misalignment_as_custom_euler_angles(tmp_path):
+    """PX4 ≥ 1.15 (reference §1): the GPS mast's 2.7° misalignment is written as CAL_MAGn_ROT = 100 with
+    ROLL/PITCH/YAW where the product says ``misalignment: write``, proven after the power cycle; the board's
+    internal compass cannot hold one (it follows SENS_BOARD_ROT) and the record says so. The firmware's
+    corrected output then points where the body field points, and a re-test judges what the custom
+    rotation leaves."""
+    from scipy.spatial.transform import Rotation
+
+    workdir = tmp_path / "fc"
+    workdir.mkdir()
+    with create_sim("px4", "udp:127.0.0.1:0", mag_rate_hz=FAST_SENSOR_HZ, workdir=workdir, mag_count=2, seed=5,
+                    boot_time_s=0.3, speed=5.0) as sim:
+        mast, board = sim.magnetometers
+        assert mast.external and not board.external
+        mast.mount(0, (1.5, -1.0, 2.0))
+        host, port = sim.address.split(":")[1:]
+        changes = {"products": {"PX4-X500-100": {"misalignment": "write"}}}
+        record = run_unit(write_station("px4-sim.yaml", tmp_path, f"udpout://{host}:{port}", PX4_OPTIONS, changes))
+        assert record.verdict is Outcome.PASS, record.cause
+        slot = sim.slot_of(mast.device_id)
+        stored = sim.read_storage()
+        assert stored[f"CAL_MAG{slot}_ROT"] == 100
+        yaw, pitch, roll = mast.rotation.as_euler("ZYX", degrees=True)
+        written = [stored[f"CAL_MAG{slot}_{a}"] for a in ("ROLL", "PITCH", "YAW")]
+        held = Rotation.from_euler("ZYX", written[::-1], degrees=True)
+        assert (held.inv() * mast.rotation).magnitude() < np.radians(0.5), (written, [roll, pitch, yaw])
+        assert record.params_read_back[f"CAL_MAG{slot}_YAW"] == pytest.approx(written[2])  # proven after the cycle
+        error = measured(record, "mounting_error_deg")
+        assert error.value == pytest.approx(2.69, abs=0.4) and "written as a custom rotation" in error.note
+        internal = measured(record, "mag2.mounting_error_deg")
+        assert "not written" in internal.note and "SENS_BOARD_ROT" in internal.note
+        board_slot = sim.slot_of(board.device_id)
+        assert stored.get(f"CAL_MAG{board_slot}_ROLL", 0.0) == 0.0
+        # the firmware's corrected field of the mast compass now has the body field's direction
+        rng = np.random.default_rng(0)
+        angles = []
+        for b in (np.array([30.0, 0.0, 38.0]), np.array([-20.0, 35.0, -25.0]), np.array([0.0, -40.0, 25.0])):
+            corrected = sim.corrected_ut(mast, mast.read_ut(b, rng))
+            angles.append(np.degrees(np.arccos(corrected @ b / np.linalg.norm(corrected) / np.linalg.norm(b))))
+        assert max(angles) < 1.2  # 0.3 µT noise is 0.36° per reading; the 2.7° misalignment is gone
+        # a re-test of the unit: the custom rotation is what the firmware applies, and it leaves little
+        (tmp_path / "b").mkdir()
+        again = run_unit(write_station("px4-sim.yaml", tmp_path / "b", f"udpout://{host}:{port}", PX4_OPTIONS))
+        assert again.verdict is Outcome.PASS, again.cause
+        assert measured(again, "mounting_error_deg").value < 0.8
+        assert measured(again, "orientation").value == 0

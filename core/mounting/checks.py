@@ -6,7 +6,11 @@ What is judged, per sensor (names prefixed ``mag2.`` … for sensors after the p
 - ``orientation``: the firmware orientation value the sensor is really mounted in; another value than
   the one configured FAILs, naming the parameter value that would fix it — or, with the product's
   ``orientation: fix``, leaves it in ``run.state["orientation_fixes"]`` for the persist phase;
-- ``mounting_error_deg``: what is left between the sensor's axes and that orientation;
+- ``mounting_error_deg``: what is left between the sensor's axes and that orientation (or the custom
+  rotation the firmware already holds); with the product's ``misalignment: write`` the whole measured
+  rotation is also left in ``run.state["rotation_writes"]`` where the backend can hold it
+  (``rotation_params``: PX4's custom Euler angles), the note saying so or why not — the limit still
+  judges the mechanical misalignment;
 - ``inclination_error_deg``: the field's inclination the unit saw against the field source's;
 and per pair ``heading_agreement_median_deg`` / ``_max_deg`` (names ``mag1-mag2.…``), the headings
 taken as the firmware will take them once each sensor's orientation is right (a wrong orientation is
@@ -20,16 +24,23 @@ the mounting — a :class:`~magline.core.faults.StationFault` (ERROR) unless the
 from __future__ import annotations
 
 import itertools
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
+from magline.core.dut import DutError, ParamValue
 from magline.core.faults import StationFault
 from magline.core.measurements import Json, Measurement, Numeric, Verdict
 from magline.core.mounting.agreement import heading_agreement
 from magline.core.mounting.estimate import MountingUnobservable, estimate_mounting
-from magline.core.mounting.orientations import orientation_matrix, orientation_name, rotation_angle_deg
+from magline.core.mounting.orientations import (
+    nearest_right_angle,
+    orientation_matrix,
+    orientation_name,
+    rotation_angle_deg,
+)
 from magline.core.plugins import hookimpl
 
 if TYPE_CHECKING:
@@ -46,6 +57,11 @@ def calibrated(fit: FitResult, raw_ut: NDArray) -> NDArray:
 def applied_rotation(sensor: Magnetometer) -> NDArray:
     """The rotation the firmware applied to the streamed readings already (ArduPilot: its orientation)."""
     return orientation_matrix(sensor.orientation) if sensor.readings_rotated else np.eye(3)
+
+
+def configured_rotation(sensor: Magnetometer) -> NDArray:
+    """The rotation the firmware applies to this sensor now: its custom one, else its orientation's."""
+    return np.asarray(sensor.rotation, float) if sensor.rotation is not None else orientation_matrix(sensor.orientation)
 
 
 def fix_text(run: RunContext, sensor: Magnetometer, value: int) -> str:
@@ -73,6 +89,7 @@ def magline_validate_unit(run: RunContext, fits: dict[int, FitResult]) -> list[M
     bodies: dict[int, tuple[NDArray, NDArray]] = {}
     report: dict[str, dict] = {}
     fixes: dict[int, int] = {}
+    rotations: dict[int, HeldRotation] = {}
     for position, sensor in enumerate(run.magnetometers):
         samples = attempt.samples if position == 0 else attempt.more[sensor.device_id]
         label = run.sensor_label(sensor.device_id)
@@ -86,14 +103,17 @@ def magline_validate_unit(run: RunContext, fits: dict[int, FitResult]) -> list[M
         applied = applied_rotation(sensor)
         mounted = estimate.data_to_body @ applied  # sensor axes → body, as the unit really is
         found, error_deg = estimate.right_angle_of(mounted)
-        configured = orientation_matrix(sensor.orientation)
-        right = rotation_angle_deg(orientation_matrix(found), configured) < 1e-6
+        configured = configured_rotation(sensor)
+        expected = sensor.orientation if sensor.rotation is None else nearest_right_angle(configured)[0]
+        right = rotation_angle_deg(orientation_matrix(found), orientation_matrix(expected)) < 1e-6
         final = orientation_matrix(found)  # the agreement is judged as the sensor will be held once right
+        if right and sensor.rotation is not None:  # a custom rotation held already: what it leaves
+            final, error_deg = configured, rotation_angle_deg(mounted, configured)
         note = ""
         verdict = Verdict.PASS
         if not right:
             where = (f"{label} is mounted {orientation_name(found)} (orientation {found}), configured "
-                     f"{orientation_name(sensor.orientation)} ({sensor.orientation})")
+                     f"{orientation_name(expected)} ({sensor.orientation})")
             if setting == "fix" and sensor.fix_params:
                 fixes[sensor.device_id] = found
                 note = f"{where}: {fix_text(run, sensor, found)} — written with the calibration"
@@ -102,10 +122,14 @@ def magline_validate_unit(run: RunContext, fits: dict[int, FitResult]) -> list[M
                 verdict = Verdict.FAIL
                 note = f"{where}: {fix_text(run, sensor, found)}"
         out.append(Numeric(name=prefix + "orientation", value=float(found),
-                           low=float(found if fixes.get(sensor.device_id) is not None else sensor.orientation),
-                           high=float(found if fixes.get(sensor.device_id) is not None else sensor.orientation),
+                           low=float(found if fixes.get(sensor.device_id) is not None else expected),
+                           high=float(found if fixes.get(sensor.device_id) is not None else expected),
                            verdict=verdict, note=note))
-        out.append(Numeric.of(prefix + "mounting_error_deg", error_deg, limits))
+        held = _hold_misalignment(run, sensor, mounted, error_deg) if run.product.misalignment == "write" else None
+        if held is not None and held.params:
+            rotations[sensor.device_id] = held
+        out.append(replace(Numeric.of(prefix + "mounting_error_deg", error_deg, limits),
+                           note=held.note if held is not None else ""))
         out.append(Numeric.of(prefix + "mounting_sigma_deg", estimate.sigma_deg, limits))
         out.append(Numeric.of(prefix + "inclination_deg", estimate.inclination_deg, limits))
         if reference is not None:
@@ -113,6 +137,8 @@ def magline_validate_unit(run: RunContext, fits: dict[int, FitResult]) -> list[M
         bodies[sensor.device_id] = (cal @ (final @ applied.T).T, np.asarray(samples.t_ms, float))
         report[prefix.rstrip(".") or "mag1"] = {"device_id": sensor.device_id, "found": found,
                                                 "configured": sensor.orientation, **estimate.to_dict()}
+        if held is not None:
+            report[prefix.rstrip(".") or "mag1"]["misalignment_written"] = held.params or held.note
     for a, b in itertools.combinations(run.magnetometers, 2):
         agreement = heading_agreement(*bodies[a.device_id], *bodies[b.device_id], attempt.imu)
         if agreement is None:
@@ -124,9 +150,37 @@ def magline_validate_unit(run: RunContext, fits: dict[int, FitResult]) -> list[M
         report[pair.rstrip(".")] = {"median_deg": agreement.median_deg, "max_deg": agreement.max_deg,
                                     "mean_deg": agreement.mean_deg, "pairs": agreement.pairs}
     run.state["orientation_fixes"] = fixes
+    run.state["rotation_writes"] = {d: r.params for d, r in rotations.items()}
     run.record.unit_info["mounting"] = report
     out.append(Json(name="mounting", data=report))
     return out
+
+
+@dataclass(frozen=True)
+class HeldRotation:
+    """A sensor's whole mounting (right angle and misalignment) as the parameters that hold it."""
+
+    params: dict[str, ParamValue]  # empty: the sensor cannot hold one (``note`` says why)
+    note: str
+
+
+def _hold_misalignment(run: RunContext, sensor: Magnetometer, mounted: NDArray, error_deg: float) -> HeldRotation:
+    """``misalignment: write``: the backend's parameters for the measured rotation, or why it has none
+    (logged and kept in the note: the discrete orientation stays what the firmware applies)."""
+    label = run.sensor_label(sensor.device_id)
+    hold = getattr(run.dut, "rotation_params", None)
+    try:
+        if hold is None:
+            raise DutError("this backend cannot write a custom rotation")
+        params = dict(hold(sensor.device_id, mounted))
+    except DutError as exc:
+        note = f"{label}: misalignment of {error_deg:.2f}° not written: {exc}"
+        run.log(note)
+        return HeldRotation({}, note)
+    note = (f"{label}: misalignment of {error_deg:.2f}° written as a custom rotation ("
+            + ", ".join(f"{k} = {v:.2f}" if isinstance(v, float) else f"{k} = {v}" for k, v in params.items()) + ")")
+    run.log(note)
+    return HeldRotation(params, note)
 
 
 def _tag(run: RunContext, sensor: Magnetometer) -> str:

@@ -141,6 +141,11 @@ class Product(_Strict):
     # FAILs, naming the value that fixes it), ``fix`` (that value is written and proven with the
     # calibration), ``skip`` (not proven; recorded as skipped)
     orientation: Literal["check", "fix", "skip"] = "check"
+    # the small misalignment left once the orientation is right (mounting_error_deg, still judged against
+    # its limit): ``keep`` (the firmware holds the discrete orientation only) or ``write`` (written where
+    # the firmware can hold any rotation — PX4 ≥ 1.15, external sensors: CAL_MAGn_ROLL/PITCH/YAW — and
+    # proven like the calibration; a sensor that cannot hold one keeps its discrete orientation, said)
+    misalignment: Literal["keep", "write"] = "keep"
     # the serial rule of this part (see core/serials.py): a full-match regular expression and a length
     serial_pattern: str | None = None
     serial_max_length: Annotated[int, Field(ge=1, le=256)] = 64

@@ -63,3 +63,10 @@ def rotation_params(rotation: NDArray, slot: int) -> dict[str, ParamValue]:
     yaw, pitch, roll = Rotation.from_matrix(np.asarray(rotation)).as_euler("ZYX", degrees=True)
     p = f"CAL_MAG{slot}_"
     return {p + "ROT": ROT_CUSTOM_EULER, p + "ROLL": float(roll), p + "PITCH": float(pitch), p + "YAW": float(yaw)}
+
+
+def euler_rotation(roll: float, pitch: float, yaw: float) -> NDArray:
+    """The rotation CAL_MAGn_ROLL/PITCH/YAW (degrees) hold: Rz(yaw)·Ry(pitch)·Rx(roll), sensor → body."""
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_euler("ZYX", [yaw, pitch, roll], degrees=True).as_matrix()

@@ -42,8 +42,10 @@ from magline.core.station.schema import Product
 from magline.plugins.px4.calibration import (
     PRIO_EXTERNAL,
     PRIO_INTERNAL,
+    ROT_CUSTOM_EULER,
     SLOTS,
     choose_slot,
+    euler_rotation,
     fit_to_params,
     is_int_param,
     rotation_params,
@@ -129,12 +131,16 @@ class Px4Dut:
         body with CAL_MAGn_ROT (≥ 0), an internal one with the board's rotation (no parameter of its own
         can fix an internal sensor's mounting)."""
         info = self.sensors[device_id]
-        rot = int(self.link.get(f"CAL_MAG{info['slot']}_ROT", True))
+        p = f"CAL_MAG{info['slot']}_"
+        rot = int(self.link.get(p + "ROT", True))
         external = info["external"] if info["external"] is not None else rot >= 0
+        custom = None
+        if external and rot == ROT_CUSTOM_EULER and self.with_euler:  # held as custom Euler angles
+            custom = euler_rotation(*(float(self.link.get(p + a, False)) for a in ("ROLL", "PITCH", "YAW"))).tolist()
         return Magnetometer(device_id=device_id, label=f"CAL_MAG{info['slot']}", external=external,
                             orientation=max(rot, 0) if external else board_rot, readings_rotated=False,
-                            fix_params=[f"CAL_MAG{info['slot']}_ROT"] if external else [],
-                            range_ut=INT16_MG_RANGE_UT)
+                            fix_params=[p + "ROT"] if external else [], range_ut=INT16_MG_RANGE_UT,
+                            rotation=custom)
 
     def use_magnetometers(self, device_ids: list[int]) -> None:
         self.chosen = list(device_ids)
@@ -272,8 +278,22 @@ class Px4Dut:
         return params
 
     def orientation_params(self, device_id: int, value: int) -> dict[str, ParamValue]:
-        """CAL_MAGn_ROT of the sensor's slot: how PX4 turns an external sensor into the body."""
-        return {f"CAL_MAG{self.sensors[device_id]['slot']}_ROT": int(value)}
+        """CAL_MAGn_ROT of the sensor's slot: how PX4 turns an external sensor into the body (its custom
+        Euler angles zeroed where the firmware has them: a non-zero one forces ROT = 100, reference §1)."""
+        p = f"CAL_MAG{self.sensors[device_id]['slot']}_"
+        zeroed = {p + a: 0.0 for a in ("ROLL", "PITCH", "YAW")} if self.with_euler else {}
+        return {p + "ROT": int(value)} | zeroed
+
+    def rotation_params(self, device_id: int, rotation: np.ndarray) -> dict[str, ParamValue]:
+        """A measured mounting as PX4's custom rotation (CAL_MAGn_ROT = 100, ROLL/PITCH/YAW): only an
+        external sensor of a firmware that has the angles can hold one (internal ones follow the board)."""
+        info = self.sensors[device_id]
+        if not self.with_euler:
+            raise DutError("this firmware has no CAL_MAGn_ROLL/PITCH/YAW (PX4 1.15 and later hold a custom "
+                           "rotation)")
+        if not info["external"]:
+            raise DutError("PX4 turns an internal magnetometer with the board (SENS_BOARD_ROT), never on its own")
+        return rotation_params(rotation, info["slot"])
 
     def read_params(self, names: list[str]) -> dict[str, ParamValue]:
         return {n: self.link.get(n, is_int_param(n)) for n in names}
