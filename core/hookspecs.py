@@ -247,7 +247,8 @@ def magline_acquisition_stopped(run: RunContext, attempt: int, reason: str, afte
 
     :param reason: ``"determined"`` (coverage and predicted uncertainties inside the station's
         limits), ``"stalled"`` (coverage stopped growing short of its target: the operator is
-        asked again), ``"samples"`` (``acquisition.samples`` read), or ``"stream ended"``.
+        asked again), ``"samples"`` (``acquisition.samples`` read), ``"timeout"`` (a determined
+        tumble reached ``acquisition.timeout_s`` with readings enough to judge), or ``"stream ended"``.
     :param after_s: seconds of tumbling (from the motion's start for this unit).
     :param readings: distinct readings of the primary magnetometer.
     :param predicted: when determined, the running fit's predicted σ per sensor (its measurement

@@ -17,7 +17,7 @@ import numpy as np
 from magline.core.dut import DutError, ParamValue, SampleChunk
 from magline.core.faults import StationFault, UnitAborted
 from magline.core.fit import CoverageTracker, FitOptions, FitResult, coverage_of, fit_calibration
-from magline.core.fit.coverage import covered_bins
+from magline.core.fit.coverage import bin_index, covered_bins, sphere_centre
 from magline.core.fit.running import PREDICTED, RunningFit, StopRule
 from magline.core.fit.samples_csv import RawSamples
 from magline.core.measurements import Array, Json, Measurement, Numeric, limit_for
@@ -62,6 +62,7 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
             deadline, checkpoint = started + cfg.timeout_s, cfg.min_samples
             for chunk in stream:
                 taken = got.add(chunk, room=cfg.samples - got.count)
+                seen = got.seen  # readings received: the checkpoints' clock (thinning never turns it back)
                 coverage = tracker.add(taken)
                 for device_id, more in chunk.more.items():
                     coverage = min(coverage, others.setdefault(device_id, CoverageTracker(cfg.coverage_bins))
@@ -71,28 +72,36 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
                 now = time.monotonic()
                 tumble_s = now - started
                 if got.count >= cfg.samples:
-                    reason = "samples"
-                    break
+                    if running is None or coverage >= running.rule.coverage_target:
+                        reason = "samples"
+                        break
+                    # a determined tumble still short of its coverage goes on: a fast sensor fills
+                    # the count before a slow hand has turned the unit; every other reading is let go
+                    # (the only ones of a direction kept), so ``samples`` stays the most it holds
+                    got.thin(cfg.coverage_bins)
                 if running is not None:
-                    if stall.stalled(got.count, coverage):
+                    if stall.stalled(seen, coverage):
                         reason = "stalled"
                         break
                     if running.determined is not None:  # a snapshot was: are all the readings?
-                        final = running.confirm_now(got.count, tumble_s, got.snapshot(run), got.imu_series())
+                        final = running.confirm_now(seen, tumble_s, got.snapshot(run), got.imu_series())
                         if final is not None:
                             reason = "determined"
                             break
-                    if coverage >= running.rule.coverage_target and got.count >= checkpoint:
-                        checkpoint = got.count + max(CHECK_EVERY_MIN, int(got.count * CHECK_EVERY_FRACTION))
+                    if coverage >= running.rule.coverage_target and seen >= checkpoint:
+                        checkpoint = seen + max(CHECK_EVERY_MIN, int(seen * CHECK_EVERY_FRACTION))
                         snapshot = got.snapshot(run)
                         if len(snapshot) == max(1, len(run.magnetometers)):  # every sensor has readings
                             ahead = _stream_s(snapshot[""]) > tumble_s + AHEAD_S
-                            running.offer(got.count, tumble_s, snapshot, wait=ahead, imu=got.imu_series())
-                            if ahead and running.determined is not None and running.determined.readings == got.count:
+                            running.offer(seen, tumble_s, snapshot, wait=ahead, imu=got.imu_series())
+                            if ahead and running.determined is not None and running.determined.readings == seen:
                                 final = running.determined
                                 reason = "determined"
                                 break
                 if now > deadline:
+                    if running is not None and got.count >= cfg.min_samples:
+                        reason = "timeout"  # readings enough to judge: the coverage and σ limits say the rest
+                        break
                     raise StationFault(_too_slow(got, cfg.samples, cfg.timeout_s, now - started))
                 run.check_abort()
     except (Exception, UnitAborted) as exc:
@@ -220,7 +229,8 @@ class _Stream:
         self.mags: list[np.ndarray] = []
         self.times: list[np.ndarray] = []
         self.temps: list[np.ndarray] = []
-        self.count = 0
+        self.count = 0  # readings held
+        self.seen = 0  # readings received (held, or let go by ``thin``)
         self.repeats = 0
 
     def add(self, chunk: SampleChunk, room: int | None = None) -> np.ndarray:
@@ -230,8 +240,23 @@ class _Stream:
         if chunk.temp_c is not None:
             self.temps.append(np.atleast_1d(chunk.temp_c)[: len(mag)])
         self.count += len(mag)
+        self.seen += len(mag)
         self.repeats += chunk.repeats
         return mag
+
+    def thin(self, n_bins: int) -> None:
+        """Let every other reading go, in time order, except in a direction that holds two or fewer:
+        the tumble's coverage is what thinning must never cost."""
+        held = self.samples()
+        if len(held.mag_ut) < 4:
+            return
+        keep = np.arange(len(held.mag_ut)) % 2 == 0
+        where = bin_index(held.mag_ut - sphere_centre(held.mag_ut), n_bins)
+        sparse = np.bincount(where, minlength=n_bins) <= 2
+        keep |= sparse[where]
+        self.mags, self.times = [held.mag_ut[keep]], [held.t_ms[keep]]
+        self.temps = [held.temp_c[keep]] if held.temp_c is not None else []
+        self.count = int(keep.sum())
 
     def samples(self) -> RawSamples:
         mag = np.vstack(self.mags) if self.mags else np.empty((0, 3))
@@ -256,6 +281,13 @@ class _Readings(_Stream):
         if chunk.imu is not None and len(chunk.imu):
             self.imu.append(chunk.imu)
         return super().add(chunk, room)
+
+    def thin(self, n_bins: int) -> None:
+        """Every magnetometer's readings thinned alike (the accelerometer's are kept: the mounting
+        pairs by time, and they are few)."""
+        super().thin(n_bins)
+        for more in self.more.values():
+            more.thin(n_bins)
 
     def imu_series(self) -> ImuSeries | None:
         """The accelerometer's (and gyro's) readings so far, as one series (None without any)."""

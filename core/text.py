@@ -42,6 +42,8 @@ def stop_line(reason: str, after_s: float, readings: int) -> str:
         return f"determined after {after_s:.0f} s ({readings} readings) — stop moving the unit"
     if reason == "stalled":
         return f"coverage stopped growing after {after_s:.0f} s ({readings} readings)"
+    if reason == "timeout":
+        return f"time up after {after_s:.0f} s ({readings} readings)"
     if reason == "samples":
         return f"tumble complete: {readings} readings in {after_s:.0f} s"
     return f"the stream ended after {readings} readings"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import json
 
 import numpy as np
@@ -193,3 +194,34 @@ def test_a_tumble_stalls_only_when_its_coverage_stopped_growing_for_half_its_rea
     assert stops[0] == 300  # 150 readings without a new direction, half of the tumble
     reached = _Stall(min_samples=100, target=0.6)
     assert not any(reached.stalled(n, 0.7) for n in range(10, 600, 10))  # at the target: the fit decides
+
+
+SLOW_HAND = {"products": {"MOCK-100": {"options": {"motions": ["hand_tumble"], "motion_samples": 3000}}},
+             "acquisition": {"samples": 300}}
+
+
+def test_a_fast_sensor_in_a_slow_hand_is_not_cut_at_its_count_but_thinned_until_determined(make_station):
+    """Issue 28's coverage false rejects: 300 readings of a sensor ten times faster than the hand turns
+    the unit cover a tenth of a tumble. ``stop: samples`` stops there (coverage too low, asked again and
+    again, FAIL); a determined tumble goes on past its count, letting every other reading go, and ends
+    determined holding at most ``samples``."""
+    counted = run_with(make_station(SLOW_HAND | {"acquisition": {"samples": 300, "stop": "samples"}}))
+    assert counted.verdict is Outcome.FAIL and "coverage" in counted.cause
+    assert all(a.stopped == "samples" and a.coverage < 0.6 for a in counted.attempts)
+    record = run_with(make_station(SLOW_HAND, name="determined.yaml"))
+    assert record.verdict is Outcome.PASS, record.cause
+    (attempt,) = record.attempts
+    assert attempt.stopped == "determined" and attempt.samples <= 300 and attempt.coverage >= 0.6
+    t = attempt.raw.t_ms
+    assert np.all(np.diff(t) > 0) and t[-1] - t[0] > 300 * 1000.0 / 200.0  # spans more than 300 readings did
+
+
+def test_a_determined_tumble_out_of_time_is_judged_on_what_it_holds_never_an_error(make_station):
+    """At ``timeout_s`` with ``min_samples`` or more readings the tumble ends (``timeout``) and its coverage
+    is judged: a unit never turned enough FAILs on coverage; the station could judge it."""
+    slow = copy.deepcopy(SLOW_HAND) | {"acquisition": {"samples": 300, "timeout_s": 1.0, "rate_hz": 200.0}}
+    slow["products"]["MOCK-100"]["options"] |= {"realtime": True}
+    record = run_with(make_station(slow))
+    assert record.verdict is not Outcome.ERROR, record.cause
+    assert [a.stopped for a in record.attempts] == ["timeout"] * len(record.attempts)
+    assert record.verdict is Outcome.FAIL and "coverage" in record.cause

@@ -120,6 +120,13 @@ def _prefix_sphere_centres(x: NDArray, ends: NDArray) -> tuple[NDArray, NDArray]
     return centres + shift, np.sqrt(np.maximum(r2, 1e-12))
 
 
+def sphere_centre(samples_ut: NDArray) -> NDArray:
+    """The algebraic sphere's centre of all the readings (their mean where none is determined): the
+    centre coverage bins are taken about."""
+    x = np.atleast_2d(np.asarray(samples_ut, float))
+    return _prefix_sphere_centres(x, np.array([len(x)]))[0][0]
+
+
 class CoverageTracker:
     """Live coverage while samples arrive: :func:`coverage_of` at each checkpoint reached.
 

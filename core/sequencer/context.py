@@ -47,7 +47,8 @@ class Acquisition:
     more: dict[int, RawSamples] = field(default_factory=dict)
     imu: ImuSeries | None = None
     coverages: dict[int, float] = field(default_factory=dict)  # per device id; ``coverage`` is the worst
-    # why the tumble ended ("determined", "stalled", "samples": the most asked for, "stream ended"), after how
+    # why the tumble ended ("determined", "stalled", "samples": the most asked for, "timeout": a determined
+    # tumble out of time with readings enough to judge, "stream ended"), after how
     # long, and the running fit's predicted uncertainties per sensor prefix when it was determined
     stopped: str | None = None
     tumble_s: float | None = None

@@ -76,16 +76,23 @@ class MotionFollower:
         self._held = Rotation.identity()
         self._lock = threading.Lock()
         self._stop = threading.Event()
+        self._wall_minus_monotonic = time.time() - time.monotonic()  # the pattern's t0 is wall-clock time
         self.error: str | None = None
         self._thread = threading.Thread(target=self._follow, name="sim-gimbal-follower", daemon=True)
         self._thread.start()
 
-    def attitude(self) -> Rotation:
+    def attitude(self, at: float | None = None) -> Rotation:
+        """The platform's attitude at ``at`` (this process's ``time.monotonic()``; now when None).
+
+        Why an instant: a board stamps a message's magnetometer and accelerometer with one time, so
+        both must be the attitude of that instant — evaluated at two call times instead, they were
+        a fraction of a millisecond apart, which a fast pattern turned into a 2° false mounting error."""
         with self._lock:
             if self._pattern is None:
                 return self._held
             name, speed, t0 = self._pattern
-        return attitude(name.lower(), time.time() - t0, speed)
+        wall = time.time() if at is None else at + self._wall_minus_monotonic
+        return attitude(name.lower(), wall - t0, speed)
 
     def stop(self) -> None:
         self._stop.set()

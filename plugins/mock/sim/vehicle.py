@@ -395,7 +395,7 @@ class SimulatedAutopilot(ABC):
     def attitude_at(self, now: float) -> Rotation:
         motion = self.motions[min(max(self._motion_index, 0), len(self.motions) - 1)]
         if motion == "shared" and self.follower is not None:
-            return self.follower.attitude()
+            return self.follower.attitude(now)
         return attitude(motion, now - self._t0, self.speed, self.field_ned)
 
     def body_field_ut(self, now: float) -> NDArray:
