@@ -8,7 +8,12 @@ FAIL / ERROR counts, the cause of every non-PASS, and the drift test's statistic
 reference (its nominal false-alarm rate 10⁻³).  Goal: ≤ 1 false reject in 1,000 mock units, none on
 the simulators.
 
-    python benchmarks/false_reject.py [--mock 1000] [--sim 100] [--seed 28]
+    python benchmarks/false_reject.py [--mock 1000] [--sim 100] [--faults 0] [--seed 28]
+
+Also printed: the limits behind every false reject (by rule), wrong orientations found on good
+compasses (issue 26's "0 of 1,000"), and with ``--faults N`` every simulator fault run N times and
+how often it was classified as ``magline.testing.faults`` says (FAIL: the unit is bad; ERROR: the
+station could not judge it).
 """
 
 from __future__ import annotations
@@ -57,8 +62,19 @@ def _good_mock_options(rng: np.random.Generator, work: Path, i: int) -> dict:
             "storage": str(work / f"mock-{i}.json"), "inclination_deg": 63.0}
 
 
+def _failed_rules(record) -> list[str]:
+    """The limits a unit failed, by catalogue rule (``mag2.`` and pair prefixes folded: one rule)."""
+    from magline.core.measurements import Verdict, base_name, verdicts
+
+    return sorted({base_name(m.name) for m in verdicts(record.measurements) if m.verdict is Verdict.FAIL})
+
+
 def _tally(name: str, records: list, started: float) -> None:
     verdicts = collections.Counter(str(r.verdict) for r in records)
+    rules = collections.Counter(rule for r in records for rule in _failed_rules(r))
+    compasses = sum(len((r.unit_info or {}).get("magnetometers") or [None]) for r in records)
+    wrong = sum(1 for r in records for m in r.measurements
+                if m.name.rsplit(".", 1)[-1] == "orientation" and str(getattr(m, "verdict", "")) == "fail")
     drift = np.array([r.calibration["drift"]["statistic"] for r in records
                       if r.calibration and r.calibration.get("drift") and r.calibration["drift"].get("statistic")
                       is not None])
@@ -67,6 +83,8 @@ def _tally(name: str, records: list, started: float) -> None:
     for r in records:
         if str(r.verdict) != "pass":
             print(f"   {r.serial}: {str(r.verdict).upper()} {r.cause[:300]}")
+    print(f"   false rejects by rule: {', '.join(f'{k} {v}' for k, v in rules.most_common()) or 'none'}; "
+          f"wrong orientation found on {wrong} of {compasses} good compasses")
     if drift.size:
         from scipy.stats import chi2
 
@@ -120,10 +138,47 @@ def sim_units(flavour: str, count: int, rng: np.random.Generator) -> None:
     _tally(flavour, records, started)
 
 
+def fault_units(count: int, rng: np.random.Generator) -> None:
+    """The other side: every simulator fault of ``magline.testing.faults`` run ``count`` times across
+    seeds on the simulated ArduPilot; printed: how often it was classified as the table says."""
+    from magline.plugins.mock.sim import SimFaults, create_sim
+    from magline.testing.faults import ARDUPILOT_FAULTS
+
+    print(f"faults ({count} runs each, simulated ArduPilot): expected → PASS / FAIL / ERROR, cause words found")
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(tmp)
+        for case in ARDUPILOT_FAULTS:
+            started, got, worded = time.monotonic(), collections.Counter(), 0
+            for i in range(count):
+                fc = work / f"{case.name}-{i}"
+                fc.mkdir()
+                with create_sim("ardupilot", "tcp:127.0.0.1:0", workdir=fc, mag_count=case.mags, mag_rate_hz=100.0,
+                                seed=int(rng.integers(1 << 30)), boot_time_s=0.3, speed=5.0,
+                                faults=SimFaults.parse(list(case.faults))) as sim:
+                    options = {"connect_timeout_s": 5.0, "boot_timeout_s": 10.0 if case.passing_boot else 3.0,
+                               "prearm_wait_s": 0.3}
+                    station = _station("ardupilot-sim.yaml", work, {"connection": sim.address, "options": options},
+                                       {"samples": 400, "rate_hz": 200.0, "timeout_s": 30.0, "retry_delay_s": 0.0})
+                    seq = Sequencer(load_station(station), load_plugins(), work, sleep=lambda s: None)
+                    try:
+                        record = seq.run_unit(f"F-{case.name}-{i}")
+                    finally:
+                        seq.close()
+                got[str(record.verdict)] += 1
+                worded += case.words in record.cause
+                if str(record.verdict) != case.outcome:
+                    print(f"   {record.serial}: {str(record.verdict).upper()} {record.cause[:200]}")
+            right = got[case.outcome]
+            print(f"   {case.name:<19} {case.outcome.upper():<5} → PASS {got['pass']} / FAIL {got['fail']} / ERROR "
+                  f"{got['error']}: {right} of {count} right ({100.0 * right / count:.1f} %), words {worded} "
+                  f"({time.monotonic() - started:.0f} s)")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--mock", type=int, default=1000)
     parser.add_argument("--sim", type=int, default=100)
+    parser.add_argument("--faults", type=int, default=0, help="runs of each simulator fault (0: none)")
     parser.add_argument("--seed", type=int, default=28)
     args = parser.parse_args()
     rng = np.random.default_rng(args.seed)
@@ -132,6 +187,8 @@ def main() -> None:
     for flavour in ("px4", "ardupilot"):
         if args.sim:
             sim_units(flavour, args.sim, rng)
+    if args.faults:
+        fault_units(args.faults, rng)
     sys.stdout.flush()
 
 

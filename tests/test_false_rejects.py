@@ -47,3 +47,29 @@ def test_readings_judged_bad_still_count_against_the_limit(make_station):
     assert record.verdict is Outcome.FAIL
     assert measured(record, "rejected_fraction").value == 40 / 600
     assert record.cause.startswith("rejected_fraction")
+
+
+def test_the_drift_statistic_on_good_short_tumbles_follows_its_chi2_reference():
+    """Issue 28: on short tumbles the drift test's statistic was erratic (11.7, 12.9 at about 100
+    readings; negative in 3 % of good 300-reading tumbles) because its two models were fitted to
+    different inlier sets. Fitted to one set they
+    are nested: never negative, and distributed as χ²₃ (median 2.37), so its 10⁻³ alarm means 10⁻³."""
+    from scipy.stats import chi2
+
+    from magline.core.fit import FitOptions, fit_calibration
+    from magline.core.synthetic import motion_directions, random_truth
+
+    rng = np.random.default_rng(sum(map(ord, "drift statistic")))  # from the test's name, never its outcome
+    stats = []
+    for i in range(300):
+        truth = random_truth(rng, noise_ut=float(rng.uniform(0.1, 0.5)))
+        n = (100, 300, 300)[i % 3]
+        mag = truth.read(motion_directions(("hand_tumble", "full_sphere")[i % 2], n, rng,
+                                           np.array([0.4, 0.0, 0.9])) * 48.0, rng)
+        mag = np.round(mag * 10.0) / 10.0  # MAVLink's int16 milligauss: 0.1 µT steps
+        fit = fit_calibration(mag, FitOptions(model="full", field_ut=48.0), t_ms=np.arange(n) * 50.0)
+        stats.append(fit.drift["statistic"])
+    stats = np.array(stats)
+    assert stats.min() >= 0.0
+    assert 1.5 < np.median(stats) < 3.3  # χ²₃'s median 2.37; over 300 units its spread is about 0.12
+    assert (stats > chi2.ppf(1 - 1e-3, 3)).sum() <= 2

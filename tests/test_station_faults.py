@@ -18,6 +18,7 @@ from magline.core.record import Outcome
 from magline.core.sequencer import Sequencer
 from magline.core.station import load_station
 from magline.plugins.mock.sim import SimFaults, create_sim
+from magline.testing.faults import ARDUPILOT_FAULTS
 
 AP = {"connect_timeout_s": 1.0, "boot_timeout_s": 3.0, "prearm_wait_s": 0.3}
 PX4 = {"connect_timeout_s": 1.0, "boot_timeout_s": 3.0}
@@ -59,25 +60,17 @@ def ap_sim(tmp_path, faults=None, **kw):
                       boot_time_s=0.3, speed=5.0, faults=faults, **kw).start()
 
 
-FAULTS = [  # (fault, outcome, words in the cause)
-    (SimFaults(ignore_param_set=["COMPASS_DIA_X"]), Outcome.FAIL, "got no echo while the vehicle was otherwise"),
-    (SimFaults(no_persist=["COMPASS_OFS_Y"]), Outcome.FAIL, "did not survive the power cycle"),
-    (SimFaults(mag_missing_after_reboot=396809), Outcome.FAIL, "missing after power cycle"),
-    (SimFaults(reboot_fails=True), Outcome.ERROR, "the unit now holds a new, unverified calibration"),
-    (SimFaults(link_loss_after_s=0.5), Outcome.ERROR, "link lost during acquisition"),
-    (SimFaults(drop_percent=2.0), Outcome.PASS, ""),
-]
 # A case that must pass gets the backend's own boot deadline: the 3 s above is short to keep the failing
 # cases quick, and with 2 % of packets lost a retried request on a loaded machine can pass it.
 PASSING = {"boot_timeout_s": 10.0}
 
 
-@pytest.mark.parametrize(("faults", "outcome", "words"), FAULTS,
-                         ids=["refused-write", "not-persisted", "mag-missing", "no-reboot", "link-lost", "lossy"])
-def test_each_simulator_fault_is_classified(tmp_path, faults, outcome, words):
-    with ap_sim(tmp_path, faults) as sim:
+@pytest.mark.parametrize("case", ARDUPILOT_FAULTS, ids=[c.name for c in ARDUPILOT_FAULTS])
+def test_each_simulator_fault_is_classified(tmp_path, case):
+    outcome, words = Outcome(case.outcome), case.words
+    with ap_sim(tmp_path, SimFaults.parse(list(case.faults)), mag_count=case.mags) as sim:
         # the backend's own 2 s stream timeout: a shorter one mistakes a loaded machine's stall for a fault
-        options = {**AP, **(PASSING if outcome is Outcome.PASS else {})}
+        options = {**AP, **(PASSING if case.passing_boot else {})}
         record = run_unit(write_station("ardupilot-sim.yaml", tmp_path, sim.address, options), "SN-F")
     assert record.verdict is outcome, record.cause
     assert words in record.cause

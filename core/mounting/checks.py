@@ -128,6 +128,7 @@ def magline_validate_unit(run: RunContext, fits: dict[int, FitResult]) -> list[M
         held = _hold_misalignment(run, sensor, mounted, error_deg) if run.product.misalignment == "write" else None
         if held is not None and held.params:
             rotations[sensor.device_id] = held
+            final = mounted  # the firmware will hold the whole rotation: the pairs are judged so
         out.append(replace(Numeric.of(prefix + "mounting_error_deg", error_deg, limits),
                            note=held.note if held is not None else ""))
         out.append(Numeric.of(prefix + "mounting_sigma_deg", estimate.sigma_deg, limits))

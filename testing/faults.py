@@ -1,0 +1,33 @@
+"""What each simulator fault must be judged as: FAIL when the fault makes the unit bad, ERROR when the
+station could not judge it, PASS when a good unit must survive it (issue 28's "other side").
+
+One table for the suite (``tests/test_station_faults.py``) and the false-reject benchmark, which runs
+every row many times across seeds: the yield and every statistic on the record trust this line.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class FaultCase:
+    name: str
+    faults: tuple[str, ...]  # ``magline sim --fault`` items (``SimFaults.parse``)
+    outcome: str  # "pass", "fail" or "error"
+    words: str  # in the record's cause
+    mags: int = 1  # magnetometers on the simulated board
+    passing_boot: bool = False  # a case that must pass gets the backend's own boot deadline
+
+
+ARDUPILOT_FAULTS = (
+    FaultCase("refused-write", ("ignore_param_set=COMPASS_DIA_X",), "fail",
+              "got no echo while the vehicle was otherwise"),
+    FaultCase("not-persisted", ("no_persist=COMPASS_OFS_Y",), "fail", "did not survive the power cycle"),
+    FaultCase("mag-missing", ("mag_missing_after_reboot=396809",), "fail", "missing after power cycle"),
+    FaultCase("no-reboot", ("reboot_fails",), "error", "the unit now holds a new, unverified calibration"),
+    FaultCase("link-lost", ("link_loss_after_s=0.5",), "error", "link lost during acquisition"),
+    FaultCase("lossy", ("drop_percent=2",), "pass", "", passing_boot=True),
+    FaultCase("compass-turned", ("mag_mounting=2:2",), "fail", "is mounted Yaw90", mags=3),
+    FaultCase("compasses-disagree", ("mag_yaw_error=2:5",), "fail", "heading_agreement", mags=3),
+)
