@@ -113,6 +113,9 @@ def main(argv: list[str] | None = None) -> int:
     scr.add_argument("station", nargs="?", help="station file (default: the embedded demo)")
     scr.add_argument("--host", default="127.0.0.1", help="address to bind (any other than loopback needs the token)")
     scr.add_argument("--port", type=int, default=8080)
+    held = sub.add_parser("slots", help="which station holds which slot now, from the results store every "
+                                        "computer of the line shares")
+    held.add_argument("--station", help="station file naming the results store (default: demo)")
     hist = sub.add_parser("history", help="show a unit's runs from a station's results store")
     hist.add_argument("serial")
     hist.add_argument("--station", help="station file naming the results store (default: demo)")
@@ -128,7 +131,7 @@ def main(argv: list[str] | None = None) -> int:
         return args.handler(args)
     handler = {"run": _run, "check": _check, "fit": _fit, "plugins": _plugins, "history": _history,
                "show": _show, "export": _export, "sync": _sync, "spc": _spc, "report": _report,
-               "station": _station}
+               "station": _station, "slots": _slots}
     return _quiet_broken_pipe(lambda: handler[args.command](args, plugins))
 
 
@@ -535,6 +538,26 @@ def _with_store(args: argparse.Namespace, plugins: Plugins, use: Callable[..., i
         return 2
     finally:
         store.close()
+
+
+def _slots(args: argparse.Namespace, plugins: Plugins) -> int:
+    """Every slot claimed in the store, with its holder: what a line lead checks before a second PC
+    starts on the same station file."""
+    def use(store: Any, *_: Any) -> int:
+        held = getattr(store, "slots_held", None)
+        if held is None:
+            print(f"results store {getattr(store, 'where', '')} keeps no slot claims")
+            return 0
+        rows = held()
+        if not rows:
+            print("no slot is held")
+        for r in rows:
+            where = f"station {r['station_id']}" + (f" slot {r['slot']}" if r["slot"] else "")
+            print(f"{where}: serial {r['serial']} on {r['host']} (pid {r['pid']}) since {r['since']}, seen "
+                  f"{r['heartbeat']}")
+        return 0
+
+    return _with_store(args, plugins, use)
 
 
 def _show(args: argparse.Namespace, plugins: Plugins) -> int:

@@ -3,6 +3,7 @@ before it records anything, naming the holder; the lock goes with the process th
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import threading
@@ -177,3 +178,56 @@ def test_another_px4_answering_after_the_power_cycle_is_an_error_not_a_verdict(t
             seq.close()
     assert record.verdict == "error", record.cause
     assert "MAVLink system id 9 answered" in record.cause
+
+
+def test_a_second_computer_on_the_same_station_slot_is_refused_by_the_results_server(
+        make_station, postgres, monkeypatch, tmp_path, capsys):
+    """Issue 31: two PCs given one station file share only the results server. While PC 1 tests a unit,
+    PC 2 (its own file locks, its own host name) is refused before it records anything, naming PC 1's
+    run; ``magline slots`` shows the holder; once PC 1 is done the slot is free again."""
+    import types
+
+    from magline.core.sequencer import hold
+
+    monkeypatch.setenv("MAGLINE_CENTRAL_URL", postgres.new_database())
+    path = make_station({"results": {"sink": "sql", "url_env": "MAGLINE_CENTRAL_URL", "outbox": "outbox.sqlite"}})
+    acquiring, finish = threading.Event(), threading.Event()
+
+    class HoldTheTumble:
+        @hookimpl
+        def magline_acquisition_progress(self, run, attempt, samples, coverage, target):
+            acquiring.set()
+            finish.wait(30)
+
+    first = Sequencer(load_station(path), load_plugins(extra=[HoldTheTumble()]), path.parent, sleep=lambda s: None)
+    results: list = []
+    worker = threading.Thread(target=lambda: results.append(first.run_unit("PC1-UNIT")))
+    worker.start()
+    try:
+        assert acquiring.wait(30)
+        assert main(["slots", "--station", str(path)]) == 0
+        assert "station demo-01: serial PC1-UNIT on " in capsys.readouterr().out
+        # the second computer: its own lock folder and host name, the same server
+        monkeypatch.setenv("MAGLINE_LOCK_DIR", str(tmp_path / "pc2-locks"))
+        monkeypatch.setattr(hold, "socket", types.SimpleNamespace(gethostname=lambda: "line-pc-2"))
+        second = Sequencer(load_station(path), load_plugins(), tmp_path, sleep=lambda s: None)
+        try:
+            with pytest.raises(StationBusy, match=r"station demo-01 is testing serial PC1-UNIT on .* \(pid \d+"):
+                second.run_unit("PC2-UNIT")
+        finally:
+            second.close()
+    finally:
+        finish.set()
+        worker.join(60)
+        first.close()
+    assert results and results[0].verdict.value == "pass", results
+    engine = create_engine(os.environ["MAGLINE_CENTRAL_URL"])
+    with engine.connect() as conn:
+        assert [r.serial for r in conn.execute(select(runs.c.serial))] == ["PC1-UNIT"]  # nothing of PC 2
+    engine.dispose()
+    second = Sequencer(load_station(path), load_plugins(), tmp_path, sleep=lambda s: None)
+    try:
+        assert second.run_unit("PC2-UNIT").verdict.value == "pass"  # PC 1 gave the slot back
+    finally:
+        second.close()
+    assert main(["slots", "--station", str(path)]) == 0 and "no slot is held" in capsys.readouterr().out

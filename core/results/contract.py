@@ -80,4 +80,7 @@ class ResultSink(Protocol):
 # Optional, used when present: ``location(record) -> str`` (where the record is, in the operator's
 # words), ``series(...)`` (statistics, process review), ``record_engine`` (a SQLAlchemy engine:
 # reports), ``pending() -> int`` and ``forward()`` (store-and-forward), ``where`` (a description).
-OPTIONAL = ("location", "series", "record_engine", "pending", "forward", "where")
+# ``claim_slot(holder) -> str | None`` / ``touch_slot(holder)`` / ``release_slot(holder)`` / ``slots_held()``
+# (which station holds which slot across computers, see core/results/claims.py: the refusal sentence, or None).
+OPTIONAL = ("location", "series", "record_engine", "pending", "forward", "where", "claim_slot", "touch_slot",
+            "release_slot", "slots_held")

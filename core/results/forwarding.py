@@ -10,6 +10,8 @@ half-way leaves nothing behind and is simply retried.
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import threading
 import time
 from datetime import UTC, datetime
@@ -27,6 +29,8 @@ from magline.core.results.series import RunSeries
 from magline.core.results.sqlite_sink import SqliteSink
 from magline.core.results.store import RUNNING, SqlStore, reason
 from magline.core.results.tables import attachments, attempt_streams, attempts, measurements, params, phases, runs
+
+log = logging.getLogger(__name__)
 
 CHILDREN = (phases, attempts, attempt_streams, measurements, params, attachments)
 RETRY_S = 30.0  # the background forwarder tries again this often while records are queued
@@ -89,6 +93,37 @@ class ForwardingStore:
             self._wake.set()
         else:
             self.forward()
+
+    # -------------------------------------------------------------- which station holds which slot
+    def claim_slot(self, holder: dict) -> str | None:
+        """Claimed on the server, where every computer of the line sees it.  Unreachable: claimed in
+        the outbox only, and said — the line keeps testing through a server outage (the purpose of the
+        outbox), with this computer's own lock still holding its slot."""
+        central = self.central()
+        if central is not None:
+            try:
+                return central.claim_slot(holder)
+            except StationFault as exc:
+                self.last_error = str(exc)
+        log.warning("slot claimed on this computer only: results server %s unreachable (%s)", self.server,
+                    self.last_error)
+        return self.outbox.claim_slot(holder)
+
+    def touch_slot(self, holder: dict) -> None:
+        for store in (self._central, self.outbox):
+            if store is not None:
+                with contextlib.suppress(StationFault):
+                    store.touch_slot(holder)
+
+    def release_slot(self, holder: dict) -> None:
+        for store in (self._central, self.outbox):
+            if store is not None:
+                with contextlib.suppress(StationFault):
+                    store.release_slot(holder)
+
+    def slots_held(self) -> list[dict[str, Any]]:
+        central = self.central()
+        return central.slots_held() if central is not None else self.outbox.slots_held()
 
     def location(self, record: RunRecord) -> str:
         with self.outbox.engine.connect() as conn:

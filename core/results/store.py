@@ -82,6 +82,33 @@ class SqlStore:
         except SQLAlchemyError as exc:
             raise StationFault(f"results store {self.where}: {what} failed: {reason(exc)}") from exc
 
+    # -------------------------------------------------------------- which station holds which slot
+    def claim_slot(self, holder: dict) -> str | None:
+        """Claim the holder's (station, slot) here; the sentence refusing it when another live holder
+        has it (see :mod:`magline.core.results.claims`)."""
+        from magline.core.results import claims
+
+        return self._write("claiming the slot", lambda conn: claims.claim(conn, holder))
+
+    def touch_slot(self, holder: dict) -> None:
+        from magline.core.results import claims
+
+        self._write("refreshing the slot's claim", lambda conn: claims.heartbeat(conn, holder))
+
+    def release_slot(self, holder: dict) -> None:
+        from magline.core.results import claims
+
+        self._write("releasing the slot", lambda conn: claims.release(conn, holder))
+
+    def slots_held(self) -> list[dict[str, Any]]:
+        from magline.core.results import claims
+
+        try:
+            with self.engine.connect() as conn:
+                return claims.held(conn)
+        except SQLAlchemyError as exc:
+            raise StationFault(f"results store {self.where}: reading the slot claims failed: {reason(exc)}") from exc
+
     def mark_incomplete(self) -> int:
         """Runs left ``running`` by a process that no longer exists become ``incomplete``."""
         def mark(conn: Any) -> int:

@@ -89,3 +89,12 @@ attachments = Table(
     Column("run_id", Integer, ForeignKey("runs.id")), Column("name", Text), Column("mime", Text),
     Column("content", LargeBinary),
 )
+
+# Which station holds which slot right now (core/results/claims.py): one row per claimed (station, slot),
+# refreshed while its unit runs, deleted when it ends — one run per slot across computers.
+slot_claims = Table(
+    "slot_claims", metadata,
+    Column("station_id", Text, primary_key=True), Column("slot", Text, primary_key=True),
+    Column("host", Text), Column("pid", Integer), Column("serial", Text),
+    Column("since", Text), Column("heartbeat", Text),
+)

@@ -6,7 +6,8 @@ verdict recorded against a unit nobody tested.  A run therefore holds, for as lo
 on its station slot and one on its vehicle link; the operating system releases them if the process
 dies (``flock``), so a crashed station never leaves a unit locked.  A second run is refused before
 anything is recorded, in a sentence that names the holder.  The locks are per computer (a directory
-under the system's temporary folder): two PCs on one vehicle link are not told apart here.
+under the system's temporary folder); across computers the results store keeps which station holds
+which slot (``claimed_in_store``, :mod:`magline.core.results.claims`).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import os
 import re
 import socket
 import tempfile
+import threading
 from collections.abc import Iterator
 from datetime import UTC, datetime
 from pathlib import Path
@@ -68,6 +70,39 @@ def holding(keys: list[tuple[str, str]], holder: dict) -> Iterator[None]:
             handle.truncate()
             fcntl.flock(handle, fcntl.LOCK_UN)
             handle.close()
+
+
+@contextlib.contextmanager
+def claimed_in_store(sink: object, holder: dict) -> Iterator[None]:
+    """Hold the slot in the results store too, for the block: what tells two *computers* apart (the
+    file lock above is per computer).  Refused: :class:`StationBusy` naming the holder, before any
+    record.  The claim is refreshed while the unit runs, so a computer that dies loses it in minutes.
+    A store without claims (a third-party sink) leaves the file lock alone to hold the slot."""
+    claim = getattr(sink, "claim_slot", None)
+    if claim is None:
+        yield
+        return
+    from magline.core.results.claims import HEARTBEAT_S
+
+    refusal = claim(holder)
+    if refusal is not None:
+        raise StationBusy(refusal)
+    stop = threading.Event()
+
+    def beat() -> None:
+        while not stop.wait(HEARTBEAT_S):
+            with contextlib.suppress(StationFault):
+                sink.touch_slot(holder)  # type: ignore[attr-defined]
+
+    beating = threading.Thread(target=beat, name="magline-slot-claim", daemon=True)
+    beating.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        beating.join(timeout=5.0)
+        with contextlib.suppress(StationFault):
+            sink.release_slot(holder)  # type: ignore[attr-defined]
 
 
 def holder_of(serial: str, station_id: str, slot: str | None) -> dict:

@@ -32,7 +32,7 @@ from magline.core.results.reading import RunFilter
 from magline.core.results.sinks import open_results
 from magline.core.sequencer.abort import AbortSwitch
 from magline.core.sequencer.context import Acquisition, AcquisitionAborted, RunContext
-from magline.core.sequencer.hold import holder_of, holding, run_locks
+from magline.core.sequencer.hold import claimed_in_store, holder_of, holding, run_locks
 from magline.core.sequencer.rounds import MotionRounds
 from magline.core.sequencer.unit_log import unit_log_capture
 from magline.core.serials import clean_serial
@@ -122,7 +122,8 @@ class Sequencer:
         if self.stopped is not None:
             steps = [("identify", self._identify), ("connect", self._refuse_stopped_batch)]
         locks = run_locks(self.station.station.id, record.slot, product.connection if product else "")
-        with holding(locks, holder_of(serial, self.station.station.id, record.slot)), \
+        holder = holder_of(serial, self.station.station.id, record.slot)
+        with holding(locks, holder), claimed_in_store(self.sink, holder), \
                 unit_log_capture(record, this_thread_only=slot is not None):  # StationBusy before any record
             return self._run_steps(run, steps)
 
