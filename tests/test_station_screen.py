@@ -98,7 +98,13 @@ def test_a_unit_driven_only_through_the_page_shows_the_retry_and_passes(screen, 
     # every text the prompt shows, kept: a determined second tumble can end before a poll would see it
     page.evaluate("""window.__prompts = []; new MutationObserver(() => window.__prompts.push(
         document.getElementById('prompt').textContent)).observe(document.getElementById('prompt'),
-        {childList: true, characterData: true, subtree: true})""")
+        {childList: true, characterData: true, subtree: true});
+        window.__looks = []; new MutationObserver(() => window.__looks.push({
+            left: document.getElementById('left').className,
+            background: getComputedStyle(document.getElementById('left')).backgroundColor,
+            banner: document.getElementById('retry-banner').hidden ? '' : document.getElementById('retry-title').textContent,
+            missing: document.getElementById('missing').textContent})).observe(document.body,
+        {childList: true, characterData: true, subtree: true, attributes: true})""")
     page.keyboard.type("SCR-1")  # the serial field has focus: a barcode scanner types, then Enter
     page.keyboard.press("Enter")
     page.wait_for_selector("#attempt:has-text('attempt 1')")
@@ -109,6 +115,16 @@ def test_a_unit_driven_only_through_the_page_shows_the_retry_and_passes(screen, 
     retry = next(i for i, text in enumerate(shown) if "tumble again" in text)  # the station's retry prompt, large
     assert any("determined after" in text for text in shown[retry:]) or "tumble again" in page.inner_text("#prompt")
     screenshot(page, tmp_path / "2-retry.png")
+    looks = page.evaluate("window.__looks")
+    first = [x for x in looks if not x["banner"]]
+    again = [x for x in looks if x["banner"]]
+    # the one-axis spin left sides uncovered, named in words; the retry looks and sounds different
+    assert any(x["missing"].startswith("still to turn down: ") for x in first)
+    assert again and again[0]["banner"] == "TUMBLE AGAIN — attempt 2" and "retry" in again[0]["left"]
+    assert again[0]["background"] != first[0]["background"]
+    assert page.evaluate("window.__cues") == ["SCR-1:2"]  # one cue for the retry, none for the first prompt
+    sides = page.evaluate("document.getElementById('sphere').data[1].text")
+    assert "nose down" in sides and "upside down" in sides  # the same words where they are on the sphere
     page.wait_for_selector("#verdict:not([hidden])", timeout=30_000)
     assert page.inner_text("#verdict-word") == "PASS" and page.inner_text("#verdict-serial") == "SCR-1"
     assert "SCR-1 PASS" in page.inner_text("#recent") and "first-pass yield 100%" in page.inner_text("#shift")
@@ -130,6 +146,8 @@ def test_a_failing_unit_shows_fail_with_its_measurement(screen, browser, tmp_pat
     assert opened.page.inner_text("#verdict-word") == "FAIL"
     row = opened.page.inner_text("#verdict-items")
     assert "hard_iron_norm_ut" in row and "[—, 50]" in row and "fail" in row
+    assert "Length of the hard-iron offset" in row  # in words first, the catalogue name small
+    assert opened.page.inner_text("#verdict-cause") == ""  # the failure once, in its row
     screenshot(opened.page, tmp_path / "fail.png")
     assert opened.outside(LOCAL) == []
 

@@ -16,9 +16,10 @@ import threading
 import time
 from typing import Any
 
-from magline.core.measurements import Verdict, by_sensor, verdicts
+from magline.core.measurements import CATALOGUE, Verdict, base_name, by_sensor, verdicts
 from magline.core.plugins import hookimpl
 from magline.core.record import PhaseResult, RunRecord
+from magline.core.screen.sides import SIDES, missing_sides
 from magline.core.sequencer.batch import Batch
 from magline.core.sequencer.sequencer import PHASES
 from magline.core.text import fmt, stop_line
@@ -37,6 +38,7 @@ class ScreenState:
                         "serial_prompt": station.prompts.serial,
                         "default_part": station.default_part or next(iter(station.products)),
                         "slots": [{"id": s.id, "part": s.part} for s in station.slots]},
+            "sides": side_labels(),  # the sphere's six words (core/screen/sides.py)
             "busy": False, "run": None, "result": None, "recent": [], "shift": {"units": 0, "fpy": None},
             # a station with slots: one run and one result per slot (the page draws one panel each)
             "slots": {}, "round": None,
@@ -120,8 +122,12 @@ class ScreenState:
             current = self._run_of(run)
             if current is None:
                 return
+            bins = list(bins or [])
+            if n_bins and (bins != current["bins"] or not current.get("missing_for")):
+                current["missing"] = missing_sides(bins, n_bins)  # in words: what the operator turns next
+                current["missing_for"] = n_bins
             current.update(attempt=attempt, samples=samples, coverage=coverage, target=target, n_bins=n_bins,
-                           target_samples=run.station.acquisition.samples, bins=list(bins or []),
+                           target_samples=run.station.acquisition.samples, bins=bins,
                            progress_at_ms=time.time() * 1e3)  # when these samples reached the sequencer
             self._changed()
 
@@ -197,10 +203,22 @@ class ScreenState:
 def verdict_items(record: RunRecord, measured: list) -> list[dict[str, str]]:
     """The measurements the operator must see: every FAIL and REVIEW, with why a REVIEW was flagged."""
     flags = {f["name"]: f["reason"] for f in record.review}
-    return [{"name": m.name, "value": fmt(m.value, m.unit), "limit": f"[{fmt(m.low)}, {fmt(m.high)}]",
-             "verdict": str(m.verdict),
+    return [{"name": m.name, "label": label_of(m.name), "value": fmt(m.value, m.unit),
+             "limit": f"[{fmt(m.low)}, {fmt(m.high)}]", "verdict": str(m.verdict),
              "why": flags.get(m.name, "within the marginal band" if m.verdict is Verdict.REVIEW else "")}
             for m in measured if m.verdict in (Verdict.FAIL, Verdict.REVIEW)]
+
+
+def label_of(name: str) -> str:
+    """A measurement in words (the catalogue's meaning, capitalised), the compass or pair it is of in front:
+    "compass 2: Hard-iron offset, x"."""
+    meaning = CATALOGUE.get(base_name(name), ("", ""))[1]
+    if not meaning:
+        return name
+    prefix = name[: len(name) - len(base_name(name))].rstrip(".")
+    owner = ("compass " + prefix[3:] + ": ") if prefix.startswith("mag") and "-" not in prefix else (
+        f"compasses {prefix.replace('mag', '').replace('-', ' and ')}: " if prefix else "")
+    return owner + meaning[0].upper() + meaning[1:]
 
 
 def sensor_cards(record: RunRecord) -> list[dict[str, Any]]:
@@ -225,6 +243,11 @@ def sensor_cards(record: RunRecord) -> list[dict[str, Any]]:
     return cards
 
 
+def side_labels() -> list[dict[str, object]]:
+    """The six words of :mod:`magline.core.screen.sides` where the sphere shows them."""
+    return [{"name": name, "at": list(axis)} for name, axis in SIDES]
+
+
 def bin_centres(n_bins: int) -> list[list[float]]:
     """The centres of the coverage bins, the same ``fibonacci_sphere`` the coverage figure bins on."""
     from magline.core.fit.coverage import fibonacci_sphere
@@ -234,5 +257,5 @@ def bin_centres(n_bins: int) -> list[list[float]]:
 
 def _new_run(serial: str, part: str) -> dict[str, Any]:
     return {"serial": serial, "part": part, "attempt": 0, "prompt": "", "prompts": [], "samples": 0,
-            "target_samples": None, "coverage": 0.0, "target": None, "bins": [], "n_bins": None,
+            "target_samples": None, "coverage": 0.0, "target": None, "bins": [], "n_bins": None, "missing": [],
             "waiting": None, "phases": [{"name": p, "state": "pending", "duration_s": None} for p in PHASES]}

@@ -28,7 +28,7 @@ function binCentres(n) {
 
 // Redraws only when the hit set changed: most updates at 200 samples/s hit no new bin, and a 3D
 // redraw is the costliest thing the page does.  Returns whether the sphere changed.
-function drawSphere(run) {
+function drawSphere(run, sides) {
   if (!run || !run.n_bins) {  // a new unit: no bins hit yet
     if (sphereDrawn) { Plotly.purge("sphere"); sphereDrawn = false; sphereShown = ""; }
     $("sphere").dataset.hit = "0";
@@ -47,7 +47,11 @@ function drawSphere(run) {
                       z: centres.map((c) => c[2]), marker: { size: 9, color: colour }, hoverinfo: "skip" };
       const layout = { margin: { l: 0, r: 0, t: 0, b: 0 }, showlegend: false,
                        scene: { aspectmode: "cube", xaxis: { visible: false }, yaxis: { visible: false }, zaxis: { visible: false } } };
-      Plotly.newPlot("sphere", [trace], layout, { displayModeBar: false, responsive: true });
+      // the same six words the coverage line names, where they are on the sphere
+      const words = { type: "scatter3d", mode: "text", x: sides.map((w) => w.at[0] * 1.3),
+                      y: sides.map((w) => w.at[1] * 1.3), z: sides.map((w) => w.at[2] * 1.3),
+                      text: sides.map((w) => w.name), textfont: { size: 16, color: "#1d1d1f" }, hoverinfo: "skip" };
+      Plotly.newPlot("sphere", [trace, words], layout, { displayModeBar: false, responsive: true });
       sphereDrawn = true;
     } else {
       Plotly.restyle("sphere", { "marker.color": [colour] }, [0]);
@@ -120,8 +124,31 @@ function renderSlots(s) {
 }
 
 function itemRows(items) {
-  return (items || []).map((m) => `<tr><td>${esc(m.name)}</td><td>${esc(m.value)}</td><td>${esc(m.limit)}</td>`
-    + `<td>${esc(m.verdict)}</td><td>${esc(m.why)}</td></tr>`).join("");
+  // what was measured in words first; the catalogue name small, for the technician
+  return (items || []).map((m) => `<tr><td>${esc(m.label || m.name)}<br><small>${esc(m.name)}</small></td>`
+    + `<td>${esc(m.value)}</td><td>${esc(m.limit)}</td><td>${esc(m.verdict)}</td><td>${esc(m.why)}</td></tr>`).join("");
+}
+
+// One cue per retry (per unit and attempt), where the browser allows sound: a page that has had a
+// key press or a click may play it.  Kept in window.__cues so a test can see it was given.
+const cued = new Set();
+window.__cues = [];
+function cue(key) {
+  if (cued.has(key)) { return; }
+  cued.add(key);
+  window.__cues.push(key);
+  try {
+    const audio = new (window.AudioContext || window.webkitAudioContext)();
+    [0, 0.25].forEach((at) => {
+      const tone = audio.createOscillator();
+      const gain = audio.createGain();
+      tone.frequency.value = 660;
+      gain.gain.value = 0.3;
+      tone.connect(gain).connect(audio.destination);
+      tone.start(audio.currentTime + at);
+      tone.stop(audio.currentTime + at + 0.15);
+    });
+  } catch (e) { /* no audio device: the look alone tells */ }
 }
 
 function render(s) {
@@ -166,8 +193,19 @@ function render(s) {
   $("phases").innerHTML = run ? run.phases.map((p) =>
     `<li class="${esc(p.state)}">${esc(p.name)} — ${esc(p.state)}${p.duration_s != null ? ` (${p.duration_s} s)` : ""}`
     + `${p.state === "running" && run.waiting ? ` · ${esc(run.waiting.what)} ${run.waiting.elapsed_s} s` : ""}</li>`).join("") : "";
+  const missing = run && run.n_bins && !stoppedNow(run) ? (run.missing || []) : [];
   $("coverage-text").textContent = run && run.n_bins ? `coverage ${pct(run.coverage)} (target ${pct(run.target)})` : "";
-  const sphereChanged = drawSphere(run);
+  $("missing").textContent = missing.length ? `still to turn down: ${missing.join(", ")}` : "";
+  // a second tumble looks and sounds different: the operator watching the unit knows the first was refused
+  const retrying = Boolean(run && run.attempt > 1 && !stoppedNow(run));
+  $("left").classList.toggle("retry", retrying);
+  $("retry-banner").hidden = !retrying;
+  if (retrying) {
+    $("retry-title").textContent = `TUMBLE AGAIN — attempt ${run.attempt}`;
+    $("retry-why").textContent = missing.length ? `Turn it ${missing.join(", ")}` : "";
+    cue(`${run.serial}:${run.attempt}`);
+  }
+  const sphereChanged = drawSphere(run, s.sides || []);
 
   const v = s.result;
   const overlay = $("verdict");
@@ -177,7 +215,9 @@ function render(s) {
     $("verdict-serial").textContent = v.serial;
     $("verdict-part").textContent = v.part || "";
     $("verdict-action").textContent = v.action || "";
-    $("verdict-cause").textContent = v.cause || "";
+    // the cause once: a FAIL's first failed measurement is in the rows below, not repeated above them
+    const repeated = (v.items || []).some((m) => v.cause && v.cause.startsWith(m.name));
+    $("verdict-cause").textContent = repeated ? "" : (v.cause || "");
     const cards = v.sensors || [];
     // several magnetometers: a card per compass and per pair, each with its own verdict and failures
     $("verdict-items").innerHTML = cards.length ? "" : itemRows(v.items);
