@@ -102,7 +102,8 @@ def test_a_unit_driven_only_through_the_page_shows_the_retry_and_passes(screen, 
         window.__looks = []; new MutationObserver(() => window.__looks.push({
             left: document.getElementById('left').className,
             background: getComputedStyle(document.getElementById('left')).backgroundColor,
-            banner: document.getElementById('retry-banner').hidden ? '' : document.getElementById('retry-title').textContent,
+            banner: document.getElementById('retry-banner').hidden ? ''
+                : document.getElementById('retry-title').textContent,
             missing: document.getElementById('missing').textContent})).observe(document.body,
         {childList: true, characterData: true, subtree: true, attributes: true})""")
     page.keyboard.type("SCR-1")  # the serial field has focus: a barcode scanner types, then Enter
@@ -291,7 +292,11 @@ def test_idle_screen_second_scan_and_what_to_do_after_the_verdict(screen, browse
     """Issue 30: the idle screen says what to do at two metres; a second scan while a unit runs gets
     an answer and keeps the serial; the verdict says what to do with the unit (the station file's words
     where it sets them); ABORTED and ERROR have colours of their own; "1 unit"."""
-    served, _ = screen({**REALTIME, "prompts": {"verdicts": {"aborted": "Back to the rack, then test again"}}})
+    # a unit that stays under test until it is aborted (spun about one axis, tumble after tumble, at the
+    # sensor's real rate), whatever time the page takes for its first 3D drawing
+    busy_unit = {"products": {"MOCK-100": {"options": {"realtime": True, "motions": ["single_axis"]}}},
+                 "acquisition": {"stop": "samples"}}
+    served, _ = screen({**busy_unit, "prompts": {"verdicts": {"aborted": "Back to the rack, then test again"}}})
     page = open_page(browser, served.url).page
     page.wait_for_selector("#station-name:has-text('demo-01')")
     assert page.inner_text("#idle-what") == "Scan the unit's serial number"
