@@ -37,6 +37,12 @@ def test_a_unit_report_is_self_contained_and_shows_the_whole_run(make_station, t
         assert shown in text, shown
     screenshot(opened.page, tmp_path / "unit-report.png")
     assert (tmp_path / "unit-report.png").stat().st_size > 10_000
+    # issue 30: the identity table has no blank header row; the empty bins are drawn with a glyph
+    # Chromium's fonts have (WebGL draws 3D markers as font glyphs: "x" showed as tofu boxes)
+    first = opened.page.evaluate("document.querySelector('table tr').innerText")
+    assert first.strip().startswith("run")
+    symbols = opened.page.evaluate("document.getElementById('coverage3d').data.map((t) => t.marker && t.marker.symbol)")
+    assert "x" not in symbols and "circle" in symbols
 
 
 def test_a_failed_unit_report_marks_the_measurement_and_shows_nothing_written(make_station, tmp_path, browser):

@@ -39,10 +39,13 @@ def figure_html(fig: go.Figure, div_id: str) -> str:
                        config={"displaylogo": False, "responsive": True})
 
 
-def table(header: Sequence[str], rows: Iterable[Sequence[object]], row_class: Sequence[str] | None = None,
+def table(header: Sequence[str] | None, rows: Iterable[Sequence[object]], row_class: Sequence[str] | None = None,
           numeric: Sequence[int] = ()) -> str:
-    """An HTML table; every cell escaped.  ``numeric``: columns aligned right."""
-    out = ["<table><thead><tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in header) + "</tr></thead><tbody>"]
+    """An HTML table; every cell escaped.  ``numeric``: columns aligned right.  ``header`` None: no
+    header row (a table of named facts needs none, and an empty one shows as a blank first row)."""
+    head = "" if header is None else (
+        "<thead><tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in header) + "</tr></thead>")
+    out = ["<table>" + head + "<tbody>"]
     for i, row in enumerate(rows):
         css = f' class="{row_class[i]}"' if row_class and row_class[i] else ""
         cells = "".join(f"<td{' class=num' if j in numeric else ''}>{html.escape(str(c))}</td>"

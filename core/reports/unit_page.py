@@ -49,7 +49,7 @@ def _identity(run: dict[str, Any]) -> str:
     for key, title in (("left_changed", "NOT RESTORED"), ("unverified_params", "UNVERIFIED")):
         if run.get(key):
             out.append(f"<p><b>{title}:</b> {html.escape(json.dumps(run[key]))} — re-test the unit</p>")
-    out.append(table(("", ""), [(k, v) for k, v in facts]))
+    out.append(table(None, [(k, v) for k, v in facts]))  # facts by name: no header row
     return "".join(out)
 
 
@@ -163,7 +163,9 @@ def _coverage_3d(cal: dict[str, Any], raw: RawSamples) -> str:
                                   marker={"size": 7, "color": "#1a7f37"}),
                      go.Scatter3d(x=centres[~covered, 0], y=centres[~covered, 1], z=centres[~covered, 2],
                                   mode="markers", name=f"empty bins ({(~covered).sum()})",
-                                  marker={"size": 7, "color": "#cf222e", "symbol": "x"})])
+                                  # a circle: WebGL draws 3D markers as font glyphs, and Chromium's fonts
+                                  # lack the "x" one (tofu boxes where the missing bins should show)
+                                  marker={"size": 7, "color": "#cf222e", "symbol": "circle"})])
     fig.update_layout(title=f"coverage: {covered.sum()} of {bins} direction bins ({percent(covered.mean())})",
                       height=480, scene={"aspectmode": "cube"}, margin={"l": 0, "r": 0, "t": 40, "b": 0})
     return figure_html(fig, "coverage3d")
