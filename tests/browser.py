@@ -39,6 +39,7 @@ def chromium() -> Any:
 class Opened:
     page: Any
     requests: list[str] = field(default_factory=list)
+    console: list[str] = field(default_factory=list)  # every console message and page error, as text
 
     def outside(self, allowed: tuple[str, ...]) -> list[str]:
         return [u for u in self.requests if not u.startswith(allowed)]
@@ -48,6 +49,8 @@ def open_page(browser: Any, url: str, viewport: tuple[int, int] = (1300, 900)) -
     page = browser.new_page(viewport={"width": viewport[0], "height": viewport[1]})
     opened = Opened(page)
     page.on("request", lambda request: opened.requests.append(request.url))
+    page.on("console", lambda message: opened.console.append(f"{message.type}: {message.text}"))
+    page.on("pageerror", lambda error: opened.console.append(f"error: {error}"))
     page.goto(url)
     return opened
 
@@ -59,6 +62,13 @@ def plots_with_data(page: Any) -> dict[str, int]:
                            "[...document.querySelectorAll('.js-plotly-plot')].every(e => e._fullData)")
     return page.evaluate("""() => Object.fromEntries([...document.querySelectorAll('.js-plotly-plot')].map(
         e => [e.id, e._fullData.reduce((n, t) => n + ((t.x || t.z || []).length || 0), 0)]))""")
+
+
+def drawn_points(page: Any) -> dict[str, int]:
+    """Every chart's markers as the browser drew them (SVG paths of plotly's scatter layer), by div id:
+    what a person sees, not the data the page carries."""
+    return page.evaluate("""() => Object.fromEntries([...document.querySelectorAll('.js-plotly-plot')].map(
+        e => [e.id, e.querySelectorAll('.scatterlayer .point').length]))""")
 
 
 def screenshot(page: Any, path: Path) -> Path:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import io
 
 import pytest
-from browser import open_page, plots_with_data, screenshot
+from browser import drawn_points, open_page, plots_with_data, screenshot
 from rich.console import Console
 from simstation import attempt_rows
 
@@ -109,6 +109,12 @@ def test_the_batch_report_draws_every_chart_offline(make_station, tmp_path, brow
     opened = open_page(browser, page.as_uri())
     plots = plots_with_data(opened.page)
     assert plots["chart-hard_iron_x_ut"] >= 4 and len(plots) >= 10
+    # issue 30: drawn, not only carried — every chart shows its units' points, and no WebGL context
+    # was lost (Chromium keeps 16; the page had 18 charts with no points in the first ones)
+    drawn = drawn_points(opened.page)
+    charts = [k for k in drawn if k.startswith("chart-")]
+    assert len(charts) >= 10 and all(drawn[k] >= 4 for k in charts), drawn
+    assert not [m for m in opened.console if "webgl" in m.lower() or m.startswith("error")], opened.console
     assert opened.outside(OFFLINE) == []
     assert "first-pass yield" in opened.page.inner_text("body")
     screenshot(opened.page, tmp_path / "spc.png")
