@@ -32,7 +32,7 @@ from magline.core.station import load_station
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).parent))
-from slots import BOARDS, start, start_fixture  # noqa: E402  (the slots benchmark's four-board fixture)
+from slots import BOARDS, start, start_fixture, station_file  # noqa: E402  (the slots benchmark's four-board fixture)
 
 STOPS = ("samples", "determined")
 GOALS_S = {"demo": 4.0, "px4": 10.0, "ardupilot": 25.0}
@@ -115,16 +115,8 @@ def slots(work: Path, stop: str, loads: int) -> tuple[float, float, list[RunReco
     try:
         gimbal, addresses = start_fixture(work / stop, procs)
 
-        def station(chosen: list[str]) -> Path:
-            cfg = yaml.safe_load((REPO / "stations" / "slots-sim.yaml").read_text(encoding="utf-8"))
-            cfg["slots"] = [s for s in cfg["slots"] if s["id"] in chosen]
-            for s in cfg["slots"]:
-                _, host, port = addresses[s["id"]].split(":")
-                s["connection"] = f"udpout://{host}:{port}" if BOARDS[s["id"]] == "px4" else f"tcp:{host}:{port}"
-            _, host, port = gimbal.split(":")
-            cfg["motion"]["options"]["resource"] = f"TCPIP0::{host}::{port}::SOCKET"
-            cfg["results"]["path"] = str(work / f"slots-{stop}.sqlite")
-            return write(cfg, work / f"slots-{''.join(chosen)}-{stop}.yaml", stop)
+        def station(chosen: list[str]) -> Path:  # the shipped slot station, stopping as ``stop`` says
+            return station_file(work, addresses, gimbal, chosen, acquisition={"stop": stop}, tag=f"-{stop}")
 
         def run(path: Path, loads_: list[dict[str, str]]) -> tuple[float, list[RunRecord]]:
             seq = Sequencer(load_station(path), load_plugins(), path.parent)

@@ -96,7 +96,10 @@ class AcquisitionCpu:
         self.windows.append((len(slots), cpu - self._at[0], wall - self._at[1]))
 
 
-def station_file(work: Path, addresses: dict[str, str], gimbal: str, slots: list[str]) -> Path:
+def station_file(work: Path, addresses: dict[str, str], gimbal: str, slots: list[str],
+                 acquisition: dict | None = None, tag: str = "") -> Path:
+    """``stations/slots-sim.yaml`` for the chosen slots of the fixture, its acquisition changed by
+    ``acquisition`` (this benchmark's fixed count by default; ``{}``: as shipped), results in ``work``."""
     cfg = yaml.safe_load((REPO / "stations" / "slots-sim.yaml").read_text(encoding="utf-8"))
     cfg["slots"] = [s for s in cfg["slots"] if s["id"] in slots]
     for slot in cfg["slots"]:
@@ -104,10 +107,10 @@ def station_file(work: Path, addresses: dict[str, str], gimbal: str, slots: list
         slot["connection"] = f"udpout://{host}:{port}" if BOARDS[slot["id"]] == "px4" else f"tcp:{host}:{port}"
     _, host, port = gimbal.split(":")
     cfg["motion"]["options"]["resource"] = f"TCPIP0::{host}::{port}::SOCKET"
-    cfg["acquisition"].update(samples=600, rate_hz=50.0)
-    cfg["results"]["path"] = str(work / "results.sqlite")
+    cfg["acquisition"].update({"samples": 600, "rate_hz": 50.0} if acquisition is None else acquisition)
+    cfg["results"]["path"] = str(work / f"results{tag}.sqlite")
     cfg["review"] = {"enabled": False}
-    path = work / f"station-{''.join(slots)}.yaml"
+    path = work / f"station-{''.join(slots)}{tag}.yaml"
     path.write_text(yaml.safe_dump(cfg, sort_keys=False), encoding="utf-8")
     return path
 

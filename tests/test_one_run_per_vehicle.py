@@ -95,29 +95,33 @@ def test_a_lock_dies_with_the_process_that_held_it(tmp_path):
         pass
 
 
-def another_board_after_the_power_cycle(sim, system_id: int) -> None:
-    """From its next boot on, the simulator answers as another vehicle (a cable moved, a second board)."""
+def from_the_next_boot(sim, change) -> None:
+    """From its next boot on, the simulator is another board: ``change(sim)`` runs after that boot."""
     boot = sim._boot
 
     def another_board_boots(now, first=False):
         boot(now, first)
         if not first:
-            sim.system_id = sim.mav.srcSystem = system_id
+            change(sim)
 
     sim._boot = another_board_boots
+
+
+def another_board_after_the_power_cycle(sim, system_id: int) -> None:
+    """Another vehicle answers after the power cycle (a cable moved, a second board): another system id."""
+    def renumber(s):
+        s.system_id = s.mav.srcSystem = system_id
+
+    from_the_next_boot(sim, renumber)
 
 
 def another_board_with_the_same_system_id(sim) -> None:
-    """From its next boot on, another board of the same product answers: the same MAVLink system id,
-    another hardware UID (a swapped board, a second unit on the same cable)."""
-    boot = sim._boot
+    """Another board of the same product answers: the same MAVLink system id, another hardware UID
+    (a swapped board, a second unit on the same cable)."""
+    def next_uid(s):
+        s.uid += 1
 
-    def another_board_boots(now, first=False):
-        boot(now, first)
-        if not first:
-            sim.uid += 1
-
-    sim._boot = another_board_boots
+    from_the_next_boot(sim, next_uid)
 
 
 @pytest.mark.parametrize("flavour", ["ardupilot", "px4"])

@@ -104,3 +104,16 @@ def test_a_vehicle_closing_its_tcp_link_is_a_lost_link_at_once(tmp_path, capfd):
     assert acquire.duration_s < 30.0  # it did not wait for the stream timeout
     out = capfd.readouterr()
     assert "EOF on TCP socket" not in out.out + out.err
+
+
+def test_a_px4_reboot_whose_ack_is_lost_is_proven_by_the_new_boot_not_failed_as_refused(tmp_path):
+    """No answer to the reboot is not the autopilot saying no: a good unit used to FAIL "reboot refused by
+    the autopilot: TIMEOUT" (the unit judged bad for a lost packet); the new boot proves the reboot."""
+    (tmp_path / "fc").mkdir()
+    with create_sim("px4", "udp:127.0.0.1:0", mag_rate_hz=FAST_SENSOR_HZ, workdir=tmp_path / "fc", seed=3,
+                    boot_time_s=0.3, speed=5.0, faults=SimFaults.parse(["lose_reboot_ack"])) as sim:
+        host, port = sim.address.split(":")[1:]
+        record = run_unit(write_station("px4-sim.yaml", tmp_path, f"udpout://{host}:{port}",
+                                        {**PX4, "boot_timeout_s": 10.0}))
+    assert record.verdict is Outcome.PASS, record.cause
+    assert record.persistence["figures"]["uptime_at_reconnect_s"] < 5.0  # a new boot, not the old one

@@ -13,12 +13,14 @@ uncalibrated or inconsistent compass is reported there) → restore COMPASS_LEAR
 from __future__ import annotations
 
 import contextlib
+import logging
 from collections.abc import Iterator
 
 import numpy as np
 
 from magline.core.dut import (
     DutError,
+    LinkError,
     Magnetometer,
     NotRestored,
     ParamValue,
@@ -41,6 +43,8 @@ from magline.plugins.ardupilot.calibration import (
 )
 from magline.plugins.ardupilot.link import ML, ArduPilotLink
 from magline.plugins.ardupilot.options import ArduPilotOptions
+
+log = logging.getLogger(__name__)
 
 # compass priority 0 / 1 / 2 (= set 1 / 2 / 3 after the boot-time reorder) streams in these messages
 STREAMS = (("RAW_IMU", ML.MAVLINK_MSG_ID_RAW_IMU), ("SCALED_IMU2", ML.MAVLINK_MSG_ID_SCALED_IMU2),
@@ -248,7 +252,14 @@ class ArduPilotDut:
 
     # ------------------------------------------------------------------ power cycle and proof
     def reboot(self) -> None:
-        self.link.require_accepted(ML.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, "reboot", 1)
+        """Command the reboot.  The link closing before its ACK arrived (the ACK lost on a lossy link, the
+        vehicle already going down) is taken as the reboot under way, not as a lost unit: ``await_boot``
+        decides — a new boot (its uptime) proves it, an old one or none is an ERROR as ever.  A refusal
+        (an ACK that says no) still stops the unit."""
+        try:
+            self.link.require_accepted(ML.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, "reboot", 1)
+        except LinkError as exc:
+            log.info("reboot: %s before the command was acknowledged — waiting for the new boot", exc)
         self.link.close()  # ArduPilot drops the connection; a fresh one proves the new boot
 
     def release_link(self) -> None:

@@ -20,7 +20,7 @@ from typing import Any
 
 from mavsdk import ComponentType, Configuration, ConnectionResult, Mavsdk, log_subscribe
 from mavsdk.autopilot import Autopilot
-from mavsdk.plugins.action.action import Action, ActionError
+from mavsdk.plugins.action.action import Action, ActionError, ActionResult
 from mavsdk.plugins.info.info import Info
 from mavsdk.plugins.mavlink_direct.mavlink_direct import MavlinkDirect, MavlinkDirectError, MavlinkMessage
 from mavsdk.plugins.param.param import Param, ParamError
@@ -31,6 +31,8 @@ from magline.core.dut import DutError, LinkError
 from magline.core.faults import StationFault
 
 log = logging.getLogger("magline.px4.mavsdk")
+# MAVSDK's results that mean the command was not answered, as opposed to answered with a no
+UNANSWERED = (ActionResult.TIMEOUT, ActionResult.CONNECTION_ERROR, ActionResult.NO_SYSTEM)
 GCS_SYSTEM, GCS_COMPONENT = 245, 190  # MAVSDK's ground-station identity
 RESULTS = {n: e.name.removeprefix("MAV_RESULT_") for n, e in mavlink.enums["MAV_RESULT"].items()}
 SHELL_PROMPTS = ("nsh> ", "pxh> ")  # NuttX boards; POSIX builds (which rarely answer over MAVLink)
@@ -200,9 +202,16 @@ class Px4Link:
             self.direct.unsubscribe_message(handle)
 
     def reboot(self) -> None:
+        """Command the reboot.  No answer (the ACK lost on the way, the board already going down) is not a
+        refusal: the new boot decides (``await_boot`` proves it by its uptime, or the unit is an ERROR).
+        Only an answer that says no is the autopilot refusing."""
         try:
             self.action.reboot()
         except ActionError as exc:
+            result = exc.args[0] if exc.args else None
+            if result in UNANSWERED:
+                log.info("reboot: no acknowledgement (%s) — waiting for the new boot", result)
+                return
             raise DutError(f"reboot refused by the autopilot: {exc}") from exc
 
     # ------------------------------------------------------------------ MAVLink shell

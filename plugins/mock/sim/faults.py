@@ -16,6 +16,7 @@ class SimFaults:
     ignore_param_set: list[str] = field(default_factory=list)  # names ("*" = all) whose PARAM_SET is dropped
     no_persist: list[str] = field(default_factory=list)  # names whose value never reaches storage
     reboot_fails: bool = False  # after a reboot the board never comes back
+    lose_reboot_ack: bool = False  # the reboot command's ACK is lost on the way (the board reboots all the same)
     link_loss_after_s: float | None = None  # the link goes silent this long after a mag stream starts
     mag_missing_after_reboot: int | None = None  # device id that is not detected on the next boot
     swap_mags_after_reboot: bool = False  # the second sensor enumerates first on the next boot

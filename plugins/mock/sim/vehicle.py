@@ -474,7 +474,8 @@ class SimulatedAutopilot(ABC):
         }
         handler = handlers.get(command)
         result = handler(params) if handler else UNSUPPORTED
-        self.mav.command_ack_send(command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent())
+        if not (self.faults.lose_reboot_ack and command == mavlink.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN):
+            self.mav.command_ack_send(command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent())
         after = self._after_ack
         if after is not None:
             self._after_ack = None
