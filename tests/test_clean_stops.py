@@ -159,3 +159,25 @@ def test_example_stations_that_are_different_stations_have_different_ids():
     for path in sorted((REPO / "stations").glob("*.yaml")):
         ids.setdefault(yaml.safe_load(path.read_text(encoding="utf-8"))["station"]["id"], []).append(path.name)
     assert all(len(names) == 1 for names in ids.values()), ids
+
+
+def test_a_signal_during_a_slot_load_aborts_every_slot_and_keeps_each_ones_readings(tmp_path):
+    """Issue 31: the stop signal (systemctl stop, a PC shutdown) while a load of slots tumbles: every unit
+    of the load is ABORTED with its readings, restored, and the station exits — none left running."""
+    station = realtime_station(tmp_path, {
+        "slots": [{"id": "A", "part": "MOCK-100", "options": {"storage": str(tmp_path / "a.json")}},
+                  {"id": "B", "part": "MOCK-100", "options": {"storage": str(tmp_path / "b.json"), "seed": 9}}],
+        "acquisition": {"stop": "samples"}})
+    proc = start(["run", str(station), "--serial", "A=SL-A", "--serial", "B=SL-B"], tmp_path)
+    read_until(proc, "attempt 1")  # the load is tumbling
+    time.sleep(0.5)
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 2, out + err
+    assert "Traceback" not in err
+    rows = runs(tmp_path / "magline-demo-results.sqlite")
+    assert sorted((s, v, phase) for s, v, phase, _ in rows) == [("SL-A", "aborted", "acquire"),
+                                                                 ("SL-B", "aborted", "acquire")]
+    for serial in ("SL-A", "SL-B"):
+        (attempt,) = attempt_rows(tmp_path / "magline-demo-results.sqlite", serial)
+        assert attempt["samples"] > 0 and attempt["refused"].startswith("interrupted: stopped by")

@@ -67,6 +67,8 @@ class SlotRunner:
         self.switches = {slot.id: AbortSwitch() for slot in slots}
         records: dict[str, RunRecord] = {}
 
+        finished = {slot.id: threading.Event() for slot in slots}
+
         def unit(slot: Any) -> None:
             try:
                 records[slot.id] = self.sequencer.run_unit(serials[slot.id].strip(), operator=operator, slot=slot,
@@ -79,18 +81,25 @@ class SlotRunner:
                 record.verdict, record.cause = Outcome.ERROR, f"slot {slot.id} stopped: {exc}"
                 records[slot.id] = record
                 rounds.leave(slot.id)
+            finally:
+                finished[slot.id].set()
 
         threads = [threading.Thread(target=unit, args=(slot,), name=f"magline-slot-{slot.id}", daemon=True)
                    for slot in slots]
         for thread in threads:
             thread.start()
-        for thread in threads:
-            while thread.is_alive():
+        # Waited on by events, never by ``Thread.join``/``is_alive``: a signal that interrupts a join can
+        # leave the thread looking finished while it still runs (CPython's tstate lock), and the load then
+        # returned without the unit's record (KeyError, a traceback on SIGTERM).
+        for done in finished.values():
+            while not done.is_set():
                 try:
-                    thread.join(JOIN_S)
+                    done.wait(JOIN_S)
                     self._pass_on_abort()
                 except UnitAborted as exc:  # Ctrl-C / SIGTERM on the main thread: every slot stops safely
                     self.abort(exc.reason)
+        for thread in threads:
+            thread.join()  # each has set its event: only its last instructions are left
         return [records[slot.id] for slot in slots]
 
     def _pass_on_abort(self) -> None:
