@@ -88,6 +88,10 @@ def screen(make_station):
 
 
 REALTIME = {"products": {"MOCK-100": {"options": {"realtime": True}}}}
+# A unit that stays under test until it is aborted (spun about one axis, tumble after tumble, at the
+# sensor's real rate), whatever time the page takes for its first 3D drawing on a loaded machine
+BUSY_UNIT = {"products": {"MOCK-100": {"options": {"realtime": True, "motions": ["single_axis"]}}},
+             "acquisition": {"stop": "samples"}}
 
 
 def test_a_unit_driven_only_through_the_page_shows_the_retry_and_passes(screen, browser, tmp_path):
@@ -159,7 +163,7 @@ def test_abort_mid_acquisition_restores_the_unit_and_records_aborted(screen, bro
     storage = NvStorage(tmp_path / "magline-demo-storage.json")  # the unit's earlier calibration
     storage.save({"MAG_OFS_X": 12.5, "MAG_OFS_Y": -3.25, "MAG_OFS_Z": 7.0, "MAG_AUTOCAL": 1, "MAG_DEV_ID": 7})
     before = storage.path.read_bytes()
-    served, runner = screen(REALTIME)
+    served, runner = screen(BUSY_UNIT)
     opened = open_page(browser, served.url)
     opened.page.fill("#serial", "SCR-AB")
     opened.page.press("#serial", "Enter")
@@ -292,11 +296,7 @@ def test_idle_screen_second_scan_and_what_to_do_after_the_verdict(screen, browse
     """Issue 30: the idle screen says what to do at two metres; a second scan while a unit runs gets
     an answer and keeps the serial; the verdict says what to do with the unit (the station file's words
     where it sets them); ABORTED and ERROR have colours of their own; "1 unit"."""
-    # a unit that stays under test until it is aborted (spun about one axis, tumble after tumble, at the
-    # sensor's real rate), whatever time the page takes for its first 3D drawing
-    busy_unit = {"products": {"MOCK-100": {"options": {"realtime": True, "motions": ["single_axis"]}}},
-                 "acquisition": {"stop": "samples"}}
-    served, _ = screen({**busy_unit, "prompts": {"verdicts": {"aborted": "Back to the rack, then test again"}}})
+    served, _ = screen({**BUSY_UNIT, "prompts": {"verdicts": {"aborted": "Back to the rack, then test again"}}})
     page = open_page(browser, served.url).page
     page.wait_for_selector("#station-name:has-text('demo-01')")
     assert page.inner_text("#idle-what") == "Scan the unit's serial number"
