@@ -18,16 +18,13 @@ from magline.core.dut import DutError, ParamValue, SampleChunk
 from magline.core.faults import StationFault, UnitAborted
 from magline.core.fit import CoverageTracker, FitOptions, FitResult, coverage_of, fit_calibration
 from magline.core.fit.coverage import bin_index, covered_bins, sphere_centre
-from magline.core.fit.running import PREDICTED, RunningFit, StopRule
 from magline.core.fit.samples_csv import RawSamples
-from magline.core.measurements import Array, Json, Measurement, Numeric, limit_for
+from magline.core.measurements import Array, Json, Measurement, Numeric
 from magline.core.mounting import ImuSeries, orientation_matrix
-from magline.core.mounting.checks import calibrated
-from magline.core.mounting.estimate import MAX_SIGMA_DEG as MOUNTING_MAX_SIGMA_DEG
-from magline.core.mounting.estimate import MountingUnobservable, estimate_mounting
 from magline.core.plugins import hookimpl
 from magline.core.record import PersistReport, VerifyReport
 from magline.core.sequencer.context import Acquisition, AcquisitionAborted, RunContext
+from magline.core.tumble_stop import Stall, running_fit
 
 # The running fit is handed the tumble at checkpoints of the primary's count, every 2.5 % more
 # readings (at least 3): at 10 Hz about every half second, at 200 Hz every tenth.  Counts, not
@@ -52,9 +49,9 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
     tracker = CoverageTracker(cfg.coverage_bins)
     others: dict[int, CoverageTracker] = {}
     got = _Readings(run.unit.selected_sensor if run.unit is not None else 0)
-    running = _running_fit(run) if cfg.stop == "determined" else None
+    running = running_fit(run) if cfg.stop == "determined" else None
     reason, tumble_s = "stream ended", 0.0
-    stall = _Stall(cfg.min_samples, cfg.coverage_target)
+    stall = Stall(cfg.min_samples, cfg.coverage_target)
     final = None  # the determination of every reading the tumble ends with
     try:
         with run.shared_motion(), closing(dut.samples(cfg.rate_hz)) as stream, running or nullcontext():
@@ -120,106 +117,10 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
     return result
 
 
-class _Stall:
-    """A tumble whose coverage stopped growing short of its target: no new direction over the last
-    half of its readings (at least ``min_samples`` of them).  Reading on cannot reach the target, so
-    a determined tumble ends there and the operator is asked again at once (a spin about one axis
-    covers its ring in one turn, then repeats it)."""
-
-    def __init__(self, min_samples: int, target: float) -> None:
-        self.min_samples, self.target = min_samples, target
-        self.history: list[tuple[int, float]] = []  # (readings, coverage) at each change of coverage
-
-    def stalled(self, count: int, coverage: float) -> bool:
-        if not self.history or coverage > self.history[-1][1]:
-            self.history.append((count, coverage))
-        since = self.history[-1][0]  # readings when the coverage last grew
-        return coverage < self.target and count >= 2 * self.min_samples and count - since >= max(
-            self.min_samples, count // 2)
-
-
 def _stream_s(samples: RawSamples) -> float:
     """Seconds the readings span on their own clock (0 without time stamps)."""
     t = samples.t_ms
     return float((t[-1] - t[0]) / 1000.0) if t is not None and len(t) > 1 and np.all(np.isfinite(t[[0, -1]])) else 0.0
-
-
-def _running_fit(run: RunContext) -> RunningFit:
-    """The fit beside the tumble: the station's own fit hook and settings for each sensor, judged
-    against each sensor's σ limits (and the fit's own heading refusal) with the station's margin."""
-    cfg = run.station.acquisition
-    sensors = {run.sensor_prefix(m.device_id): m for m in run.magnetometers} or {"": None}
-    limits: dict[str, dict[str, float]] = {}
-    coverage: dict[str, float] = {}
-    for prefix in sensors:
-        if (floor := limit_for(prefix + "coverage", run.limits)) is not None and floor.low is not None:
-            coverage[prefix] = floor.low  # the tumble that stops must also pass the coverage limit
-        own = {name: limit.high for name in PREDICTED
-               if (limit := limit_for(prefix + name, run.limits)) is not None and limit.high is not None}
-        refusal = run.station.fit.max_direction_sigma_deg  # the fit refuses above it: never stop there
-        own["direction_sigma_deg"] = min(own.get("direction_sigma_deg", refusal), refusal)
-        limits[prefix] = own
-    rule = StopRule(min_samples=cfg.min_samples, coverage_target=cfg.coverage_target,
-                    margin=cfg.sigma_margin, limits=limits, coverage=coverage)
-
-    def fitter(prefix: str, samples: RawSamples) -> FitResult:
-        return run.plugins.hook.magline_fit(run=run, samples=samples, options=run.fit_options(sensors[prefix]))
-
-    confirm = None if run.product.orientation == "skip" else _mounting_determined(run, cfg.sigma_margin)
-    return RunningFit(rule, fitter, confirm)
-
-
-# How many σ of its estimate an error measurement must sit inside its limit, so that a good unit's
-# noise alone crosses the limit in about 10⁻³ of units: a rotation's size (three axes, Maxwell tail)
-# and a signed angle (one axis, two-sided normal).
-ROTATION_Z, ONE_AXIS_Z = 4.0, 3.3
-
-
-def _limit_over(run: RunContext, name: str, z: float) -> float:
-    """The σ an estimate may have so that noise alone stays inside the limit of ``name`` (∞: no limit)."""
-    limit = limit_for(name, run.limits)
-    if limit is None:
-        return float("inf")
-    bound = min(abs(v) for v in (limit.low, limit.high) if v is not None) if (
-        limit.low is not None or limit.high is not None) else float("inf")
-    return bound / z
-
-
-def _mounting_sigma_target(run: RunContext, prefix: str, margin: float) -> float:
-    """The mounting σ a determined tumble needs: inside the margin of what the check accepts (its
-    ``mounting_sigma_deg`` limit, at most the estimator's bound) and small enough that a good unit's
-    ``mounting_error_deg`` does not cross its limit by noise."""
-    limit = limit_for(prefix + "mounting_sigma_deg", run.limits)
-    bound = min(MOUNTING_MAX_SIGMA_DEG, limit.high if limit is not None and limit.high is not None
-                else MOUNTING_MAX_SIGMA_DEG)
-    return min(margin * bound, _limit_over(run, prefix + "mounting_error_deg", ROTATION_Z))
-
-
-def _mounting_determined(run: RunContext, margin: float):
-    """The mounting is proven from the same tumble (core/mounting): the tumble goes on until every
-    sensor's mounting σ is within the margin of what the check needs (its ``mounting_sigma_deg``
-    limit, at most the estimator's own bound).  A stream without an accelerometer never will be:
-    then the stop does not wait, and the validate phase says the mounting cannot be proven."""
-    def confirm(fits: dict[str, FitResult], snapshot: dict[str, RawSamples], imu: ImuSeries | None):
-        if imu is None or not len(imu) or not np.any(np.linalg.norm(imu.accel_mss, axis=1) > 1.0):
-            return {}
-        figures = {}
-        for prefix, fit in fits.items():
-            if fit.model == "affine":
-                return {}
-            samples = snapshot[prefix]
-            try:
-                estimate = estimate_mounting(calibrated(fit, samples.mag_ut), samples.t_ms, imu)
-            except MountingUnobservable:
-                return None
-            if estimate.sigma_deg > _mounting_sigma_target(run, prefix, margin) or \
-                    estimate.inclination_sigma_deg > _limit_over(run, prefix + "inclination_error_deg", ONE_AXIS_Z):
-                return None
-            figures[prefix] = {"mounting_sigma_deg": estimate.sigma_deg,
-                               "inclination_sigma_deg": estimate.inclination_sigma_deg}
-        return figures
-
-    return confirm
 
 
 class _Stream:

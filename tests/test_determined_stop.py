@@ -185,14 +185,14 @@ def determined(samples: RawSamples, until_ms: float) -> bool:
 
 
 def test_a_tumble_stalls_only_when_its_coverage_stopped_growing_for_half_its_readings():
-    from magline.core.phases import _Stall
+    from magline.core.tumble_stop import Stall
 
-    growing = _Stall(min_samples=100, target=0.6)
+    growing = Stall(min_samples=100, target=0.6)
     assert not any(growing.stalled(n, min(0.59, n / 1000)) for n in range(10, 600, 10))  # slow but growing
-    flat = _Stall(min_samples=100, target=0.6)
+    flat = Stall(min_samples=100, target=0.6)
     stops = [n for n in range(10, 600, 10) if flat.stalled(n, min(0.3, n / 500))]  # grows until 150, then flat
     assert stops[0] == 300  # 150 readings without a new direction, half of the tumble
-    reached = _Stall(min_samples=100, target=0.6)
+    reached = Stall(min_samples=100, target=0.6)
     assert not any(reached.stalled(n, 0.7) for n in range(10, 600, 10))  # at the target: the fit decides
 
 
