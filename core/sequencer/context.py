@@ -6,7 +6,6 @@ and the listeners, so hook signatures stay stable as phases learn more.
 
 from __future__ import annotations
 
-import threading
 import time
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
@@ -15,6 +14,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from magline.core.fit.samples_csv import RawSamples
+from magline.core.periodic import every
 
 if TYPE_CHECKING:
     from magline.core.dut import DutBackend, Magnetometer, UnitInfo
@@ -129,21 +129,14 @@ class RunContext:
     @contextmanager
     def waiting(self, what: str, limit_s: float | None = None, tick_s: float = 1.0) -> Iterator[None]:
         """Around a long blocking wait: ``magline_waiting`` about every ``tick_s`` from a timer thread."""
-        done = threading.Event()
         started = time.monotonic()
 
         def tick() -> None:
-            while not done.wait(tick_s):
-                self.plugins.hook.magline_waiting(run=self, what=what, elapsed_s=time.monotonic() - started,
-                                                  limit_s=limit_s)
+            self.plugins.hook.magline_waiting(run=self, what=what, elapsed_s=time.monotonic() - started,
+                                              limit_s=limit_s)
 
-        ticker = threading.Thread(target=tick, name="magline-countdown", daemon=True)
-        ticker.start()
-        try:
+        with every(tick_s, tick, "magline-countdown"):
             yield
-        finally:
-            done.set()
-            ticker.join(timeout=2.0)
 
     def acquisition_stopped(self, result: Acquisition) -> None:
         """The tumble of an attempt ended: say why and when to the log and to every listener."""

@@ -19,13 +19,13 @@ import os
 import re
 import socket
 import tempfile
-import threading
 from collections.abc import Iterator
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import IO
 
 from magline.core.faults import StationFault
+from magline.core.periodic import every
 
 # a vehicle link: a MAVLink / serial address (a mock's "in-process" or a description is no shared vehicle)
 VEHICLE_LINK = re.compile(r"^(tcp|tcpin|tcpout|udp|udpin|udpout|serial|com|/dev/)", re.IGNORECASE)
@@ -87,20 +87,14 @@ def claimed_in_store(sink: object, holder: dict) -> Iterator[None]:
     refusal = claim(holder)
     if refusal is not None:
         raise StationBusy(refusal)
-    stop = threading.Event()
-
     def beat() -> None:
-        while not stop.wait(HEARTBEAT_S):
-            with contextlib.suppress(StationFault):
-                sink.touch_slot(holder)  # type: ignore[attr-defined]
+        with contextlib.suppress(StationFault):
+            sink.touch_slot(holder)  # type: ignore[attr-defined]
 
-    beating = threading.Thread(target=beat, name="magline-slot-claim", daemon=True)
-    beating.start()
     try:
-        yield
+        with every(HEARTBEAT_S, beat, "magline-slot-claim", join_s=5.0):
+            yield
     finally:
-        stop.set()
-        beating.join(timeout=5.0)
         with contextlib.suppress(StationFault):
             sink.release_slot(holder)  # type: ignore[attr-defined]
 
