@@ -55,7 +55,7 @@ CATALOGUE: dict[str, tuple[str, str]] = {
     "inclination_deg": ("°", "field inclination the unit saw (angle between gravity and the calibrated field)"),
     "inclination_error_deg": ("°", "field inclination the unit saw minus the reference's"),
     "heading_agreement_median_deg": ("°", "median heading difference between two calibrated magnetometers"),
-    "heading_agreement_max_deg": ("°", "largest heading difference between two magnetometers (1 s windows)"),
+    "heading_agreement_max_deg": ("°", "largest heading difference between two magnetometers (over the tumble)"),
 }
 # The values a measurement can take at all: a limit outside them is a station-file mistake (every unit
 # would fail, or the limit would never bite), caught by ``magline check``.

@@ -149,7 +149,8 @@ def magline_validate_unit(run: RunContext, fits: dict[int, FitResult]) -> list[M
         out.append(Numeric.of(pair + "heading_agreement_median_deg", agreement.median_deg, limits))
         out.append(Numeric.of(pair + "heading_agreement_max_deg", agreement.max_deg, limits))
         report[pair.rstrip(".")] = {"median_deg": agreement.median_deg, "max_deg": agreement.max_deg,
-                                    "mean_deg": agreement.mean_deg, "pairs": agreement.pairs}
+                                    "mean_deg": agreement.mean_deg, "pairs": agreement.pairs, "used": agreement.used,
+                                    "relation": np.round(agreement.relation, 6).tolist()}
     run.state["orientation_fixes"] = fixes
     run.state["rotation_writes"] = {d: r.params for d, r in rotations.items()}
     run.record.unit_info["mounting"] = report
