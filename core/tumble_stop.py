@@ -37,14 +37,14 @@ class Stall:
             self.min_samples, count // 2)
 
 
-def running_fit(run: RunContext) -> RunningFit:
-    """The fit beside the tumble: the station's own fit hook and settings for each sensor, judged
-    against each sensor's σ limits (and the fit's own heading refusal) with the station's margin."""
+def stop_rule(run: RunContext) -> StopRule:
+    """When an acquisition has determined the calibration: each sensor's σ limits (and the fit's own
+    heading refusal) with the station's margin, and its coverage limit where above the target.
+    Shared by the tumble and the coil schedule (``plugins/helmholtz``)."""
     cfg = run.station.acquisition
-    sensors = {run.sensor_prefix(m.device_id): m for m in run.magnetometers} or {"": None}
     limits: dict[str, dict[str, float]] = {}
     coverage: dict[str, float] = {}
-    for prefix in sensors:
+    for prefix in _sensors(run):
         if (floor := limit_for(prefix + "coverage", run.limits)) is not None and floor.low is not None:
             coverage[prefix] = floor.low  # the tumble that stops must also pass the coverage limit
         own = {name: limit.high for name in PREDICTED
@@ -52,8 +52,20 @@ def running_fit(run: RunContext) -> RunningFit:
         refusal = run.station.fit.max_direction_sigma_deg  # the fit refuses above it: never stop there
         own["direction_sigma_deg"] = min(own.get("direction_sigma_deg", refusal), refusal)
         limits[prefix] = own
-    rule = StopRule(min_samples=cfg.min_samples, coverage_target=cfg.coverage_target,
+    return StopRule(min_samples=cfg.min_samples, coverage_target=cfg.coverage_target,
                     margin=cfg.sigma_margin, limits=limits, coverage=coverage)
+
+
+def _sensors(run: RunContext) -> dict:
+    return {run.sensor_prefix(m.device_id): m for m in run.magnetometers} or {"": None}
+
+
+def running_fit(run: RunContext) -> RunningFit:
+    """The fit beside the tumble: the station's own fit hook and settings for each sensor, judged
+    by :func:`stop_rule`."""
+    cfg = run.station.acquisition
+    sensors = _sensors(run)
+    rule = stop_rule(run)
 
     def fitter(prefix: str, samples: RawSamples) -> FitResult:
         return run.plugins.hook.magline_fit(run=run, samples=samples, options=run.fit_options(sensors[prefix]))

@@ -79,6 +79,62 @@ def test_coil_station_recovers_offset_and_full_matrix_with_misalignment(tmp_path
     assert mis.verdict.value == "pass" and mis.high == 3.0
 
 
+def test_a_coil_unit_leaves_the_schedule_once_its_calibration_is_determined(tmp_path):
+    """``stop: determined`` on a coil (issue 27): the unit leaves when the readings so far determine
+    the affine calibration — the station's share of directions applied, and the predicted σ inside
+    its limits with the margin — instead of stepping the whole schedule; ``stop: samples`` steps all of
+    it.  The early unit's prediction holds: its final fit is the prediction, and its offset is within
+    4σ of the truth."""
+    from magline.plugins.helmholtz.options import HelmholtzOptions
+    from magline.plugins.helmholtz.source import schedule
+
+    truth = np.array(MockOptions().hard_iron_ut)
+    with Cell() as cell:
+        early = run_unit(cell.station(tmp_path))
+        settings_early = sum(applied_setting(c) for c in cell.coil.log)
+        cell.coil.log.clear()
+        path = cell.station(tmp_path)
+        cfg = yaml.safe_load(path.read_text(encoding="utf-8"))
+        cfg["acquisition"]["stop"] = "samples"
+        path.write_text(yaml.safe_dump(cfg, sort_keys=False), encoding="utf-8")
+        full = run_unit(path)
+        settings_full = sum(applied_setting(c) for c in cell.coil.log)
+        assert cell.coil.output is False
+    options = HelmholtzOptions.model_validate(cfg["field_source"]["options"])
+    steps = len(schedule(options))
+    assert early.verdict is Outcome.PASS and full.verdict is Outcome.PASS, (early.cause, full.cause)
+    first, whole = early.attempts[-1], full.attempts[-1]
+    assert whole.stopped == "samples" and len(whole.raw) == steps * options.samples_per_step
+    assert first.stopped == "determined" and len(first.raw) < len(whole.raw)
+    assert settings_early < settings_full
+    assert first.coverage >= cfg["acquisition"]["coverage_target"]  # the share of the directions applied
+    predicted = first.predicted[""]
+    assert predicted["direction_sigma_deg"] <= 0.7 * 0.5 and predicted["hard_iron_sigma_ut"] <= 0.7 * 0.5
+    final = next(m for m in early.measurements if m.name == "hard_iron_sigma_ut")
+    assert final.value == pytest.approx(predicted["hard_iron_sigma_ut"], rel=1e-9)  # the same readings
+    h, h_sigma = np.array(early.calibration["hard_iron_ut"]), np.array(early.calibration["hard_iron_sigma_ut"])
+    assert np.all(np.abs(h - truth) < 4 * h_sigma + 1e-3), (h, h_sigma)
+    assert any("determined after" in line for phase in early.phases for line in phase.log)
+
+
+def test_every_beginning_of_the_coil_schedule_is_spread_and_the_offset_comes_first():
+    from magline.core.fit.coverage import fibonacci_sphere
+    from magline.plugins.helmholtz.options import HelmholtzOptions
+    from magline.plugins.helmholtz.source import schedule
+
+    options = HelmholtzOptions(resource="x", constants_ut_per_a=[100.0, 100.0, 100.0], zero_steps=2,
+                               reference={"resource": "y", "scale_ut_per_v": 10.0})
+    steps = schedule(options)
+    assert not steps[:2].any()  # the zero-field steps pin the offset first
+    directions = steps[2:] / options.field_ut
+    assert sorted(map(tuple, directions.round(9))) == sorted(map(tuple, fibonacci_sphere(26).round(9)))
+    sphere = fibonacci_sphere(500)
+    for n in (4, 8, 16):  # each beginning spans the sphere: no direction far from every one applied
+        # (a pole-to-pole order leaves a direction 140°, 117°, 79° away; the whole schedule 28°)
+        farthest_away = np.max(np.degrees(np.arccos(np.clip(np.max(sphere @ directions[:n].T, axis=1), -1, 1))))
+        assert farthest_away < {4: 90.0, 8: 60.0, 16: 45.0}[n]
+
+
 def test_three_separate_current_sources_drive_the_coil(tmp_path):
     from magline.plugins.mock.sim.coil import CoilChannelSim
 

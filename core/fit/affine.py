@@ -69,11 +69,34 @@ def fit_affine(mag_ut: NDArray, applied_ut: NDArray, field_ut: float | None = No
         residuals_ut=residuals, used=np.ones(len(m), bool), samples_total=len(m), rejected={},
         coverage=1.0, coverage_bins=len(steps), planarity=float(spread[-1] / spread[0]),
         condition_number=float(np.linalg.cond(x.T @ x)),
-        direction_sigma_deg=float(np.degrees(np.sqrt(sigma2) / field)), noise_ut=float(np.sqrt(sigma2)),
+        direction_sigma_deg=calibrated_direction_sigma_deg(full, sigma2, xtx_inv, steps),
+        noise_ut=float(np.sqrt(sigma2)),
         extra={"method": "affine (known applied field)", "full_matrix": full.tolist(),
                "rotation": rotation.tolist(), "misalignment_deg": float(np.linalg.norm(rotvec)),
                "misalignment_rotvec_deg": rotvec.tolist(), "steps": len(steps)},
     )
+
+
+def calibrated_direction_sigma_deg(full: NDArray, sigma2: float, xtx_inv: NDArray, steps: NDArray) -> float:
+    """Largest 1σ error (degrees) of the calibrated field direction over the applied vectors, as the
+    ellipsoid fit's ``direction_sigma_deg`` is over the orientations seen: what the calibration's
+    own uncertainty, not one reading's noise, leaves in a heading.
+
+    Each output axis of ``m = A·b + h`` is an independent least-squares problem on the same design
+    ``x = [b, 1]``, so at an applied ``b`` every axis of ``A·b + h`` has variance ``σ²·xᵀ(XᵀX)⁻¹x``;
+    ``M = A⁻¹`` carries that error into the calibrated field, and only its part across ``b`` turns
+    the direction."""
+    worst = 0.0
+    for b in steps:
+        size = float(np.linalg.norm(b))
+        if size < 1e-9:
+            continue
+        x = np.append(b, 1.0)
+        variance = sigma2 * float(x @ xtx_inv @ x)
+        u = b / size
+        across = (np.eye(3) - np.outer(u, u)) @ full
+        worst = max(worst, variance * float(np.sum(across * across)) / size**2)
+    return float(np.degrees(np.sqrt(worst)))
 
 
 def _rotation_then_symmetric(full: NDArray) -> tuple[NDArray, NDArray]:

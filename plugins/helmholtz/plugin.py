@@ -15,10 +15,13 @@ import numpy as np
 from magline.core.dut import DutError
 from magline.core.fit import FitOptions, FitResult
 from magline.core.fit.affine import fit_affine
+from magline.core.fit.result import FitRefused
+from magline.core.fit.running import StopRule
 from magline.core.fit.samples_csv import RawSamples
 from magline.core.measurements import Numeric
 from magline.core.plugins import hookimpl
 from magline.core.sequencer.context import Acquisition, RunContext
+from magline.core.tumble_stop import stop_rule
 from magline.plugins.helmholtz.options import HelmholtzOptions
 from magline.plugins.helmholtz.source import HelmholtzField, create_helmholtz_field, schedule
 
@@ -30,11 +33,22 @@ def magline_register_field_sources(register):
 
 @hookimpl
 def magline_acquire(run: RunContext, attempt: int) -> Acquisition | None:
+    """Step the coil through its schedule, reading the unit at each applied vector.
+
+    With ``acquisition.stop: determined`` the unit leaves the schedule once the readings so far
+    determine its calibration: the share of the schedule's directions applied at least the station's
+    ``coverage_target``, at least ``min_samples`` readings, and the affine fit's predicted σ inside the
+    station's limits with the margin (the tumble's rule, :func:`magline.core.tumble_stop.stop_rule`).
+    The schedule's order makes every beginning of it well spread; on a slot station the others go on
+    without the unit, and the coil is switched off when the last one has left."""
     source = run.field_source
     if not isinstance(source, HelmholtzField):
         return None
     opts = source.opts
+    cfg = run.station.acquisition
     steps = schedule(opts)
+    directions = int(np.sum(np.linalg.norm(steps, axis=1) > 0)) or 1
+    rule = stop_rule(run) if cfg.stop == "determined" else None
     if source.shift_report:  # the shift checks' figures travel with the unit that triggered them
         run.log("coil shift checks: " + ", ".join(f"{k} {v}" for k, v in source.shift_report.items()))
         source.shift_report = {}
@@ -42,10 +56,12 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition | None:
     mags, times, applied = [], [], []
     dut = run.require_dut()
     slot = run.slot or ""
+    reason, predicted, applied_directions = "samples", {}, 0
     # every unit in the coil (one per slot) steps through the same schedule: each vector applied once
-    with run.shared_motion() as round_number, closing(dut.samples(run.station.acquisition.rate_hz)) as stream:
+    with run.shared_motion() as round_number, closing(dut.samples(cfg.rate_hz)) as stream:
         members = run.rounds.members if run.rounds is not None else [slot]
         shared = source.shared_schedule(round_number or 0, members, steps)
+        started = time.monotonic()
         try:
             for index, vector in enumerate(steps):
                 shared.step(slot, index, run.check_abort)
@@ -63,12 +79,33 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition | None:
                     times.append(np.atleast_1d(chunk.t_ms)[: len(take)])
                     applied.append(np.tile(vector, (len(take), 1)))
                     got += len(take)
-                target = run.station.acquisition.coverage_target
-                run.progress(attempt, sum(len(m) for m in mags), (index + 1) / len(steps), target)
+                applied_directions += bool(np.linalg.norm(vector) > 0)
+                share = applied_directions / directions
+                readings = sum(len(m) for m in mags)
+                run.progress(attempt, readings, share, cfg.coverage_target)
+                if rule is not None and share >= cfg.coverage_target and readings >= rule.min_samples:
+                    figures = _determined(rule, np.vstack(mags), np.vstack(applied), opts.field_ut)
+                    if figures is not None:
+                        reason, predicted = "determined", figures
+                        break
         finally:
             shared.leave(slot)  # the last unit out sets the field to zero
     samples = RawSamples(mag_ut=np.vstack(mags), t_ms=np.concatenate(times), applied_ut=np.vstack(applied))
-    return Acquisition(attempt=attempt, samples=samples, coverage=1.0, target=run.station.acquisition.coverage_target)
+    result = Acquisition(attempt=attempt, samples=samples, coverage=applied_directions / directions,
+                         target=cfg.coverage_target, stopped=reason, tumble_s=time.monotonic() - started,
+                         predicted=predicted)
+    run.acquisition_stopped(result)
+    return result
+
+
+def _determined(rule: StopRule, mag_ut: np.ndarray, applied_ut: np.ndarray,
+                field_ut: float) -> dict[str, dict[str, float]] | None:
+    """The rule's predicted figures once the readings so far determine the calibration, else None."""
+    try:
+        fit = fit_affine(mag_ut, applied_ut, field_ut)
+    except FitRefused:
+        return None
+    return rule.judge({"": fit})
 
 
 @hookimpl

@@ -27,8 +27,25 @@ AXES = np.eye(3)
 
 
 def schedule(options: HelmholtzOptions) -> NDArray:
-    """Applied vectors: well spread directions at ``field_ut``, then the zero-field steps."""
-    return np.vstack([fibonacci_sphere(options.directions) * options.field_ut, np.zeros((options.zero_steps, 3))])
+    """Applied vectors: the zero-field steps (they pin the offset), then well spread directions at
+    ``field_ut`` in an order where every beginning of the schedule is itself well spread.
+
+    Why that order: a unit may leave the schedule as soon as its calibration is determined
+    (``acquisition.stop: determined``), and what it saw must span the sphere then; and a coil that
+    drifts a little during the schedule does not turn the drift into an offset along one axis, as a
+    pole-to-pole order did."""
+    return np.vstack([np.zeros((options.zero_steps, 3)), spread_order(fibonacci_sphere(options.directions))
+                      * options.field_ut])
+
+
+def spread_order(directions: NDArray) -> NDArray:
+    """The directions reordered farthest first: each next one the farthest from all before it."""
+    left = list(range(len(directions)))
+    order = [left.pop(0)]
+    while left:
+        closest = np.max(directions[left] @ directions[order].T, axis=1)  # cos to the nearest one taken
+        order.append(left.pop(int(np.argmin(closest))))
+    return directions[order]
 
 
 class HelmholtzField:
