@@ -9,8 +9,12 @@
    mounting ≤ 3°, inclination within 2°): how many are flagged (goal 0 of 1,000).
 4. Time: a one-compass and a three-compass unit on the simulated ArduPilot (the validate phase and
    the whole unit), goal: at most 1 s longer.
+5. Heading agreement (issue 28): two good 10 Hz compasses on the simulators' motions (tumble, gimbal
+   with its pitch steps, speed 0.5–2, 6–15 s), 0.5 µT noise, the second read 0–6 ms after the first:
+   the largest and median heading difference (limits 3° and 1°), and the same pair with the second
+   compass turned 3° about Z (must FAIL every time).
 
-    python benchmarks/mounting.py [--units 1000] [--seeds 5] [--sim-units 2]
+    python benchmarks/mounting.py [--units 1000] [--seeds 5] [--sim-units 2] [--agreement 300]
 """
 
 from __future__ import annotations
@@ -111,19 +115,57 @@ def sim_time(units: int) -> None:
           f"{validate_three:.2f} s")
 
 
+def agreement_pair(rng: np.random.Generator, turn_deg: float = 0.0):
+    """Two calibrated compasses as a simulator reads them: (a, t_a, b, t_b, imu)."""
+    from magline.core.synthetic.imu import earth_field_ned
+    from magline.plugins.mock.sim.magnetometers import attitude
+
+    motion, speed = str(rng.choice(["tumble", "gimbal"])), float(rng.uniform(0.5, 2.0))
+    seconds, lag = float(rng.uniform(6.0, 15.0)), float(rng.uniform(0.0, 0.006))
+    field = earth_field_ned(48.0, 63.0)
+    t_a = np.arange(0.1, seconds, 0.1) + rng.uniform(0.0, 0.1)
+    t_imu = np.arange(0.0, seconds + 0.3, 0.005)
+
+    def seen(times, vector, noise):
+        rows = np.array([attitude(motion, t, speed, field).inv().apply(vector) for t in times])
+        return rows + rng.normal(0.0, noise, rows.shape)
+
+    turn = Rotation.from_euler("Z", turn_deg, degrees=True).as_matrix()
+    imu = ImuSeries(t_ms=t_imu * 1000.0, accel_mss=seen(t_imu, [0.0, 0.0, -9.81], 0.0))
+    return (seen(t_a, field, 0.5), t_a * 1000.0, seen(t_a + lag, field, 0.5) @ turn.T, (t_a + lag) * 1000.0, imu)
+
+
+def agreement(units: int, rng: np.random.Generator) -> None:
+    from magline.core.mounting import heading_agreement
+
+    good = [heading_agreement(*agreement_pair(rng)) for _ in range(units)]
+    turned = [heading_agreement(*agreement_pair(rng, 3.0)) for _ in range(units // 3)]
+    worst, medians = np.array([g.max_deg for g in good]), np.array([g.median_deg for g in good])
+    caught = sum(t.max_deg > 3.0 or t.median_deg > 1.0 for t in turned)
+    print(f"heading agreement, {units} good 10 Hz pairs: largest {worst.max():.2f}° (p99 "
+          f"{np.percentile(worst, 99):.2f}°, limit 3°), median up to {medians.max():.2f}° (limit 1°), "
+          f"false rejects {int(np.sum((worst > 3.0) | (medians > 1.0)))}; a 3° turn FAILs {caught} of {len(turned)}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--units", type=int, default=1000)
     parser.add_argument("--accuracy-units", type=int, default=200)
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--sim-units", type=int, default=2)
+    parser.add_argument("--agreement", type=int, default=300, help="good compass pairs for the heading agreement")
     args = parser.parse_args()
     rng = np.random.default_rng(26)
-    accuracy(args.accuracy_units, rng)
-    orientations(args.seeds, rng)
-    false_detections(args.units, rng)
+    if args.accuracy_units:
+        accuracy(args.accuracy_units, rng)
+    if args.seeds:
+        orientations(args.seeds, rng)
+    if args.units:
+        false_detections(args.units, rng)
     if args.sim_units:
         sim_time(args.sim_units)
+    if args.agreement:
+        agreement(args.agreement, rng)
 
 
 if __name__ == "__main__":
