@@ -36,10 +36,15 @@ def seconds(value: float) -> str:
     return f"{value:.0f} s"
 
 
-def stop_line(reason: str, after_s: float, readings: int) -> str:
-    """How the operator is told the tumble ended: "determined after 6 s — stop moving the unit"."""
+def stop_line(reason: str, after_s: float, readings: int, moved: bool = True) -> str:
+    """How the operator is told the tumble ended: "determined after 6 s — stop moving the unit".
+
+    ``moved``: the unit is turned (by hand or fixture); a unit standing still in a coil is not told
+    to stop moving, and its schedule is not called a tumble."""
     if reason == "determined":
-        return f"determined after {after_s:.0f} s ({readings} readings) — stop moving the unit"
+        return f"determined after {after_s:.0f} s ({readings} readings)" + (" — stop moving the unit" if moved else "")
+    if reason == "samples" and not moved:
+        return f"coil schedule complete: {readings} readings in {after_s:.0f} s"
     if reason == "stalled":
         return f"coverage stopped growing after {after_s:.0f} s ({readings} readings)"
     if reason == "timeout":
@@ -47,3 +52,8 @@ def stop_line(reason: str, after_s: float, readings: int) -> str:
     if reason == "samples":
         return f"tumble complete: {readings} readings in {after_s:.0f} s"
     return f"the stream ended after {readings} readings"
+
+
+def unit_is_moved(run: object) -> bool:
+    """Whether the station turns the unit (a tumble) or the field (a coil's ``moves_unit = False``)."""
+    return bool(getattr(getattr(run, "field_source", None), "moves_unit", True))

@@ -117,6 +117,14 @@ def test_a_coil_unit_leaves_the_schedule_once_its_calibration_is_determined(tmp_
     assert any("determined after" in line for phase in early.phases for line in phase.log)
 
 
+def test_the_coil_operator_is_told_it_is_determined_not_to_stop_moving(tmp_path, capsys):
+    with Cell() as cell:
+        code = main(["run", str(cell.station(tmp_path)), "--serial", "COIL-SAY"])
+    out = capsys.readouterr().out
+    assert code == 0, out
+    assert "determined after" in out and "stop moving" not in out  # the unit stood still in the coil
+
+
 def test_every_beginning_of_the_coil_schedule_is_spread_and_the_offset_comes_first():
     from magline.core.fit.coverage import fibonacci_sphere
     from magline.plugins.helmholtz.options import HelmholtzOptions

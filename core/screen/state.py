@@ -22,7 +22,7 @@ from magline.core.record import PhaseResult, RunRecord
 from magline.core.screen.sides import SIDES, missing_sides
 from magline.core.sequencer.batch import Batch
 from magline.core.sequencer.sequencer import PHASES
-from magline.core.text import fmt, stop_line
+from magline.core.text import fmt, stop_line, unit_is_moved
 
 RECENT = 12  # units listed on the screen
 
@@ -137,7 +137,8 @@ class ScreenState:
             current = self._run_of(run)
             if current is not None:
                 current["stopped"] = {"attempt": attempt, "reason": reason, "after_s": round(after_s, 1),
-                                      "readings": readings, "line": stop_line(reason, after_s, readings)}
+                                      "readings": readings, "line": stop_line(reason, after_s, readings,
+                                                                                   unit_is_moved(run))}
                 self._changed()
 
     @hookimpl

@@ -49,6 +49,8 @@ def spread_order(directions: NDArray) -> NDArray:
 
 
 class HelmholtzField:
+    moves_unit = False  # the unit stands still while the field turns: nobody is told to stop moving it
+
     def __init__(self, options: HelmholtzOptions, sleep=time.sleep) -> None:
         self.opts = options
         self.sleep = sleep
