@@ -23,6 +23,10 @@ class FieldSourceError(StationFault):
 
 @runtime_checkable
 class FieldSource(Protocol):
+    """Where the field a unit is calibrated in comes from.  Optional attribute ``moves_unit``
+    (default True): False for a source that turns the field round a unit standing still (a coil),
+    so the operator is not told to stop moving it."""
+
     def reference_field_ut(self) -> float:
         """The field magnitude a unit about to be calibrated must see (µT); raises
         :class:`FieldSourceError` when the cell is not fit to calibrate in."""
