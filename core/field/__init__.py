@@ -3,7 +3,9 @@
 A field source is created once per station run (``factory(station)``) and asked for the
 reference at every unit.  Sources: ``fixed`` (a surveyed magnitude), ``wmm`` (the World Magnetic
 Model at the station's place and date), both optionally checked against a live fluxgate
-(:mod:`.reference`); ``helmholtz`` (``plugins/helmholtz``) generates the field itself.
+(:mod:`.reference`); ``helmholtz`` (``plugins/helmholtz``) generates the field itself.  Optional
+attribute ``moves_unit`` (default True): False for a source that turns the field round a unit
+standing still (a coil), so the operator is not told to stop moving it.
 """
 
 from __future__ import annotations
@@ -23,10 +25,6 @@ class FieldSourceError(StationFault):
 
 @runtime_checkable
 class FieldSource(Protocol):
-    """Where the field a unit is calibrated in comes from.  Optional attribute ``moves_unit``
-    (default True): False for a source that turns the field round a unit standing still (a coil),
-    so the operator is not told to stop moving it."""
-
     def reference_field_ut(self) -> float:
         """The field magnitude a unit about to be calibrated must see (µT); raises
         :class:`FieldSourceError` when the cell is not fit to calibrate in."""
