@@ -8,7 +8,7 @@ FAIL / ERROR counts, the cause of every non-PASS, and the drift test's statistic
 reference (its nominal false-alarm rate 10⁻³).  Goal: ≤ 1 false reject in 1,000 mock units, none on
 the simulators.
 
-    python benchmarks/false_reject.py [--mock 1000] [--sim 100] [--faults 0] [--seed 28]
+    python benchmarks/false_reject.py [--mock 1000] [--sim 100] [--faults 0] [--seed 28] [--backends px4 ardupilot]
 
 Also printed: the limits behind every false reject (by rule), wrong orientations found on good
 compasses (issue 26's "0 of 1,000"), and with ``--faults N`` every simulator fault run N times and
@@ -83,6 +83,13 @@ def _tally(name: str, records: list, started: float) -> None:
     for r in records:
         if str(r.verdict) != "pass":
             print(f"   {r.serial}: {str(r.verdict).upper()} {r.cause[:300]}")
+            for a in r.attempts:  # enough to tell why: how each tumble ended, and the fit's drift decision
+                print(f"      attempt {a.attempt}: stopped {a.stopped} after {a.tumble_s or 0.0:.1f} s, {a.samples} "
+                      f"readings, coverage {a.coverage:.2f}, refused {a.refused}, predicted {a.predicted}")
+            watched = ("warm_up_fraction", "rejected_fraction", "coverage", "direction_sigma_deg", "residual_rms_ut")
+            fit_figures = [f"{m.name} {m.value:.3g}" for m in r.measurements
+                           if isinstance(getattr(m, "value", None), float) and m.name.endswith(watched)]
+            print(f"      {', '.join(fit_figures)}")
     print(f"   false rejects by rule: {', '.join(f'{k} {v}' for k, v in rules.most_common()) or 'none'}; "
           f"wrong orientation found on {wrong} of {compasses} good compasses")
     if drift.size:
@@ -180,11 +187,13 @@ def main() -> None:
     parser.add_argument("--sim", type=int, default=100)
     parser.add_argument("--faults", type=int, default=0, help="runs of each simulator fault (0: none)")
     parser.add_argument("--seed", type=int, default=28)
+    parser.add_argument("--backends", nargs="+", choices=["px4", "ardupilot"], default=["px4", "ardupilot"],
+                        help="the simulators --sim runs on")
     args = parser.parse_args()
     rng = np.random.default_rng(args.seed)
     if args.mock:
         mock_units(args.mock, rng)
-    for flavour in ("px4", "ardupilot"):
+    for flavour in args.backends:
         if args.sim:
             sim_units(flavour, args.sim, rng)
     if args.faults:
