@@ -134,11 +134,38 @@ def test_stop_samples_keeps_reading_the_full_count(make_station):
 
 
 def test_a_limit_the_readings_cannot_meet_is_never_called_determined(make_station):
-    """A σ limit far below what the noise allows: the tumble reads its most, and the unit is judged
-    on its limits as before (a FAIL on that limit, not an early stop)."""
+    """A σ limit far below what the noise allows: no tumble is called determined, each reads its most,
+    and a tumble that leaves the calibration less determined than the limit is asked again (as too
+    little coverage is) — the unit is not FAILed on the first tumble's σ.  Out of retries, it FAILs
+    naming the refusal and how many tumbles were tried."""
     record = run_with(make_station({"limits": {"direction_sigma_deg": {"le": 0.001}}}))
-    assert [a.stopped for a in record.attempts] == ["stalled", "samples"]  # the spin, then the full tumble
-    assert record.verdict is Outcome.FAIL and "direction_sigma_deg" in record.cause
+    assert [a.stopped for a in record.attempts] == ["stalled", "samples", "samples"]  # the spin, then two tumbles
+    assert all(a.refused.startswith("undetermined") for a in record.attempts[1:])
+    assert record.verdict is Outcome.FAIL and "do not determine the calibration" in record.cause
+    assert "after 3 attempts" in record.cause
+
+
+def test_the_fit_refuses_above_each_sensors_own_sigma_limit(make_station, tmp_path):
+    """The refusal bound is the station's ``direction_sigma_deg`` limit for the sensor when below the
+    fit's own (``fit.max_direction_sigma_deg``)."""
+    from magline.core.dut import Magnetometer
+    from magline.core.record import RunRecord
+    from magline.core.sequencer.context import RunContext
+
+    station = load_station(make_station({"limits": {"direction_sigma_deg": {"le": 0.4},
+                                                    "mag2.direction_sigma_deg": {"le": 0.3}},
+                                         "fit": {"max_direction_sigma_deg": 0.8}}))
+    record = RunRecord(serial="SN-OPT", part="MOCK-100", station_id="t", line="t", operator="",
+                       software_version="t", limit_hash="t")
+    run = RunContext(station=station, station_dir=tmp_path, part="MOCK-100", product=station.products["MOCK-100"],
+                     serial="SN-OPT", operator="", plugins=load_plugins(), record=record,
+                     limits=station.effective_limits("MOCK-100"))
+    run.magnetometers = [Magnetometer(device_id=1, label="compass 1"), Magnetometer(device_id=2, label="compass 2")]
+    assert run.fit_options(run.magnetometers[0]).max_direction_sigma_deg == 0.4
+    assert run.fit_options(run.magnetometers[1]).max_direction_sigma_deg == 0.3
+    wide = load_station(make_station({"limits": {"direction_sigma_deg": {"le": 2.0}}}, name="wide.yaml"))
+    run.limits = wide.effective_limits("MOCK-100")
+    assert run.fit_options(run.magnetometers[0]).max_direction_sigma_deg == 0.8  # the fit's own bound
 
 
 def test_min_samples_above_samples_is_a_check_error_at_its_line(make_station):

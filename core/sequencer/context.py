@@ -164,18 +164,29 @@ class RunContext:
 
     def fit_options(self, sensor: Magnetometer | None = None) -> FitOptions:
         """The fit's settings for a sensor (the primary by default): clipping is judged against the
-        station's ``range_ut``, else the range the backend says the sensor's readings can carry."""
+        station's ``range_ut``, else the range the backend says the sensor's readings can carry.
+
+        The fit refuses a calibration its readings leave less determined than the station's
+        ``direction_sigma_deg`` limit for the sensor (when below the fit's own bound): that is a
+        tumble that did not determine the calibration — asked again, as too little coverage is —
+        not a unit judged bad.  A good compass whose determined tumble reached its most readings at
+        σ 0.50° was FAILed on that limit (issue 28's false-reject benchmark)."""
         from magline.core.fit import FitOptions
+        from magline.core.measurements import limit_for
 
         model = self.product.soft_iron_model
         if model == "auto":
             model = self.unit.soft_iron_model if self.unit else "full"
         sensor = sensor or (self.magnetometers[0] if self.magnetometers else None)
         acq = self.station.acquisition
+        bound = self.station.fit.max_direction_sigma_deg
+        limit = limit_for((self.sensor_prefix(sensor.device_id) if sensor else "") + "direction_sigma_deg", self.limits)
+        if limit is not None and limit.high is not None:
+            bound = min(bound, limit.high)
         return FitOptions(model=model, field_ut=self.reference_field_ut,
                           range_ut=acq.range_ut or (sensor.range_ut if sensor else None),
                           coverage_bins=acq.coverage_bins, gain_sigma=self.station.fit.gain_sigma,
-                          max_direction_sigma_deg=self.station.fit.max_direction_sigma_deg)
+                          max_direction_sigma_deg=bound)
 
     def sensor_prefix(self, device_id: int) -> str:
         """The measurement-name prefix of a sensor: ``""`` for the primary, ``mag2.`` for the second…"""
