@@ -29,7 +29,7 @@ CHI2_3_P95 = 7.815
 
 
 def statistics(units: int, readings: int, rng: np.random.Generator, shuffled: bool) -> np.ndarray:
-    from magline.plugins.mock.sim.magnetometers import attitude
+    from magline.core.synthetic.imu import simulator_fields
 
     out = []
     field_ned = E / np.linalg.norm(E) * FIELD
@@ -37,7 +37,7 @@ def statistics(units: int, readings: int, rng: np.random.Generator, shuffled: bo
         truth = random_truth(rng)
         speed, rate = float(rng.uniform(0.5, 2.0)), float(rng.choice([25.0, 50.0]))
         t = np.arange(readings) / rate + rng.uniform(0.0, 8.0)
-        body = np.array([attitude("tumble", x, speed, field_ned).inv().apply(field_ned) for x in t])
+        body = simulator_fields("tumble", t, speed, field_ned)
         m = truth.read(body, rng)
         if shuffled:
             m = m[rng.permutation(len(m))]

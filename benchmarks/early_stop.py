@@ -79,14 +79,14 @@ def seen_error_deg(found, truth, directions: np.ndarray) -> float:
 def simulator_unit(rng: np.random.Generator):
     """One unit as a simulator streams it: (truth, directions, readings µT, times ms)."""
     from magline.core.readings import untruncate_mg
-    from magline.plugins.mock.sim.magnetometers import attitude
+    from magline.core.synthetic.imu import simulator_fields
 
     truth = random_truth(rng)
     motion, speed = str(rng.choice(["tumble", "gimbal"])), float(rng.uniform(0.5, 2.0))
     rate = float(rng.choice([10.0, 25.0, 50.0, 100.0]))
     t = np.arange(SAMPLES) / rate + rng.uniform(0.0, 8.0)
     field_ned = E / np.linalg.norm(E) * FIELD
-    body = np.array([attitude(motion, x, speed, field_ned).inv().apply(field_ned) for x in t])
+    body = simulator_fields(motion, t, speed, field_ned)
     wire_mg = np.trunc(truth.read(body, rng) * 10.0)  # the firmware's C conversion to int16 mG
     return truth, body / FIELD, untruncate_mg(wire_mg) / 10.0, t * 1000.0
 

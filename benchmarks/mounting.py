@@ -117,22 +117,12 @@ def sim_time(units: int) -> None:
 
 def agreement_pair(rng: np.random.Generator, turn_deg: float = 0.0):
     """Two calibrated compasses as a simulator reads them: (a, t_a, b, t_b, imu)."""
-    from magline.core.synthetic.imu import earth_field_ned
-    from magline.plugins.mock.sim.magnetometers import attitude
+    from magline.core.synthetic.imu import compass_pair
 
-    motion, speed = str(rng.choice(["tumble", "gimbal"])), float(rng.uniform(0.5, 2.0))
-    seconds, lag = float(rng.uniform(6.0, 15.0)), float(rng.uniform(0.0, 0.006))
-    field = earth_field_ned(48.0, 63.0)
-    t_a = np.arange(0.1, seconds, 0.1) + rng.uniform(0.0, 0.1)
-    t_imu = np.arange(0.0, seconds + 0.3, 0.005)
-
-    def seen(times, vector, noise):
-        rows = np.array([attitude(motion, t, speed, field).inv().apply(vector) for t in times])
-        return rows + rng.normal(0.0, noise, rows.shape)
-
-    turn = Rotation.from_euler("Z", turn_deg, degrees=True).as_matrix()
-    imu = ImuSeries(t_ms=t_imu * 1000.0, accel_mss=seen(t_imu, [0.0, 0.0, -9.81], 0.0))
-    return (seen(t_a, field, 0.5), t_a * 1000.0, seen(t_a + lag, field, 0.5) @ turn.T, (t_a + lag) * 1000.0, imu)
+    a, t_a, b, t_b, (t_imu, accel) = compass_pair(
+        rng, motion=str(rng.choice(["tumble", "gimbal"])), speed=float(rng.uniform(0.5, 2.0)),
+        lag_s=float(rng.uniform(0.0, 0.006)), seconds=float(rng.uniform(6.0, 15.0)), turn_deg=turn_deg)
+    return a, t_a, b, t_b, ImuSeries(t_ms=t_imu, accel_mss=accel)
 
 
 def agreement(units: int, rng: np.random.Generator) -> None:

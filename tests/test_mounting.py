@@ -89,22 +89,13 @@ def test_two_sensors_four_degrees_apart_in_yaw_are_told_apart(rng):
     assert apart.median_deg > 1.0 and apart.max_deg > 3.0
 
 
-def gimbal_pair(rng, *, speed: float, lag_s: float, seconds: float = 11.0, noise_ut: float = 0.5):
+def gimbal_pair(rng, *, speed: float, lag_s: float, seconds: float = 11.0):
     """Two good, calibrated 10 Hz compasses on the simulators' two-axis gimbal (continuous spin, pitch
     in steps), compass B read ``lag_s`` after compass A, each stamped at its own instant."""
-    from magline.core.synthetic.imu import earth_field_ned
-    from magline.plugins.mock.sim.magnetometers import attitude
+    from magline.core.synthetic.imu import compass_pair
 
-    field = earth_field_ned(48.0, 63.0)
-    t_a = np.arange(0.1, seconds, 0.1) + rng.uniform(0.0, 0.1)
-    t_b, t_imu = t_a + lag_s, np.arange(0.0, seconds + 0.3, 0.02)
-
-    def seen(times, vector, noise):
-        rows = np.array([attitude("gimbal", t, speed, field).inv().apply(vector) for t in times])
-        return rows + rng.normal(0.0, noise, rows.shape)
-
-    imu = ImuSeries(t_ms=t_imu * 1000.0, accel_mss=seen(t_imu, [0.0, 0.0, -9.81], 0.0))
-    return seen(t_a, field, noise_ut), t_a * 1000.0, seen(t_b, field, noise_ut), t_b * 1000.0, imu
+    a, t_a, b, t_b, (t_imu, accel) = compass_pair(rng, motion="gimbal", speed=speed, lag_s=lag_s, seconds=seconds)
+    return a, t_a, b, t_b, ImuSeries(t_ms=t_imu, accel_mss=accel)
 
 
 def test_good_compasses_read_at_other_instants_on_a_fast_gimbal_agree(rng):

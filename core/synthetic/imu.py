@@ -55,3 +55,34 @@ def _poses(t: NDArray, steady: bool, field: NDArray) -> Rotation:
     sin = np.linalg.norm(axis, axis=1, keepdims=True)
     angle = np.arctan2(sin[:, 0], seen @ north)
     return Rotation.from_rotvec(axis / np.maximum(sin, 1e-12) * angle[:, None]).inv()  # NED → body, inverted
+
+
+def simulator_fields(motion: str, t_s: NDArray, speed: float, field_ned: NDArray,
+                     vector_ned: NDArray | None = None) -> NDArray:
+    """The Earth field ``field_ned`` (or another NED vector, e.g. gravity, ``vector_ned``) in the body
+    of a unit moved as the simulated flight controllers move it (``tumble``, ``gimbal`` … at
+    ``speed``; their path is drawn for that field), at each time ``t_s`` (seconds).
+
+    Why here: the agreement, early-stop and drift benchmarks and their tests must see the simulators'
+    own motion, pitch steps and all, not a look-alike."""
+    from magline.plugins.mock.sim.magnetometers import attitude
+
+    field = np.asarray(field_ned, float)
+    seen = field if vector_ned is None else np.asarray(vector_ned, float)
+    return np.array([attitude(motion, t, speed, field).inv().apply(seen) for t in np.atleast_1d(t_s)])
+
+
+def compass_pair(rng: np.random.Generator, *, motion: str, speed: float, lag_s: float, seconds: float,
+                 noise_ut: float = 0.5, turn_deg: float = 0.0, field_ut: float = 48.0, inclination_deg: float = 63.0):
+    """Two calibrated 10 Hz compasses on a unit moved as a simulator moves it, the second read
+    ``lag_s`` after the first (each stamped at its own instant) and turned ``turn_deg`` about the
+    body's Z: ``(a, t_a_ms, b, t_b_ms, (t_imu_ms, accel_mss))`` with a 200 Hz accelerometer."""
+    field = earth_field_ned(field_ut, inclination_deg)
+    t_a = np.arange(0.1, seconds, 0.1) + rng.uniform(0.0, 0.1)
+    t_b, t_imu = t_a + lag_s, np.arange(0.0, seconds + 0.3, 0.005)
+    turn = Rotation.from_euler("Z", turn_deg, degrees=True).as_matrix()
+    a = simulator_fields(motion, t_a, speed, field)
+    b = simulator_fields(motion, t_b, speed, field) @ turn.T
+    accel = simulator_fields(motion, t_imu, speed, field, np.array([0.0, 0.0, -GRAVITY_MSS]))
+    return (a + rng.normal(0.0, noise_ut, a.shape), t_a * 1000.0, b + rng.normal(0.0, noise_ut, b.shape),
+            t_b * 1000.0, (t_imu * 1000.0, accel))
