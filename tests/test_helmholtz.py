@@ -108,6 +108,8 @@ def test_a_coil_unit_leaves_the_schedule_once_its_calibration_is_determined(tmp_
     assert first.stopped == "determined" and len(first.raw) < len(whole.raw)
     assert settings_early < settings_full
     assert first.coverage >= cfg["acquisition"]["coverage_target"]  # the share of the directions applied
+    coverage = next(m for m in early.measurements if m.name == "coverage")
+    assert coverage.value == pytest.approx(first.coverage) and coverage.value < 1.0  # what the progress showed
     predicted = first.predicted[""]
     assert predicted["direction_sigma_deg"] <= 0.7 * 0.5 and predicted["hard_iron_sigma_ut"] <= 0.7 * 0.5
     final = next(m for m in early.measurements if m.name == "hard_iron_sigma_ut")

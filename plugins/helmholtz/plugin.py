@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import time
 from contextlib import closing
+from dataclasses import replace
 
 import numpy as np
 
@@ -23,7 +24,7 @@ from magline.core.plugins import hookimpl
 from magline.core.sequencer.context import Acquisition, RunContext
 from magline.core.tumble_stop import stop_rule
 from magline.plugins.helmholtz.options import HelmholtzOptions
-from magline.plugins.helmholtz.source import HelmholtzField, create_helmholtz_field, schedule
+from magline.plugins.helmholtz.source import HelmholtzField, applied_share, create_helmholtz_field, schedule
 
 
 @hookimpl
@@ -47,7 +48,6 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition | None:
     opts = source.opts
     cfg = run.station.acquisition
     steps = schedule(opts)
-    directions = int(np.sum(np.linalg.norm(steps, axis=1) > 0)) or 1
     rule = stop_rule(run) if cfg.stop == "determined" else None
     if source.shift_report:  # the shift checks' figures travel with the unit that triggered them
         run.log("coil shift checks: " + ", ".join(f"{k} {v}" for k, v in source.shift_report.items()))
@@ -56,7 +56,7 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition | None:
     mags, times, applied = [], [], []
     dut = run.require_dut()
     slot = run.slot or ""
-    reason, predicted, applied_directions = "samples", {}, 0
+    reason, predicted, share = "samples", {}, 0.0
     # every unit in the coil (one per slot) steps through the same schedule: each vector applied once
     with run.shared_motion() as round_number, closing(dut.samples(cfg.rate_hz)) as stream:
         members = run.rounds.members if run.rounds is not None else [slot]
@@ -79,8 +79,7 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition | None:
                     times.append(np.atleast_1d(chunk.t_ms)[: len(take)])
                     applied.append(np.tile(vector, (len(take), 1)))
                     got += len(take)
-                applied_directions += bool(np.linalg.norm(vector) > 0)
-                share = applied_directions / directions
+                share = applied_share(np.vstack(applied), steps)
                 readings = sum(len(m) for m in mags)
                 run.progress(attempt, readings, share, cfg.coverage_target)
                 if rule is not None and share >= cfg.coverage_target and readings >= rule.min_samples:
@@ -91,7 +90,7 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition | None:
         finally:
             shared.leave(slot)  # the last unit out sets the field to zero
     samples = RawSamples(mag_ut=np.vstack(mags), t_ms=np.concatenate(times), applied_ut=np.vstack(applied))
-    result = Acquisition(attempt=attempt, samples=samples, coverage=applied_directions / directions,
+    result = Acquisition(attempt=attempt, samples=samples, coverage=share,
                          target=cfg.coverage_target, stopped=reason, tumble_s=time.monotonic() - started,
                          predicted=predicted)
     run.acquisition_stopped(result)
@@ -113,6 +112,8 @@ def magline_fit(run: RunContext, samples: RawSamples, options: FitOptions) -> Fi
     if samples.applied_ut is None:
         return None
     fit = fit_affine(samples.mag_ut, samples.applied_ut, options.field_ut)
+    if isinstance(run.field_source, HelmholtzField):  # the coverage a coil's schedule gave, as its progress said
+        fit = replace(fit, coverage=applied_share(samples.applied_ut, schedule(run.field_source.opts)))
     run.log(f"misalignment {fit.extra['misalignment_deg']:.3f}° to the coil frame "
             f"(rotation vector {np.round(fit.extra['misalignment_rotvec_deg'], 3).tolist()}°)")
     return fit

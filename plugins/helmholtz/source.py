@@ -38,6 +38,16 @@ def schedule(options: HelmholtzOptions) -> NDArray:
                       * options.field_ut])
 
 
+def applied_share(applied_ut: NDArray, steps: NDArray) -> float:
+    """The share of the schedule's field directions (its non-zero steps) among the applied vectors:
+    a coil unit's coverage, the figure its progress shows and its ``coverage`` measurement keeps."""
+    directions = [s for s in np.asarray(steps, float) if np.linalg.norm(s) > 0]
+    if not directions:
+        return 1.0
+    seen = {tuple(v) for v in np.round(np.asarray(applied_ut, float), 6)}
+    return sum(tuple(d) in seen for d in np.round(np.asarray(directions), 6)) / len(directions)
+
+
 def spread_order(directions: NDArray) -> NDArray:
     """The directions reordered farthest first: each next one the farthest from all before it."""
     left = list(range(len(directions)))
