@@ -187,6 +187,7 @@ def test_a_good_three_compass_ardupilot_unit_passes_with_every_compass_calibrate
         for plot in ('id="residual"', 'id="residual-mag2"', 'id="residual-mag3"'):
             assert plot in page
         assert "Residual — compass 2" in page and "heading agreement" in page
+        assert "relation fitted to " in page and " paired readings)" in page
         # the export has a column per sensor's measurement and per pair
         from magline.core.cli import main
 

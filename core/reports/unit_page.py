@@ -98,7 +98,9 @@ def _mounting(run: dict[str, Any]) -> str:
             rows.append([key, f"orientation {v['found']} (configured {v['configured']})",
                          f"{v['from_nearest_deg']:.2f}° ± {v['sigma_deg']:.2f}°", f"{v['inclination_deg']:.2f}°"])
         else:
-            rows.append([key, "heading agreement", f"median {v['median_deg']:.2f}°, max {v['max_deg']:.2f}°", ""])
+            fitted = f" (relation fitted to {v['used']} of {v['pairs']} paired readings)" if "used" in v else ""
+            rows.append([key, "heading agreement",
+                         f"median {v['median_deg']:.2f}°, max {v['max_deg']:.2f}°{fitted}", ""])
     return "<h2>Mounting</h2>" + table(["sensor / pair", "found", "misalignment", "inclination"], rows)
 
 
