@@ -119,6 +119,20 @@ def test_a_coil_unit_leaves_the_schedule_once_its_calibration_is_determined(tmp_
     assert any("determined after" in line for phase in early.phases for line in phase.log)
 
 
+def test_a_coil_unit_does_not_leave_before_the_stations_coverage_limit(tmp_path):
+    """A ``coverage`` limit above the target holds the unit in the schedule until it is met, as it
+    holds a tumble: leaving at the target would FAIL a good unit on its own coverage."""
+    with Cell() as cell:
+        path = cell.station(tmp_path)
+        cfg = yaml.safe_load(path.read_text(encoding="utf-8"))
+        cfg["limits"]["coverage"] = {"ge": 0.8}
+        path.write_text(yaml.safe_dump(cfg, sort_keys=False), encoding="utf-8")
+        record = run_unit(path)
+    assert record.verdict is Outcome.PASS, record.cause
+    attempt = record.attempts[-1]
+    assert attempt.stopped == "determined" and 0.8 <= attempt.coverage < 1.0
+
+
 def test_the_coil_operator_is_told_it_is_determined_not_to_stop_moving(tmp_path, capsys):
     with Cell() as cell:
         code = main(["run", str(cell.station(tmp_path)), "--serial", "COIL-SAY"])

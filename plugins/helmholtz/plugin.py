@@ -83,7 +83,7 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition | None:
                 readings = sum(len(m) for m in mags)
                 run.progress(attempt, readings, share, cfg.coverage_target)
                 if rule is not None and share >= cfg.coverage_target and readings >= rule.min_samples:
-                    figures = _determined(rule, np.vstack(mags), np.vstack(applied), opts.field_ut)
+                    figures = _determined(rule, np.vstack(mags), np.vstack(applied), opts.field_ut, share)
                     if figures is not None:
                         reason, predicted = "determined", figures
                         break
@@ -97,14 +97,15 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition | None:
     return result
 
 
-def _determined(rule: StopRule, mag_ut: np.ndarray, applied_ut: np.ndarray,
-                field_ut: float) -> dict[str, dict[str, float]] | None:
-    """The rule's predicted figures once the readings so far determine the calibration, else None."""
+def _determined(rule: StopRule, mag_ut: np.ndarray, applied_ut: np.ndarray, field_ut: float,
+                share: float) -> dict[str, dict[str, float]] | None:
+    """The rule's predicted figures once the readings so far determine the calibration, else None
+    (judged with the schedule's share as the coverage, so a station's ``coverage`` limit holds too)."""
     try:
         fit = fit_affine(mag_ut, applied_ut, field_ut)
     except FitRefused:
         return None
-    return rule.judge({"": fit})
+    return rule.judge({"": replace(fit, coverage=share)})
 
 
 @hookimpl
