@@ -19,7 +19,7 @@ from magline.core.plugins import hookimpl
 from magline.core.record import Outcome, PhaseResult, RunRecord
 from magline.core.sequencer.batch import Batch
 from magline.core.sequencer.context import RunContext
-from magline.core.text import fmt, percent, seconds, stop_line, unit_is_moved
+from magline.core.text import fmt, percent, seconds, stop_line
 
 MARK = {Verdict.PASS: "✓", Verdict.FAIL: "✗", Verdict.REVIEW: "!", Verdict.INFO: "·"}
 WAIT_EVERY_S = 5  # plain-text consoles print a countdown line this often
@@ -104,7 +104,7 @@ class OperatorConsole:
     @hookimpl
     def magline_acquisition_stopped(self, run: RunContext, attempt: int, reason: str, after_s: float,
                                     readings: int) -> None:
-        line = stop_line(reason, after_s, readings, unit_is_moved(run))
+        line = stop_line(reason, after_s, readings, run.unit_moves)
         if run.slot is not None:
             return self.slots.note(run, line)
         self._stop_progress()

@@ -52,8 +52,3 @@ def stop_line(reason: str, after_s: float, readings: int, moved: bool = True) ->
     if reason == "samples":
         return f"tumble complete: {readings} readings in {after_s:.0f} s"
     return f"the stream ended after {readings} readings"
-
-
-def unit_is_moved(run: object) -> bool:
-    """Whether the station turns the unit (a tumble) or the field (a coil's ``moves_unit = False``)."""
-    return bool(getattr(getattr(run, "field_source", None), "moves_unit", True))

@@ -22,7 +22,7 @@ from magline.core.record import PhaseResult, RunRecord
 from magline.core.screen.sides import SIDES, missing_sides
 from magline.core.sequencer.batch import Batch
 from magline.core.sequencer.sequencer import PHASES
-from magline.core.text import fmt, stop_line, unit_is_moved
+from magline.core.text import fmt, stop_line
 
 RECENT = 12  # units listed on the screen
 
@@ -136,9 +136,9 @@ class ScreenState:
         with self._lock:
             current = self._run_of(run)
             if current is not None:
+                line = stop_line(reason, after_s, readings, run.unit_moves)
                 current["stopped"] = {"attempt": attempt, "reason": reason, "after_s": round(after_s, 1),
-                                      "readings": readings, "line": stop_line(reason, after_s, readings,
-                                                                                   unit_is_moved(run))}
+                                      "readings": readings, "line": line}
                 self._changed()
 
     @hookimpl

@@ -188,6 +188,12 @@ class RunContext:
                           coverage_bins=acq.coverage_bins, gain_sigma=self.station.fit.gain_sigma,
                           max_direction_sigma_deg=bound)
 
+    @property
+    def unit_moves(self) -> bool:
+        """Whether the station turns the unit (a tumble) or the field round it (a field source with
+        ``moves_unit = False``, a coil): what the operator is told when the acquisition ends."""
+        return bool(getattr(self.field_source, "moves_unit", True))
+
     def sensor_prefix(self, device_id: int) -> str:
         """The measurement-name prefix of a sensor: ``""`` for the primary, ``mag2.`` for the second…"""
         ids = [m.device_id for m in self.magnetometers]
