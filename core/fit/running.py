@@ -31,8 +31,10 @@ PREDICTED: dict[str, Callable[[FitResult], float]] = {
 
 @dataclass(frozen=True)
 class StopRule:
-    """When a tumble has determined the calibration: every sensor's coverage at its target, and each
-    predicted σ at most ``margin`` × its limit, after at least ``min_samples`` readings.
+    """When a tumble has determined the calibration: every sensor's coverage at its target, each
+    predicted σ at most ``margin`` × its limit, and its warm-up drift test able to judge (on a sweep
+    that has not yet turned back, a drift is indistinguishable from soft iron), after at least
+    ``min_samples`` readings.
 
     ``limits``: per sensor (its measurement prefix, ``""`` for the primary, ``mag2.``…) the upper
     limit of each of :data:`PREDICTED` the station holds for it; ``coverage``: per sensor, the
@@ -53,6 +55,8 @@ class StopRule:
         for sensor, fit in fits.items():
             if fit.coverage < max(self.coverage_target, self.coverage.get(sensor, 0.0)):
                 return None
+            if fit.drift is not None and not fit.drift.get("judged", True):
+                return None  # a warm-up drift could not yet be told from the calibration
             figures = {name: read(fit) for name, read in PREDICTED.items()}
             if any(not figures[name] <= target for name, target in self.targets(sensor).items()):
                 return None
