@@ -105,15 +105,8 @@ def honesty(units: list, margin: float) -> tuple[list[int], int, list[float], in
     return stops, exceed, heading, refused
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--units", type=int, default=1000)
-    parser.add_argument("--seed", type=int, default=27)
-    parser.add_argument("--sim-units", type=int, default=1000, help="units as the simulators stream them")
-    parser.add_argument("--margins", type=float, nargs="+", default=[0.7, 0.35, 0.2, 0.12],
-                        help="sigma_margin values to compare (0.7: the default)")
-    args = parser.parse_args()
-    rng = np.random.default_rng(args.seed)
+def synthetic(args, rng: np.random.Generator) -> None:
+    """The synthetic units' section: every margin against the fixed 600 readings."""
     units = []
     for unit in range(args.units):
         truth = random_truth(rng)
@@ -134,6 +127,19 @@ def main() -> None:
               f"({exceed / len(stops):.2%}); "
               f"p95 heading {p95:.3f}° ({p95 / p95_fixed - 1:+.0%}){f'; {refused} refused' if refused else ''}",
               flush=True)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--units", type=int, default=1000)
+    parser.add_argument("--seed", type=int, default=27)
+    parser.add_argument("--sim-units", type=int, default=1000, help="units as the simulators stream them")
+    parser.add_argument("--margins", type=float, nargs="+", default=[0.7, 0.35, 0.2, 0.12],
+                        help="sigma_margin values to compare (0.7: the default)")
+    args = parser.parse_args()
+    rng = np.random.default_rng(args.seed)
+    if args.units:  # --units 0: the simulated units alone
+        synthetic(args, rng)
     if args.sim_units:
         sims = [simulator_unit(rng) for _ in range(args.sim_units)]
         stops, exceed, heading, refused = honesty(sims, 0.7)
