@@ -171,13 +171,14 @@ def fault_units(count: int, rng: np.random.Generator) -> None:
                         record = seq.run_unit(f"F-{case.name}-{i}")
                     finally:
                         seq.close()
-                got[str(record.verdict)] += 1
+                missed = case.missed(record)  # a PASS must also have left what the fault must leave
+                got[str(record.verdict) if missed is None else "missed"] += 1
                 worded += case.words in record.cause
-                if str(record.verdict) != case.outcome:
-                    print(f"   {record.serial}: {str(record.verdict).upper()} {record.cause[:200]}")
-            right = got[case.outcome]
+                if str(record.verdict) != case.outcome or missed:
+                    print(f"   {record.serial}: {str(record.verdict).upper()} {missed or record.cause[:200]}")
+            right, missed = got[case.outcome], f" / missed {got['missed']}" if got["missed"] else ""
             print(f"   {case.name:<19} {case.outcome.upper():<5} → PASS {got['pass']} / FAIL {got['fail']} / ERROR "
-                  f"{got['error']}: {right} of {count} right ({100.0 * right / count:.1f} %), words {worded} "
+                  f"{got['error']}{missed}: {right} of {count} right ({100.0 * right / count:.1f} %), words {worded} "
                   f"({time.monotonic() - started:.0f} s)")
 
 

@@ -74,6 +74,7 @@ def test_each_simulator_fault_is_classified(tmp_path, case):
         record = run_unit(write_station("ardupilot-sim.yaml", tmp_path, sim.address, options), "SN-F")
     assert record.verdict is outcome, record.cause
     assert words in record.cause
+    assert case.missed(record) is None, case.missed(record)
     assert stored_attempts(tmp_path / "results.sqlite", "SN-F")  # raw data kept on every path
     if outcome is Outcome.ERROR and "unverified" in words:
         assert record.unverified_params and all(n.startswith("COMPASS_") for n in record.unverified_params)

@@ -2,7 +2,8 @@
 
 Each is something a real line has seen: a lossy link, a write the firmware ignores, storage
 that does not keep a value, a board that boots slowly or not at all, a link that dies in the
-middle of an acquisition, a sensor gone after reboot, a second sensor enumerated first.
+middle of an acquisition, a sensor gone after reboot, a second sensor enumerated first, compass
+offsets that settle while the board warms after power-on.
 """
 
 from __future__ import annotations
@@ -25,6 +26,9 @@ class SimFaults:
     mag_mounting: list[str] = field(default_factory=list)
     # "N:DEG": magnetometer N is turned DEG degrees about the body's Z axis (two compasses disagree)
     mag_yaw_error: list[str] = field(default_factory=list)
+    # "UT:TAU_S": every compass's offset starts UT µT from its settled value at each boot and settles
+    # with time constant TAU_S as the board warms (a real board's sensors drift with temperature)
+    mag_warmup: str = ""
 
     @classmethod
     def parse(cls, items: list[str]) -> SimFaults:
@@ -41,11 +45,20 @@ class SimFaults:
                 setattr(faults, name, value.lower() not in ("0", "false", "no"))
             elif isinstance(current, list):
                 setattr(faults, name, [v.strip() for v in value.split(",") if v.strip()])
+            elif isinstance(current, str):
+                setattr(faults, name, value.strip())
             elif name == "mag_missing_after_reboot":
                 setattr(faults, name, int(value))
             else:
                 setattr(faults, name, float(value))
         return faults
+
+    def warmup(self) -> tuple[float, float] | None:
+        """(µT, time constant s) of the compasses' warm-up after boot, or None."""
+        if not self.mag_warmup:
+            return None
+        size, _, tau = self.mag_warmup.partition(":")
+        return float(size), float(tau or 3.0)
 
     def mountings(self) -> dict[int, tuple[int, float]]:
         """Sensor index (0-based) → (orientation value, yaw error in degrees) from the mounting faults."""

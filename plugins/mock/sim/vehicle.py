@@ -418,10 +418,21 @@ class SimulatedAutopilot(ABC):
         period = 1.0 / self.sensor_rate_hz(sensor)
         due, reading = self._held.get(sensor.device_id, (now, None))
         if reading is None or now >= due:
-            reading = sensor.read_ut(self.body_field_ut(now), self.rng)
+            reading = sensor.read_ut(self.body_field_ut(now), self.rng) + self.warmup_offset_ut(now)
             due = due + period if now - due < period else now + period
             self._held[sensor.device_id] = (due, reading)
         return reading
+
+    # the direction in which a warming board's compass offsets move (fault ``mag_warmup``)
+    WARMUP_DIRECTION = np.array([0.64, -0.48, 0.6]) / np.linalg.norm([0.64, -0.48, 0.6])
+
+    def warmup_offset_ut(self, now: float) -> NDArray:
+        """How far the compasses' offset still is from its settled value, ``now`` after the last boot."""
+        warmup = self.faults.warmup()
+        if warmup is None:
+            return np.zeros(3)
+        size, tau_s = warmup
+        return self.WARMUP_DIRECTION * size * np.exp(-(now - self._booted_at) / tau_s)
 
     def raw_reading_ut(self, index: int, now: float) -> tuple[SimMagnetometer, NDArray] | None:
         if index >= len(self.detected):
