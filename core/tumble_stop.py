@@ -53,7 +53,8 @@ def stop_rule(run: RunContext) -> StopRule:
         own["direction_sigma_deg"] = min(own.get("direction_sigma_deg", refusal), refusal)
         limits[prefix] = own
     return StopRule(min_samples=cfg.min_samples, coverage_target=cfg.coverage_target,
-                    margin=cfg.sigma_margin, limits=limits, coverage=coverage)
+                    margin=cfg.sigma_margin, limits=limits, coverage=coverage,
+                    wait_for_drift_test=cfg.wait_for_drift_test)
 
 
 def _sensors(run: RunContext) -> dict:

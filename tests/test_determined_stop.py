@@ -168,6 +168,24 @@ def test_the_fit_refuses_above_each_sensors_own_sigma_limit(make_station, tmp_pa
     assert run.fit_options(run.magnetometers[0]).max_direction_sigma_deg == 0.8  # the fit's own bound
 
 
+def test_the_station_says_whether_the_stop_waits_for_the_drift_test(make_station, tmp_path):
+    """Waiting for a judgeable drift is the default; a line of warm units turns it off in its file."""
+    from magline.core.record import RunRecord
+    from magline.core.sequencer.context import RunContext
+    from magline.core.tumble_stop import stop_rule
+
+    def rule(overrides, name):
+        station = load_station(make_station(overrides, name=name))
+        record = RunRecord(serial="SN-W", part="MOCK-100", station_id="t", line="t", operator="",
+                           software_version="t", limit_hash="t")
+        return stop_rule(RunContext(station=station, station_dir=tmp_path, part="MOCK-100",
+                                    product=station.products["MOCK-100"], serial="SN-W", operator="",
+                                    plugins=load_plugins(), record=record, limits=station.effective_limits("MOCK-100")))
+
+    assert rule({}, "default.yaml").wait_for_drift_test is True
+    assert rule({"acquisition": {"wait_for_drift_test": False}}, "warm.yaml").wait_for_drift_test is False
+
+
 def test_min_samples_above_samples_is_a_check_error_at_its_line(make_station):
     station = make_station({"acquisition": {"min_samples": 700}})
     with pytest.raises(StationError) as err:

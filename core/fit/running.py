@@ -38,13 +38,15 @@ class StopRule:
 
     ``limits``: per sensor (its measurement prefix, ``""`` for the primary, ``mag2.``…) the upper
     limit of each of :data:`PREDICTED` the station holds for it; ``coverage``: per sensor, the
-    coverage it needs where more than ``coverage_target`` (a ``coverage`` limit of the station)."""
+    coverage it needs where more than ``coverage_target`` (a ``coverage`` limit of the station);
+    ``wait_for_drift_test``: False stops without the drift test's judgement (a line of warm units)."""
 
     min_samples: int
     coverage_target: float
     margin: float
     limits: Mapping[str, Mapping[str, float]]
     coverage: Mapping[str, float] = field(default_factory=dict)
+    wait_for_drift_test: bool = True
 
     def targets(self, sensor: str) -> dict[str, float]:
         return {name: self.margin * limit for name, limit in self.limits.get(sensor, {}).items()}
@@ -55,7 +57,7 @@ class StopRule:
         for sensor, fit in fits.items():
             if fit.coverage < max(self.coverage_target, self.coverage.get(sensor, 0.0)):
                 return None
-            if fit.drift is not None and not fit.drift.get("judged", True):
+            if self.wait_for_drift_test and fit.drift is not None and not fit.drift.get("judged", True):
                 return None  # a warm-up drift could not yet be told from the calibration
             figures = {name: read(fit) for name, read in PREDICTED.items()}
             if any(not figures[name] <= target for name, target in self.targets(sensor).items()):

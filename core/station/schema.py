@@ -178,11 +178,15 @@ class Acquisition(_Strict):
     ``stop: determined`` (the default) ends the tumble as soon as every magnetometer's coverage is at
     ``coverage_target`` and the running fit's predicted σ (heading, offset) are at most
     ``sigma_margin`` × the station's limits for them, never before ``min_samples`` readings;
-    ``samples`` is then the most it takes.  ``stop: samples`` always reads ``samples`` readings."""
+    ``samples`` is then the most it takes.  ``stop: samples`` always reads ``samples`` readings.
+    ``wait_for_drift_test`` (default true): a determined tumble also waits until the fit's warm-up
+    drift test can judge its readings (on an even sweep, not before it turns back); false for a line
+    whose units are warm before they are calibrated, which saves up to half a sweep."""
 
     stop: Literal["determined", "samples"] = "determined"
     min_samples: Annotated[int, Field(ge=12)] = 100
     sigma_margin: Annotated[float, Field(gt=0, le=1)] = 0.7
+    wait_for_drift_test: bool = True
     samples: Annotated[int, Field(ge=12)] = 600
     rate_hz: Annotated[float, Field(gt=0, le=1000)] = 50.0
     coverage_bins: Annotated[int, Field(ge=4, le=10000)] = 100
