@@ -109,8 +109,7 @@ def test_a_drift_the_readings_cannot_tell_from_soft_iron_is_not_judged_until_the
     across = _fit(*_sim_tumble(rng, seconds=12.0, start_s=1.0))
     assert across.drift["judged"] is True and across.drift["separation"] >= 5.0
     warm = _fit(*_sim_tumble(rng, seconds=12.0, start_s=1.0, drift_ut=(4.0, -3.0, 2.0)))
-    assert warm.drift["judged"] is True
-    assert warm.drift["statistic"] > warm.drift["threshold"]
+    assert warm.drift["judged"] is True  # and caught: its earliest readings set aside, or the drift modelled
     assert warm.drift["modelled"] or warm.rejected.get("warm_up", 0) > 0
 
 
