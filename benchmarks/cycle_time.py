@@ -8,6 +8,8 @@ simulators' shipped defaults (boot time, sensor rate), real MAVLink on loopback.
   same four boards calibrated one slot at a time.
 
 Goals of the issue: ArduPilot unit ≤ 25 s, PX4 unit ≤ 10 s, demo unit ≤ 4 s, four slots ≥ 3.5 × one.
+Each is run ``stop: samples``, ``stop: determined`` and ``warm`` (determined with
+``wait_for_drift_test: false``: what a line of units warm before calibration may choose).
 
     python benchmarks/cycle_time.py [--units 3] [--loads 1] [--only demo px4 ardupilot slots]
 """
@@ -34,7 +36,10 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).parent))
 from slots import BOARDS, start, start_fixture, station_file  # noqa: E402  (the slots benchmark's four-board fixture)
 
-STOPS = ("samples", "determined")
+# each mode's acquisition settings; "warm": determined, without waiting for the drift test (a line whose
+# units are warm before calibration, issue 28)
+STOPS = {"samples": {"stop": "samples"}, "determined": {"stop": "determined"},
+         "warm": {"stop": "determined", "wait_for_drift_test": False}}
 GOALS_S = {"demo": 4.0, "px4": 10.0, "ardupilot": 25.0}
 SLOT_SPEEDUP_GOAL = 3.5
 
@@ -69,7 +74,7 @@ class Figures:
 
 
 def write(cfg: dict, path: Path, stop: str) -> Path:
-    cfg["acquisition"]["stop"] = stop
+    cfg["acquisition"].update(STOPS[stop])
     cfg.setdefault("review", {})["enabled"] = False
     path.write_text(yaml.safe_dump(cfg, sort_keys=False), encoding="utf-8")
     return path
@@ -116,7 +121,7 @@ def slots(work: Path, stop: str, loads: int) -> tuple[float, float, list[RunReco
         gimbal, addresses = start_fixture(work / stop, procs)
 
         def station(chosen: list[str]) -> Path:  # the shipped slot station, stopping as ``stop`` says
-            return station_file(work, addresses, gimbal, chosen, acquisition={"stop": stop}, tag=f"-{stop}")
+            return station_file(work, addresses, gimbal, chosen, acquisition=STOPS[stop], tag=f"-{stop}")
 
         def run(path: Path, loads_: list[dict[str, str]]) -> tuple[float, list[RunRecord]]:
             seq = Sequencer(load_station(path), load_plugins(), path.parent)
@@ -164,16 +169,17 @@ def main() -> None:
                 passed = sum(str(r.verdict) == "pass" for r in records)
                 print(f"four slots {stop:<10} {passed}/{len(records)} pass  one slot {units / one_s * 3600:5.0f} "
                       f"units/h, four slots {units / four_s * 3600:5.0f} units/h: {one_s / four_s:.1f}×", flush=True)
-    print("goals (stop: determined, shipped station files):")
-    for name, goal in GOALS_S.items():
-        if (name, "determined") not in medians:
-            continue
-        got = medians[name, "determined"]
-        print(f"  {name:<10} unit ≤ {goal:g} s: {got:.1f} s {'met' if got <= goal else 'NOT MET'}")
-    if speedups:
-        got = speedups["determined"]
-        verdict = "met" if got >= SLOT_SPEEDUP_GOAL else "NOT MET"
-        print(f"  four slots ≥ {SLOT_SPEEDUP_GOAL}× one slot: {got:.1f}× {verdict}")
+    for mode in ("determined", "warm"):
+        print(f"goals ({mode}, shipped station files):")
+        for name, goal in GOALS_S.items():
+            if (name, mode) not in medians:
+                continue
+            got = medians[name, mode]
+            print(f"  {name:<10} unit ≤ {goal:g} s: {got:.1f} s {'met' if got <= goal else 'NOT MET'}")
+        if mode in speedups:
+            got = speedups[mode]
+            verdict = "met" if got >= SLOT_SPEEDUP_GOAL else "NOT MET"
+            print(f"  four slots ≥ {SLOT_SPEEDUP_GOAL}× one slot: {got:.1f}× {verdict}")
 
 
 if __name__ == "__main__":
