@@ -145,7 +145,7 @@ def sim_units(flavour: str, count: int, rng: np.random.Generator) -> None:
     _tally(flavour, records, started)
 
 
-def fault_units(count: int, rng: np.random.Generator) -> None:
+def fault_units(count: int, rng: np.random.Generator, names: list[str] | None = None) -> None:
     """The other side: every simulator fault of ``magline.testing.faults`` run ``count`` times across
     seeds on the simulated ArduPilot; printed: how often it was classified as the table says."""
     from magline.plugins.mock.sim import SimFaults, create_sim
@@ -154,7 +154,7 @@ def fault_units(count: int, rng: np.random.Generator) -> None:
     print(f"faults ({count} runs each, simulated ArduPilot): expected → PASS / FAIL / ERROR, cause words found")
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
-        for case in ARDUPILOT_FAULTS:
+        for case in [c for c in ARDUPILOT_FAULTS if names is None or c.name in names]:
             started, got, worded = time.monotonic(), collections.Counter(), 0
             for i in range(count):
                 fc = work / f"{case.name}-{i}"
@@ -187,6 +187,7 @@ def main() -> None:
     parser.add_argument("--mock", type=int, default=1000)
     parser.add_argument("--sim", type=int, default=100)
     parser.add_argument("--faults", type=int, default=0, help="runs of each simulator fault (0: none)")
+    parser.add_argument("--fault-names", nargs="+", default=None, help="only these rows of the fault table")
     parser.add_argument("--seed", type=int, default=28)
     parser.add_argument("--backends", nargs="+", choices=["px4", "ardupilot"], default=["px4", "ardupilot"],
                         help="the simulators --sim runs on")
@@ -198,7 +199,7 @@ def main() -> None:
         if args.sim:
             sim_units(flavour, args.sim, rng)
     if args.faults:
-        fault_units(args.faults, rng)
+        fault_units(args.faults, rng, args.fault_names)
     sys.stdout.flush()
 
 
