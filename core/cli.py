@@ -418,6 +418,8 @@ def _fit_summary(doc: dict) -> str:
     ]
     if doc["raw_to_reference_ratio"] is not None:
         lines.append(f"raw/ref      {doc['raw_to_reference_ratio']:.4f}")
+    if doc.get("drift"):
+        lines.append(f"warm-up      {_drift_words(doc['drift'])}")
     if doc.get("model_misfit"):
         mis = doc["model_misfit"]
         lines.append(f"WARNING      the soft iron is not axis-aligned: the {mis['model']} model leaves "
@@ -425,6 +427,21 @@ def _fit_summary(doc: dict) -> str:
                      f"costs up to {mis['direction_error_deg']:.2f}° of heading; use --model full if the "
                      "autopilot holds a full matrix")
     return "\n".join(lines)
+
+
+def _drift_words(drift: dict) -> str:
+    """What the fit's warm-up drift test decided, in a line: a quality engineer must tell "no drift"
+    from "could not judge"."""
+    if not drift.get("judged", True):
+        return (f"not judged: these readings cannot tell an offset drift from soft iron (separation "
+                f"{drift.get('separation', 0.0):.1f}; tumble on past the sweep's turn)")
+    if drift.get("modelled"):
+        return "a drift throughout: modelled, the offset given is the end state"
+    if drift.get("warm_up_excluded"):
+        return f"drift at the start: the first {drift['warm_up_excluded']} readings set aside"
+    if drift.get("statistic") is None:
+        return "not judged"
+    return f"no drift (statistic {drift['statistic']:.1f} ≤ {drift['threshold']:.1f})"
 
 
 def _plugins(args: argparse.Namespace, plugins: Plugins) -> int:

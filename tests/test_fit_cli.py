@@ -44,6 +44,20 @@ def test_fit_summary_is_readable(tmp_path, capsys):
     assert main(["fit", str(tmp_path / "raw.csv"), "--model", "full"]) == 0
     out = capsys.readouterr().out
     assert "hard iron" in out and "µT" in out and "full" in out
+    assert "warm-up      no drift (statistic" in out  # the readings carry time: the drift test's decision
+
+
+def test_fit_summary_says_when_the_drift_could_not_be_judged(tmp_path, capsys):
+    """On half a sweep of the simulators' even tumble a drift is a soft-iron change: said, not hidden."""
+    from magline.core.synthetic.imu import simulator_fields
+
+    rng = np.random.default_rng(sum(map(ord, "drift not judged summary")))
+    t = 1.0 + np.arange(300) / 50.0
+    m = random_truth(rng).read(simulator_fields("tumble", t, 1.0, earth_field_ned(48.0, 63.0)), rng)
+    (tmp_path / "half.csv").write_text(format_samples(RawSamples(mag_ut=m, t_ms=t * 1000.0)), encoding="utf-8")
+    assert main(["fit", str(tmp_path / "half.csv"), "--field-ut", "48"]) == 0
+    out = capsys.readouterr().out
+    assert "warm-up      not judged: these readings cannot tell an offset drift from soft iron" in out
 
 
 def test_fit_refuses_single_axis_with_advice(tmp_path, capsys):
