@@ -25,6 +25,7 @@ import numpy as np
 from scipy.stats import f as f_distribution
 
 from magline.core.fit import coverage_of
+from magline.core.readings import untruncate_mg
 from magline.core.synthetic import random_truth
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -45,7 +46,7 @@ def statistics(motion: str, units: int, readings: int, rng: np.random.Generator,
         speed, rate = float(rng.uniform(0.5, 2.0)), float(rng.choice([10.0, 25.0, 50.0]))
         t = np.arange(readings) / rate + rng.uniform(0.0, 16.0)
         m = truth.read(simulator_fields(motion, t, speed, field_ned), rng)
-        m = np.trunc(m * 10.0) / 10.0 + 0.05 * np.sign(m)  # int16 mG toward zero, the half quantum back
+        m = untruncate_mg(np.trunc(m * 10.0)) / 10.0  # the firmware's int16 mG, undone as the backends do
         if shuffled:
             m = m[rng.permutation(len(m))]
         if coverage_of(m, BINS) < TARGET:
