@@ -233,9 +233,7 @@ def _too_slow(got: _Readings, wanted: int, timeout_s: float, elapsed_s: float) -
         return f"no readings within {timeout_s:g} s"
     # The sensor's rate from its own time stamps: the wall clock also counts the stream's start and
     # however busy this machine is; a unit's clock counts only the sensor.
-    t_ms = got.samples().t_ms
-    rate = (got.seen - 1) / ((t_ms[-1] - t_ms[0]) / 1000.0) if len(t_ms) > 1 and np.all(np.isfinite(t_ms)) \
-        and t_ms[-1] > t_ms[0] else got.count / elapsed_s
+    rate = _rate_hz(got.samples().t_ms) or got.count / elapsed_s
     copies = f"; the stream carried each about {(got.count + got.repeats) / got.count:.0f} times" \
         if got.repeats else ""
     return (f"only {got.count} of {wanted} readings within {timeout_s:g} s: the sensor delivers about "
