@@ -74,7 +74,10 @@ def test_coil_station_recovers_offset_and_full_matrix_with_misalignment(tmp_path
     full = np.array(cal["affine"]["full_matrix"])
     assert np.abs(full - r_true @ s_true).max() < 3e-3  # the full 3×3, rotation included
     assert np.abs(np.array(cal["soft_iron"]) - s_true).max() < 3e-3  # its symmetric part is what the DUT gets
-    assert cal["affine"]["misalignment_deg"] == pytest.approx(np.linalg.norm(MISALIGNMENT), abs=0.1)
+    # within 4 of the calibration's own heading σ (which bounds each axis of its rotation's): a fixed 0.1°
+    # was about 2σ once the determined stop ended the schedule at 17 steps (σ ≈ 0.08°), and failed 1 run in 6
+    sigma_deg = cal["coverage"]["direction_sigma_deg"]
+    assert cal["affine"]["misalignment_deg"] == pytest.approx(np.linalg.norm(MISALIGNMENT), abs=4 * sigma_deg)
     mis = next(m for m in record.measurements if m.name == "misalignment_deg")
     assert mis.verdict.value == "pass" and mis.high == 3.0
 
