@@ -69,6 +69,15 @@ def _failed_rules(record) -> list[str]:
     return sorted({base_name(m.name) for m in verdicts(record.measurements) if m.verdict is Verdict.FAIL})
 
 
+def _why_not_judged(drift: dict, record) -> str:
+    """Why a fit's drift test left no statistic: the readings could not tell a drift from the
+    calibration (and how the acquisition ended), or the drift model's solve was refused."""
+    if drift.get("judged") is False:
+        ends = sorted({a.stopped for a in record.attempts}) or ["?"]
+        return f"not separable (stopped: {'/'.join(str(e) for e in ends)})"
+    return "statistic refused"
+
+
 def _tally(name: str, records: list, started: float) -> None:
     verdicts = collections.Counter(str(r.verdict) for r in records)
     rules = collections.Counter(rule for r in records for rule in _failed_rules(r))
@@ -93,6 +102,11 @@ def _tally(name: str, records: list, started: float) -> None:
             print(f"      {', '.join(fit_figures)}")
     print(f"   false rejects by rule: {', '.join(f'{k} {v}' for k, v in rules.most_common()) or 'none'}; "
           f"wrong orientation found on {wrong} of {compasses} good compasses")
+    unjudged = collections.Counter(_why_not_judged(d, r) for r in records
+                                   for d in [r.calibration.get("drift") if r.calibration else None]
+                                   if d and d.get("statistic") is None)
+    if unjudged:
+        print(f"   drift tests without a statistic: {', '.join(f'{k} {v}' for k, v in unjudged.most_common())}")
     if drift.size:
         from scipy.stats import chi2
 

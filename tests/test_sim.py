@@ -16,6 +16,7 @@ from gcs_client import Gcs, bytewise_float_as_int, int_as_bytewise_float
 from pymavlink import mavutil
 
 from magline.plugins.mock.sim import SimFaults, create_sim
+from magline.plugins.mock.sim.thermal import BoardWarmth
 
 ML = mavutil.mavlink
 INT32, REAL32 = ML.MAV_PARAM_TYPE_INT32, ML.MAV_PARAM_TYPE_REAL32
@@ -346,6 +347,44 @@ def test_power_cut_loses_an_unfinished_save_that_a_reboot_would_keep(tmp_path):
                 gcs.command(ML.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 1)
             time.sleep(1.5)
             assert sim.param("CAL_MAG0_XOFF") == expect
+
+
+def test_board_warmth_rises_while_powered_and_falls_only_without_power():
+    warmth = BoardWarmth(tau_s=2.0, now=10.0)
+    assert warmth.at(10.0) == 0.0 and warmth.at(50.0) == 0.0  # cold and unpowered until switched on
+    warmth.powered(True, 10.0)
+    assert warmth.at(12.0) == pytest.approx(1.0 - math.exp(-1.0))
+    warmth.powered(True, 12.0)  # still on: nothing restarts
+    assert warmth.at(14.0) == pytest.approx(1.0 - math.exp(-2.0))
+    warmth.powered(False, 14.0)
+    assert warmth.at(16.0) == pytest.approx((1.0 - math.exp(-2.0)) * math.exp(-1.0))
+    with pytest.raises(ValueError, match="positive"):
+        BoardWarmth(tau_s=0.0, now=0.0)
+
+
+def test_a_warm_up_goes_on_through_a_reboot_and_comes_back_after_a_power_cut(tmp_path):
+    """The ``mag_warmup`` fault follows the board's temperature: a MAVLink reboot keeps the board
+    powered, so its compasses go on settling; a power cut lets it cool."""
+    with create_sim("ardupilot", "tcp:127.0.0.1:0", workdir=tmp_path, seed=3, boot_time_s=0.2,
+                    faults=SimFaults.parse(["mag_warmup=10:2"])) as sim:
+        def left() -> float:
+            return float(np.linalg.norm(sim.warmup_offset_ut(time.monotonic())))
+
+        assert 0.0 < left() < 10.0
+        gcs = Gcs(sim.address)
+        before, boots = left(), sim.boots
+        assert gcs.command(ML.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 1).result == ML.MAV_RESULT_ACCEPTED
+        gcs.close()
+        deadline = time.monotonic() + 5
+        while sim.boots == boots and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert sim.boots == boots + 1
+        assert left() < before  # the reboot did not start the warm-up again
+        cut = left()
+        sim.power_off()
+        time.sleep(0.3)
+        sim.power_on()
+        assert left() > cut  # it cooled while the power was off
 
 
 # --------------------------------------------------------------------------- MAVSDK as a client

@@ -33,6 +33,7 @@ from magline.core.synthetic import earth_field_ned
 from magline.plugins.mock.sim.faults import SimFaults
 from magline.plugins.mock.sim.magnetometers import SimMagnetometer, attitude, default_magnetometers, driver_rate_hz
 from magline.plugins.mock.sim.params import ParamSpec, ParamTable, ParamValue
+from magline.plugins.mock.sim.thermal import BoardWarmth
 from magline.plugins.mock.sim.transport import open_server
 from magline.plugins.mock.storage import NvStorage
 
@@ -126,6 +127,8 @@ class SimulatedAutopilot(ABC):
         self._mag_stream_started: float | None = None
         self._t0 = time.monotonic()
         self._booted_at = self._t0
+        warmup = self.faults.warmup()
+        self.warmth = BoardWarmth(warmup[1], self._t0) if warmup else None  # fault ``mag_warmup`` only
         self._up_at = 0.0
         self._down_at = 0.0
         self._next_heartbeat = 0.0
@@ -190,6 +193,7 @@ class SimulatedAutopilot(ABC):
         self.link = open_server(self.listen)
         self.listen = self.link.address
         with self.lock:
+            self._supply(True, time.monotonic())
             self._boot(time.monotonic(), first=True)
         self._thread = threading.Thread(target=self._run, name=f"sim-{self.flavour}", daemon=True)
         self._thread.start()
@@ -244,11 +248,18 @@ class SimulatedAutopilot(ABC):
     def _power_off(self) -> None:
         self.on_power_loss()
         self._go_dark(Power.OFF)
+        self._supply(False, time.monotonic())
 
     def _power_on(self) -> None:
         if self.power is Power.OFF:
             self.power = Power.BOOTING
             self._up_at = time.monotonic() + self.boot_time_s
+            self._supply(True, time.monotonic())
+
+    def _supply(self, on: bool, now: float) -> None:
+        """The board's supply went on or off: it warms or cools (a MAVLink reboot does neither)."""
+        if self.warmth is not None:
+            self.warmth.powered(on, now)
 
     def request_reboot(self, delay_s: float) -> None:
         with self.lock:
@@ -427,12 +438,12 @@ class SimulatedAutopilot(ABC):
     WARMUP_DIRECTION = np.array([0.64, -0.48, 0.6]) / np.linalg.norm([0.64, -0.48, 0.6])
 
     def warmup_offset_ut(self, now: float) -> NDArray:
-        """How far the compasses' offset still is from its settled value, ``now`` after the last boot."""
+        """How far the compasses' offset still is from its settled value ``now``: the fault's size
+        times how far the board is from its operating temperature (:class:`BoardWarmth`)."""
         warmup = self.faults.warmup()
-        if warmup is None:
+        if warmup is None or self.warmth is None:
             return np.zeros(3)
-        size, tau_s = warmup
-        return self.WARMUP_DIRECTION * size * np.exp(-(now - self._booted_at) / tau_s)
+        return self.WARMUP_DIRECTION * warmup[0] * (1.0 - self.warmth.at(now))
 
     def raw_reading_ut(self, index: int, now: float) -> tuple[SimMagnetometer, NDArray] | None:
         if index >= len(self.detected):
