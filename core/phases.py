@@ -69,12 +69,15 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
                 now = time.monotonic()
                 tumble_s = now - started
                 if got.count >= cfg.samples:
-                    if running is None or coverage >= running.rule.coverage_target:
+                    if running is None or (coverage >= running.rule.coverage_target
+                                           and not running.awaiting_drift_test):
                         reason = "samples"
                         break
                     # a determined tumble still short of its coverage goes on: a fast sensor fills
                     # the count before a slow hand has turned the unit; every other reading is let go
-                    # (the only ones of a direction kept), so ``samples`` stays the most it holds
+                    # (the only ones of a direction kept), so ``samples`` stays the most it holds.
+                    # So does one whose drift test cannot yet judge (a sweep that has not turned
+                    # back): ended there, a warm-up would be bent into the soft iron unseen
                     got.thin(cfg.coverage_bins)
                 if running is not None:
                     if stall.stalled(seen, coverage):

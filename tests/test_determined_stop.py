@@ -270,3 +270,18 @@ def test_a_determined_tumble_out_of_time_is_judged_on_what_it_holds_never_an_err
     assert record.verdict is not Outcome.ERROR, record.cause
     assert [a.stopped for a in record.attempts] == ["timeout"] * len(record.attempts)
     assert record.verdict is Outcome.FAIL and "coverage" in record.cause
+
+
+def test_a_tumble_at_its_count_before_the_drift_can_be_judged_goes_on_thinned(tmp_path):
+    """300 readings of the simulators' tumble at speed 1 end inside the first half sweep (8 s), where
+    a warm-up drift cannot be told from soft iron.  Stopped there (as ``samples`` did), the drift went
+    unjudged: the tumble goes on, thinned, until the sweep has turned back and the test can judge."""
+    with create_sim("ardupilot", "tcp:127.0.0.1:0", workdir=tmp_path / "fc", seed=3, boot_time_s=0.3, speed=1.0,
+                    mag_rate_hz=100.0) as sim:
+        station = write_station("ardupilot-sim.yaml", tmp_path, sim.address, AP,
+                                {"acquisition": {"samples": 300, "timeout_s": 30.0}})
+        record = run_with(station)
+    assert record.verdict is Outcome.PASS, record.cause
+    (attempt,) = record.attempts
+    assert attempt.stopped == "determined" and attempt.samples <= 300
+    assert record.calibration["drift"]["judged"] is True and "statistic" in record.calibration["drift"]

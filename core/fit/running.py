@@ -99,6 +99,8 @@ class RunningFit:
         self.determined: Determination | None = None
         self.fits_run = 0
         self.last_error: str | None = None  # the last snapshot's refusal (said only when asked)
+        # the last fitted snapshot's warm-up drift test could not judge its readings, and the rule waits for it
+        self.awaiting_drift_test = False
         self._pending: tuple[int, float, dict[str, RawSamples], Any] | None = None
         self._cond = threading.Condition()
         self._closed = False
@@ -187,6 +189,8 @@ class RunningFit:
         finally:
             self.fits_run += 1
             self.fit_s = time.monotonic() - started
+        self.awaiting_drift_test = self.rule.wait_for_drift_test and any(
+            fit.drift is not None and not fit.drift.get("judged", True) for fit in fits.values())
         predicted = self.rule.judge(fits)
         if predicted is None:
             return None
