@@ -441,7 +441,8 @@ def _drift_words(drift: dict) -> str:
         return f"drift at the start: the first {drift['warm_up_excluded']} readings set aside"
     if drift.get("statistic") is None:
         return "not judged"
-    return f"no drift (statistic {drift['statistic']:.1f} ≤ {drift['threshold']:.1f})"
+    blind = f"; a drift under {drift['detectable_ut']:.1f} µT would not show" if "detectable_ut" in drift else ""
+    return f"no drift (statistic {drift['statistic']:.1f} ≤ {drift['threshold']:.1f}{blind})"
 
 
 def _plugins(args: argparse.Namespace, plugins: Plugins) -> int:

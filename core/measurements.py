@@ -45,6 +45,8 @@ CATALOGUE: dict[str, tuple[str, str]] = {
     "direction_sigma_deg": ("°", "predicted 1σ heading error over the orientations seen"),
     "rejected_fraction": ("", "share of samples judged bad and excluded (clipped, spikes)"),
     "warm_up_fraction": ("", "share of the earliest samples left out because the offset was still drifting"),
+    "drift_detectable_ut": ("µT", "smallest offset drift over the acquisition the warm-up test would have caught "
+                                  "(half the time, in its least visible direction); a smaller one passes unseen"),
     "attempts": ("", "acquisition attempts needed"),
     "misalignment_deg": ("°", "sensor axes rotated against the coil frame (Helmholtz affine fit only)"),
     "model_misfit_deg": ("°", "heading cost of the diagonal / sphere model the autopilot holds, against "
@@ -65,6 +67,7 @@ POSSIBLE: dict[str, tuple[float, float]] = {
     "residual_rms_ut": (0.0, float("inf")), "residual_max_ut": (0.0, float("inf")), "field_ut": (0.0, float("inf")),
     "coverage": (0.0, 1.0), "direction_sigma_deg": (0.0, float("inf")), "rejected_fraction": (0.0, 1.0),
     "attempts": (1.0, float("inf")), "warm_up_fraction": (0.0, 1.0), "misalignment_deg": (0.0, 180.0),
+    "drift_detectable_ut": (0.0, float("inf")),
     "model_misfit_deg": (0.0, 180.0),
     "mounting_error_deg": (0.0, 180.0), "mounting_sigma_deg": (0.0, float("inf")),
     "inclination_deg": (-90.0, 90.0), "inclination_error_deg": (-180.0, 180.0),

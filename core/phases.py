@@ -282,6 +282,8 @@ def magline_validate(run: RunContext, fit: FitResult) -> list[Measurement]:
         out.append(Numeric.of("field_error_pct", (fit.raw_to_reference_ratio - 1.0) * 100.0, lim))
     if fit.model_misfit is not None:
         out.append(Numeric.of("model_misfit_deg", fit.model_misfit["direction_error_deg"], lim))
+    if fit.drift is not None and fit.drift.get("detectable_ut") is not None:
+        out.append(Numeric.of("drift_detectable_ut", fit.drift["detectable_ut"], lim))
     return out
 
 

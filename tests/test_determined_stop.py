@@ -69,6 +69,25 @@ def test_the_rule_needs_coverage_and_every_sigma_inside_its_margin_for_every_sen
     assert StopRule(50, 0.05, 0.7, RULE.limits, coverage={"": 0.99}).judge({"": good}) is None
 
 
+def test_a_limit_on_the_detectable_drift_holds_the_stop_until_the_test_would_see_that_small(make_station):
+    """A line that cannot pre-warm its units limits how large a warm-up may pass unseen
+    (``drift_detectable_ut``): the stop waits for it like a σ, and the unit is measured on it."""
+    good = fitted(tumble(300, 0.3, 1))
+    seen = good.drift["detectable_ut"]
+    assert 0.0 < seen < float("inf")
+    loose = StopRule(50, 0.5, 0.7, {"": {**RULE.limits[""], "drift_detectable_ut": 2.0 * seen / 0.7}})
+    assert loose.judge({"": good})[""]["drift_detectable_ut"] == pytest.approx(seen)
+    tight = StopRule(50, 0.5, 0.7, {"": {**RULE.limits[""], "drift_detectable_ut": 0.5 * seen / 0.7}})
+    assert tight.judge({"": good}) is None
+    timeless = fitted(RawSamples(mag_ut=tumble(300, 0.3, 1).mag_ut))  # no time stamps: no drift test at all
+    assert timeless.drift is None and loose.judge({"": timeless}) is None
+    assert "drift_detectable_ut" not in RULE.judge({"": timeless})[""]  # unknown, never a figure of infinity
+    record = run_with(make_station({"limits": {"drift_detectable_ut": {"le": 50.0}}}))
+    assert record.verdict is Outcome.PASS, record.cause
+    figure = next(m for m in record.measurements if m.name == "drift_detectable_ut")
+    assert figure.value == pytest.approx(record.calibration["drift"]["detectable_ut"]) and figure.value > 0.0
+
+
 def test_the_running_fit_ignores_early_snapshots_and_answers_from_its_own_thread():
     calls = []
 

@@ -157,3 +157,18 @@ def test_a_determined_stop_waits_until_a_warm_up_could_be_seen():
     warm_line = StopRule(min_samples=50, coverage_target=0.5, margin=0.7, limits=rule.limits,
                          wait_for_drift_test=False)
     assert warm_line.judge({"": within}) is not None
+
+
+def test_a_drift_three_times_the_recorded_detectable_size_is_always_caught():
+    """``detectable_ut`` is the drift the test catches half the time in its least visible direction:
+    three times it, in any direction, gives an expected statistic of at least nine thresholds."""
+    rng = np.random.default_rng(sum(map(ord, "detectable drift is caught")))
+    for _ in range(10):
+        mag, t_ms = _sim_tumble(rng, seconds=12.0, rate_hz=25.0, start_s=float(rng.uniform(0.0, 4.0)))
+        found = _fit(mag, t_ms)
+        assert found.drift["judged"] is True and found.drift["detectable_ut"] > 0.0
+        way = rng.normal(size=3)
+        size = 3.0 * found.drift["detectable_ut"]
+        tau = (t_ms - t_ms[-1]) / (t_ms[-1] - t_ms[0])  # −1 … 0: a linear drift ending at the offset fitted
+        drifted = _fit(mag + np.outer(tau, way / np.linalg.norm(way) * size), t_ms)
+        assert drifted.drift["modelled"] or drifted.rejected.get("warm_up", 0) > 0, (size, drifted.drift)

@@ -45,6 +45,7 @@ def test_fit_summary_is_readable(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "hard iron" in out and "µT" in out and "full" in out
     assert "warm-up      no drift (statistic" in out  # the readings carry time: the drift test's decision
+    assert "µT would not show)" in out  # and how large a drift could have passed it unseen
 
 
 def test_fit_summary_says_when_the_drift_could_not_be_judged(tmp_path, capsys):

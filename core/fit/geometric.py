@@ -410,14 +410,15 @@ def _maybe_drift(layout, p, x_all, tau_all, inliers, sigma, log_ref, opts, name)
             info["judged"] = cut > 0.0
             return info, p, inliers, sigma, layout
         try:
-            info["statistic"] = _drift_statistic(layout, drift_layout, p, x_all[held], tau_all[held], sigma,
-                                                 log_ref, opts)
+            info["statistic"], drift_cov = _drift_statistic(layout, drift_layout, p, x_all[held], tau_all[held],
+                                                            sigma, log_ref, opts)
         except FitRefused:
             break
         # The statistic divides by the noise estimated from the same readings: its exact reference
         # is 3·F(3, dof), a little wider than χ²₃ at a few hundred readings.
         info["threshold"] = 3.0 * float(f_distribution.ppf(1.0 - opts.drift_p_value, 3,
                                                             max(int(held.sum()) - drift_layout.size, 1)))
+        info["detectable"] = _detectable_drift(drift_cov, info["threshold"])
         if info["statistic"] <= info["threshold"]:
             return info, p, inliers, sigma, layout
         if cut == 0.5:
@@ -454,10 +455,22 @@ def _drift_separation(layout, p, x, tau, sigma) -> float:
     return float(share / max(sigma, 1e-300))
 
 
-def _drift_statistic(layout, drift_layout, p, x, tau, sigma, log_ref, opts) -> float:
+def _detectable_drift(drift_cov: NDArray, threshold: float) -> float:
+    """The smallest offset drift over the readings (normalised units) the test catches half the
+    time, in its least visible direction: the drift ``d`` whose expected statistic ``dᵀC⁻¹d`` just
+    reaches the threshold along the largest axis of its covariance ``C``.
+
+    Why: a drift below it passes unseen and bends the calibration beyond its predicted σ (the
+    simulators' tumble separates a drift from soft iron poorly, benchmarks/early_stop.py
+    ``--warm-up``); the record says how blind the test was, and a station may limit it."""
+    return float(np.sqrt(threshold * max(float(np.linalg.eigvalsh(drift_cov).max()), 0.0)))
+
+
+def _drift_statistic(layout, drift_layout, p, x, tau, sigma, log_ref, opts) -> tuple[float, NDArray]:
     """The likelihood-ratio statistic of a linear offset drift: ``(RSS₀ − RSS₁)/σ̂²`` with both models
     fitted by one estimator to **one** set of readings (the drift-free fit's inliers), so the models
-    are nested and, without drift, the statistic follows χ²₃.
+    are nested and, without drift, the statistic follows χ²₃; and the drift's covariance (3 × 3,
+    normalised units) under the drift model.
 
     Why one set: each model's robust refit chose its own inliers, and the residual sums of two
     different sets differed by more than any drift — at 100 readings the statistic was erratic
@@ -467,7 +480,8 @@ def _drift_statistic(layout, drift_layout, p, x, tau, sigma, log_ref, opts) -> f
     rss0 = float(np.sum(geometric_residuals(layout, p0, x, None) ** 2))
     rss1 = float(np.sum(geometric_residuals(drift_layout, p1, x, tau) ** 2))
     s2 = rss1 / max(len(x) - drift_layout.size, 1)
-    return max(rss0 - rss1, 0.0) / max(s2, 1e-300)
+    cov, _ = _covariance(drift_layout, p1, x, tau, sigma, log_ref, opts)
+    return max(rss0 - rss1, 0.0) / max(s2, 1e-300), cov[-3:, -3:]
 
 
 def _as_full(layout: mdl.Layout, p: NDArray) -> NDArray:
@@ -608,6 +622,8 @@ def _assemble(layout, p, cov, gram, x, tau, centre, scale, keep, inliers, reject
     if opts.field_ut is not None:
         ratio = field_est / float(opts.field_ut)
         ratio_sigma = field_sigma / float(opts.field_ut)
+    if drift_info is not None and "detectable" in drift_info:
+        drift_info["detectable_ut"] = float(scale * drift_info.pop("detectable"))
     if drift_info is not None and drift_info.get("modelled"):
         drift_info["offset_change_ut"] = [float(v) for v in (-scale * drift)]
     return FitResult(

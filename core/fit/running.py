@@ -12,6 +12,7 @@ is busy replaces the one waiting, so the worker always fits the newest readings.
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -26,6 +27,8 @@ from magline.core.fit.samples_csv import RawSamples
 PREDICTED: dict[str, Callable[[FitResult], float]] = {
     "direction_sigma_deg": lambda fit: float(fit.direction_sigma_deg),
     "hard_iron_sigma_ut": lambda fit: float((fit.hard_iron_sigma_ut ** 2).sum() ** 0.5),
+    # how large a warm-up drift could pass the drift test unseen (not judged, or no time stamps: unknown)
+    "drift_detectable_ut": lambda fit: float((fit.drift or {}).get("detectable_ut", float("inf"))),
 }
 
 
@@ -62,7 +65,7 @@ class StopRule:
             figures = {name: read(fit) for name, read in PREDICTED.items()}
             if any(not figures[name] <= target for name, target in self.targets(sensor).items()):
                 return None
-            predicted[sensor] = figures
+            predicted[sensor] = {name: value for name, value in figures.items() if math.isfinite(value)}
         return predicted
 
 
