@@ -50,8 +50,10 @@ SAMPLES, MIN_SAMPLES, BINS, TARGET = 600, 100, 40, 0.6
 LIMITS = {"": {"direction_sigma_deg": 0.5, "hard_iron_sigma_ut": 0.5}}  # the shipped station files'
 
 
-def rule(margin: float) -> StopRule:
-    return StopRule(min_samples=MIN_SAMPLES, coverage_target=TARGET, margin=margin, limits=LIMITS, coverage={"": 0.5})
+def rule(margin: float, detectable_ut: float | None = None) -> StopRule:
+    """The shipped stop rule; with ``detectable_ut`` also a station limit on ``drift_detectable_ut``."""
+    limits = LIMITS if detectable_ut is None else {"": {**LIMITS[""], "drift_detectable_ut": detectable_ut}}
+    return StopRule(min_samples=MIN_SAMPLES, coverage_target=TARGET, margin=margin, limits=limits, coverage={"": 0.5})
 OPTIONS = FitOptions(model="full", field_ut=FIELD, coverage_bins=BINS)
 
 
@@ -62,9 +64,9 @@ def fit(m: np.ndarray, t_ms: np.ndarray):
         return None
 
 
-def stop_point(m: np.ndarray, t_ms: np.ndarray, margin: float):
+def stop_point(m: np.ndarray, t_ms: np.ndarray, margin: float, detectable_ut: float | None = None):
     """The first checkpoint the acquire phase would stop at, and its fit (600 and theirs if none)."""
-    judge = rule(margin).judge
+    judge = rule(margin, detectable_ut).judge
     n = MIN_SAMPLES
     while n < SAMPLES:
         if coverage_of(m[:n], BINS) >= TARGET:
@@ -110,14 +112,15 @@ def warmed_unit(rng: np.random.Generator, size_ut: float):
     return (truth, directions, m + left, t_ms), left
 
 
-def warm_up_bend(units: list, margin: float) -> dict[str, list[int]]:
+def warm_up_bend(units: list, margin: float, detectable_ut: float | None = None) -> dict[str, list]:
     """Per kind (``caught`` / ``missed``): [units, true error > 3σ against the offset at the stop,
-    > 3σ against the settled offset]."""
+    > 3σ against the settled offset]; ``stops``: the readings each unit stopped at."""
     import dataclasses
 
-    out = {"caught": [0, 0, 0], "missed": [0, 0, 0]}
+    out: dict[str, list] = {"caught": [0, 0, 0], "missed": [0, 0, 0], "stops": []}
     for (truth, directions, m, t_ms), left in units:
-        n, early = stop_point(m, t_ms, margin)
+        n, early = stop_point(m, t_ms, margin, detectable_ut)
+        out["stops"].append(n)
         if early is None or not early.drift:
             continue
         kind = "caught" if early.drift.get("modelled") or early.drift.get("warm_up_excluded") else "missed"
@@ -176,6 +179,8 @@ def main() -> None:
                         help="sigma_margin values to compare (0.7: the default)")
     parser.add_argument("--warm-up", type=float, nargs="*", default=[],
                         help="µT: simulated units that also warm up by this much (0.7 margin)")
+    parser.add_argument("--detectable-limits", type=float, nargs="*", default=[],
+                        help="µT: with --warm-up, also stop with these limits on drift_detectable_ut")
     args = parser.parse_args()
     rng = np.random.default_rng(args.seed)
     if args.units:  # --units 0: the simulated units alone
@@ -192,12 +197,16 @@ def main() -> None:
               f"{f'; {refused} refused' if refused else ''}", flush=True)
 
     for size in args.warm_up:
-        bend = warm_up_bend([warmed_unit(rng, size) for _ in range(args.sim_units or 1000)], 0.7)
-        caught, missed = bend["caught"], bend["missed"]
-        judged = caught[0] + missed[0]
-        print(f"warm-up {size:g} µT (τ {WARM_UP_TAU_S:g} s): caught in {caught[0]} of {judged} units; true error "
-              f"> 3σ against the offset at the stop / settled: caught {caught[1]} / {caught[2]}, "
-              f"missed {missed[1]} / {missed[2]} of {missed[0]}", flush=True)
+        units = [warmed_unit(rng, size) for _ in range(args.sim_units or 1000)]
+        for limit in (None, *args.detectable_limits):
+            bend = warm_up_bend(units, 0.7, limit)
+            caught, missed = bend["caught"], bend["missed"]
+            judged = caught[0] + missed[0]
+            rule_words = "shipped rule" if limit is None else f"drift_detectable_ut ≤ {limit:g} µT"
+            print(f"warm-up {size:g} µT (τ {WARM_UP_TAU_S:g} s), {rule_words}: stop at median "
+                  f"{np.median(bend['stops']):.0f} readings (p95 {np.percentile(bend['stops'], 95):.0f}); caught in "
+                  f"{caught[0]} of {judged} units; true error > 3σ against the offset at the stop / settled: "
+                  f"caught {caught[1]} / {caught[2]}, missed {missed[1]} / {missed[2]} of {missed[0]}", flush=True)
 
 
 if __name__ == "__main__":

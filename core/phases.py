@@ -70,7 +70,7 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
                 tumble_s = now - started
                 if got.count >= cfg.samples:
                     if running is None or (coverage >= running.rule.coverage_target
-                                           and not running.awaiting_drift_test):
+                                           and not running.awaits_drift_test(got.snapshot(run))):
                         reason = "samples"
                         break
                     # a determined tumble still short of its coverage goes on: a fast sensor fills

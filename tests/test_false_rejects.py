@@ -172,3 +172,22 @@ def test_a_drift_three_times_the_recorded_detectable_size_is_always_caught():
         tau = (t_ms - t_ms[-1]) / (t_ms[-1] - t_ms[0])  # −1 … 0: a linear drift ending at the offset fitted
         drifted = _fit(mag + np.outer(tau, way / np.linalg.norm(way) * size), t_ms)
         assert drifted.drift["modelled"] or drifted.rejected.get("warm_up", 0) > 0, (size, drifted.drift)
+
+
+def test_at_its_count_the_tumble_asks_the_drift_test_on_every_reading_it_holds():
+    """The worker's last snapshot may be older than the readings at the count's end, or there may be
+    none (the coverage reached its target just before): the count's end asks on all of them."""
+    from magline.core.fit.running import RunningFit, StopRule
+    from magline.core.fit.samples_csv import RawSamples
+
+    rule = StopRule(min_samples=50, coverage_target=0.5, margin=0.7, limits={})
+    rng = np.random.default_rng(sum(map(ord, "count's end asks the drift test")))
+    half = RawSamples(*_sim_tumble(rng, seconds=6.0, rate_hz=50.0, start_s=1.0))
+    turned = RawSamples(*_sim_tumble(rng, seconds=12.0, rate_hz=50.0, start_s=1.0))
+    running = RunningFit(rule, lambda sensor, samples: _fit(samples.mag_ut, samples.t_ms))
+    assert running.awaits_drift_test({"": half}) and not running.awaits_drift_test({"": turned})
+    assert not running.awaits_drift_test({"": turned, "mag2.": turned})
+    assert running.awaits_drift_test({"": turned, "mag2.": half})  # the stop waits for the last sensor
+    warm_line = RunningFit(StopRule(50, 0.5, 0.7, {}, wait_for_drift_test=False),
+                           lambda sensor, samples: _fit(samples.mag_ut, samples.t_ms))
+    assert not warm_line.awaits_drift_test({"": half})

@@ -102,8 +102,6 @@ class RunningFit:
         self.determined: Determination | None = None
         self.fits_run = 0
         self.last_error: str | None = None  # the last snapshot's refusal (said only when asked)
-        # the last fitted snapshot's warm-up drift test could not judge its readings, and the rule waits for it
-        self.awaiting_drift_test = False
         self._pending: tuple[int, float, dict[str, RawSamples], Any] | None = None
         self._cond = threading.Condition()
         self._closed = False
@@ -177,6 +175,20 @@ class RunningFit:
         self.determined = None  # the worker may still answer an older snapshot: asked again next time
         return self._judge(readings, after_s, snapshot, imu)
 
+    def awaits_drift_test(self, snapshot: dict[str, RawSamples]) -> bool:
+        """Whether the stop still waits for the warm-up drift test on these readings (fitted on the
+        caller's thread): some sensor's test cannot yet judge them.  Asked at the count's end, where
+        the worker's last snapshot may be older than the readings, or not yet fitted at all (the
+        coverage reached its target just before).  A refused fit does not wait: its refusal is the
+        final fit's to say."""
+        if not self.rule.wait_for_drift_test:
+            return False
+        try:
+            fits = [self.fitter(sensor, samples) for sensor, samples in snapshot.items()]
+        except Exception:
+            return False
+        return any(fit.drift is not None and not fit.drift.get("judged", True) for fit in fits)
+
     def _judge(self, readings: int, after_s: float, snapshot: dict[str, RawSamples], imu: Any) -> Determination | None:
         fits: dict[str, FitResult] = {}
         started = time.monotonic()
@@ -192,8 +204,6 @@ class RunningFit:
         finally:
             self.fits_run += 1
             self.fit_s = time.monotonic() - started
-        self.awaiting_drift_test = self.rule.wait_for_drift_test and any(
-            fit.drift is not None and not fit.drift.get("judged", True) for fit in fits.values())
         predicted = self.rule.judge(fits)
         if predicted is None:
             return None
