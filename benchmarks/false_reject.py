@@ -72,10 +72,12 @@ def _failed_rules(record) -> list[str]:
 def _why_not_judged(drift: dict, record) -> str:
     """Why a fit's drift test left no statistic: the readings could not tell a drift from the
     calibration (and how the acquisition ended), or the drift model's solve was refused."""
-    if drift.get("judged") is False:
+    from magline.core.fit.geometric import DRIFT_SEPARATION_MIN
+
+    if drift.get("judged") is False and drift.get("separation", 0.0) < DRIFT_SEPARATION_MIN:
         ends = sorted({a.stopped for a in record.attempts}) or ["?"]
         return f"not separable (stopped: {'/'.join(str(e) for e in ends)})"
-    return "statistic refused"
+    return "the drift model's fit refused"
 
 
 def _tally(name: str, records: list, started: float) -> None:

@@ -22,6 +22,7 @@ from magline.core import __version__
 from magline.core.faults import StationFault, UnitAborted
 from magline.core.fit import FitOptions, FitRefused, fit_calibration
 from magline.core.fit.affine import fit_affine
+from magline.core.fit.geometric import DRIFT_SEPARATION_MIN
 from magline.core.fit.samples_csv import SampleFileError, parse_samples, select_export_rows
 from magline.core.plugins import PluginError, Plugins, load_plugins
 from magline.core.record import Outcome
@@ -432,9 +433,14 @@ def _fit_summary(doc: dict) -> str:
 def _drift_words(drift: dict) -> str:
     """What the fit's warm-up drift test decided, in a line: a quality engineer must tell "no drift"
     from "could not judge"."""
+    if not drift.get("judged", True) and drift.get("separation", 0.0) >= DRIFT_SEPARATION_MIN:
+        return "not judged: the drift model could not be fitted to these readings"
     if not drift.get("judged", True):
         return (f"not judged: these readings cannot tell an offset drift from soft iron (separation "
                 f"{drift.get('separation', 0.0):.1f}; tumble on past the sweep's turn)")
+    if drift.get("unresolved"):
+        return (f"DRIFT NOT REMOVED: a drift was found (statistic {drift['statistic']:.1f} > {drift['threshold']:.1f}) "
+                "but the readings could neither set it aside nor model it; the offset may be bent by it")
     if drift.get("modelled"):
         return "a drift throughout: modelled, the offset given is the end state"
     if drift.get("warm_up_excluded"):

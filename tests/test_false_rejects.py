@@ -191,3 +191,33 @@ def test_at_its_count_the_tumble_asks_the_drift_test_on_every_reading_it_holds()
     warm_line = RunningFit(StopRule(50, 0.5, 0.7, {}, wait_for_drift_test=False),
                            lambda sensor, samples: _fit(samples.mag_ut, samples.t_ms))
     assert not warm_line.awaits_drift_test({"": half})
+
+
+def test_a_drift_found_but_not_removable_is_said_and_holds_the_stop(monkeypatch):
+    """When the refit that would set a found warm-up aside is refused, the alarm stands: the record
+    says the drift was not removed (never "no drift"), and the stop rule waits on it; a statistic
+    that could not be computed is a drift not judged."""
+    import magline.core.fit.geometric as geometric
+    from magline.core.cli import _drift_words
+    from magline.core.fit import FitRefused
+    from magline.core.fit.running import StopRule
+
+    rng = np.random.default_rng(sum(map(ord, "drift found not removable")))
+    warm = _sim_tumble(rng, seconds=12.0, start_s=1.0, drift_ut=(4.0, -3.0, 2.0))
+    rule = StopRule(min_samples=50, coverage_target=0.5, margin=0.7, limits={})
+
+    def refused(*args, **kwargs):
+        raise FitRefused("undetermined", "refused here", "")
+
+    with monkeypatch.context() as m:
+        m.setattr(geometric, "_fit_window", refused)
+        found = _fit(*warm)
+    assert found.drift["unresolved"] is True and found.drift["statistic"] > found.drift["threshold"]
+    assert "DRIFT NOT REMOVED" in _drift_words(found.drift) and rule.judge({"": found}) is None
+    with monkeypatch.context() as m:
+        m.setattr(geometric, "_drift_statistic", refused)
+        unjudged = _fit(*warm)
+    assert unjudged.drift["judged"] is False and rule.judge({"": unjudged}) is None
+    assert _drift_words(unjudged.drift) == "not judged: the drift model could not be fitted to these readings"
+    caught = _fit(*warm)  # the same readings without a refusal: set aside or modelled, and the stop may end
+    assert not caught.drift.get("unresolved") and rule.judge({"": caught}) is not None

@@ -429,6 +429,13 @@ def _maybe_drift(layout, p, x_all, tau_all, inliers, sigma, log_ref, opts, name)
                 break
             info["modelled"] = True
             return info, pd, inl_d, sigma_d, drift_layout
+    # Here only when a refit or a statistic was refused: with no statistic the drift was not judged;
+    # after an alarm, the drift found could be neither set aside nor modelled — said, never passed
+    # over as "no drift" (the stop rule waits on both, see core/fit/running.py).
+    if "statistic" not in info:
+        info["judged"] = False
+    else:
+        info["unresolved"] = True
     return info, p, inliers, sigma, layout
 
 

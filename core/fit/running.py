@@ -60,13 +60,19 @@ class StopRule:
         for sensor, fit in fits.items():
             if fit.coverage < max(self.coverage_target, self.coverage.get(sensor, 0.0)):
                 return None
-            if self.wait_for_drift_test and fit.drift is not None and not fit.drift.get("judged", True):
-                return None  # a warm-up drift could not yet be told from the calibration
+            if self.wait_for_drift_test and _drift_open(fit):
+                return None  # a warm-up drift could not yet be told from the calibration, or not be removed
             figures = {name: read(fit) for name, read in PREDICTED.items()}
             if any(not figures[name] <= target for name, target in self.targets(sensor).items()):
                 return None
             predicted[sensor] = {name: value for name, value in figures.items() if math.isfinite(value)}
         return predicted
+
+
+def _drift_open(fit: FitResult) -> bool:
+    """The fit's warm-up drift test is still open: it could not judge the readings, or a drift it
+    found could be neither set aside nor modelled (``unresolved``)."""
+    return fit.drift is not None and (not fit.drift.get("judged", True) or bool(fit.drift.get("unresolved")))
 
 
 @dataclass
@@ -187,7 +193,7 @@ class RunningFit:
             fits = [self.fitter(sensor, samples) for sensor, samples in snapshot.items()]
         except Exception:
             return False
-        return any(fit.drift is not None and not fit.drift.get("judged", True) for fit in fits)
+        return any(_drift_open(fit) for fit in fits)
 
     def _judge(self, readings: int, after_s: float, snapshot: dict[str, RawSamples], imu: Any) -> Determination | None:
         fits: dict[str, FitResult] = {}
