@@ -45,8 +45,7 @@ CATALOGUE: dict[str, tuple[str, str]] = {
     "direction_sigma_deg": ("°", "predicted 1σ heading error over the orientations seen"),
     "rejected_fraction": ("", "share of samples judged bad and excluded (clipped, spikes)"),
     "warm_up_fraction": ("", "share of the earliest samples left out because the offset was still drifting"),
-    "drift_detectable_ut": ("µT", "smallest offset drift over the acquisition the warm-up test would have caught "
-                                  "(half the time, in its least visible direction); a smaller one passes unseen"),
+    "drift_detectable_ut": ("µT", "warm-up drift of the offset that could pass the drift test unseen"),
     "attempts": ("", "acquisition attempts needed"),
     "misalignment_deg": ("°", "sensor axes rotated against the coil frame (Helmholtz affine fit only)"),
     "model_misfit_deg": ("°", "heading cost of the diagonal / sphere model the autopilot holds, against "

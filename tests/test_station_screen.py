@@ -362,3 +362,23 @@ def test_a_three_compass_unit_shows_a_card_per_compass_naming_the_one_that_faile
         finally:
             served.stop()
             runner.close()
+
+
+@pytest.mark.parametrize("viewport", [(1366, 768), (1024, 768), (1280, 720)])
+def test_on_a_short_screen_the_sides_still_to_turn_are_on_it_without_scrolling(screen, browser, viewport):
+    """At 768 px and less the words under the sphere fell off the bottom of the screen (the sphere kept
+    its 460 px); an operator two metres away cannot scroll.  Measured with every side still to turn."""
+    served, _ = screen(BUSY_UNIT)
+    page = open_page(browser, served.url, viewport=viewport).page
+    page.wait_for_selector("#station-name:has-text('demo-01')")
+    page.keyboard.type("SCR-SHORT")
+    page.keyboard.press("Enter")
+    page.wait_for_selector("#missing:has-text('still to turn down:')")
+    page.wait_for_function("Number(document.getElementById('sphere').dataset.hit) > 0")
+    layout = page.evaluate("""() => ({bottom: Math.max(...['missing', 'coverage-text', 'prompt', 'progress']
+        .map((id) => document.getElementById(id).getBoundingClientRect().bottom)), height: innerHeight,
+        sphere: document.getElementById('sphere').getBoundingClientRect().height})""")
+    assert layout["bottom"] <= layout["height"], layout
+    assert layout["sphere"] >= 240  # still a sphere to read the coverage from
+    page.click("#abort")
+    page.wait_for_selector("#verdict:not([hidden])", timeout=30_000)
