@@ -157,6 +157,7 @@ def test_a_failing_unit_shows_fail_with_its_measurement(screen, browser, tmp_pat
     assert opened.page.inner_text("#verdict-cause") == ""  # the failure once, in its row
     screenshot(opened.page, tmp_path / "fail.png")
     assert opened.outside(LOCAL) == []
+    assert [line for line in opened.console if line.startswith("error")] == []  # not even a missing icon
 
 
 def test_abort_mid_acquisition_restores_the_unit_and_records_aborted(screen, browser, tmp_path):
