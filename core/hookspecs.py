@@ -234,8 +234,11 @@ def magline_acquisition_progress(run: RunContext, attempt: int, samples: int, co
 
     :param bins: the direction bins behind ``coverage`` (indices into
         :func:`magline.core.fit.coverage.fibonacci_sphere` of ``n_bins``), for a view that lights
-        them up; None when the acquisition does not judge directions (a coil's schedule).
-    :param n_bins: how many bins the sphere has (the station's ``acquisition.coverage_bins``).
+        them up; a coil's schedule gives the field directions it applied (its schedule is made of
+        those points); None when the acquisition has no directions to show.
+    :param n_bins: how many bins the sphere has (the station's ``acquisition.coverage_bins``; a
+        coil's schedule: its ``directions``).  ``run.unit_moves`` tells a view whether the operator
+        turns the unit (sides still to turn) or the field turns round it.
     """
 
 

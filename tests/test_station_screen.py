@@ -383,3 +383,38 @@ def test_on_a_short_screen_the_sides_still_to_turn_are_on_it_without_scrolling(s
     assert layout["sphere"] >= 240  # still a sphere to read the coverage from
     page.click("#abort")
     page.wait_for_selector("#verdict:not([hidden])", timeout=30_000)
+
+
+def test_a_coil_unit_lights_the_field_directions_applied_and_asks_nobody_to_turn_it(browser, tmp_path):
+    """In a Helmholtz coil the field turns round a unit that must not be touched: the sphere lights the
+    directions the coil applied, and no "still to turn down" words or tumble count appear."""
+    from test_helmholtz import Cell
+
+    with Cell() as cell:
+        path = cell.station(tmp_path)
+        app, runner = build(load_station(path), path.parent, load_plugins(), None)
+        served = Served(app, free_port())
+        try:
+            opened = open_page(browser, served.url)
+            page = opened.page
+            page.wait_for_selector("#station-name:has-text('sim-coil-01')")
+            page.evaluate("""window.__seen = []; new MutationObserver(() => window.__seen.push({
+                missing: document.getElementById('missing').textContent,
+                count: document.getElementById('progress-text').textContent,
+                coverage: document.getElementById('coverage-text').textContent,
+                hit: Number(document.getElementById('sphere').dataset.hit || 0)})).observe(document.body,
+                {childList: true, characterData: true, subtree: true, attributes: true})""")
+            page.fill("#serial", "COIL-SCR")
+            page.press("#serial", "Enter")
+            page.wait_for_selector("#verdict:not([hidden])", timeout=60_000)
+            assert page.inner_text("#verdict-word") == "PASS"
+            seen = page.evaluate("window.__seen")
+            assert max(s["hit"] for s in seen) > 0  # the coil's directions, lit as they were applied
+            assert any(s["coverage"].startswith("coverage ") for s in seen)
+            assert all(s["missing"] == "" and "at most" not in s["count"] for s in seen)
+            words = page.evaluate("document.getElementById('sphere').data[1].text")
+            assert list(words) == []  # no "nose down" on a sphere of field directions
+            assert [line for line in opened.console if line.startswith("error")] == []
+        finally:
+            served.stop()
+            runner.close()

@@ -123,11 +123,15 @@ class ScreenState:
             if current is None:
                 return
             bins = list(bins or [])
-            if n_bins and (bins != current["bins"] or not current.get("missing_for")):
+            # a coil turns the field, not the unit: its directions light the sphere, but there is no side
+            # to turn and no count to fill (the schedule ends the acquisition)
+            turns_unit = run.unit_moves
+            if n_bins and turns_unit and (bins != current["bins"] or not current.get("missing_for")):
                 current["missing"] = missing_sides(bins, n_bins)  # in words: what the operator turns next
                 current["missing_for"] = n_bins
             current.update(attempt=attempt, samples=samples, coverage=coverage, target=target, n_bins=n_bins,
-                           target_samples=run.station.acquisition.samples, bins=bins,
+                           target_samples=run.station.acquisition.samples if turns_unit else None, bins=bins,
+                           turns_unit=turns_unit,
                            progress_at_ms=time.time() * 1e3)  # when these samples reached the sequencer
             self._changed()
 
@@ -259,4 +263,5 @@ def bin_centres(n_bins: int) -> list[list[float]]:
 def _new_run(serial: str, part: str) -> dict[str, Any]:
     return {"serial": serial, "part": part, "attempt": 0, "prompt": "", "prompts": [], "samples": 0,
             "target_samples": None, "coverage": 0.0, "target": None, "bins": [], "n_bins": None, "missing": [],
+            "turns_unit": True,
             "waiting": None, "phases": [{"name": p, "state": "pending", "duration_s": None} for p in PHASES]}

@@ -24,7 +24,13 @@ from magline.core.plugins import hookimpl
 from magline.core.sequencer.context import Acquisition, RunContext
 from magline.core.tumble_stop import stop_rule
 from magline.plugins.helmholtz.options import HelmholtzOptions
-from magline.plugins.helmholtz.source import HelmholtzField, applied_share, create_helmholtz_field, schedule
+from magline.plugins.helmholtz.source import (
+    HelmholtzField,
+    applied_bins,
+    applied_share,
+    create_helmholtz_field,
+    schedule,
+)
 
 
 @hookimpl
@@ -81,7 +87,8 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition | None:
                     got += len(take)
                 share = applied_share(np.vstack(applied), steps)
                 readings = sum(len(m) for m in mags)
-                run.progress(attempt, readings, share, cfg.coverage_target)
+                run.progress(attempt, readings, share, cfg.coverage_target,
+                             applied_bins(np.vstack(applied), opts.directions), opts.directions)
                 if rule is not None and share >= cfg.coverage_target and readings >= rule.min_samples:
                     figures = _determined(rule, np.vstack(mags), np.vstack(applied), opts.field_ut, share)
                     if figures is not None:

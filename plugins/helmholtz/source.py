@@ -48,6 +48,18 @@ def applied_share(applied_ut: NDArray, steps: NDArray) -> float:
     return sum(tuple(d) in seen for d in np.round(np.asarray(directions), 6)) / len(directions)
 
 
+def applied_bins(applied_ut: NDArray, directions: int) -> list[int]:
+    """The schedule's field directions applied so far, as indices into ``fibonacci_sphere(directions)``
+    (the schedule is made of those points): what an operator screen lights up on its sphere."""
+    centres = fibonacci_sphere(directions)
+    seen = np.asarray(applied_ut, float)
+    seen = seen[np.linalg.norm(seen, axis=1) > 0]
+    if not len(seen):
+        return []
+    cos = (seen / np.linalg.norm(seen, axis=1, keepdims=True)) @ centres.T
+    return sorted({int(i) for i in np.argmax(cos, axis=1)})
+
+
 def spread_order(directions: NDArray) -> NDArray:
     """The directions reordered farthest first: each next one the farthest from all before it."""
     left = list(range(len(directions)))

@@ -201,11 +201,12 @@ function render(s) {
   $("left").classList.toggle("retry", retrying);
   $("retry-banner").hidden = !retrying;
   if (retrying) {
-    $("retry-title").textContent = `TUMBLE AGAIN — attempt ${run.attempt}`;
+    $("retry-title").textContent = `${run.turns_unit === false ? "MEASURING AGAIN" : "TUMBLE AGAIN"} — attempt ${run.attempt}`;
     $("retry-why").textContent = missing.length ? `Turn it ${missing.join(", ")}` : "";
     cue(`${run.serial}:${run.attempt}`);
   }
-  const sphereChanged = drawSphere(run, s.sides || []);
+  // a coil's sphere shows the field directions applied; the words for turning the unit do not belong on it
+  const sphereChanged = drawSphere(run, run && run.turns_unit === false ? [] : s.sides || []);
 
   const v = s.result;
   const overlay = $("verdict");
