@@ -8,7 +8,8 @@ FAIL / ERROR counts, the cause of every non-PASS, and the drift test's statistic
 against χ²₃ and each test's own 10⁻³ threshold (3·F(3, dof)).  Goal: ≤ 1 false reject in 1,000 mock units, none on
 the simulators.
 
-    python benchmarks/false_reject.py [--mock 1000] [--sim 100] [--faults 0] [--seed 28] [--backends px4 ardupilot]
+    python benchmarks/false_reject.py [--mock 1000] [--sim 100] [--faults 0] [--jobs 1] [--seed 28]
+                                       [--backends px4 ardupilot]
 
 Also printed: the limits behind every false reject (by rule), wrong orientations found on good
 compasses (issue 26's "0 of 1,000"), and with ``--faults N`` every simulator fault run N times and
@@ -20,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import contextlib
 import sys
 import tempfile
 import time
@@ -36,8 +38,10 @@ REPO = Path(__file__).resolve().parents[1]
 MOTIONS = ("hand_tumble", "full_sphere")
 
 
-def _station(example: str, work: Path, product_changes: dict, acquisition: dict) -> Path:
+def _station(example: str, work: Path, product_changes: dict, acquisition: dict, station_id: str | None = None) -> Path:
     cfg = yaml.safe_load((REPO / "stations" / example).read_text(encoding="utf-8"))
+    if station_id is not None:  # parallel runs: a station is one unit at a time
+        cfg["station"]["id"] = station_id
     part = cfg["default_part"]
     for key, value in product_changes.items():
         if isinstance(value, dict):
@@ -161,42 +165,61 @@ def sim_units(flavour: str, count: int, rng: np.random.Generator) -> None:
     _tally(flavour, records, started)
 
 
-def fault_units(count: int, rng: np.random.Generator, names: list[str] | None = None) -> None:
-    """The other side: every simulator fault of ``magline.testing.faults`` run ``count`` times across
-    seeds on the simulated ArduPilot; printed: how often it was classified as the table says."""
+def _fault_run(name: str, i: int, seed: int) -> tuple[str, bool, str | None]:
+    """One run of the fault table's row ``name`` on the simulated ArduPilot, in a folder of its own
+    (runs may go in parallel processes): (outcome, or "missed"; the cause's words found; the line
+    to print when it was not classified as the table says, else None)."""
     from magline.plugins.mock.sim import SimFaults, create_sim
     from magline.testing.faults import ARDUPILOT_FAULTS
 
-    print(f"faults ({count} runs each, simulated ArduPilot): expected → PASS / FAIL / ERROR, cause words found")
+    case = next(c for c in ARDUPILOT_FAULTS if c.name == name)
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
-        chosen = [c for c in ARDUPILOT_FAULTS if names is None or c.name in names]
+        with create_sim("ardupilot", "tcp:127.0.0.1:0", workdir=work / "fc", mag_count=case.mags, mag_rate_hz=100.0,
+                        seed=seed, boot_time_s=0.3, speed=5.0, faults=SimFaults.parse(list(case.faults))) as sim:
+            options = {"connect_timeout_s": 5.0, "boot_timeout_s": 10.0 if case.passing_boot else 3.0,
+                       "prearm_wait_s": 0.3}
+            station = _station("ardupilot-sim.yaml", work, {"connection": sim.address, "options": options},
+                               {"samples": 400, "rate_hz": 200.0, "timeout_s": 30.0, "retry_delay_s": 0.0},
+                               station_id=f"faults-{case.name}-{i}")
+            seq = Sequencer(load_station(station), load_plugins(), work, sleep=lambda s: None)
+            try:
+                record = seq.run_unit(f"F-{case.name}-{i}")
+            finally:
+                seq.close()
+    missed = case.missed(record)  # a PASS must also have left what the fault must leave
+    wrong = str(record.verdict) != case.outcome or missed
+    line = f"   {record.serial}: {str(record.verdict).upper()} {missed or record.cause[:200]}" if wrong else None
+    return (str(record.verdict) if missed is None else "missed"), case.words in record.cause, line
+
+
+def fault_units(count: int, rng: np.random.Generator, names: list[str] | None = None, jobs: int = 1) -> None:
+    """The other side: every simulator fault of ``magline.testing.faults`` run ``count`` times across
+    seeds on the simulated ArduPilot; printed: how often it was classified as the table says.
+    ``jobs`` > 1 runs that many units at once in separate processes (the depth the goal asks,
+    about 1,000 runs per row, is a night on a many-core machine)."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    from magline.testing.faults import ARDUPILOT_FAULTS
+
+    print(f"faults ({count} runs each, simulated ArduPilot, {jobs} at once): expected → PASS / FAIL / ERROR, "
+          "cause words found")
+    chosen = [c for c in ARDUPILOT_FAULTS if names is None or c.name in names]
+    with ProcessPoolExecutor(jobs) if jobs > 1 else contextlib.nullcontext() as pool:
         for case in chosen:
             started, got, worded = time.monotonic(), collections.Counter(), 0
-            for i in range(count):
-                fc = work / f"{case.name}-{i}"
-                fc.mkdir()
-                with create_sim("ardupilot", "tcp:127.0.0.1:0", workdir=fc, mag_count=case.mags, mag_rate_hz=100.0,
-                                seed=int(rng.integers(1 << 30)), boot_time_s=0.3, speed=5.0,
-                                faults=SimFaults.parse(list(case.faults))) as sim:
-                    options = {"connect_timeout_s": 5.0, "boot_timeout_s": 10.0 if case.passing_boot else 3.0,
-                               "prearm_wait_s": 0.3}
-                    station = _station("ardupilot-sim.yaml", work, {"connection": sim.address, "options": options},
-                                       {"samples": 400, "rate_hz": 200.0, "timeout_s": 30.0, "retry_delay_s": 0.0})
-                    seq = Sequencer(load_station(station), load_plugins(), work, sleep=lambda s: None)
-                    try:
-                        record = seq.run_unit(f"F-{case.name}-{i}")
-                    finally:
-                        seq.close()
-                missed = case.missed(record)  # a PASS must also have left what the fault must leave
-                got[str(record.verdict) if missed is None else "missed"] += 1
-                worded += case.words in record.cause
-                if str(record.verdict) != case.outcome or missed:
-                    print(f"   {record.serial}: {str(record.verdict).upper()} {missed or record.cause[:200]}")
+            seeds = [int(rng.integers(1 << 30)) for _ in range(count)]
+            runs = (pool.map(_fault_run, [case.name] * count, range(count), seeds) if pool is not None
+                    else map(_fault_run, [case.name] * count, range(count), seeds))
+            for outcome, found, line in runs:
+                got[outcome] += 1
+                worded += found
+                if line:
+                    print(line)
             right, missed = got[case.outcome], f" / missed {got['missed']}" if got["missed"] else ""
             print(f"   {case.name:<19} {case.outcome.upper():<5} → PASS {got['pass']} / FAIL {got['fail']} / ERROR "
                   f"{got['error']}{missed}: {right} of {count} right ({100.0 * right / count:.1f} %), words {worded} "
-                  f"({time.monotonic() - started:.0f} s)")
+                  f"({time.monotonic() - started:.0f} s)", flush=True)
 
 
 def main() -> None:
@@ -205,6 +228,7 @@ def main() -> None:
     parser.add_argument("--sim", type=int, default=100)
     parser.add_argument("--faults", type=int, default=0, help="runs of each simulator fault (0: none)")
     parser.add_argument("--fault-names", nargs="+", default=None, help="only these rows of the fault table")
+    parser.add_argument("--jobs", type=int, default=1, help="fault runs at once, in separate processes")
     parser.add_argument("--seed", type=int, default=28)
     parser.add_argument("--backends", nargs="+", choices=["px4", "ardupilot"], default=["px4", "ardupilot"],
                         help="the simulators --sim runs on")
@@ -216,7 +240,7 @@ def main() -> None:
         if args.sim:
             sim_units(flavour, args.sim, rng)
     if args.faults:
-        fault_units(args.faults, rng, args.fault_names)
+        fault_units(args.faults, rng, args.fault_names, args.jobs)
     sys.stdout.flush()
 
 
