@@ -302,5 +302,8 @@ def test_a_tumble_at_its_count_before_the_drift_can_be_judged_goes_on_thinned(tm
         record = run_with(station)
     assert record.verdict is Outcome.PASS, record.cause
     (attempt,) = record.attempts
-    assert attempt.stopped == "determined" and attempt.samples <= 300
-    assert record.calibration["drift"]["judged"] is True and "statistic" in record.calibration["drift"]
+    # determined, or at its count once the sweep had turned (the running fit may lag the readings on a
+    # loaded machine): either way never ended with the drift unjudged, and never holding more than 300
+    assert attempt.stopped in ("determined", "samples") and attempt.samples <= 300
+    assert record.calibration["drift"]["judged"] is True and "statistic" in record.calibration["drift"], \
+        (attempt.stopped, attempt.tumble_s, record.calibration["drift"])
