@@ -18,7 +18,7 @@ from magline.core.record import Outcome
 from magline.core.sequencer import Sequencer
 from magline.core.station import load_station
 from magline.plugins.mock.sim import SimFaults, create_sim
-from magline.testing.faults import ARDUPILOT_FAULTS
+from magline.testing.faults import ARDUPILOT_FAULTS, WARM_UP
 
 AP = {"connect_timeout_s": 1.0, "boot_timeout_s": 3.0, "prearm_wait_s": 0.3}
 PX4 = {"connect_timeout_s": 1.0, "boot_timeout_s": 3.0}
@@ -79,6 +79,20 @@ def test_each_simulator_fault_is_classified(tmp_path, case):
     if outcome is Outcome.ERROR and "unverified" in words:
         assert record.unverified_params and all(n.startswith("COMPASS_") for n in record.unverified_params)
         assert "COMPASS_OFS_X" in record.cause and "re-test the unit" in record.cause
+
+
+def test_the_simulators_warm_up_is_caught_and_recorded_by_the_drift_test(tmp_path):
+    """The board's compasses settle by 10 µT (τ 3 s) after power-on: the drift test catches it (190 of
+    190 benchmark runs) and the record says so.  Not a row of the fault table: the calibration is the
+    offset during the warm-up and the sensor goes on settling, so the post-reboot field check FAILs
+    the good unit now and then (2 of 190 runs, +3.1 % and +3.9 % against 3 %) — that verdict and no
+    other is the known limit here, never an ERROR."""
+    with ap_sim(tmp_path, SimFaults.parse(list(WARM_UP.faults)), mag_count=WARM_UP.mags) as sim:
+        record = run_unit(write_station("ardupilot-sim.yaml", tmp_path, sim.address, {**AP, **PASSING}), "SN-W")
+    assert WARM_UP.missed(record) is None, WARM_UP.missed(record)
+    assert record.verdict is Outcome.PASS or (
+        record.verdict is Outcome.FAIL and "the firmware's calibrated field reads" in record.cause), record.cause
+    assert record.calibration["drift"]["judged"] is True
 
 
 def test_a_vehicle_closing_its_tcp_link_is_a_lost_link_at_once(tmp_path, capfd):
