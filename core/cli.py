@@ -438,6 +438,9 @@ def _drift_words(drift: dict) -> str:
     if not drift.get("judged", True):
         return (f"not judged: these readings cannot tell an offset drift from soft iron (separation "
                 f"{drift.get('separation', 0.0):.1f}; tumble on past the sweep's turn)")
+    if drift.get("unresolved") and drift.get("warm_up_excluded"):
+        return (f"DRIFT NOT CLEARED: a drift was found, the first {drift['warm_up_excluded']} readings set aside, "
+                "and whether the rest still drift could not be judged; the offset may be bent by it")
     if drift.get("unresolved"):
         return (f"DRIFT NOT REMOVED: a drift was found (statistic {drift['statistic']:.1f} > {drift['threshold']:.1f}) "
                 "but the readings could neither set it aside nor model it; the offset may be bent by it")

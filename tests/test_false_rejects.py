@@ -214,6 +214,9 @@ def test_a_drift_found_but_not_removable_is_said_and_holds_the_stop(monkeypatch)
         found = _fit(*warm)
     assert found.drift["unresolved"] is True and found.drift["statistic"] > found.drift["threshold"]
     assert "DRIFT NOT REMOVED" in _drift_words(found.drift) and rule.judge({"": found}) is None
+    # a quarter set aside, the rest not judgeable: said as such
+    cleared_part = {**found.drift, "warm_up_excluded": 75, "cut": 0.25}
+    assert _drift_words(cleared_part).startswith("DRIFT NOT CLEARED: a drift was found, the first 75 readings")
     with monkeypatch.context() as m:
         m.setattr(geometric, "_drift_statistic", refused)
         unjudged = _fit(*warm)

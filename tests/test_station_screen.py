@@ -406,8 +406,17 @@ def test_a_coil_unit_lights_the_field_directions_applied_and_asks_nobody_to_turn
                 {childList: true, characterData: true, subtree: true, attributes: true})""")
             page.fill("#serial", "COIL-SCR")
             page.press("#serial", "Enter")
+            page.wait_for_function("Number(document.getElementById('sphere').dataset.hit) > 0", timeout=60_000)
+            # the state mid-schedule, kept to show it as a second attempt would be shown (the shipped coil
+            # station does not retry)
+            page.evaluate("fetch('/api/state').then((r) => r.json()).then((s) => { window.__midRun = s; })")
+            page.wait_for_function("window.__midRun !== undefined")
             page.wait_for_selector("#verdict:not([hidden])", timeout=60_000)
             assert page.inner_text("#verdict-word") == "PASS"
+            again = page.evaluate("""() => { const s = structuredClone(window.__midRun); s.run.attempt = 2;
+                s.run.stopped = null; render(s); return {title: document.getElementById('retry-title').textContent,
+                why: document.getElementById('retry-why').textContent}; }""")
+            assert again == {"title": "MEASURING AGAIN — attempt 2", "why": ""}  # nobody is told to turn it
             seen = page.evaluate("window.__seen")
             assert max(s["hit"] for s in seen) > 0  # the coil's directions, lit as they were applied
             assert any(s["coverage"].startswith("coverage ") for s in seen)
