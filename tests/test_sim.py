@@ -125,19 +125,24 @@ def test_mag_streams_follow_set_message_interval(tmp_path, flavour, kind, msg_id
         assert gcs.command(ML.MAV_CMD_SET_MESSAGE_INTERVAL, 9999, 10_000).result == ML.MAV_RESULT_FAILED
 
 
+def reboot_and_wait(gcs: Gcs, sim) -> None:
+    """Command a reboot over MAVLink, close the link (ArduPilot drops it), and wait for the new boot."""
+    boots = sim.boots
+    assert gcs.command(ML.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 1).result == ML.MAV_RESULT_ACCEPTED
+    gcs.close()
+    deadline = time.monotonic() + 5
+    while sim.boots == boots and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert sim.boots == boots + 1
+
+
 def test_reboot_goes_silent_then_comes_back_with_stored_params(px4, ardupilot):
     for sim, name, wire, ptype in ((px4, "CAL_MAG1_XOFF", 0.25, REAL32), (ardupilot, "COMPASS_OFS2_X", 42.0, REAL32)):
         gcs = Gcs(sim.address)
         assert gcs.set(name, wire, ptype) is not None
         gcs.command(ML.MAV_CMD_PREFLIGHT_STORAGE, 1)  # PX4 needs it; ArduPilot answers UNSUPPORTED
         time.sleep(0.2)
-        boots = sim.boots
-        assert gcs.command(ML.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 1).result == ML.MAV_RESULT_ACCEPTED
-        gcs.close()
-        deadline = time.monotonic() + 5
-        while sim.boots == boots and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert sim.boots == boots + 1
+        reboot_and_wait(gcs, sim)
         gcs = Gcs(sim.address)  # ArduPilot closed the TCP connection: a client must reconnect
         assert gcs.get(name).param_value == pytest.approx(wire)
         gcs.close()
@@ -372,13 +377,8 @@ def test_a_warm_up_goes_on_through_a_reboot_and_comes_back_after_a_power_cut(tmp
 
         assert 0.0 < left() < 10.0
         gcs = Gcs(sim.address)
-        before, boots = left(), sim.boots
-        assert gcs.command(ML.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 1).result == ML.MAV_RESULT_ACCEPTED
-        gcs.close()
-        deadline = time.monotonic() + 5
-        while sim.boots == boots and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert sim.boots == boots + 1
+        before = left()
+        reboot_and_wait(gcs, sim)
         assert left() < before  # the reboot did not start the warm-up again
         cut = left()
         sim.power_off()
