@@ -61,6 +61,22 @@ function drawSphere(run, sides) {
   return true;
 }
 
+// The sphere takes the height the words under it leave on the screen, within 240–460 px: the sides
+// still to turn must be on a short screen (a 1024×768 line PC) without scrolling — an operator two
+// metres away cannot scroll — and their lines change as sides are covered.
+const SPHERE_PX = { min: 240, max: 460, below: 16 };
+function fitSphere() {
+  const sphere = $("sphere");
+  const words = $("coverage-text").offsetHeight + $("missing").offsetHeight;
+  const top = sphere.getBoundingClientRect().top + window.scrollY;
+  const height = Math.round(Math.min(SPHERE_PX.max, Math.max(SPHERE_PX.min, innerHeight - top - words - SPHERE_PX.below)));
+  if (Math.abs(sphere.offsetHeight - height) > 1) {
+    sphere.style.height = `${height}px`;
+    if (sphereDrawn) { Plotly.Plots.resize(sphere); }
+  }
+}
+window.addEventListener("resize", fitSphere);
+
 function slotPanel(slot, entry) {
   if (!entry) { return `<div class="slot empty" data-slot="${esc(slot.id)}"><h3>slot ${esc(slot.id)}</h3>no unit</div>`; }
   const v = entry.result;
@@ -201,12 +217,13 @@ function render(s) {
   $("left").classList.toggle("retry", retrying);
   $("retry-banner").hidden = !retrying;
   if (retrying) {
+    // the sides to turn are under the sphere: said twice, they pushed the prompt off a short screen
     $("retry-title").textContent = `${run.turns_unit === false ? "MEASURING AGAIN" : "TUMBLE AGAIN"} — attempt ${run.attempt}`;
-    $("retry-why").textContent = missing.length ? `Turn it ${missing.join(", ")}` : "";
     cue(`${run.serial}:${run.attempt}`);
   }
   // a coil's sphere shows the field directions applied; the words for turning the unit do not belong on it
   const sphereChanged = drawSphere(run, run && run.turns_unit === false ? [] : s.sides || []);
+  fitSphere();
 
   const v = s.result;
   const overlay = $("verdict");
