@@ -328,6 +328,9 @@ def test_link_loss_mid_stream_and_reboot_that_never_returns(tmp_path):
         while gcs.conn.recv_match(blocking=False):
             pass
         assert gcs.recv(["RAW_IMU", "HEARTBEAT"], timeout=1.5) is None
+        health = sim.health()  # what a test prints when its station loses the link
+        assert "power UP, thread alive" in health and "1 peer(s), link_dead=True, errors []" in health
+        assert 1.0 <= float(health.split("last sent ")[1].split(" s ago")[0]) < 10.0
     with create_sim("px4", "udp:127.0.0.1:0", workdir=tmp_path, seed=1, boot_time_s=0.2,
                     faults=SimFaults(reboot_fails=True)) as sim:
         gcs = Gcs(sim.address)

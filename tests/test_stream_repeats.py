@@ -60,7 +60,8 @@ def test_a_clean_unit_at_50_hz_stream_and_10_hz_sensor_passes_with_honest_sigma(
         station = write_station("ardupilot-sim.yaml", tmp_path, sim.address, AP,
                                 {"acquisition": {"samples": readings, "rate_hz": 50.0, "timeout_s": 60.0}})
         record = run(station)
-    assert record.verdict is Outcome.PASS, record.cause
+        health = sim.health()  # once lost the link here on CI (nothing received for 3 s), cause not found
+    assert record.verdict is Outcome.PASS, (record.cause, health)
     attempt = record.attempts[-1]
     assert attempt.samples <= readings  # the most asked (a determined tumble may stop before)
     assert 3.0 <= attempt.repeats / attempt.samples <= 5.0  # about four copies dropped per reading

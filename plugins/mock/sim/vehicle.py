@@ -137,6 +137,7 @@ class SimulatedAutopilot(ABC):
         self._after_ack: Callable[[], None] | None = None
         self._requests: queue.Queue[tuple[Callable[[], None], threading.Event]] = queue.Queue()
         self.errors: list[str] = []  # exceptions the board's thread survived (tests assert it stays empty)
+        self.sent_at: float | None = None  # when the board last put bytes on the link (monotonic)
 
     # ------------------------------------------------------------------ flavour
     @abstractmethod
@@ -398,6 +399,18 @@ class SimulatedAutopilot(ABC):
         if self.faults.drop_percent and self.random.random() * 100.0 < self.faults.drop_percent:
             return
         self.link.send(data)
+        self.sent_at = time.monotonic()
+
+    def health(self) -> str:
+        """The board's side of a lost link, in one line: a test that sees the station lose the link
+        says whether the simulator stopped talking, and why, or kept talking to a station that did not
+        hear it."""
+        now = time.monotonic()
+        silent = "never sent" if self.sent_at is None else f"last sent {now - self.sent_at:.1f} s ago"
+        alive = self._thread is not None and self._thread.is_alive()
+        peers = len(getattr(self.link, "clients", getattr(self.link, "peers", ())) or ())
+        return (f"simulator: power {self.power.name}, thread {'alive' if alive else 'dead'}, {silent}, "
+                f"{peers} peer(s), link_dead={self.link_dead}, errors {self.errors[-3:]}")
 
     # ------------------------------------------------------------------ helpers for flavours
     def time_boot_ms(self, now: float) -> int:
