@@ -170,9 +170,9 @@ def _fault_run(name: str, i: int, seed: int) -> tuple[str, bool, str | None]:
     (runs may go in parallel processes): (outcome, or "missed"; the cause's words found; the line
     to print when it was not classified as the table says, else None)."""
     from magline.plugins.mock.sim import SimFaults, create_sim
-    from magline.testing.faults import ARDUPILOT_FAULTS, WARM_UP
+    from magline.testing.faults import ARDUPILOT_FAULTS
 
-    case = next(c for c in (*ARDUPILOT_FAULTS, WARM_UP) if c.name == name)
+    case = next(c for c in ARDUPILOT_FAULTS if c.name == name)
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         with create_sim("ardupilot", "tcp:127.0.0.1:0", workdir=work / "fc", mag_count=case.mags, mag_rate_hz=100.0,
@@ -200,12 +200,12 @@ def fault_units(count: int, rng: np.random.Generator, names: list[str] | None = 
     about 1,000 runs per row, is a night on a many-core machine)."""
     from concurrent.futures import ProcessPoolExecutor
 
-    from magline.testing.faults import ARDUPILOT_FAULTS, WARM_UP
+    from magline.testing.faults import ARDUPILOT_FAULTS
 
     print(f"faults ({count} runs each, simulated ArduPilot, {jobs} at once): expected → PASS / FAIL / ERROR, "
           "cause words found")
     # the warm-up is run when named (not a row of the table: see magline.testing.faults)
-    chosen = ARDUPILOT_FAULTS if names is None else [c for c in (*ARDUPILOT_FAULTS, WARM_UP) if c.name in names]
+    chosen = ARDUPILOT_FAULTS if names is None else [c for c in ARDUPILOT_FAULTS if c.name in names]
     with ProcessPoolExecutor(jobs) if jobs > 1 else contextlib.nullcontext() as pool:
         for case in chosen:
             started, got, worded = time.monotonic(), collections.Counter(), 0

@@ -100,6 +100,20 @@ class FitResult:
         w = np.linalg.eigvalsh(self.soft_iron)
         return float(w[-1] / w[0])
 
+    @property
+    def warm_up_caught(self) -> str:
+        """What the warm-up drift test caught in these readings, in words ("" when nothing): readings
+        set aside, the drift modelled, or a drift found that could be neither.  Why it matters: such a
+        fit is the offset *during* the warm-up, and the sensor goes on settling after it."""
+        drift = self.drift or {}
+        if drift.get("modelled"):
+            return "the offset drifted through the tumble (the drift modelled)"
+        if drift.get("warm_up_excluded"):
+            return f"the offset drifted early in the tumble (the first {drift['warm_up_excluded']} readings set aside)"
+        if drift.get("unresolved"):
+            return "the offset drifted, and the drift could be neither set aside nor modelled"
+        return ""
+
     def apply(self, m_ut: NDArray) -> NDArray:
         """Calibrate raw samples (µT) with this fit (drift-free end state)."""
         return (np.asarray(m_ut, float) - self.hard_iron_ut) @ self.soft_iron.T

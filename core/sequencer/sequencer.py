@@ -321,15 +321,25 @@ class Sequencer:
                 continue
             started = time.monotonic()
             try:
-                run.fits = self._fit_every_sensor(run, result)
-                run.state["fit"] = run.fits[run.magnetometers[0].device_id]
-                run.state["fit_s"] = time.monotonic() - started
-                return
+                fits = self._fit_every_sensor(run, result)
             except FitRefused as exc:
                 refusal = exc
                 stored.accepted, stored.refused = False, f"{exc.reason}: {exc.message}"
                 run.retry_advice = exc.advice[:1].upper() + exc.advice[1:]
                 run.log(f"attempt {attempt}: calibration refused: {exc.message}")
+                continue
+            warming = _warming_up(run, fits) if acq.retry_on_warm_up and attempt <= acq.retries else ""
+            if warming:  # a settling sensor: measured again, not calibrated on its way (see Acquisition)
+                refusal = None
+                stored.accepted, stored.refused = False, f"warm-up: {warming}"
+                again = "tumble again" if run.unit_moves else "measuring again"
+                run.retry_advice = f"The magnetometer was still warming up — {again}"
+                run.log(f"attempt {attempt}: {warming}: measured again (acquisition.retry_on_warm_up)")
+                continue
+            run.fits = fits
+            run.state["fit"] = fits[run.magnetometers[0].device_id]
+            run.state["fit_s"] = time.monotonic() - started
+            return
         if refusal is not None:
             raise FitRefused(refusal.reason, f"{refusal.message} (after {len(run.attempts)} attempts)",
                              refusal.advice)
@@ -536,6 +546,13 @@ def _chosen_magnetometers(run: RunContext) -> list[Magnetometer]:
                            f"this unit; it has {listed}")
     primary = next((m for m in chosen if m.device_id == unit.selected_sensor), chosen[0])
     return [primary, *(m for m in chosen if m is not primary)]
+
+
+def _warming_up(run: RunContext, fits: dict[int, FitResult]) -> str:
+    """What the fits caught of a warm-up, each sensor named when there are several ("" when none)."""
+    caught = [(run.sensor_label(device_id), fit.warm_up_caught) for device_id, fit in fits.items()
+              if fit.warm_up_caught]
+    return "; ".join(f"{label}: {words}" if len(fits) > 1 else words for label, words in caught)
 
 
 def _text(exc: BaseException) -> str:

@@ -181,12 +181,17 @@ class Acquisition(_Strict):
     ``samples`` is then the most it takes.  ``stop: samples`` always reads ``samples`` readings.
     ``wait_for_drift_test`` (default true): a determined tumble also waits until the fit's warm-up
     drift test can judge its readings (on an even sweep, not before it turns back); false for a line
-    whose units are warm before they are calibrated, which saves up to half a sweep."""
+    whose units are warm before they are calibrated, which saves up to half a sweep.
+    ``retry_on_warm_up`` (default true): an attempt whose fit caught the offset drifting (a unit still
+    warming up: readings set aside or the drift modelled) is measured again while ``retries`` remain.
+    The salvaged fit is the offset *during* the warm-up, and the sensor goes on settling after it (the
+    post-reboot field check failed such good units); the last attempt keeps the salvaged fit."""
 
     stop: Literal["determined", "samples"] = "determined"
     min_samples: Annotated[int, Field(ge=12)] = 100
     sigma_margin: Annotated[float, Field(gt=0, le=1)] = 0.7
     wait_for_drift_test: bool = True
+    retry_on_warm_up: bool = True
     samples: Annotated[int, Field(ge=12)] = 600
     rate_hz: Annotated[float, Field(gt=0, le=1000)] = 50.0
     coverage_bins: Annotated[int, Field(ge=4, le=10000)] = 100
