@@ -23,6 +23,7 @@ import socket
 from pymavlink import mavutil
 
 from magline.core.dut import DutError, LinkError
+from magline.core.listening import STALL_S
 
 ML = mavutil.mavlink
 GCS_SYSTEM, GCS_COMPONENT = 255, 190
@@ -95,6 +96,7 @@ class ArduPilotLink:
         self.target_component = ML.MAV_COMP_ID_AUTOPILOT1
         self._next_heartbeat = 0.0
         self.last_rx = 0.0  # monotonic time of the last message from the vehicle
+        self.stalled_s = 0.0  # this process's own stalls since then (core/listening.py)
         self.statustexts: list[str] = []
 
     # ------------------------------------------------------------------ connection
@@ -163,12 +165,18 @@ class ArduPilotLink:
         kinds = {kind} if isinstance(kind, str) else set(kind)
         while True:
             self._beat()
+            wait = min(0.2, max(deadline - time.monotonic(), 0.001))
+            asked = time.monotonic()
             try:
-                msg = self.conn.recv_match(blocking=True, timeout=min(0.2, max(deadline - time.monotonic(), 0.001)))
+                msg = self.conn.recv_match(blocking=True, timeout=wait)
             except OSError as exc:
                 raise self._lost(exc) from exc
+            stalled = time.monotonic() - asked - wait
+            if stalled > STALL_S:  # not listening (core/listening.py): the vehicle's messages wait in the socket
+                deadline += stalled
+                self.stalled_s += stalled
             if msg is not None:
-                self.last_rx = time.monotonic()
+                self.last_rx, self.stalled_s = time.monotonic(), 0.0
                 if msg.get_type() == "STATUSTEXT":
                     self.statustexts.append(msg.text)
                 if msg.get_type() in kinds and (any_system or msg.get_srcSystem() == self.target_system):
@@ -180,7 +188,7 @@ class ArduPilotLink:
         """Drop what is queued (stale echoes, old stream samples); status texts are still collected."""
         try:
             while self.conn is not None and (msg := self.conn.recv_match(blocking=False)) is not None:
-                self.last_rx = time.monotonic()
+                self.last_rx, self.stalled_s = time.monotonic(), 0.0
                 if msg.get_type() == "STATUSTEXT":
                     self.statustexts.append(msg.text)
         except OSError as exc:
@@ -200,8 +208,9 @@ class ArduPilotLink:
             raise self._lost(exc) from exc
 
     def silent_for_s(self) -> float:
-        """Seconds since the vehicle last sent anything (its 1 Hz heartbeat included)."""
-        return time.monotonic() - self.last_rx
+        """Seconds the station listened without hearing the vehicle (its 1 Hz heartbeat included):
+        since the last message, less this process's own stalls (:mod:`magline.core.listening`)."""
+        return time.monotonic() - self.last_rx - self.stalled_s
 
     def require_alive(self, what: str) -> None:
         """After a wait that got no answer: return when the vehicle still talks (its 1 Hz heartbeat

@@ -37,6 +37,7 @@ from magline.core.dut import (
 )
 from magline.core.faults import StationFault
 from magline.core.fit import FitResult
+from magline.core.listening import get_listening
 from magline.core.readings import INT16_MG_RANGE_UT, SensorStreams
 from magline.core.station.schema import Product
 from magline.plugins.px4.calibration import (
@@ -242,7 +243,7 @@ class Px4Dut:
                                            1e6 / rate_hz)
             while True:
                 try:
-                    kind, msg = inbox.get(timeout=self.opts.stream_timeout_s)
+                    kind, msg = get_listening(inbox, self.opts.stream_timeout_s)
                 except queue.Empty:
                     self.link.require_alive(f"link lost during acquisition: no {'/'.join(kinds)} for "
                                             f"{self.opts.stream_timeout_s:g} s")
@@ -341,7 +342,7 @@ class Px4Dut:
         inbox, handle = self.link.subscribe(SYSTEM_TIME[0])
         try:
             self.link.require_accepted(MAV_CMD_REQUEST_MESSAGE, "SYSTEM_TIME request", SYSTEM_TIME[1])
-            return inbox.get(timeout=2.0)["time_boot_ms"] / 1000.0
+            return get_listening(inbox, 2.0)["time_boot_ms"] / 1000.0
         except queue.Empty:
             return None
         finally:
@@ -365,7 +366,7 @@ class Px4Dut:
             self.link.require_accepted(MAV_CMD_SET_MESSAGE_INTERVAL, f"{kind} stream request", msg_id, 1e6 / 50)
             while len(rows) < count:
                 try:
-                    msg = inbox.get(timeout=self.opts.stream_timeout_s)
+                    msg = get_listening(inbox, self.opts.stream_timeout_s)
                 except queue.Empty:
                     self.link.require_alive(f"waiting for {kind}")
                     return None  # the firmware does not send it: nothing to prove with

@@ -29,6 +29,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from magline.core.dut import DutError, LinkError
 from magline.core.faults import StationFault
+from magline.core.listening import get_listening
 
 log = logging.getLogger("magline.px4.mavsdk")
 # MAVSDK's results that mean the command was not answered, as opposed to answered with a no
@@ -114,7 +115,7 @@ class Px4Link:
             raise LinkError(f"link to {self.url} is closed ({what})")
         inbox, handle = self.subscribe("HEARTBEAT")
         try:
-            inbox.get(timeout=SILENCE_S)
+            get_listening(inbox, SILENCE_S)
         except queue.Empty:
             raise LinkError(f"link to {self.url} lost: no heartbeat for {SILENCE_S:g} s ({what})") from None
         finally:
