@@ -232,18 +232,28 @@ class VerifySettings(_Strict):
     field_tolerance_pct: Annotated[float, Field(gt=0, le=50)] = 3.0
 
 
+# Not the process's figures, so not reviewed by default: the count of attempts, and the σ of the
+# measurement.  A determined tumble ends when its σ reach the stop rule's target, so they cluster just
+# under it and a unit ended otherwise sits far off that tight band: on a simulated line of one design
+# (benchmarks/review_flags.py, 200 good units reviewed) these four drew 29 of the review's 54 flags,
+# every one for an uncertainty larger than the cluster and still inside its limit, which validate judges.
+NOT_PROCESS_FIGURES = ("attempts", "hard_iron_sigma_ut", "direction_sigma_deg", "mounting_sigma_deg",
+                       "drift_detectable_ut")
+
+
 class ReviewSettings(_Strict):
     """The in-run process review: each numeric measurement of a unit that passed its limits is
     compared with the same measurement of the last ``window`` passing units of the same part on
     the same line; outside median ± ``sigma``·σ (robust) it is flagged for engineering review —
     the unit still passes.  With fewer than ``min_units`` such units there is no flag, and the
-    record says why.  ``exclude``: counts whose spread is not a process figure."""
+    record says why.  ``exclude``: measurements whose spread is not a process figure — by default the
+    count of attempts and the uncertainties of the measurement itself (:data:`NOT_PROCESS_FIGURES`)."""
 
     enabled: bool = True
     window: Annotated[int, Field(ge=5, le=100_000)] = 200
     min_units: Annotated[int, Field(ge=5)] = 30
     sigma: Annotated[float, Field(gt=0, le=10)] = 3.0
-    exclude: list[str] = Field(default_factory=lambda: ["attempts"])
+    exclude: list[str] = Field(default_factory=lambda: list(NOT_PROCESS_FIGURES))
 
     @model_validator(mode="after")
     def _enough(self) -> ReviewSettings:
