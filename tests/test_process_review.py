@@ -136,7 +136,8 @@ SIGMA_FIGURES = {"hard_iron_sigma_ut", "direction_sigma_deg", "mounting_sigma_de
 def test_the_measurements_own_uncertainties_are_not_reviewed_unless_the_station_asks(make_station, tmp_path):
     """A determined tumble ends when its σ reach the stop rule's target: they cluster under it, and a
     unit ended otherwise was flagged for an uncertainty still inside its limit (29 of 54 flags on 200
-    good simulated units of one design, benchmarks/review_flags.py).  By default they are not reviewed; a station may ask."""
+    good simulated units of one design, benchmarks/review_flags.py).  By default they are not reviewed;
+    a station may ask."""
     first = run(make_station({"acquisition": {"stop": "samples"}}), "BASE-1")
     seed_history(tmp_path / "magline-demo-results.sqlite", first, 40, np.random.default_rng(5))
     short = {"products": {"MOCK-100": {"options": {"noise_ut": 0.6}}},  # twice the noise: σ twice as large
