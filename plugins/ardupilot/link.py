@@ -23,7 +23,7 @@ import socket
 from pymavlink import mavutil
 
 from magline.core.dut import DutError, LinkError
-from magline.core.listening import STALL_S
+from magline.core.listening import SLICE_S, STALL_S
 
 ML = mavutil.mavlink
 GCS_SYSTEM, GCS_COMPONENT = 255, 190
@@ -165,7 +165,7 @@ class ArduPilotLink:
         kinds = {kind} if isinstance(kind, str) else set(kind)
         while True:
             self._beat()
-            wait = min(0.2, max(deadline - time.monotonic(), 0.001))
+            wait = min(SLICE_S, max(deadline - time.monotonic(), 0.001))
             asked = time.monotonic()
             try:
                 msg = self.conn.recv_match(blocking=True, timeout=wait)
