@@ -128,6 +128,10 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     plugins.hook.magline_add_commands(subparsers=sub)
     args = parser.parse_args(argv)
+    since, until = getattr(args, "since", None), getattr(args, "until", None)
+    if since and until and since >= until:  # both in the stored form: the same zone and layout, so ordered as text
+        _err(f"--since {since} is not before --until {until}: no run can start in that window (swapped?)")
+        return 2
     if hasattr(args, "handler"):
         return args.handler(args)
     handler = {"run": _run, "check": _check, "fit": _fit, "plugins": _plugins, "history": _history,
