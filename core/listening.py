@@ -19,6 +19,13 @@ STALL_S = 0.25  # a wait this much longer than asked was a stall of this process
 SLICE_S = 0.2  # waits are cut this short: a stall shows as a slice that overran, whatever its length
 
 
+def stall_s(asked: float, wait: float) -> float:
+    """How long this process stalled in a wait of ``wait`` seconds begun at ``asked`` (monotonic): the
+    overrun when it exceeds :data:`STALL_S`, else 0."""
+    overrun = time.monotonic() - asked - wait
+    return overrun if overrun > STALL_S else 0.0
+
+
 def get_listening(inbox: queue.Queue, timeout_s: float) -> Any:
     """``inbox.get`` within ``timeout_s`` of listening; :class:`queue.Empty` when nothing came."""
     deadline = time.monotonic() + timeout_s
@@ -28,9 +35,8 @@ def get_listening(inbox: queue.Queue, timeout_s: float) -> Any:
         try:
             return inbox.get(timeout=wait)
         except queue.Empty:
-            ended = time.monotonic()
-            stalled = ended - asked - wait
-            if stalled > STALL_S:
+            stalled = stall_s(asked, wait)
+            if stalled:
                 deadline += stalled
-            elif ended >= deadline:
+            elif time.monotonic() >= deadline:
                 raise

@@ -550,8 +550,8 @@ def _chosen_magnetometers(run: RunContext) -> list[Magnetometer]:
 
 def _warming_up(run: RunContext, fits: dict[int, FitResult]) -> str:
     """What the fits caught of a warm-up, each sensor named when there are several ("" when none)."""
-    caught = [(run.sensor_label(device_id), fit.warm_up_caught) for device_id, fit in fits.items()
-              if fit.warm_up_caught]
+    caught = [(run.sensor_label(device_id), words) for device_id, fit in fits.items()
+              if (words := fit.warm_up_caught)]
     return "; ".join(f"{label}: {words}" if len(fits) > 1 else words for label, words in caught)
 
 

@@ -23,7 +23,7 @@ import socket
 from pymavlink import mavutil
 
 from magline.core.dut import DutError, LinkError
-from magline.core.listening import SLICE_S, STALL_S
+from magline.core.listening import SLICE_S, stall_s
 
 ML = mavutil.mavlink
 GCS_SYSTEM, GCS_COMPONENT = 255, 190
@@ -171,8 +171,8 @@ class ArduPilotLink:
                 msg = self.conn.recv_match(blocking=True, timeout=wait)
             except OSError as exc:
                 raise self._lost(exc) from exc
-            stalled = time.monotonic() - asked - wait
-            if stalled > STALL_S:  # not listening (core/listening.py): the vehicle's messages wait in the socket
+            stalled = stall_s(asked, wait)
+            if stalled:  # not listening (core/listening.py): the vehicle's messages wait in the socket
                 deadline += stalled
                 self.stalled_s += stalled
             if msg is not None:
