@@ -359,8 +359,27 @@ def test_a_three_compass_unit_shows_a_card_per_compass_naming_the_one_that_faile
             assert [c["title"].split(":")[0] for c in compasses] == ["compass 1", "compass 2", "compass 3"]
             assert [c["cls"] for c in compasses] == ["sensor pass", "sensor fail", "sensor pass"]
             assert "mag2.orientation" in compasses[1]["text"] and "hard iron [" in compasses[0]["text"]
-            assert any(c["title"].startswith("agreement") for c in cards)
+            assert "compass 2:" not in compasses[1]["text"].split("\n", 1)[1]  # the card's title names it, once
+            # the three pairs that agree share one card (six cards ran off a 1366×768 screen)
+            assert cards[3:] == [{"cls": "sensor pass", "title": "agreement",
+                                  "text": "agreement\nPASS\nmag1 and mag2 · mag1 and mag3 · mag2 and mag3"}]
             assert page.inner_text("#verdict-items") == ""  # the failures are in their compass's card, once
+            # read from two metres, where nobody scrolls: the whole verdict is on the screen, on a line
+            # PC's full-HD monitor and on the short screens, the words that say what to do at full size
+            for width, height in [FULL_HD, *SHORT_SCREENS]:
+                page.set_viewport_size({"width": width, "height": height})
+                page.wait_for_function(f"innerWidth === {width} && innerHeight === {height}")
+                page.evaluate("new Promise((done) => requestAnimationFrame(() => requestAnimationFrame(done)))")
+                with contextlib.suppress(PlaywrightTimeout):  # the sphere behind the verdict is redrawn a moment later
+                    page.wait_for_function("document.documentElement.scrollHeight <= innerHeight", timeout=5_000)
+                fitted = page.evaluate("""() => ({page: document.documentElement.scrollHeight, height: innerHeight,
+                    hint: document.querySelector('#verdict .hint').getBoundingClientRect().bottom,
+                    word: parseFloat(getComputedStyle(document.getElementById('verdict-word')).fontSize),
+                    action: parseFloat(getComputedStyle(document.getElementById('verdict-action')).fontSize)})""")
+                assert fitted["page"] <= fitted["height"] and fitted["hint"] <= fitted["height"], (width, fitted)
+                if (width, height) == FULL_HD:
+                    assert fitted["action"] >= READABLE_AT_2M_PX and fitted["word"] >= 3 * READABLE_AT_2M_PX
+                    screenshot(page, tmp_path / "three-compasses-full-hd.png")
             screenshot(page, tmp_path / "three-compasses.png")
         finally:
             served.stop()
@@ -368,6 +387,10 @@ def test_a_three_compass_unit_shows_a_card_per_compass_naming_the_one_that_faile
 
 
 SHORT_SCREENS = [(1366, 768), (1024, 768), (1280, 720)]  # line laptops and old line PCs
+FULL_HD = (1920, 1080)  # a line PC's 24-inch monitor: 0.277 mm a pixel
+# A capital read at two metres needs 16 arc minutes (ANSI/HFES 100): 9.3 mm, and DejaVu Sans's capitals
+# are 0.73 of its size: 9.3 / 0.73 / 0.277 = 46 px on that monitor.
+READABLE_AT_2M_PX = 46
 
 
 def _layout(page) -> dict:
@@ -391,7 +414,9 @@ def test_on_a_short_screen_the_sides_still_to_turn_are_on_it_without_scrolling(s
     """At 768 px and less the words under the sphere fell off the bottom of the screen (the sphere kept
     its 460 px), and on a retry the banner repeated those words and pushed the prompt and the progress
     off it too; an operator two metres away cannot scroll.  Measured on a real mid-tumble state with all
-    six sides still to turn (the most words), on the first tumble and on a retry, at each screen size."""
+    six sides still to turn (the most words), on the first tumble and on a retry, at each screen size.
+    On a full-HD monitor the words were as small as on a laptop (35 and 32 px): there they grow to be
+    read at two metres, and the page still fits."""
     served, _ = screen(BUSY_UNIT)
     page = open_page(browser, served.url, viewport=SHORT_SCREENS[0]).page
     page.wait_for_selector("#station-name:has-text('demo-01')")
@@ -413,13 +438,18 @@ def test_on_a_short_screen_the_sides_still_to_turn_are_on_it_without_scrolling(s
             assert page.inner_text("#retry-title") == "TUMBLE AGAIN — attempt 2"
             assert "down" not in page.inner_text("#retry-banner")  # the sides are said once, under the sphere
         assert len(sides) == 6 and page.inner_text("#missing") == f"still to turn down: {', '.join(sides)}"
-        for width, height in SHORT_SCREENS:
+        for width, height in [*SHORT_SCREENS, FULL_HD]:
             page.set_viewport_size({"width": width, "height": height})
             page.wait_for_function(f"innerWidth === {width} && innerHeight === {height}")
             layout = _layout(page)
             assert layout["bottom"] <= layout["height"], (attempt, width, layout)
             assert layout["sphere"] >= 240, (attempt, width, layout)  # still a sphere to read the coverage from
             assert abs(layout["drawing"] - layout["sphere"]) < 2, (attempt, width, layout)
+            if (width, height) == FULL_HD:  # where the screen has room, the words to act on are read at 2 m
+                sizes = page.evaluate("""(ids) => ids.map((id) => parseFloat(getComputedStyle(
+                    document.getElementById(id)).fontSize))""", ["prompt", "missing", "retry-title"])
+                assert min(sizes[: 3 if attempt == 2 else 2]) >= READABLE_AT_2M_PX, (attempt, sizes)
+                assert page.evaluate("document.documentElement.scrollHeight") <= height  # the whole page
 
 
 def test_a_coil_unit_lights_the_field_directions_applied_and_asks_nobody_to_turn_it(browser, tmp_path):

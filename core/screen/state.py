@@ -205,21 +205,24 @@ class ScreenState:
             self._changed()
 
 
-def verdict_items(record: RunRecord, measured: list) -> list[dict[str, str]]:
-    """The measurements the operator must see: every FAIL and REVIEW, with why a REVIEW was flagged."""
+def verdict_items(record: RunRecord, measured: list, owner: bool = True) -> list[dict[str, str]]:
+    """The measurements the operator must see: every FAIL and REVIEW, with why a REVIEW was flagged.
+    ``owner`` False: their words without the compass or pair they are of (a card titled with it)."""
     flags = {f["name"]: f["reason"] for f in record.review}
-    return [{"name": m.name, "label": label_of(m.name), "value": fmt(m.value, m.unit),
+    return [{"name": m.name, "label": label_of(m.name, owner), "value": fmt(m.value, m.unit),
              "limit": f"[{fmt(m.low)}, {fmt(m.high)}]", "verdict": str(m.verdict),
              "why": flags.get(m.name, "within the marginal band" if m.verdict is Verdict.REVIEW else "")}
             for m in measured if m.verdict in (Verdict.FAIL, Verdict.REVIEW)]
 
 
-def label_of(name: str) -> str:
-    """A measurement in words (the catalogue's meaning, capitalised), the compass or pair it is of in front:
-    "compass 2: Hard-iron offset, x"."""
+def label_of(name: str, owner: bool = True) -> str:
+    """A measurement in words (the catalogue's meaning, capitalised), the compass or pair it is of in front
+    unless ``owner`` is False: "compass 2: Hard-iron offset, x"."""
     meaning = CATALOGUE.get(base_name(name), ("", ""))[1]
     if not meaning:
         return name
+    if not owner:
+        return meaning[0].upper() + meaning[1:]
     prefix = name[: len(name) - len(base_name(name))].rstrip(".")
     owner = ("compass " + prefix[3:] + ": ") if prefix.startswith("mag") and "-" not in prefix else (
         f"compasses {prefix.replace('mag', '').replace('-', ' and ')}: " if prefix else "")
@@ -227,25 +230,39 @@ def label_of(name: str) -> str:
 
 
 def sensor_cards(record: RunRecord) -> list[dict[str, Any]]:
-    """A unit with several magnetometers: one card per compass, then one per pair's agreement, each with
+    """A unit with several magnetometers: one card per compass, then the pairs' agreement, each with
     its own verdict, its hard iron and what failed in it — so the operator sees *which* compass to look at
-    (the GPS mast's, the board's). One magnetometer: no cards (the verdict says it all)."""
+    (the GPS mast's, the board's). One magnetometer: no cards (the verdict says it all).  Pairs that
+    agree share one card (three compasses make three pairs: six cards ran off a 1366×768 screen); a
+    pair that failed or is marginal has its own."""
     titles = record.sensor_titles()
     if len(titles) < 2:
         return []
     hard_iron = {"": (record.calibration or {}).get("hard_iron_ut")}
     for prefix, other in ((record.calibration or {}).get("magnetometers") or {}).items():
         hard_iron[prefix + "."] = other.get("hard_iron_ut")
-    cards = []
+    cards, agreeing = [], []
     for prefix, measured in by_sensor(verdicts(record.measurements)).items():
         failed = any(m.verdict is Verdict.FAIL for m in measured)
         marginal = any(m.verdict is Verdict.REVIEW for m in measured)
+        pair = "-" in prefix  # mag1-mag2.: a pair; "" and mag2.: a compass
+        if pair and not failed and not marginal:
+            agreeing.append(_pair_words(prefix))
+            continue
         h = hard_iron.get(prefix)
-        cards.append({"title": titles.get(prefix) or "agreement " + prefix.rstrip(".").replace("-", " and "),
+        title = f"agreement {_pair_words(prefix)}" if pair else titles.get(prefix, prefix.rstrip("."))
+        cards.append({"title": title,
                       "verdict": "fail" if failed else "review" if marginal else "pass",
-                      "hard_iron": ("hard iron [" + ", ".join(fmt(v, digits=3) for v in h) + "] µT") if h else "",
-                      "items": verdict_items(record, measured)})
+                      "detail": ("hard iron [" + ", ".join(fmt(v, digits=3) for v in h) + "] µT") if h else "",
+                      "items": verdict_items(record, measured, owner=False)})
+    if agreeing:
+        cards.append({"title": "agreement", "verdict": "pass", "detail": " · ".join(agreeing), "items": []})
     return cards
+
+
+def _pair_words(prefix: str) -> str:
+    """``mag1-mag2.`` → "mag1 and mag2", as the console titles a pair's section."""
+    return prefix.rstrip(".").replace("-", " and ")
 
 
 def side_labels() -> list[dict[str, object]]:

@@ -50,7 +50,7 @@ function drawSphere(run, sides) {
       // the same six words the coverage line names, where they are on the sphere
       const words = { type: "scatter3d", mode: "text", x: sides.map((w) => w.at[0] * 1.3),
                       y: sides.map((w) => w.at[1] * 1.3), z: sides.map((w) => w.at[2] * 1.3),
-                      text: sides.map((w) => w.name), textfont: { size: 16, color: "#1d1d1f" }, hoverinfo: "skip" };
+                      text: sides.map((w) => w.name), textfont: { size: rootPx(), color: "#1d1d1f" }, hoverinfo: "skip" };
       Plotly.newPlot("sphere", [trace, words], layout, { displayModeBar: false, responsive: true });
       sphereDrawn = true;
     } else {
@@ -61,21 +61,49 @@ function drawSphere(run, sides) {
   return true;
 }
 
-// The sphere takes the height the words under it leave on the screen, within 240–460 px: the sides
-// still to turn must be on a short screen (a 1024×768 line PC) without scrolling — an operator two
-// metres away cannot scroll — and their lines change as sides are covered.
-const SPHERE_PX = { min: 240, max: 460, below: 16 };
+// The root font size (screen.css): 16 px on a laptop, up to 24 px on a full-HD monitor.
+function rootPx() { return parseFloat(getComputedStyle(document.documentElement).fontSize) || 16; }
+
+// The sphere takes the height the words under it leave on the screen, within 240–460 px (growing with
+// the root font on a large screen): the sides still to turn must be on a short screen (a 1024×768 line
+// PC) without scrolling — an operator two metres away cannot scroll — and their lines change as sides
+// are covered.
+const SPHERE_PX = { min: 240, max: 460 };
 function fitSphere() {
   const sphere = $("sphere");
   const words = $("coverage-text").offsetHeight + $("missing").offsetHeight;
   const top = sphere.getBoundingClientRect().top + window.scrollY;
-  const height = Math.round(Math.min(SPHERE_PX.max, Math.max(SPHERE_PX.min, innerHeight - top - words - SPHERE_PX.below)));
+  const most = SPHERE_PX.max * rootPx() / 16;
+  const below = rootPx();  // the page's bottom padding (main: 1em)
+  const height = Math.round(Math.min(most, Math.max(SPHERE_PX.min, innerHeight - top - words - below)));
   if (Math.abs(sphere.offsetHeight - height) > 1) {
     sphere.style.height = `${height}px`;
     if (sphereDrawn) { Plotly.Plots.resize(sphere); }
   }
 }
 window.addEventListener("resize", fitSphere);
+
+// The verdict is read from two metres, where nobody scrolls: when the details under the word and what
+// to do with the unit (the cause, a card per compass and per pair, the record) would run off the
+// bottom of the screen, they are drawn smaller, down to half their size; the word, the serial and
+// what to do keep theirs.
+const DETAIL = { least: 0.5, step: 0.1 };
+function fitVerdict() {
+  const overlay = $("verdict");
+  if (overlay.hidden) { return; }
+  const shown = [...overlay.children].filter((e) => e.offsetParent !== null);
+  const style = getComputedStyle(overlay);
+  const room = innerHeight - (overlay.getBoundingClientRect().top + window.scrollY) - parseFloat(style.paddingTop)
+    - parseFloat(style.paddingBottom) - rootPx();  // and the page's bottom padding (main: 1em)
+  const needed = () => shown.at(-1).getBoundingClientRect().bottom - shown[0].getBoundingClientRect().top;
+  let detail = 1;
+  overlay.style.setProperty("--detail", "1");
+  while (detail - DETAIL.step >= DETAIL.least - 1e-9 && needed() > room) {
+    detail -= DETAIL.step;
+    overlay.style.setProperty("--detail", detail.toFixed(2));
+  }
+}
+window.addEventListener("resize", fitVerdict);
 
 function slotPanel(slot, entry) {
   if (!entry) { return `<div class="slot empty" data-slot="${esc(slot.id)}"><h3>slot ${esc(slot.id)}</h3>no unit</div>`; }
@@ -143,6 +171,13 @@ function itemRows(items) {
   // what was measured in words first; the catalogue name small, for the technician
   return (items || []).map((m) => `<tr><td>${esc(m.label || m.name)}<br><small>${esc(m.name)}</small></td>`
     + `<td>${esc(m.value)}</td><td>${esc(m.limit)}</td><td>${esc(m.verdict)}</td><td>${esc(m.why)}</td></tr>`).join("");
+}
+
+// In a compass's card, whose title already names it: a line per measurement, its words then value,
+// limits and verdict (a table's columns squeezed into a quarter of the screen ran to many lines).
+function cardItems(items) {
+  return items.map((m) => `<div class="item">${esc(m.label)}: <b>${esc(m.value)}</b> ${esc(m.limit)} ${esc(m.verdict)}`
+    + `${m.why ? ` — ${esc(m.why)}` : ""} <small>${esc(m.name)}</small></div>`).join("");
 }
 
 // One cue per retry (per unit and attempt), where the browser allows sound: a page that has had a
@@ -240,13 +275,14 @@ function render(s) {
     // several magnetometers: a card per compass and per pair, each with its own verdict and failures
     $("verdict-items").innerHTML = cards.length ? "" : itemRows(v.items);
     $("verdict-sensors").innerHTML = cards.map((c) => `<div class="sensor ${esc(c.verdict)}"><h3>${esc(c.title)}</h3>`
-      + `<div class="word">${esc(c.verdict.toUpperCase())}</div><div>${esc(c.hard_iron)}</div>`
-      + (c.items.length ? `<table>${itemRows(c.items)}</table>` : "") + "</div>").join("");
+      + `<div class="word">${esc(c.verdict.toUpperCase())}</div><div>${esc(c.detail)}</div>`
+      + cardItems(c.items) + "</div>").join("");
     $("verdict-store").textContent = v.store ? `record: ${v.store}` : "";
     const link = $("verdict-report");
     link.hidden = !v.report;
     if (v.report) { link.href = `/reports/${encodeURIComponent(v.report)}`; }
     overlay.hidden = false;
+    fitVerdict();
   } else {
     overlay.hidden = true;
   }
