@@ -224,3 +224,35 @@ def test_a_drift_found_but_not_removable_is_said_and_holds_the_stop(monkeypatch)
     assert _drift_words(unjudged.drift) == "not judged: the drift model could not be fitted to these readings"
     caught = _fit(*warm)  # the same readings without a refusal: set aside or modelled, and the stop may end
     assert not caught.drift.get("unresolved") and rule.judge({"": caught}) is not None
+
+
+def test_after_a_warm_up_an_offset_that_stayed_is_settled_and_one_that_moved_is_measured_again():
+    """The check between attempts after a warm-up (``core/sequencer/settling``): two tumbles of one good
+    unit agree (the moved offset's χ²₃ keeps its 10⁻³ alarm: σ is honest), an offset 1 µT away is seen
+    past the station's 0.5 µT limit on the offset σ, and not where the station accepts 1.5 µT."""
+    from magline.core.sequencer.settling import offset_moved
+    from magline.core.synthetic import motion_directions, random_truth
+
+    rng = np.random.default_rng(sum(map(ord, "settled after a warm-up")))  # from the test's name, never its outcome
+    alarms, seen, accepted = 0, [], 0
+    for i in range(100):
+        truth = random_truth(rng, noise_ut=float(rng.uniform(0.1, 0.5)))
+
+        def tumble(shift=(0.0, 0.0, 0.0), truth=truth, motion=("hand_tumble", "full_sphere")[i % 2]):
+            mag = truth.read(motion_directions(motion, 300, rng, np.array([0.4, 0.0, 0.9])) * 48.0, rng) + shift
+            return {7: _fit(np.round(mag * 10.0) / 10.0, np.arange(300) * 50.0)}
+
+        def moved(before, now, sigma_limit):
+            return offset_moved(before, now, str, lambda device_id: sigma_limit)
+
+        first = tumble()
+        alarms += bool(moved(first, tumble(), 0.0))
+        away = rng.normal(size=3)
+        later = tumble(1.0 * away / np.linalg.norm(away))
+        words = moved(first, later, 0.5)
+        if words.startswith("the offset moved ") and words.endswith(" µT since the last attempt (still settling)"):
+            seen.append(float(words.split()[3]))
+        accepted += moved(first, later, 1.5) == ""
+    assert alarms <= 2  # nominally 0.1 in 100
+    assert len(seen) == 100 and accepted == 100
+    assert abs(np.mean(seen) - 1.0) < 0.1  # the words say how far it moved

@@ -86,13 +86,19 @@ def test_a_warm_up_caught_is_measured_again_and_the_settled_sensor_calibrated(tm
     190 benchmark runs); calibrated there and then, the unit carried the offset *during* the warm-up and
     the post-reboot field check FAILed the good unit in 2 of 190 runs (+3.1 %, +3.9 % against 3 %).  The
     station now measures again: the first attempt is kept, refused for the warm-up, with the reason and
-    the operator's words, and the calibration written is a later attempt's."""
+    the operator's words, and the calibration written is a later attempt's.  The tumble right after the
+    warm-up still falls inside it (its drift too small within the tumble for the drift test: 2 of 25
+    benchmark runs FAILed the field check after the power cycle again): an attempt is taken only when
+    its offset agrees with the previous one's, so the second is refused too (the drift caught again, or
+    the offset it moved since the first)."""
     with ap_sim(tmp_path, SimFaults.parse(list(WARM_UP.faults)), mag_count=WARM_UP.mags) as sim:
         record = run_unit(write_station("ardupilot-sim.yaml", tmp_path, sim.address, {**AP, **PASSING}), "SN-W")
     assert record.verdict is Outcome.PASS, record.cause
     first = record.attempts[0]
     assert not first.accepted and first.refused.startswith("warm-up: the offset drifted"), first.refused
     assert len(record.attempts) >= 2 and record.attempts[-1].accepted
+    second = record.attempts[1]  # still settling: the drift caught again, or the offset moved since
+    assert second.refused is not None and second.refused.startswith("warm-up: "), second.refused
     lines = [line for phase in record.phases for line in phase.log]
     assert "operator: The magnetometer was still warming up — tumble again" in lines
     assert any(line.startswith("attempt 1: the offset drifted") and "measured again" in line for line in lines)

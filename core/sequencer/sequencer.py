@@ -16,6 +16,7 @@ import threading
 import time
 import traceback
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -24,7 +25,7 @@ from magline.core.dut import DutError, Magnetometer, NotRestored
 from magline.core.faults import StationFault, UnitAborted
 from magline.core.field import FieldSourceError
 from magline.core.fit import FitRefused, FitResult
-from magline.core.measurements import Json, Verdict, prefixed, verdicts
+from magline.core.measurements import Json, Verdict, limit_for, prefixed, verdicts
 from magline.core.plugins import Plugins
 from magline.core.quality.review import review
 from magline.core.record import AttemptRecord, Outcome, PersistReport, PhaseResult, RunRecord, now_iso
@@ -34,6 +35,7 @@ from magline.core.sequencer.abort import AbortSwitch
 from magline.core.sequencer.context import Acquisition, AcquisitionAborted, RunContext
 from magline.core.sequencer.hold import claimed_in_store, holder_of, holding, run_locks
 from magline.core.sequencer.rounds import MotionRounds
+from magline.core.sequencer.settling import offset_moved
 from magline.core.sequencer.unit_log import unit_log_capture
 from magline.core.serials import clean_serial
 from magline.core.station.schema import Slot, Station
@@ -295,6 +297,7 @@ class Sequencer:
     def _acquire_attempts(self, run: RunContext) -> None:
         acq = self.station.acquisition
         refusal: FitRefused | None = None
+        warm: dict[int, FitResult] | None = None  # the fits of the last attempt refused for a warm-up
         for attempt in range(1, acq.retries + 2):
             if attempt > 1:
                 self.sleep(acq.retry_delay_s)
@@ -329,8 +332,14 @@ class Sequencer:
                 run.log(f"attempt {attempt}: calibration refused: {exc.message}")
                 continue
             warming = _warming_up(run, fits) if acq.retry_on_warm_up and attempt <= acq.retries else ""
+            moved = "" if warming or warm is None else offset_moved(  # settled since the warm-up?
+                warm, fits, run.sensor_label, partial(_accepted_offset_sigma, run))
+            if moved and attempt > acq.retries:
+                run.log(f"attempt {attempt}: {moved}: the last attempt, calibrated as it is")
+            elif moved:
+                warming = moved
             if warming:  # a settling sensor: measured again, not calibrated on its way (see Acquisition)
-                refusal = None
+                refusal, warm = None, fits
                 stored.accepted, stored.refused = False, f"warm-up: {warming}"
                 again = "tumble again" if run.unit_moves else "measuring again"
                 run.retry_advice = f"The magnetometer was still warming up — {again}"
@@ -546,6 +555,12 @@ def _chosen_magnetometers(run: RunContext) -> list[Magnetometer]:
                            f"this unit; it has {listed}")
     primary = next((m for m in chosen if m.device_id == unit.selected_sensor), chosen[0])
     return [primary, *(m for m in chosen if m is not primary)]
+
+
+def _accepted_offset_sigma(run: RunContext, device_id: int) -> float:
+    """The station's upper limit on a sensor's offset σ (``hard_iron_sigma_ut``), 0 when it sets none."""
+    limit = limit_for(run.sensor_prefix(device_id) + "hard_iron_sigma_ut", run.limits)
+    return float(limit.high) if limit is not None and limit.high is not None else 0.0
 
 
 def _warming_up(run: RunContext, fits: dict[int, FitResult]) -> str:

@@ -185,7 +185,9 @@ class Acquisition(_Strict):
     ``retry_on_warm_up`` (default true): an attempt whose fit caught the offset drifting (a unit still
     warming up: readings set aside or the drift modelled) is measured again while ``retries`` remain.
     The salvaged fit is the offset *during* the warm-up, and the sensor goes on settling after it (the
-    post-reboot field check failed such good units); the last attempt keeps the salvaged fit."""
+    post-reboot field check failed such good units); the attempt after it is taken only where its
+    offset agrees with the previous attempt's (beyond noise and the station's ``hard_iron_sigma_ut``
+    limit it moved: measured again); the last attempt keeps its fit."""
 
     stop: Literal["determined", "samples"] = "determined"
     min_samples: Annotated[int, Field(ge=12)] = 100
