@@ -390,7 +390,8 @@ def _calibrated_output_problems(run: RunContext, dut: object, figures: dict) -> 
             whose = f"{run.sensor_label(sensor.device_id)}: " if several else ""
             problems.append(f"{whose}the firmware's calibrated field reads {measured:.1f} µT against the reference "
                             f"{reference:.1f} µT ({off_pct:+.1f} %, tolerance ±{tolerance:g} %): the calibration is "
-                            "not applied to this sensor as written")
+                            "not applied to this sensor as written, or the sensor's offset moved since its tumble "
+                            "(still warming up?)")
     return problems
 
 
