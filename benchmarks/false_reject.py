@@ -208,12 +208,15 @@ def fault_units(count: int, rng: np.random.Generator, names: list[str] | None = 
     print(f"faults ({count} runs each, simulated ArduPilot, {jobs} at once): expected → PASS / FAIL / ERROR, "
           "cause words found")
     chosen = ARDUPILOT_FAULTS if names is None else [c for c in ARDUPILOT_FAULTS if c.name in names]
+    seeds = {case.name: [int(rng.integers(1 << 30)) for _ in range(count)] for case in chosen}
     with ProcessPoolExecutor(jobs) if jobs > 1 else contextlib.nullcontext() as pool:
+        # every row's runs queued at once: a row's slowest runs no longer leave the other workers idle
+        queued = {case.name: (pool.map(_fault_run, [case.name] * count, range(count), seeds[case.name])
+                              if pool is not None else None) for case in chosen}
+        started = time.monotonic()
         for case in chosen:
-            started, got, worded = time.monotonic(), collections.Counter(), 0
-            seeds = [int(rng.integers(1 << 30)) for _ in range(count)]
-            runs = (pool.map(_fault_run, [case.name] * count, range(count), seeds) if pool is not None
-                    else map(_fault_run, [case.name] * count, range(count), seeds))
+            got, worded = collections.Counter(), 0
+            runs = queued[case.name] or map(_fault_run, [case.name] * count, range(count), seeds[case.name])
             for outcome, found, line in runs:
                 got[outcome] += 1
                 worded += found
@@ -222,7 +225,7 @@ def fault_units(count: int, rng: np.random.Generator, names: list[str] | None = 
             right, missed = got[case.outcome], f" / missed {got['missed']}" if got["missed"] else ""
             print(f"   {case.name:<19} {case.outcome.upper():<5} → PASS {got['pass']} / FAIL {got['fail']} / ERROR "
                   f"{got['error']}{missed}: {right} of {count} right ({100.0 * right / count:.1f} %), words {worded} "
-                  f"({time.monotonic() - started:.0f} s)", flush=True)
+                  f"(done {time.monotonic() - started:.0f} s in)", flush=True)
 
 
 def main() -> None:
