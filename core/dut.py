@@ -42,6 +42,12 @@ class LinkError(DutError, StationFault):
     problem (``except DutError``) keeps working."""
 
 
+class UnansweredRequest(DutError, StationFault):
+    """The vehicle talks, but not to this request, after every retry: a name its firmware does not
+    know (ArduPilot ignores those without a reply) and answers lost or late on the link look the same,
+    so nothing proves the unit bad.  The sequencer books the unit as ERROR (it was not judged)."""
+
+
 class NotRestored(DutError):
     """:meth:`DutBackend.restore` could not put back what :meth:`DutBackend.prepare` changed.
 

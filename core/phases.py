@@ -14,7 +14,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from magline.core.dut import DutError, ParamValue, SampleChunk
+from magline.core.dut import DutError, LinkError, ParamValue, SampleChunk
 from magline.core.faults import StationFault, UnitAborted
 from magline.core.fit import CoverageTracker, FitOptions, FitResult, coverage_of, fit_calibration
 from magline.core.fit.coverage import bin_index, covered_bins, sphere_centre
@@ -329,8 +329,9 @@ def magline_persist(run: RunContext, fit: FitResult) -> PersistReport:
                  if k not in echoed or not _same(v, echoed[k])]
         if wrong:
             raise DutError("parameter write not confirmed: " + "; ".join(wrong))
-    except DutError as exc:
-        raise DutError(f"{exc}; {_roll_back(run, before)}") from exc
+    except DutError as exc:  # the station's faults (a lost link) stay ERROR: rolled back is not judged
+        kind = LinkError if isinstance(exc, StationFault) else DutError
+        raise kind(f"{exc}; {_roll_back(run, before)}") from exc
     dut.commit()
     return PersistReport(before=before, written=params, echoed=echoed)
 
@@ -339,12 +340,20 @@ def _roll_back(run: RunContext, before: dict[str, ParamValue]) -> str:
     """A write failed part-way: put the previous values back so no half calibration stays behind.
 
     Each parameter on its own: the one that was refused usually still holds its old value, which
-    a read confirms; only a parameter that is neither restored nor unchanged is a real problem."""
+    a read confirms; only a parameter that is neither restored nor unchanged is a real problem.  Once
+    the link is lost the rest is not tried (each would wait out its retries on a silent link)."""
     dut = run.require_dut()
     stuck = []
+    lost: str | None = None
     for name, value in before.items():
+        if lost is not None:
+            stuck.append(f"{name} = unknown (was {value!r})")
+            continue
         try:
             dut.write_params({name: value})
+        except LinkError as exc:
+            lost = str(exc)
+            stuck.append(f"{name} = unknown (was {value!r})")
         except Exception:
             try:
                 now = dut.read_params([name]).get(name)
@@ -352,6 +361,8 @@ def _roll_back(run: RunContext, before: dict[str, ParamValue]) -> str:
                 now = None
             if now is None or not _same(value, now):
                 stuck.append(f"{name} = {now!r} (was {value!r})")
+    if lost is not None:
+        run.log(f"rollback stopped: {lost}")
     if stuck:
         run.log("rollback failed for " + "; ".join(stuck))
         return "ROLLBACK FAILED for " + ", ".join(s.split(" =")[0] for s in stuck) + \

@@ -49,6 +49,10 @@ ARDUPILOT_FAULTS = (
     # the reboot's ACK lost and the vehicle already gone (what 2 % loss did once in 20 runs): the new
     # boot proves the reboot, the unit passes
     FaultCase("reboot-ack-lost", ("lose_reboot_ack",), "pass", "", passing_boot=True),
+    # a write whose echoes are lost on the way took: a read proves it, the unit passes
+    FaultCase("echo-lost", ("lose_param_echo=COMPASS_DIA_X",), "pass", "", passing_boot=True),
+    # the cable pulled in the middle of the write: not judged, and the unit may hold part of it
+    FaultCase("write-link-lost", ("link_loss_at_param_set=COMPASS_DIA_Y",), "error", "quarantine it"),
     FaultCase("compass-turned", ("mag_mounting=2:2",), "fail", "is mounted Yaw90", mags=3),
     FaultCase("compasses-disagree", ("mag_yaw_error=2:5",), "fail", "heading_agreement", mags=3),
     WARM_UP,

@@ -512,7 +512,10 @@ def test_dropped_packets_fault_loses_a_share_of_the_frames(tmp_path):
             msg = gcs.recv("SCALED_IMU", timeout=2.0)
             assert msg is not None
             got.append(msg)
-        # consecutive time stamps are 5 ms apart when nothing is lost
-        span_ms = got[-1].time_boot_ms - got[0].time_boot_ms
-        sent = span_ms / 5.0 + 1
-        assert 0.45 < len(got) / sent < 0.75  # about 60 % arrive
+        # The share lost, counted where the fault acts.  Estimated from the stream's time stamps (5 ms
+        # apart) it fell to 0.16 on a loaded machine: a simulator that falls behind its 200 Hz sends fewer
+        # frames, which is not loss.  Binomial over the ≥ 250 frames: σ ≤ 0.031, the bounds ±3σ.
+        dropped, sent = sim.frames_dropped, sim.frames_sent
+        assert dropped + sent >= 250
+        assert 0.3 < dropped / (dropped + sent) < 0.5, (dropped, sent)  # 40 % lost
+        assert len(got) <= sent

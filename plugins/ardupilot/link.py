@@ -22,7 +22,7 @@ import socket
 
 from pymavlink import mavutil
 
-from magline.core.dut import DutError, LinkError
+from magline.core.dut import DutError, LinkError, UnansweredRequest
 from magline.core.listening import SLICE_S, stall_s
 
 ML = mavutil.mavlink
@@ -234,8 +234,9 @@ class ArduPilotLink:
                 if msg.param_id == name:
                     return float(msg.param_value)
         self.require_alive(f"reading {name}")
-        raise DutError(f"parameter {name} could not be read: the autopilot does not answer for it "
-                       "(unknown name for this firmware?)")
+        raise UnansweredRequest(f"parameter {name} could not be read: {self.param_retries} requests went unanswered "
+                                "while the vehicle otherwise answers (a name this firmware does not know, or answers "
+                                "lost on the link): the unit is not judged")
 
     def set(self, name: str, value: float) -> float:
         """C-cast PARAM_SET; return the echoed value once an echo with this name and value arrives."""
@@ -254,10 +255,18 @@ class ArduPilotLink:
                 echoed = float(msg.param_value)
                 if float32_equal(echoed, value):
                     return echoed
-        if echoed is None:
+        if echoed is None:  # the echoes lost, the write ignored, or a name this firmware does not know: read it
             self.require_alive(f"writing {name}")
-            raise DutError(f"PARAM_SET {name} = {value:g} got no echo while the vehicle was otherwise answering: "
-                           "ArduPilot ignores unknown names without a reply (wrong parameter name for this firmware?)")
+            unanswered = f"PARAM_SET {name} = {value:g} got no echo while the vehicle was otherwise answering"
+            try:
+                held = self.get(name)
+            except UnansweredRequest:
+                raise UnansweredRequest(f"{unanswered}, and {name} cannot be read either: a name this firmware does "
+                                        "not know (ArduPilot ignores those without a reply), or answers lost on the "
+                                        "link: the unit is not judged") from None
+            if float32_equal(held, value):
+                return held  # written: only its echoes were lost
+            raise DutError(f"{unanswered}, and {name} still reads {held:g}: the autopilot ignored the write")
         raise DutError(f"PARAM_SET {name} = {value:g} was answered with {echoed:g}: the autopilot refused the value")
 
     # ------------------------------------------------------------------ commands

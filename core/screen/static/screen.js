@@ -84,7 +84,7 @@ function fitSphere() {
 window.addEventListener("resize", fitSphere);
 
 // The verdict is read from two metres, where nobody scrolls: when the details under the word and what
-// to do with the unit (the cause, a card per compass and per pair, the record) would run off the
+// to do with the unit (the cause, the cards per compass, the record) would run off the
 // bottom of the screen, they are drawn smaller, down to half their size; the word, the serial and
 // what to do keep theirs.
 const DETAIL = { least: 0.5, step: 0.1 };
@@ -92,6 +92,7 @@ function fitVerdict() {
   const overlay = $("verdict");
   if (overlay.hidden) { return; }
   const shown = [...overlay.children].filter((e) => e.offsetParent !== null);
+  if (!shown.length) { return; }
   const style = getComputedStyle(overlay);
   const room = innerHeight - (overlay.getBoundingClientRect().top + window.scrollY) - parseFloat(style.paddingTop)
     - parseFloat(style.paddingBottom) - rootPx();  // and the page's bottom padding (main: 1em)
@@ -272,7 +273,8 @@ function render(s) {
     const repeated = (v.items || []).some((m) => v.cause && v.cause.startsWith(m.name));
     $("verdict-cause").textContent = repeated ? "" : (v.cause || "");
     const cards = v.sensors || [];
-    // several magnetometers: a card per compass and per pair, each with its own verdict and failures
+    // several magnetometers: a card per compass, each with its own verdict and failures, then the pairs'
+    // agreement (the pairs that agree on one card)
     $("verdict-items").innerHTML = cards.length ? "" : itemRows(v.items);
     $("verdict-sensors").innerHTML = cards.map((c) => `<div class="sensor ${esc(c.verdict)}"><h3>${esc(c.title)}</h3>`
       + `<div class="word">${esc(c.verdict.toUpperCase())}</div><div>${esc(c.detail)}</div>`

@@ -109,7 +109,8 @@ class ArduPilotSim(SimulatedAutopilot):
         self.table.set(name, value)
         self._store(name)
         for sibling in self._vector_of(name):
-            self.send_param(sibling)
+            if not (sibling == name and name in self.faults.lose_param_echo):
+                self.send_param(sibling)
 
     @staticmethod
     def _vector_of(name: str) -> list[str]:

@@ -15,6 +15,11 @@ from dataclasses import dataclass, field, fields
 class SimFaults:
     drop_percent: float = 0.0  # each outgoing frame is lost with this probability (%)
     ignore_param_set: list[str] = field(default_factory=list)  # names ("*" = all) whose PARAM_SET is dropped
+    lose_param_echo: list[str] = field(default_factory=list)  # ArduPilot: PARAM_SET takes, its echo is lost
+    # names this firmware does not have (an older release): reads and writes of them go unanswered, as
+    # ArduPilot and PX4 v1.13–v1.16 treat unknown names
+    unknown_params: list[str] = field(default_factory=list)
+    link_loss_at_param_set: str = ""  # the link goes silent when a PARAM_SET of this name arrives (a cable pulled)
     no_persist: list[str] = field(default_factory=list)  # names whose value never reaches storage
     reboot_fails: bool = False  # after a reboot the board never comes back
     lose_reboot_ack: bool = False  # the reboot command's ACK is lost on the way (the board reboots all the same)
@@ -26,8 +31,8 @@ class SimFaults:
     mag_mounting: list[str] = field(default_factory=list)
     # "N:DEG": magnetometer N is turned DEG degrees about the body's Z axis (two compasses disagree)
     mag_yaw_error: list[str] = field(default_factory=list)
-    # "UT:TAU_S": every compass's offset starts UT µT from its settled value at each boot and settles
-    # with time constant TAU_S as the board warms (a real board's sensors drift with temperature)
+    # "UT:TAU_S": every compass's offset is UT µT from its settled value while the board is cold and
+    # settles with time constant TAU_S as it warms; a reboot keeps it warm (plugins/mock/sim/thermal.py)
     mag_warmup: str = ""
 
     @classmethod

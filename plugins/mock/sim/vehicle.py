@@ -138,6 +138,8 @@ class SimulatedAutopilot(ABC):
         self._requests: queue.Queue[tuple[Callable[[], None], threading.Event]] = queue.Queue()
         self.errors: list[str] = []  # exceptions the board's thread survived (tests assert it stays empty)
         self.sent_at: float | None = None  # when the board last put bytes on the link (monotonic)
+        self.frames_sent = 0  # frames put on the link
+        self.frames_dropped = 0  # frames the ``drop_percent`` fault lost on the way
 
     # ------------------------------------------------------------------ flavour
     @abstractmethod
@@ -397,8 +399,10 @@ class SimulatedAutopilot(ABC):
         if self.power not in (Power.UP, Power.SHUTTING_DOWN) or self.link_dead or self.link is None:
             return
         if self.faults.drop_percent and self.random.random() * 100.0 < self.faults.drop_percent:
+            self.frames_dropped += 1
             return
         self.link.send(data)
+        self.frames_sent += 1
         self.sent_at = time.monotonic()
 
     def health(self) -> str:
@@ -484,14 +488,19 @@ class SimulatedAutopilot(ABC):
             return
         if kind == "PARAM_REQUEST_LIST":
             for name in self.table.names:
-                self.send_param(name)
+                if name not in self.faults.unknown_params:
+                    self.send_param(name)
         elif kind == "PARAM_REQUEST_READ":
             name = msg.param_id if msg.param_index < 0 else (
                 self.table.names[msg.param_index] if msg.param_index < len(self.table.names) else None)
-            if name in self.table:
+            if name in self.table and name not in self.faults.unknown_params:
                 self.send_param(name)
         elif kind == "PARAM_SET":
-            self.handle_param_set(msg)
+            if msg.param_id == self.faults.link_loss_at_param_set:
+                self.link_dead = True
+                return
+            if msg.param_id not in self.faults.unknown_params:
+                self.handle_param_set(msg)
         elif kind in ("COMMAND_LONG", "COMMAND_INT"):
             params = ([msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7]
                       if kind == "COMMAND_LONG" else
