@@ -227,9 +227,11 @@ class ArduPilotLink:
 
     # ------------------------------------------------------------------ parameters (C-cast)
     def get(self, name: str) -> float:
-        for _ in range(self.param_retries):
+        """PARAM_REQUEST_READ by name, asked again with twice the wait each time (1, 2, 4 s by default): a
+        late answer on a congested link or a loaded station is not an absent one."""
+        for attempt in range(self.param_retries):
             self._send("param_request_read_send", self.target_system, self.target_component, name.encode(), -1)
-            deadline = time.monotonic() + self.param_timeout_s
+            deadline = time.monotonic() + self.param_timeout_s * 2 ** attempt
             while (msg := self.recv("PARAM_VALUE", deadline - time.monotonic())) is not None:
                 if msg.param_id == name:
                     return float(msg.param_value)
