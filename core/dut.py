@@ -12,6 +12,7 @@ convention happens inside :meth:`DutBackend.calibration_params`.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -28,6 +29,11 @@ if TYPE_CHECKING:
     from magline.core.station.schema import Product
 
 ParamValue = int | float
+
+
+def float32_equal(a: float, b: float) -> bool:
+    """Equal at float32 precision, the width MAVLink carries a parameter in (1.05 reads back as 1.0499999523)."""
+    return math.isclose(a, b, rel_tol=1e-6, abs_tol=1e-6)
 
 
 class DutError(RuntimeError):

@@ -145,8 +145,18 @@ def test_ignored_param_set_fails_names_it_and_rolls_back(tmp_path):
         record = run_unit(station(tmp_path, sim), "SN-IGN")
         assert record.verdict is Outcome.FAIL
         assert "PARAM_SET CAL_MAG0_YSCALE" in record.cause and "previous values restored" in record.cause
+        assert "and CAL_MAG0_YSCALE still reads 1.0: the autopilot dropped the write" in record.cause  # read back
         assert sim.param("CAL_MAG0_XOFF") == 0.0 and sim.param("CAL_MAG0_ID") == 0  # nothing half-written
         assert stored_attempts(tmp_path / "results.sqlite", "SN-IGN")[0][0] == record.attempts[0].samples > 0
+
+
+def test_a_write_whose_echo_is_lost_is_proven_by_a_read_and_the_unit_passes(tmp_path):
+    """MAVSDK gives up on a PARAM_SET whose echoes never arrive (TIMEOUT); that is no refusal: the
+    parameter read back holds the value written, so the write took and the unit passes."""
+    with start_sim(tmp_path, faults=SimFaults(lose_param_echo=["CAL_MAG0_XOFF"])) as sim:
+        record = run_unit(station(tmp_path, sim), "SN-ECHO")
+        assert record.verdict is Outcome.PASS, record.cause
+        assert sim.param("CAL_MAG0_XOFF") == pytest.approx(record.params_written["CAL_MAG0_XOFF"], abs=1e-6)
 
 
 def test_link_lost_mid_acquisition_is_an_error_keeps_raw_data_and_names_what_is_left_changed(tmp_path):

@@ -22,7 +22,7 @@ import socket
 
 from pymavlink import mavutil
 
-from magline.core.dut import DutError, LinkError, UnansweredRequest
+from magline.core.dut import DutError, LinkError, UnansweredRequest, float32_equal
 from magline.core.listening import SLICE_S, stall_s
 
 ML = mavutil.mavlink
@@ -59,11 +59,6 @@ class DeadlineTcp(mavutil.mavtcp):
 
     def handle_disconnect(self) -> None:
         raise LinkClosed("the TCP connection was reset by the vehicle")
-
-
-def float32_equal(a: float, b: float) -> bool:
-    """Equal at float32 precision (1.05 reads back as 1.0499999523)."""
-    return math.isclose(a, b, rel_tol=1e-6, abs_tol=1e-6)
 
 
 def pymavlink_device(connection: str) -> tuple[str, int]:

@@ -27,7 +27,7 @@ from mavsdk.plugins.param.param import Param, ParamError
 from mavsdk.plugins.shell.shell import Device, Shell
 from pymavlink.dialects.v20 import common as mavlink
 
-from magline.core.dut import DutError, LinkError
+from magline.core.dut import DutError, LinkError, UnansweredRequest, float32_equal
 from magline.core.faults import StationFault
 from magline.core.listening import get_listening
 
@@ -146,8 +146,11 @@ class Px4Link:
         try:
             return self.param.get_param_int(name) if is_int else self.param.get_param_float(name)
         except ParamError as exc:
-            if exc.result.name == "TIMEOUT":
+            if exc.result.name == "TIMEOUT":  # PX4 1.13–1.16 drop an unknown name silently; so does a lossy link
                 self.require_alive(f"reading {name}")
+                raise UnansweredRequest(f"parameter {name} could not be read: no answer while the vehicle otherwise "
+                                        "answers (a name this firmware does not know, or answers lost on the link): "
+                                        "the unit is not judged") from exc
             raise DutError(f"parameter {name} could not be read: {exc.result.name}") from exc
 
     def set(self, name: str, value: int | float, is_int: bool) -> int | float:
@@ -158,11 +161,21 @@ class Px4Link:
             else:
                 self.param.set_param_float(name, float(value))
         except ParamError as exc:
-            if exc.result.name == "TIMEOUT":
-                self.require_alive(f"writing {name}")
-            hint = (" while the vehicle was otherwise answering — PX4 drops a PARAM_SET of an unknown name or "
-                    "the wrong type without a reply" if exc.result.name == "TIMEOUT" else "")
-            raise DutError(f"PARAM_SET {name} = {value!r} not confirmed: {exc.result.name}{hint}") from exc
+            if exc.result.name != "TIMEOUT":
+                raise DutError(f"PARAM_SET {name} = {value!r} not confirmed: {exc.result.name}") from exc
+            # no echo: the echoes lost, the write dropped (PX4 drops an unknown name or the wrong type without
+            # a reply), or nothing arriving at all — the parameter read back tells which
+            self.require_alive(f"writing {name}")
+            unanswered = (f"PARAM_SET {name} = {value!r} not confirmed: TIMEOUT while the vehicle was otherwise "
+                          "answering")
+            try:
+                held = self.get(name, is_int)
+            except UnansweredRequest:
+                raise UnansweredRequest(f"{unanswered}, and {name} cannot be read either (a name this firmware does "
+                                        "not know, or answers lost on the link): the unit is not judged") from None
+            if (held != int(value)) if is_int else not float32_equal(float(held), float(value)):
+                raise DutError(f"{unanswered}, and {name} still reads {held!r}: the autopilot dropped the "
+                               "write") from exc
         return self.get(name, is_int)
 
     # ------------------------------------------------------------------ commands and raw messages

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field, fields
 class SimFaults:
     drop_percent: float = 0.0  # each outgoing frame is lost with this probability (%)
     ignore_param_set: list[str] = field(default_factory=list)  # names ("*" = all) whose PARAM_SET is dropped
-    lose_param_echo: list[str] = field(default_factory=list)  # ArduPilot: PARAM_SET takes, its echo is lost
+    lose_param_echo: list[str] = field(default_factory=list)  # names whose PARAM_SET takes but its echo is lost
     # names this firmware does not have (an older release): reads and writes of them go unanswered, as
     # ArduPilot and PX4 v1.13–v1.16 treat unknown names
     unknown_params: list[str] = field(default_factory=list)

@@ -117,7 +117,8 @@ class Px4Sim(SimulatedAutopilot):
             return
         if self.table.set(name, value) and self._save_due is None:
             self._save_due = max(time.monotonic() + self.AUTOSAVE_DELAY_S, self._last_save + self.autosave_interval_s)
-        self.send_param(name)
+        if name not in self.faults.lose_param_echo:
+            self.send_param(name)
 
     def load_from_storage(self, stored: dict[str, ParamValue]) -> None:
         if self.preset_ids:  # the startup script's set-default: each detected sensor's id in its slot
