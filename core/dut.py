@@ -54,6 +54,23 @@ class UnansweredRequest(DutError, StationFault):
     so nothing proves the unit bad.  The sequencer books the unit as ERROR (it was not judged)."""
 
 
+def prove_unechoed_write(name: str, value: ParamValue, unanswered: str, read: Callable[[], ParamValue]) -> ParamValue:
+    """A PARAM_SET that got no echo proves nothing by itself: its echoes may have been lost, the write
+    ignored, or the name unknown to the firmware (ArduPilot and PX4 v1.13–v1.16 answer those with
+    silence).  The parameter read back decides: the value written — it took, returned; another — the
+    write was ignored (:class:`DutError`: FAIL); no answer — nothing proven (:class:`UnansweredRequest`:
+    ERROR).  ``unanswered`` says the write in the backend's words; ``read()`` reads ``name``."""
+    try:
+        held = read()
+    except UnansweredRequest:
+        raise UnansweredRequest(f"{unanswered}, and {name} cannot be read either (a name this firmware does not "
+                                "know, or answers lost on the link): the unit is not judged") from None
+    same = held == value if isinstance(value, int) else float32_equal(float(held), float(value))
+    if not same:
+        raise DutError(f"{unanswered}, and {name} still reads {held:g}: the autopilot ignored the write")
+    return held
+
+
 class NotRestored(DutError):
     """:meth:`DutBackend.restore` could not put back what :meth:`DutBackend.prepare` changed.
 

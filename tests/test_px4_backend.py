@@ -145,7 +145,7 @@ def test_ignored_param_set_fails_names_it_and_rolls_back(tmp_path):
         record = run_unit(station(tmp_path, sim), "SN-IGN")
         assert record.verdict is Outcome.FAIL
         assert "PARAM_SET CAL_MAG0_YSCALE" in record.cause and "previous values restored" in record.cause
-        assert "and CAL_MAG0_YSCALE still reads 1.0: the autopilot dropped the write" in record.cause  # read back
+        assert "and CAL_MAG0_YSCALE still reads 1: the autopilot ignored the write" in record.cause  # read back
         assert sim.param("CAL_MAG0_XOFF") == 0.0 and sim.param("CAL_MAG0_ID") == 0  # nothing half-written
         assert stored_attempts(tmp_path / "results.sqlite", "SN-IGN")[0][0] == record.attempts[0].samples > 0
 

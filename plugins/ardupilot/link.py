@@ -22,7 +22,7 @@ import socket
 
 from pymavlink import mavutil
 
-from magline.core.dut import DutError, LinkError, UnansweredRequest, float32_equal
+from magline.core.dut import DutError, LinkError, UnansweredRequest, float32_equal, prove_unechoed_write
 from magline.core.listening import SLICE_S, stall_s
 
 ML = mavutil.mavlink
@@ -252,18 +252,11 @@ class ArduPilotLink:
                 echoed = float(msg.param_value)
                 if float32_equal(echoed, value):
                     return echoed
-        if echoed is None:  # the echoes lost, the write ignored, or a name this firmware does not know: read it
+        if echoed is None:  # the echoes lost, the write ignored, or a name this firmware does not know
             self.require_alive(f"writing {name}")
-            unanswered = f"PARAM_SET {name} = {value:g} got no echo while the vehicle was otherwise answering"
-            try:
-                held = self.get(name)
-            except UnansweredRequest:
-                raise UnansweredRequest(f"{unanswered}, and {name} cannot be read either: a name this firmware does "
-                                        "not know (ArduPilot ignores those without a reply), or answers lost on the "
-                                        "link: the unit is not judged") from None
-            if float32_equal(held, value):
-                return held  # written: only its echoes were lost
-            raise DutError(f"{unanswered}, and {name} still reads {held:g}: the autopilot ignored the write")
+            return float(prove_unechoed_write(
+                name, float(value), f"PARAM_SET {name} = {value:g} got no echo while the vehicle was otherwise "
+                "answering", lambda: self.get(name)))
         raise DutError(f"PARAM_SET {name} = {value:g} was answered with {echoed:g}: the autopilot refused the value")
 
     # ------------------------------------------------------------------ commands

@@ -27,7 +27,7 @@ from mavsdk.plugins.param.param import Param, ParamError
 from mavsdk.plugins.shell.shell import Device, Shell
 from pymavlink.dialects.v20 import common as mavlink
 
-from magline.core.dut import DutError, LinkError, UnansweredRequest, float32_equal
+from magline.core.dut import DutError, LinkError, UnansweredRequest, prove_unechoed_write
 from magline.core.faults import StationFault
 from magline.core.listening import get_listening
 
@@ -166,16 +166,9 @@ class Px4Link:
             # no echo: the echoes lost, the write dropped (PX4 drops an unknown name or the wrong type without
             # a reply), or nothing arriving at all — the parameter read back tells which
             self.require_alive(f"writing {name}")
-            unanswered = (f"PARAM_SET {name} = {value!r} not confirmed: TIMEOUT while the vehicle was otherwise "
-                          "answering")
-            try:
-                held = self.get(name, is_int)
-            except UnansweredRequest:
-                raise UnansweredRequest(f"{unanswered}, and {name} cannot be read either (a name this firmware does "
-                                        "not know, or answers lost on the link): the unit is not judged") from None
-            if (held != int(value)) if is_int else not float32_equal(float(held), float(value)):
-                raise DutError(f"{unanswered}, and {name} still reads {held!r}: the autopilot dropped the "
-                               "write") from exc
+            prove_unechoed_write(name, int(value) if is_int else float(value),
+                                 f"PARAM_SET {name} = {value!r} not confirmed: TIMEOUT while the vehicle was "
+                                 "otherwise answering", lambda: self.get(name, is_int))
         return self.get(name, is_int)
 
     # ------------------------------------------------------------------ commands and raw messages
