@@ -346,21 +346,21 @@ def _roll_back(run: RunContext, before: dict[str, ParamValue]) -> str:
     stuck = []
     lost: str | None = None
     for name, value in before.items():
-        if lost is not None:
-            stuck.append(f"{name} = unknown (was {value!r})")
-            continue
-        try:
-            dut.write_params({name: value})
-        except LinkError as exc:
-            lost = str(exc)
-            stuck.append(f"{name} = unknown (was {value!r})")
-        except Exception:
+        if lost is None:
             try:
-                now = dut.read_params([name]).get(name)
+                dut.write_params({name: value})
+                continue
+            except LinkError as exc:
+                lost = str(exc)
             except Exception:
-                now = None
-            if now is None or not _same(value, now):
-                stuck.append(f"{name} = {now!r} (was {value!r})")
+                try:
+                    now = dut.read_params([name]).get(name)
+                except Exception:
+                    now = None
+                if now is None or not _same(value, now):
+                    stuck.append(f"{name} = {now!r} (was {value!r})")
+                continue
+        stuck.append(f"{name} = unknown (was {value!r})")  # the link is gone: not tried
     if lost is not None:
         run.log(f"rollback stopped: {lost}")
     if stuck:
