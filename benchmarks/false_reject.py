@@ -183,7 +183,8 @@ def _fault_run(name: str, i: int, seed: int) -> tuple[str, bool, str | None]:
             options = {"connect_timeout_s": 5.0, "boot_timeout_s": 10.0 if case.passing_boot else 3.0,
                        "prearm_wait_s": 0.3}
             station = _station("ardupilot-sim.yaml", work, {"connection": sim.address, "options": options},
-                               {"samples": 400, "rate_hz": 200.0, "timeout_s": 30.0, "retry_delay_s": 0.0},
+                               {"samples": 400, "rate_hz": 200.0, "timeout_s": 30.0, "retry_delay_s": 0.0,
+                                **case.acquisition},
                                station_id=f"faults-{case.name}-{i}")
             seq = Sequencer(load_station(station), load_plugins(), work, sleep=lambda s: None)
             try:

@@ -223,6 +223,10 @@ class DutBackend(Protocol):
     #   sensor's axes into the body by ``rotation`` (3×3, any angle: PX4's custom Euler angles), for a
     #   product with ``misalignment: write``; raises DutError saying why when this sensor cannot hold one.
 
+    # Optional: ``uptime_s() -> float | None`` — seconds since the autopilot booted (MAVLink SYSTEM_TIME's
+    # ``time_boot_ms``), None when it does not answer; ``acquisition.warm_up_s`` waits on it (without it:
+    # the whole time, counted from the moment asked).
+
     # Optional: ``calibrated_field_ut(count) -> NDArray | None`` — after the power cycle, ``count``
     # readings (µT, rows) of the firmware's own *calibrated* output for this sensor (ArduPilot's
     # corrected stream, PX4's HIGHRES_IMU); None when it cannot be attributed to this sensor.  The

@@ -175,7 +175,8 @@ def check_dut_backend(open_dut: Callable[[], Any], field_ut: float, *, samples: 
     backend connected to a device (or its simulator) that is being tumbled in a field of
     ``field_ut`` µT.  Checks, in order, each failing with the rule it breaks:
 
-    identification; a paced, closable stream of distinct readings in µT (a sphere fit of them has
+    identification; ``uptime_s()``, where offered, in seconds and the new boot's after a power cycle;
+    a paced, closable stream of distinct readings in µT (a sphere fit of them has
     the field's radius; with ``hard_iron_ut``, the device's known offset); the float32 echo of a
     write; unsaved writes lost on a power cycle; a proven new boot; a committed calibration read
     back after it and the firmware's *calibrated* output reading ``field_ut`` (sign, unit and matrix
@@ -206,6 +207,11 @@ def check_dut_backend(open_dut: Callable[[], Any], field_ut: float, *, samples: 
         assert info.soft_iron_model in ("full", "diagonal"), "UnitInfo.soft_iron_model is 'full' or 'diagonal'"
         original = dut.read_params(list(prepare_params))
         assert set(original) == set(prepare_params), f"read_params({list(prepare_params)}) returned {original}"
+        uptime_of = getattr(dut, "uptime_s", None)  # optional: what acquisition.warm_up_s waits on
+        if uptime_of is not None:
+            figures["uptime_s"] = up = uptime_of()
+            assert up is None or (isinstance(up, (int, float)) and up >= 0), (
+                f"uptime_s() returned {up!r}: seconds since the autopilot booted, or None when it does not say")
         if info.magnetometers:
             assert info.selected_sensor in [m.device_id for m in info.magnetometers], (
                 "UnitInfo.magnetometers must list the selected sensor")
@@ -259,6 +265,11 @@ def check_dut_backend(open_dut: Callable[[], Any], field_ut: float, *, samples: 
         uptime = boot.get("uptime_at_reconnect_s")
         assert uptime is None or uptime < since, "await_boot() must prove a new boot (its uptime is shorter)"
         figures["boot"] = boot
+        if uptime_of is not None:
+            up = uptime_of()
+            assert up is None or up <= time.monotonic() - started, (
+                f"uptime_s() says {up:.1f} s up {time.monotonic() - started:.1f} s after the power cycle began: "
+                "it must be the new boot's")
         assert dut.selected_sensor_present(), "the calibrated sensor must be present after the power cycle"
         back = dut.read_params(list(params))
         wrong = [n for n, v in params.items() if not np.isclose(back.get(n, np.nan), v, rtol=1e-6, atol=1e-9)]

@@ -166,6 +166,31 @@ def test_fit_refusing_every_attempt_fails_the_unit_with_the_advice(make_station,
     assert all(r.split(":")[0] in {"single_plane", "undetermined"} for _, r in refused)
 
 
+class Prompts:
+    def __init__(self) -> None:
+        self.said: list[str] = []
+
+    @hookimpl
+    def magline_operator_prompt(self, run, message):
+        self.said.append(message)
+
+
+def test_a_station_with_a_warm_up_time_tumbles_only_once_the_unit_has_run_that_long(make_station):
+    """``acquisition.warm_up_s`` waits for the unit's own uptime (the mock's time since it booted),
+    tells the operator to leave the unit before asking for the tumble, and records what it found."""
+    path = make_station({"acquisition": {"warm_up_s": 0.8}})
+    prompts = Prompts()
+    record = run_station(path, extra=[prompts])
+    assert record.verdict is Outcome.PASS, record.cause
+    warm = record.unit_info["warm_up"]
+    assert 0 <= warm["uptime_s"] < 0.8 and warm["waited_s"] > 0
+    assert warm["uptime_s"] + warm["waited_s"] >= 0.8 - 0.005  # ended by the unit's clock (waited_s: 2 decimals)
+    assert "warms up for" in prompts.said[0] and "tumble" in prompts.said[1].lower()
+    assert any(line.startswith("warmed up: up ") for line in phase(record, "acquire").log)
+    cold = run_station(make_station())  # the default: no wait, nothing recorded
+    assert "warm_up" not in cold.unit_info
+
+
 class Raiser:
     @hookimpl
     def magline_validate(self, run, fit):

@@ -71,7 +71,9 @@ def test_each_simulator_fault_is_classified(tmp_path, case):
     with ap_sim(tmp_path, SimFaults.parse(list(case.faults)), mag_count=case.mags) as sim:
         # the backend's own 2 s stream timeout: a shorter one mistakes a loaded machine's stall for a fault
         options = {**AP, **(PASSING if case.passing_boot else {})}
-        record = run_unit(write_station("ardupilot-sim.yaml", tmp_path, sim.address, options), "SN-F")
+        station = write_station("ardupilot-sim.yaml", tmp_path, sim.address, options,
+                                {"acquisition": case.acquisition})
+        record = run_unit(station, "SN-F")
     assert record.verdict is outcome, record.cause
     assert words in record.cause
     assert case.missed(record) is None, case.missed(record)

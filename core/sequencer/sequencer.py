@@ -16,12 +16,13 @@ import threading
 import time
 import traceback
 from collections.abc import Callable
+from contextlib import ExitStack
 from functools import partial
 from pathlib import Path
 from typing import Any
 
 from magline.core import __version__
-from magline.core.dut import DutError, Magnetometer, NotRestored
+from magline.core.dut import DutError, LinkError, Magnetometer, NotRestored
 from magline.core.faults import StationFault, UnitAborted
 from magline.core.field import FieldSourceError
 from magline.core.fit import FitRefused, FitResult
@@ -37,6 +38,7 @@ from magline.core.sequencer.hold import claimed_in_store, holder_of, holding, ru
 from magline.core.sequencer.rounds import MotionRounds
 from magline.core.sequencer.settling import offset_moved
 from magline.core.sequencer.unit_log import unit_log_capture
+from magline.core.sequencer.warm_up import wait_until_warm
 from magline.core.serials import clean_serial
 from magline.core.station.schema import Slot, Station
 from magline.core.text import fmt, percent
@@ -290,9 +292,39 @@ class Sequencer:
         becomes the operator's prompt for the next attempt.
         """
         try:
+            self._let_warm_up(run)
             self._acquire_attempts(run)
         finally:
             run.rounds.leave(run.slot or "")  # accepted or given up: the next rounds go without this unit
+
+    def _let_warm_up(self, run: RunContext) -> None:
+        """``acquisition.warm_up_s``: the tumble waits until the unit has run that long (see
+        :mod:`~magline.core.sequencer.warm_up`).  The wait is real time whatever ``self.sleep`` is: it
+        waits for the board's temperature, which no test double advances."""
+        need = self.station.acquisition.warm_up_s
+        if need <= 0:
+            return
+        reader = getattr(run.dut, "uptime_s", None)
+
+        def uptime() -> float | None:
+            if reader is None:
+                return None
+            try:
+                return reader()
+            except DutError as exc:
+                if isinstance(exc, LinkError):  # a lost link is the station's fault, as anywhere
+                    raise
+                run.log(f"the unit did not say its uptime ({_text(exc)}): warm-up counted from now")
+                return None
+
+        with ExitStack() as waiting:
+            def told(left_s: float) -> None:
+                run.prompt(f"Leave the unit on and still — it warms up for {left_s:.0f} s before its tumble")
+                waiting.enter_context(run.waiting("warming up before the tumble", limit_s=left_s))
+
+            warm = wait_until_warm(need, uptime, told, run.check_abort)
+        run.record.unit_info["warm_up"] = {"uptime_s": warm.uptime_s, "waited_s": round(warm.waited_s, 2)}
+        run.log(warm.words(need))
 
     def _acquire_attempts(self, run: RunContext) -> None:
         acq = self.station.acquisition

@@ -187,13 +187,18 @@ class Acquisition(_Strict):
     The salvaged fit is the offset *during* the warm-up, and the sensor goes on settling after it (the
     post-reboot field check failed such good units); the attempt after it is taken only where its
     offset agrees with the previous attempt's (beyond noise and the station's ``hard_iron_sigma_ut``
-    limit it moved: measured again); the last attempt keeps its fit."""
+    limit it moved: measured again); the last attempt keeps its fit.
+    ``warm_up_s`` (default 0: none): the tumble starts only once the unit has run this long by its
+    own uptime (a unit powered on earlier starts at once).  The drift test cannot see a warm-up
+    smaller than about 14 offset σ, so a line whose units warm up during calibration sets the time
+    their offsets take to settle (see :mod:`magline.core.sequencer.warm_up`)."""
 
     stop: Literal["determined", "samples"] = "determined"
     min_samples: Annotated[int, Field(ge=12)] = 100
     sigma_margin: Annotated[float, Field(gt=0, le=1)] = 0.7
     wait_for_drift_test: bool = True
     retry_on_warm_up: bool = True
+    warm_up_s: Annotated[float, Field(ge=0, le=3600)] = 0.0
     samples: Annotated[int, Field(ge=12)] = 600
     rate_hz: Annotated[float, Field(gt=0, le=1000)] = 50.0
     coverage_bins: Annotated[int, Field(ge=4, le=10000)] = 100

@@ -270,14 +270,14 @@ class ArduPilotDut:
             self.link.close()
             self.link.open(remaining_s)
 
-        reconnected, uptime = await_new_boot(reconnect, self._uptime_s, since, self.opts.boot_timeout_s)
+        reconnected, uptime = await_new_boot(reconnect, self.uptime_s, since, self.opts.boot_timeout_s)
         version = self.link.request_message(ML.MAVLINK_MSG_ID_AUTOPILOT_VERSION, "AUTOPILOT_VERSION")
         require_same_vehicle(self.system_id, self.link.target_system, self.product.connection, self.uid,
                              int(version.uid) if version is not None else 0)
         self._read_ids()
         return {"time_to_heartbeat_s": reconnected, "uptime_at_reconnect_s": uptime}
 
-    def _uptime_s(self) -> float | None:
+    def uptime_s(self) -> float | None:
         msg = self.link.request_message(ML.MAVLINK_MSG_ID_SYSTEM_TIME, "SYSTEM_TIME")
         return None if msg is None else msg.time_boot_ms / 1000.0
 

@@ -58,6 +58,12 @@ class MockDut:
     def _boot(self) -> None:
         self.ram = {**DEFAULTS, **self.storage.load()}
         self.connected = True
+        self._booted_at = time.monotonic()
+
+    def uptime_s(self) -> float:
+        """Seconds since this mock last booted (connect or power cycle), as an autopilot's SYSTEM_TIME says."""
+        self._require_link()
+        return time.monotonic() - self._booted_at
 
     def prepare(self) -> None:
         self._saved_autocal = self.ram["MAG_AUTOCAL"]

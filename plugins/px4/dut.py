@@ -327,7 +327,7 @@ class Px4Dut:
 
     def await_boot(self, since: float) -> dict[str, float]:
         # a fresh MAVSDK instance per try: nothing cached from the old boot can answer a read
-        reconnected, uptime = await_new_boot(self.link.reopen, self._uptime_s, since, self.opts.boot_timeout_s)
+        reconnected, uptime = await_new_boot(self.link.reopen, self.uptime_s, since, self.opts.boot_timeout_s)
         require_same_vehicle(self.system_id, self.link.target_system, self.product.connection, self.uid,
                              self.link.hardware_uid())
         if self.shell_answers:
@@ -338,7 +338,7 @@ class Px4Dut:
             self.now_present = [self.device_id] if self.present else []
         return {"time_to_heartbeat_s": reconnected, "uptime_at_reconnect_s": uptime}
 
-    def _uptime_s(self) -> float | None:
+    def uptime_s(self) -> float | None:
         inbox, handle = self.link.subscribe(SYSTEM_TIME[0])
         try:
             self.link.require_accepted(MAV_CMD_REQUEST_MESSAGE, "SYSTEM_TIME request", SYSTEM_TIME[1])
