@@ -31,6 +31,7 @@ import numpy as np
 import yaml
 
 from magline.core.plugins import load_plugins
+from magline.core.record import RunRecord
 from magline.core.sequencer import Sequencer
 from magline.core.station import load_station
 
@@ -141,30 +142,41 @@ def mock_units(count: int, rng: np.random.Generator) -> None:
     _tally("mock", records, started)
 
 
-def sim_units(flavour: str, count: int, rng: np.random.Generator) -> None:
+def _sim_unit(flavour: str, i: int, mags: int, seed: int, speed: float, rate_hz: float, motion: str) -> RunRecord:
+    """One good unit on a simulator, in a folder of its own (units may go in parallel processes)."""
     from magline.plugins.mock.sim import create_sim
 
-    started = time.monotonic()
-    records = []
     example, scheme = {"px4": ("px4-sim.yaml", "udp"), "ardupilot": ("ardupilot-sim.yaml", "tcp")}[flavour]
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
-        for i in range(count):
-            (work / f"fc{i}").mkdir()
-            mags = int(rng.integers(1, 4))
-            with create_sim(flavour, f"{scheme}:127.0.0.1:0", workdir=work / f"fc{i}", mag_count=mags,
-                            seed=int(rng.integers(1 << 30)), boot_time_s=0.3, speed=float(rng.uniform(0.5, 2.0)),
-                            mag_rate_hz=float(rng.choice([10.0, 25.0, 50.0, 100.0])),
-                            motions=(str(rng.choice(["tumble", "gimbal"])),)) as sim:
-                host, port = sim.address.split(":")[1:]
-                url = f"udpout://{host}:{port}" if flavour == "px4" else f"tcp:{host}:{port}"
-                station = _station(example, work, {"connection": url, "options": {"connect_timeout_s": 5.0}},
-                                   {"samples": 300, "rate_hz": 200.0, "timeout_s": 60.0, "retry_delay_s": 0.0})
-                seq = Sequencer(load_station(station), load_plugins(), work, sleep=lambda s: None)
-                try:
-                    records.append(seq.run_unit(f"{flavour.upper()}-{i:04d}"))
-                finally:
-                    seq.close()
+        with create_sim(flavour, f"{scheme}:127.0.0.1:0", workdir=work / "fc", mag_count=mags, seed=seed,
+                        boot_time_s=0.3, speed=speed, mag_rate_hz=rate_hz, motions=(motion,)) as sim:
+            host, port = sim.address.split(":")[1:]
+            url = f"udpout://{host}:{port}" if flavour == "px4" else f"tcp:{host}:{port}"
+            station = _station(example, work, {"connection": url, "options": {"connect_timeout_s": 5.0}},
+                               {"samples": 300, "rate_hz": 200.0, "timeout_s": 60.0, "retry_delay_s": 0.0},
+                               station_id=f"good-{flavour}-{i}")
+            seq = Sequencer(load_station(station), load_plugins(), work, sleep=lambda s: None)
+            try:
+                return seq.run_unit(f"{flavour.upper()}-{i:04d}")
+            finally:
+                seq.close()
+
+
+def sim_units(flavour: str, count: int, rng: np.random.Generator, jobs: int = 1) -> None:
+    """``count`` good units on the ``flavour`` simulator: 1–3 compasses, 10–100 Hz, tumble or gimbal at
+    speed 0.5–2.  Each unit's draw is made here, in order, so ``jobs`` does not change which units run."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    started = time.monotonic()
+    draws = [(flavour, i, int(rng.integers(1, 4)), int(rng.integers(1 << 30)), float(rng.uniform(0.5, 2.0)),
+              float(rng.choice([10.0, 25.0, 50.0, 100.0])), str(rng.choice(["tumble", "gimbal"])))
+             for i in range(count)]
+    if jobs > 1:
+        with ProcessPoolExecutor(jobs) as pool:
+            records = list(pool.map(_sim_unit, *zip(*draws, strict=True)))
+    else:
+        records = [_sim_unit(*draw) for draw in draws]
     _tally(flavour, records, started)
 
 
@@ -235,7 +247,8 @@ def main() -> None:
     parser.add_argument("--sim", type=int, default=100)
     parser.add_argument("--faults", type=int, default=0, help="runs of each simulator fault (0: none)")
     parser.add_argument("--fault-names", nargs="+", default=None, help="only these rows of the fault table")
-    parser.add_argument("--jobs", type=int, default=1, help="fault runs at once, in separate processes")
+    parser.add_argument("--jobs", type=int, default=1,
+                        help="simulated units (good ones and fault runs) at once, in separate processes")
     parser.add_argument("--seed", type=int, default=28)
     parser.add_argument("--backends", nargs="+", choices=["px4", "ardupilot"], default=["px4", "ardupilot"],
                         help="the simulators --sim runs on")
@@ -245,7 +258,7 @@ def main() -> None:
         mock_units(args.mock, rng)
     for flavour in args.backends:
         if args.sim:
-            sim_units(flavour, args.sim, rng)
+            sim_units(flavour, args.sim, rng, args.jobs)
     if args.faults:
         fault_units(args.faults, rng, args.fault_names, args.jobs)
     sys.stdout.flush()
