@@ -36,6 +36,7 @@ class SlotView:
     coverage: float = 0.0
     target: float = 0.0
     message: str = ""
+    message_is_wait: bool = False  # the message counts a wait: readings arriving end it
     verdict: str = ""
     printed_pct: int = -STEP_PCT
 
@@ -89,7 +90,7 @@ class SlotBoard:
         with self._lock:
             view = self.views[run.slot]
             if result.message:
-                view.message = result.message
+                view.message, view.message_is_wait = result.message, False
             self._refresh()
             if phase != "record" or result.outcome is not Outcome.PASS:
                 text = f"[{STYLE[result.outcome]}]{phase} {result.outcome.upper()}[/] ({seconds(result.duration_s)})"
@@ -97,7 +98,8 @@ class SlotBoard:
 
     def prompt(self, run: RunContext, message: str) -> None:
         with self._lock:
-            self.views[run.slot].message = message
+            view = self.views[run.slot]
+            view.message, view.message_is_wait = message, False
             self._refresh()
             self._say(run.slot, f"[bold yellow]>>> {message}[/]")
 
@@ -107,6 +109,8 @@ class SlotBoard:
             if attempt != view.attempt:
                 view.printed_pct = -STEP_PCT
             view.attempt, view.samples, view.coverage, view.target = attempt, samples, coverage, target
+            if view.message_is_wait:  # the wait before the tumble (warm-up) is over
+                view.message, view.message_is_wait = "", False
             self._refresh()
             pct = int(coverage * 100)
             if pct - view.printed_pct >= STEP_PCT:
@@ -124,7 +128,8 @@ class SlotBoard:
     def waiting(self, run: RunContext, what: str, elapsed_s: float, limit_s: float | None) -> None:
         with self._lock:
             left = f", {max(limit_s - elapsed_s, 0):.0f} s left" if limit_s else ""
-            self.views[run.slot].message = f"{what} ({elapsed_s:.0f} s{left})"
+            view = self.views[run.slot]
+            view.message, view.message_is_wait = f"{what} ({elapsed_s:.0f} s{left})", True
             self._refresh()
 
     def round(self, text: str) -> None:

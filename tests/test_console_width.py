@@ -51,3 +51,22 @@ def test_the_help_speaks_plainly(capsys):
         main(["--help"])
     out = capsys.readouterr().out
     assert "``" not in out and "Calibrate drone magnetometers" in out
+
+
+def test_a_slot_panel_drops_the_warm_up_wait_once_readings_arrive_and_keeps_a_prompt():
+    """The slot board shows a wait's count in the slot's panel; readings arriving end the wait (a
+    gimbal station prompts nobody, so nothing else would replace it), while a prompt stays."""
+    from types import SimpleNamespace
+
+    from magline.core.console_slots import SlotBoard
+
+    board = SlotBoard(Console(file=io.StringIO(), width=80), live=False)
+    run = SimpleNamespace(slot="A", serial="SN-A1", part="PX4-FMU")
+    board.phase_started(run, "acquire")
+    board.waiting(run, "warming up before the tumble", 3.0, 20.0)
+    assert board.views["A"].message == "warming up before the tumble (3 s, 17 s left)"
+    board.progress(run, 1, 12, 0.1, 0.5)
+    assert board.views["A"].message == ""
+    board.prompt(run, "Tumble the unit")
+    board.progress(run, 1, 40, 0.2, 0.5)
+    assert board.views["A"].message == "Tumble the unit"

@@ -162,6 +162,22 @@ def test_a_failing_unit_shows_fail_with_its_measurement(screen, browser, tmp_pat
     assert [line for line in opened.console if line.startswith("error")] == []  # not even a missing icon
 
 
+def test_a_unit_warming_up_is_told_to_wait_the_bar_fills_and_the_tumble_then_shows_no_wait(screen, browser):
+    """``acquisition.warm_up_s``: the large prompt says to leave the unit, the bar fills with the wait,
+    and once readings arrive nothing says "warming up" any more."""
+    served, _ = screen({**BUSY_UNIT, "acquisition": {**BUSY_UNIT["acquisition"], "warm_up_s": 2.0}})
+    page = open_page(browser, served.url).page
+    page.fill("#serial", "SCR-WARM")
+    page.press("#serial", "Enter")
+    page.wait_for_selector("#prompt:has-text('Leave the unit on and still')")
+    page.wait_for_function("document.getElementById('phases').textContent.includes('warming up before the tumble')"
+                           " && parseFloat(document.getElementById('progress-bar').style.width) > 0")
+    page.wait_for_function("Number(document.getElementById('sphere').dataset.hit) > 3")
+    assert "warming up" not in page.inner_text("#phases") and "Tumble" in page.inner_text("#prompt")
+    page.click("#abort")
+    page.wait_for_selector("#verdict:not([hidden])", timeout=30_000)
+
+
 def test_abort_mid_acquisition_restores_the_unit_and_records_aborted(screen, browser, tmp_path):
     from sqlalchemy import create_engine, text
 

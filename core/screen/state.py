@@ -129,6 +129,7 @@ class ScreenState:
             if n_bins and turns_unit and (bins != current["bins"] or not current.get("missing_for")):
                 current["missing"] = missing_sides(bins, n_bins)  # in words: what the operator turns next
                 current["missing_for"] = n_bins
+            current["waiting"] = None  # readings arrive: a wait before the tumble (warm-up) is over
             current.update(attempt=attempt, samples=samples, coverage=coverage, target=target, n_bins=n_bins,
                            target_samples=run.station.acquisition.samples if turns_unit else None, bins=bins,
                            turns_unit=turns_unit,
@@ -152,6 +153,7 @@ class ScreenState:
             if current is not None:
                 current["prompt"] = message
                 current["prompts"].append(message)
+                current["waiting"] = None  # a new instruction: the wait the last one was about is over
                 self._changed()
 
     @hookimpl

@@ -132,6 +132,8 @@ function slotPanel(slot, entry) {
 function progressFraction(run) {
   if (!run) { return 0; }
   if (stoppedNow(run)) { return 1; }
+  // a wait before any reading (the unit warming up) fills the bar as it runs
+  if (run.waiting && run.waiting.limit_s && !run.samples) { return Math.min(1, run.waiting.elapsed_s / run.waiting.limit_s); }
   if (run.n_bins && run.target) { return Math.min(1, run.coverage / run.target); }
   return run.target_samples ? Math.min(1, run.samples / run.target_samples) : 0;
 }
