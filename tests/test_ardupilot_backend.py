@@ -145,7 +145,7 @@ def test_a_parameter_this_firmware_does_not_have_is_an_error_not_a_fail(tmp_path
     with start_sim(tmp_path, faults=SimFaults(unknown_params=["COMPASS_ODI_Y"])) as sim:
         record = run_unit(write_station("ardupilot-sim.yaml", tmp_path, sim.address, OPTIONS), "SN-OLD")
         assert record.verdict is Outcome.ERROR, record.cause
-        assert ("parameter COMPASS_ODI_Y could not be read: 3 requests went unanswered while the vehicle otherwise "
+        assert ("parameter COMPASS_ODI_Y could not be read: 5 requests went unanswered while the vehicle otherwise "
                 "answers") in record.cause and "the unit is not judged" in record.cause
         assert not sim.storage_path.exists()  # nothing was written to the unit
 

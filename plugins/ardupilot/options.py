@@ -11,7 +11,8 @@ class ArduPilotOptions(BaseModel):
     model_config = ConfigDict(extra="forbid", strict=True)
     connect_timeout_s: Annotated[float, Field(gt=0)] = 10.0
     boot_timeout_s: Annotated[float, Field(gt=0)] = 30.0  # reboot → heartbeat of the new boot
-    param_timeout_s: Annotated[float, Field(gt=0)] = 1.0  # a write: 3 tries of this; a read: 3 of 1×, 2×, 4× this
+    # a write: 3 tries of this; a read: 5, waiting 1×, 2×, 4×, 4×, 4× this
+    param_timeout_s: Annotated[float, Field(gt=0)] = 1.0
     stream_timeout_s: Annotated[float, Field(gt=0)] = 2.0  # no sample for this long = link lost
     prearm_wait_s: Annotated[float, Field(ge=0)] = 1.0  # how long to collect PreArm texts after the check
     # Production leaves this on; a test switches it off to show the "not calibrated after reboot" trap.
