@@ -147,3 +147,17 @@ def test_a_px4_reboot_whose_ack_is_lost_is_proven_by_the_new_boot_not_failed_as_
                                         {**PX4, "boot_timeout_s": 10.0}))
     assert record.verdict is Outcome.PASS, record.cause
     assert record.persistence["figures"]["uptime_at_reconnect_s"] < 5.0  # a new boot, not the old one
+
+
+def test_an_ardupilot_reboot_whose_ack_is_lost_on_udp_is_proven_by_the_new_boot_not_failed(tmp_path):
+    """Over UDP nothing closes when the board reboots: the station's three tries go unanswered and then
+    hear the new boot.  That silence used to be a refusal (FAIL, "command 246 got no COMMAND_ACK"); the
+    new boot proves the reboot, as on TCP where the closing link says it."""
+    (tmp_path / "fc").mkdir()
+    with create_sim("ardupilot", "udp:127.0.0.1:0", mag_rate_hz=FAST_SENSOR_HZ, workdir=tmp_path / "fc", seed=3,
+                    boot_time_s=0.3, speed=5.0, faults=SimFaults.parse(["lose_reboot_ack"])) as sim:
+        host, port = sim.address.split(":")[1:]
+        record = run_unit(write_station("ardupilot-sim.yaml", tmp_path, f"udpout:{host}:{port}",
+                                        {**AP, **PASSING}))
+    assert record.verdict is Outcome.PASS, record.cause
+    assert record.persistence["figures"]["uptime_at_reconnect_s"] < 5.0  # a new boot, not the old one

@@ -25,6 +25,7 @@ from magline.core.dut import (
     NotRestored,
     ParamValue,
     SampleChunk,
+    UnansweredRequest,
     UnitInfo,
     await_new_boot,
     require_same_vehicle,
@@ -258,8 +259,8 @@ class ArduPilotDut:
         (an ACK that says no) still stops the unit."""
         try:
             self.link.require_accepted(ML.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, "reboot", 1)
-        except LinkError as exc:
-            log.info("reboot: %s before the command was acknowledged — waiting for the new boot", exc)
+        except (LinkError, UnansweredRequest) as exc:  # gone, or its ACK lost: the new boot decides
+            log.info("reboot not acknowledged (%s) — waiting for the new boot to prove it", exc)
         self.link.close()  # ArduPilot drops the connection; a fresh one proves the new boot
 
     def release_link(self) -> None:
