@@ -60,6 +60,16 @@ class Cell:
         return path
 
 
+def assert_misalignment_within_its_sigma(cal: dict) -> None:
+    """The mounting rotation found is within 4 of the calibration's own heading σ (which bounds each
+    axis of its rotation's) of the truth.  A fixed 0.1° was about 1.3σ once the determined stop ended
+    the schedule at 17 steps (σ ≈ 0.08°): it failed 1 run in 6 on one source, and once in CI on three
+    (2.08° for 1.97°: 1.4σ).  Which readings a unit gets depends on how many the settle discards, so a
+    draw is not the same from run to run: the bound has to be the calibration's own."""
+    sigma_deg = cal["coverage"]["direction_sigma_deg"]
+    assert cal["affine"]["misalignment_deg"] == pytest.approx(np.linalg.norm(MISALIGNMENT), abs=4 * sigma_deg)
+
+
 def test_coil_station_recovers_offset_and_full_matrix_with_misalignment(tmp_path):
     with Cell() as cell:
         record = run_unit(cell.station(tmp_path))
@@ -74,10 +84,7 @@ def test_coil_station_recovers_offset_and_full_matrix_with_misalignment(tmp_path
     full = np.array(cal["affine"]["full_matrix"])
     assert np.abs(full - r_true @ s_true).max() < 3e-3  # the full 3×3, rotation included
     assert np.abs(np.array(cal["soft_iron"]) - s_true).max() < 3e-3  # its symmetric part is what the DUT gets
-    # within 4 of the calibration's own heading σ (which bounds each axis of its rotation's): a fixed 0.1°
-    # was about 2σ once the determined stop ended the schedule at 17 steps (σ ≈ 0.08°), and failed 1 run in 6
-    sigma_deg = cal["coverage"]["direction_sigma_deg"]
-    assert cal["affine"]["misalignment_deg"] == pytest.approx(np.linalg.norm(MISALIGNMENT), abs=4 * sigma_deg)
+    assert_misalignment_within_its_sigma(cal)
     mis = next(m for m in record.measurements if m.name == "misalignment_deg")
     assert mis.verdict.value == "pass" and mis.high == 3.0
 
@@ -172,8 +179,7 @@ def test_three_separate_current_sources_drive_the_coil(tmp_path):
             record = run_unit(path)
             assert record.verdict is Outcome.PASS, record.cause
             assert all(s.output is False for s in sources)  # each switched off at the end
-            assert record.calibration["affine"]["misalignment_deg"] == pytest.approx(
-                np.linalg.norm(MISALIGNMENT), abs=0.1)
+            assert_misalignment_within_its_sigma(record.calibration)
         finally:
             for s in sources:
                 s.stop()
