@@ -44,10 +44,20 @@ class RepeatFilter:
     """Passes each sensor reading once and counts the copies it dropped.
 
     ``accept(x, y, z)`` is False for a reading identical on all three axes to the last one passed.
+
+    ``timed=True`` (a stream whose readings are paired with other sensors by time) also holds back
+    the stream's first reading.  A reading's time is the message it first appears in; the first
+    message of a stream shows the sensor's latest reading, taken at an unknown time before it (up to
+    one sensor period: 100 ms for ArduCopter's compass), perhaps before the unit moved at all.  A
+    gimbal that starts its pattern by swinging to the start attitude put that one reading 90° away
+    from the gravity it was paired with, and its single outlier held the mounting σ, and so the
+    whole tumble, at its count (30 s instead of 11 s on the simulated ArduPilot).  Its copies are
+    dropped as repeats; the next reading that changes is the first one taken.
     """
 
     repeats: int = 0  # copies dropped so far
     readings: int = 0  # distinct readings passed so far
+    timed: bool = False
     _last: tuple[float, float, float] | None = field(default=None, repr=False)
 
     def accept(self, x: float, y: float, z: float) -> bool:
@@ -55,7 +65,10 @@ class RepeatFilter:
         if reading == self._last:
             self.repeats += 1
             return False
+        first = self._last is None
         self._last = reading
+        if first and self.timed:
+            return False  # the value the stream began with: of unknown age
         self.readings += 1
         return True
 
@@ -79,7 +92,7 @@ class SensorStreams:
         self.primary = primary
         self.sensors = list(dict.fromkeys([primary, *sensors]))
         self.to_ut = to_ut
-        self.filters = {d: RepeatFilter() for d in self.sensors}
+        self.filters = {d: RepeatFilter(timed=True) for d in self.sensors}  # paired with gravity by time
         self._clear()
 
     def _clear(self) -> None:

@@ -40,6 +40,32 @@ def test_repeat_filter_passes_each_reading_once_and_counts_the_copies():
     assert f.readings == 3 and f.take_repeats() == 9 and f.take_repeats() == 0
 
 
+def test_a_streams_first_reading_is_of_unknown_age_and_not_paired_with_gravity():
+    """The first message of a stream shows each sensor's latest reading, taken at an unknown time
+    before it (up to a sensor period; before a gimbal's swing to its start attitude, 90° away).
+    Paired with the accelerometer by time it was one outlier that held the mounting σ, and the
+    tumble, at its count.  It is held back per sensor with its copies; the first reading that
+    changes is taken, at the time it first appears."""
+    from magline.core.readings import SensorStreams
+
+    streams = SensorStreams(1, [1, 2], lambda _, mg: mg / 10.0)
+    stale = {1: (100, 200, 300), 2: (-100, 50, 0)}
+    for t in (0.0, 20.0, 40.0):  # 50 Hz messages; the sensors have not read since the stream began
+        streams.accel(t, 0, 0, 1000)
+        for d in (1, 2):
+            streams.mag(d, t, *stale[d])
+    fresh = {1: [(110, 190, 300), (120, 180, 300)], 2: [(-90, 50, 0), (-80, 50, 0)]}
+    for i, t in enumerate((60.0, 80.0, 100.0, 120.0)):
+        streams.accel(t, 0, 0, 1000)
+        for d in (1, 2):
+            streams.mag(d, t, *fresh[d][i // 2])
+    chunk = streams.take()
+    assert chunk.t_ms.tolist() == [60.0, 100.0] and chunk.more[2].t_ms.tolist() == [60.0, 100.0]
+    assert np.allclose(chunk.mag_ut, untruncate_mg(np.array(fresh[1], float)) / 10.0)
+    assert chunk.repeats == 2 + 2  # the held-back value's copies, then one copy of each fresh reading
+    assert len(chunk.imu.t_ms) == 7  # gravity is kept whole: it is what the readings are paired with
+
+
 def test_truncated_int16_is_undone_on_average(rng):
     true_mg = rng.uniform(-600, 600, size=(200_000, 3))
     sent = np.array(int16_mg(true_mg.ravel()), float).reshape(true_mg.shape)
