@@ -30,8 +30,8 @@ sys.path.insert(0, str(REPO / "tests"))
 from browser import chromium, open_page  # noqa: E402
 from test_station_screen import Served, free_port  # noqa: E402
 
+from magline.core.operator_ui.screen.serve import build  # noqa: E402
 from magline.core.plugins import load_plugins  # noqa: E402
-from magline.core.screen.serve import build  # noqa: E402
 from magline.core.sequencer import Sequencer  # noqa: E402
 from magline.core.station import load_station  # noqa: E402
 

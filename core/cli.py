@@ -186,7 +186,7 @@ def _run(args: argparse.Namespace, plugins: Plugins) -> int:
     Ctrl-C or SIGTERM aborts the unit under test (its DUT restored where the link allows, its
     record marked aborted) and ends the batch with its summary; no traceback.
     """
-    from magline.core.console import OperatorConsole
+    from magline.core.operator_ui.console import OperatorConsole
     from magline.core.sequencer import Sequencer
     from magline.core.sequencer.batch import Batch
     from magline.core.sequencer.hold import StationBusy
@@ -619,7 +619,7 @@ def _report(args: argparse.Namespace, plugins: Plugins) -> int:
 
 
 def _station(args: argparse.Namespace, plugins: Plugins) -> int:
-    from magline.core.screen.serve import serve
+    from magline.core.operator_ui.screen.serve import serve
 
     try:
         station, where = _load(args.station, plugins)

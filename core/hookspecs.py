@@ -262,12 +262,25 @@ def magline_acquisition_stopped(run: RunContext, attempt: int, reason: str, afte
 
 @hookspec
 def magline_waiting(run: RunContext, what: str, elapsed_s: float, limit_s: float | None) -> None:
-    """A long wait of the station is under way (the power cycle and the new boot): called about once
-    a second, from a timer thread, so that an operator view can show a countdown.
+    """A long wait of the station is under way (the unit warming up before its tumble, the power
+    cycle and the new boot): called about once a second, from a timer thread, so that an operator
+    view can show a countdown.  :func:`magline_wait_ended` says when it is over.
 
     :param what: what the station waits for, in the operator's words.
     :param elapsed_s: seconds since the wait began.
     :param limit_s: when the station gives up (None when the backend does not say).
+    """
+
+
+@hookspec
+def magline_wait_ended(run: RunContext, what: str, waited_s: float) -> None:
+    """The wait announced by :func:`magline_waiting` is over, whatever ended it (what it waited for
+    came, its limit ran out, the operator aborted, the link was lost): called once per wait, from the
+    unit's thread, after its last :func:`magline_waiting` call and before the station goes on.  An
+    operator view takes the countdown down here rather than guessing the end from what comes next.
+
+    :param what: the same words as the wait's :func:`magline_waiting` calls.
+    :param waited_s: seconds the wait lasted.
     """
 
 

@@ -9,8 +9,8 @@ import re
 import pytest
 from rich.console import Console
 
-from magline.core.console import verdict_panel
 from magline.core.measurements import Numeric, Verdict
+from magline.core.operator_ui.console import verdict_panel
 from magline.core.record import Outcome
 from magline.testing import make_record
 
@@ -53,12 +53,13 @@ def test_the_help_speaks_plainly(capsys):
     assert "``" not in out and "Calibrate drone magnetometers" in out
 
 
-def test_a_slot_panel_drops_the_warm_up_wait_once_readings_arrive_and_keeps_a_prompt():
-    """The slot board shows a wait's count in the slot's panel; readings arriving end the wait (a
-    gimbal station prompts nobody, so nothing else would replace it), while a prompt stays."""
+def test_a_slot_panel_drops_a_wait_when_it_ends_and_keeps_a_prompt():
+    """The slot board shows a wait's count in the slot's panel until the wait says it ended (a gimbal
+    station prompts nobody, so nothing else would replace it); readings do not end a wait, and the
+    end of a wait leaves a prompt the operator has been given since."""
     from types import SimpleNamespace
 
-    from magline.core.console_slots import SlotBoard
+    from magline.core.operator_ui.console_slots import SlotBoard
 
     board = SlotBoard(Console(file=io.StringIO(), width=80), live=False)
     run = SimpleNamespace(slot="A", serial="SN-A1", part="PX4-FMU")
@@ -66,7 +67,10 @@ def test_a_slot_panel_drops_the_warm_up_wait_once_readings_arrive_and_keeps_a_pr
     board.waiting(run, "warming up before the tumble", 3.0, 20.0)
     assert board.views["A"].message == "warming up before the tumble (3 s, 17 s left)"
     board.progress(run, 1, 12, 0.1, 0.5)
+    assert board.views["A"].message.startswith("warming up")
+    board.wait_ended(run)
     assert board.views["A"].message == ""
     board.prompt(run, "Tumble the unit")
+    board.wait_ended(run)
     board.progress(run, 1, 40, 0.2, 0.5)
     assert board.views["A"].message == "Tumble the unit"

@@ -162,7 +162,7 @@ def test_a_good_three_compass_ardupilot_unit_passes_with_every_compass_calibrate
         for pair in ("mag1-mag2.", "mag1-mag3.", "mag2-mag3."):
             assert measured(record, pair + "heading_agreement_median_deg").value < 1.0
         # the verdict panel: a section per compass, then the pairs, and each compass's hard iron
-        from magline.core.console import verdict_lines
+        from magline.core.operator_ui.console import verdict_lines
 
         panel = "\n".join(verdict_lines(record))
         order = ["— compass 1: ", " hard_iron_x_ut", "— compass 2: ", "mag2.hard_iron_x_ut", "— compass 3: ",

@@ -12,8 +12,8 @@ from rich.console import Console
 from simstation import FAST_SENSOR_HZ, attempt_rows, write_station
 
 from magline.core.cli import main
-from magline.core.console import OperatorConsole
 from magline.core.fit.samples_csv import format_samples
+from magline.core.operator_ui.console import OperatorConsole
 from magline.core.plugins import hookimpl, load_plugins
 from magline.core.record import Outcome
 from magline.core.sequencer import Sequencer
@@ -148,12 +148,24 @@ def test_the_verdict_panel_shows_every_measurement_the_matrix_and_the_store(make
 
 
 class Waits:
+    """Every wait hook, in the order called, with the phases around them."""
+
     def __init__(self):
         self.ticks: list[tuple[str, float, float | None]] = []
+        self.events: list[tuple[str, str]] = []
 
     @hookimpl
     def magline_waiting(self, run, what, elapsed_s, limit_s):
         self.ticks.append((what, elapsed_s, limit_s))
+        self.events.append(("tick", what))
+
+    @hookimpl
+    def magline_wait_ended(self, run, what, waited_s):
+        self.events.append(("ended", what))
+
+    @hookimpl
+    def magline_phase_finished(self, run, phase, result):
+        self.events.append(("finished", phase))
 
 
 def test_a_power_cycle_shows_a_countdown(tmp_path):
@@ -168,6 +180,44 @@ def test_a_power_cycle_shows_a_countdown(tmp_path):
     assert all("waiting for the unit to boot" in what for what, _, _ in waits.ticks)
     elapsed = [e for _, e, _ in waits.ticks]
     assert elapsed == sorted(elapsed) and np.all(np.diff(elapsed) > 0.5)
+    # the wait says its end once, after its last tick and before the verify phase goes on to its checks
+    ended = [i for i, (kind, _) in enumerate(waits.events) if kind == "ended"]
+    assert len(ended) == 1 and waits.events[ended[0]] == ("ended", waits.ticks[0][0])
+    assert all(kind != "tick" for kind, _ in waits.events[ended[0]:])
+    assert ("finished", "verify") in waits.events[ended[0] + 1:]
+
+
+def test_a_wait_ends_once_after_its_last_tick_also_when_what_it_waited_for_fails():
+    """``RunContext.waiting``: ticks from the timer thread while the block runs, then one
+    ``magline_wait_ended``, also when the block raises; no tick comes after the end."""
+    import threading
+    from types import SimpleNamespace
+
+    import pytest
+
+    from magline.core.sequencer.context import RunContext
+
+    events, ticked = [], threading.Event()
+
+    def waiting(run, what, elapsed_s, limit_s):
+        events.append(("tick", what, limit_s))
+        if sum(e[0] == "tick" for e in events) >= 3:
+            ticked.set()
+
+    def wait_ended(run, what, waited_s):
+        events.append(("ended", what, waited_s))
+
+    run = SimpleNamespace(plugins=SimpleNamespace(hook=SimpleNamespace(magline_waiting=waiting,
+                                                                       magline_wait_ended=wait_ended)))
+    with pytest.raises(TimeoutError), RunContext.waiting(run, "power cycle", 30.0, tick_s=0.01):
+        assert ticked.wait(10)
+        raise TimeoutError("the unit did not come back")
+    ends = [e for e in events if e[0] == "ended"]
+    assert len(ends) == 1 and ends[0][1] == "power cycle" and ends[0][2] > 0
+    assert events[-1][0] == "ended"
+    seen = len(events)
+    threading.Event().wait(0.1)  # ten tick periods: a timer still running would have added ticks
+    assert len(events) == seen
 
 
 def test_no_python_class_names_reach_the_operator(make_station):

@@ -12,8 +12,8 @@ import pytest
 from rich.console import Console
 from sqlalchemy import create_engine, text
 
-from magline.core.console import OperatorConsole
 from magline.core.measurements import Numeric, Verdict
+from magline.core.operator_ui.console import OperatorConsole
 from magline.core.plugins import load_plugins
 from magline.core.quality.review import review
 from magline.core.record import Outcome, RunRecord

@@ -60,7 +60,7 @@ def test_a_failed_unit_report_marks_the_measurement_and_shows_nothing_written(ma
 
 
 def test_the_station_writes_each_units_report_with_review_flags_marked(make_station, tmp_path, browser):
-    from magline.core.console import OperatorConsole
+    from magline.core.operator_ui.console import OperatorConsole
     from magline.core.plugins import load_plugins
     from magline.core.sequencer import Sequencer
     from magline.core.station import load_station

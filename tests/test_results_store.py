@@ -210,7 +210,7 @@ def test_a_record_that_cannot_be_stored_is_never_reported_as_stored(make_station
     """Disk full, a read-only store: the unit is not booked as passed, the operator is told."""
     from rich.console import Console
 
-    from magline.core.console import OperatorConsole
+    from magline.core.operator_ui.console import OperatorConsole
     from magline.core.plugins import hookimpl, load_plugins
     from magline.core.record import Outcome
     from magline.core.sequencer import Sequencer

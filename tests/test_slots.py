@@ -15,7 +15,7 @@ from rich.console import Console
 from sqlalchemy import create_engine
 
 from magline.core.cli import main
-from magline.core.console import OperatorConsole
+from magline.core.operator_ui.console import OperatorConsole
 from magline.core.plugins import hookimpl, load_plugins
 from magline.core.record import Outcome
 from magline.core.results.reading import find_run

@@ -19,13 +19,14 @@ import pytest
 import uvicorn
 import yaml
 from browser import open_page, screenshot
+from conftest import REPO
 from playwright.sync_api import TimeoutError as PlaywrightTimeout
 from sqlalchemy import create_engine
 
 from magline.core.field.wmm import wmm_field_nt
+from magline.core.operator_ui.screen.serve import build, is_loopback
 from magline.core.plugins import load_plugins
 from magline.core.results.reading import find_run
-from magline.core.screen.serve import build, is_loopback
 from magline.core.station import load_station
 from magline.plugins.mock.sim.fluxgate import FluxgateSim
 from magline.plugins.mock.storage import NvStorage
@@ -510,3 +511,26 @@ def test_a_coil_unit_lights_the_field_directions_applied_and_asks_nobody_to_turn
         finally:
             served.stop()
             runner.close()
+
+
+def test_the_screen_shows_a_wait_until_it_says_it_ended_a_prompt_given_meanwhile_included():
+    """The phase line's countdown goes when the wait ends (``magline_wait_ended``), not when the phase
+    ends: after the power cycle's boot wait the verify phase still reads back and checks the field,
+    and the screen must not still count a boot that is over.  A prompt during a wait leaves it."""
+    from types import SimpleNamespace
+
+    from magline.core.operator_ui.screen.state import ScreenState
+
+    state = ScreenState(load_station(REPO / "stations" / "demo.yaml"))
+    state.unit_started("SCR-1", "MOCK-100")
+    run = SimpleNamespace(slot=None)
+    state.magline_phase_started(run, "verify")
+    state.magline_waiting(run, "power cycle: waiting for the unit to boot", 2.0, 30.0)
+    state.magline_operator_prompt(run, "Keep the unit on the fixture")
+    assert state.snapshot()[1]["run"]["waiting"]["what"].startswith("power cycle")
+    state.magline_wait_ended(run, "warming up before the tumble", 3.0)  # another wait's end: not this one
+    assert state.snapshot()[1]["run"]["waiting"] is not None
+    state.magline_wait_ended(run, "power cycle: waiting for the unit to boot", 2.4)
+    current = state.snapshot()[1]["run"]
+    assert current["waiting"] is None and current["prompt"] == "Keep the unit on the fixture"
+    assert next(p for p in current["phases"] if p["name"] == "verify")["state"] == "running"

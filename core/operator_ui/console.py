@@ -13,8 +13,8 @@ from rich.panel import Panel
 from rich.progress import BarColumn, Progress, TaskID, TextColumn
 from rich.text import Text
 
-from magline.core.console_slots import STYLE, SlotBoard
 from magline.core.measurements import Verdict, by_sensor, verdicts
+from magline.core.operator_ui.console_slots import STYLE, SlotBoard
 from magline.core.plugins import hookimpl
 from magline.core.record import Outcome, PhaseResult, RunRecord
 from magline.core.sequencer.batch import Batch
@@ -77,6 +77,12 @@ class OperatorConsole:
         self._last_wait = whole
         left = f"{max(limit_s - elapsed_s, 0):.0f} s left of {limit_s:.0f} s" if limit_s else f"{whole} s"
         self.console.print(f"    {what} … {left}")
+
+    @hookimpl
+    def magline_wait_ended(self, run: RunContext, what: str, waited_s: float) -> None:
+        if run.slot is not None:
+            return self.slots.wait_ended(run)
+        self._last_wait = -1  # the next wait's countdown starts with its first line
 
     @hookimpl
     def magline_acquisition_progress(self, run: RunContext, attempt: int, samples: int, coverage: float,

@@ -36,7 +36,7 @@ class SlotView:
     coverage: float = 0.0
     target: float = 0.0
     message: str = ""
-    message_is_wait: bool = False  # the message counts a wait: readings arriving end it
+    message_is_wait: bool = False  # the message counts a wait: its end takes it down
     verdict: str = ""
     printed_pct: int = -STEP_PCT
 
@@ -109,8 +109,6 @@ class SlotBoard:
             if attempt != view.attempt:
                 view.printed_pct = -STEP_PCT
             view.attempt, view.samples, view.coverage, view.target = attempt, samples, coverage, target
-            if view.message_is_wait:  # the wait before the tumble (warm-up) is over
-                view.message, view.message_is_wait = "", False
             self._refresh()
             pct = int(coverage * 100)
             if pct - view.printed_pct >= STEP_PCT:
@@ -131,6 +129,13 @@ class SlotBoard:
             view = self.views[run.slot]
             view.message, view.message_is_wait = f"{what} ({elapsed_s:.0f} s{left})", True
             self._refresh()
+
+    def wait_ended(self, run: RunContext) -> None:
+        with self._lock:
+            view = self.views[run.slot]
+            if view.message_is_wait:
+                view.message, view.message_is_wait = "", False
+                self._refresh()
 
     def round(self, text: str) -> None:
         with self._lock:

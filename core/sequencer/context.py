@@ -6,6 +6,7 @@ and the listeners, so hook signatures stay stable as phases learn more.
 
 from __future__ import annotations
 
+import threading
 import time
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
@@ -128,15 +129,26 @@ class RunContext:
 
     @contextmanager
     def waiting(self, what: str, limit_s: float | None = None, tick_s: float = 1.0) -> Iterator[None]:
-        """Around a long blocking wait: ``magline_waiting`` about every ``tick_s`` from a timer thread."""
+        """Around a long blocking wait: ``magline_waiting`` about every ``tick_s`` from a timer thread,
+        then ``magline_wait_ended`` once.  The lock makes the end final: a tick that was under way when
+        the wait ended finishes first, and none comes after the end."""
         started = time.monotonic()
+        lock = threading.Lock()
+        over = False
 
         def tick() -> None:
-            self.plugins.hook.magline_waiting(run=self, what=what, elapsed_s=time.monotonic() - started,
-                                              limit_s=limit_s)
+            with lock:
+                if not over:
+                    self.plugins.hook.magline_waiting(run=self, what=what, elapsed_s=time.monotonic() - started,
+                                                      limit_s=limit_s)
 
-        with every(tick_s, tick, "magline-countdown"):
-            yield
+        try:
+            with every(tick_s, tick, "magline-countdown"):
+                yield
+        finally:
+            with lock:
+                over = True
+            self.plugins.hook.magline_wait_ended(run=self, what=what, waited_s=time.monotonic() - started)
 
     def acquisition_stopped(self, result: Acquisition) -> None:
         """The tumble of an attempt ended: say why and when to the log and to every listener."""

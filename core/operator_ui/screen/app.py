@@ -22,10 +22,10 @@ from fastapi import FastAPI, Request
 from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, PlainTextResponse, Response
 from sse_starlette.sse import EventSourceResponse
 
-from magline.core.screen.runner import Busy, UnitRunner
-from magline.core.screen.state import ScreenState, bin_centres
+from magline.core.operator_ui.screen.runner import Busy, UnitRunner
+from magline.core.operator_ui.screen.state import ScreenState, bin_centres
 
-STATIC = files("magline.core.screen") / "static"
+STATIC = files("magline.core.operator_ui.screen") / "static"
 COOKIE = "magline_token"
 HEARTBEAT_S = 5.0  # an idle stream still says it is alive, so the page notices a dead server
 WAIT_S = 0.5

@@ -8,7 +8,7 @@ import threading
 from typing import Any
 
 from magline.core.faults import UnitAborted
-from magline.core.screen.state import ScreenState
+from magline.core.operator_ui.screen.state import ScreenState
 from magline.core.sequencer import Sequencer
 from magline.core.serials import clean_serial
 

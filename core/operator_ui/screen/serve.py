@@ -10,10 +10,10 @@ from pathlib import Path
 from typing import Any
 
 from magline.core.faults import StationFault
+from magline.core.operator_ui.screen.app import create_app
+from magline.core.operator_ui.screen.runner import UnitRunner
+from magline.core.operator_ui.screen.state import ScreenState
 from magline.core.plugins import Plugins
-from magline.core.screen.app import create_app
-from magline.core.screen.runner import UnitRunner
-from magline.core.screen.state import ScreenState
 from magline.core.station import Station
 
 

@@ -17,9 +17,9 @@ import time
 from typing import Any
 
 from magline.core.measurements import CATALOGUE, Verdict, base_name, by_sensor, verdicts
+from magline.core.operator_ui.screen.sides import SIDES, missing_sides
 from magline.core.plugins import hookimpl
 from magline.core.record import PhaseResult, RunRecord
-from magline.core.screen.sides import SIDES, missing_sides
 from magline.core.sequencer.batch import Batch
 from magline.core.sequencer.sequencer import PHASES
 from magline.core.text import fmt, stop_line
@@ -38,7 +38,7 @@ class ScreenState:
                         "serial_prompt": station.prompts.serial,
                         "default_part": station.default_part or next(iter(station.products)),
                         "slots": [{"id": s.id, "part": s.part} for s in station.slots]},
-            "sides": side_labels(),  # the sphere's six words (core/screen/sides.py)
+            "sides": side_labels(),  # the sphere's six words (core/operator_ui/screen/sides.py)
             "busy": False, "run": None, "result": None, "recent": [], "shift": {"units": 0, "fpy": None},
             # a station with slots: one run and one result per slot (the page draws one panel each)
             "slots": {}, "round": None,
@@ -129,7 +129,6 @@ class ScreenState:
             if n_bins and turns_unit and (bins != current["bins"] or not current.get("missing_for")):
                 current["missing"] = missing_sides(bins, n_bins)  # in words: what the operator turns next
                 current["missing_for"] = n_bins
-            current["waiting"] = None  # readings arrive: a wait before the tumble (warm-up) is over
             current.update(attempt=attempt, samples=samples, coverage=coverage, target=target, n_bins=n_bins,
                            target_samples=run.station.acquisition.samples if turns_unit else None, bins=bins,
                            turns_unit=turns_unit,
@@ -153,7 +152,6 @@ class ScreenState:
             if current is not None:
                 current["prompt"] = message
                 current["prompts"].append(message)
-                current["waiting"] = None  # a new instruction: the wait the last one was about is over
                 self._changed()
 
     @hookimpl
@@ -162,6 +160,14 @@ class ScreenState:
             current = self._run_of(run)
             if current is not None:
                 current["waiting"] = {"what": what, "elapsed_s": round(elapsed_s, 1), "limit_s": limit_s}
+                self._changed()
+
+    @hookimpl
+    def magline_wait_ended(self, run: Any, what: str, waited_s: float) -> None:
+        with self._lock:
+            current = self._run_of(run)
+            if current is not None and (current["waiting"] or {}).get("what") == what:
+                current["waiting"] = None
                 self._changed()
 
     @hookimpl
@@ -268,7 +274,7 @@ def _pair_words(prefix: str) -> str:
 
 
 def side_labels() -> list[dict[str, object]]:
-    """The six words of :mod:`magline.core.screen.sides` where the sphere shows them."""
+    """The six words of :mod:`magline.core.operator_ui.screen.sides` where the sphere shows them."""
     return [{"name": name, "at": list(axis)} for name, axis in SIDES]
 
 
