@@ -231,6 +231,9 @@ class DutBackend(Protocol):
     # readings (µT, rows) of the firmware's own *calibrated* output for this sensor (ArduPilot's
     # corrected stream, PX4's HIGHRES_IMU); None when it cannot be attributed to this sensor.  The
     # verify phase requires their magnitude to match the reference field.
+    # Optional with it: ``calibrated_fields_ut(count, device_ids) -> dict[int, NDArray | None]`` — the
+    # same for several sensors read side by side (ArduPilot's compasses stream at 10 Hz each: one
+    # after the other, a three-compass unit waits three times as long); used for a unit of several.
 
     def persistence_problems(self) -> list[str]:
         """After a power cycle: what the autopilot itself says is wrong with the calibration

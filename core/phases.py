@@ -379,7 +379,8 @@ def _calibrated_output_problems(run: RunContext, dut: object, figures: dict) -> 
     must read the reference field.  A read-back only proves that what was written is stored; a
     calibration written to a slot the firmware does not apply to this sensor, or with a wrong sign
     or unit, is stored just as well — and reads far off here.  Backends that can read their
-    calibrated output implement ``calibrated_field_ut(count)`` (None: not attributable here); field
+    calibrated output implement ``calibrated_field_ut(count)`` (None: not attributable here), and
+    ``calibrated_fields_ut(count, device_ids)`` where several sensors stream side by side; field
     sources whose reference is the field the unit sits in say ``reference_is_ambient = True``
     (a coil's generated field is gone after its schedule)."""
     read = getattr(dut, "calibrated_field_ut", None)
@@ -388,8 +389,13 @@ def _calibrated_output_problems(run: RunContext, dut: object, figures: dict) -> 
         return []
     several = len(run.magnetometers) > 1
     problems = []
+    at_once = getattr(dut, "calibrated_fields_ut", None) if several else None
+    read_all = at_once(CALIBRATED_READINGS, [m.device_id for m in run.magnetometers]) if at_once else {}
     for sensor in run.magnetometers if several else run.magnetometers[:1] or [None]:
-        readings = read(CALIBRATED_READINGS, sensor=sensor.device_id) if several else read(CALIBRATED_READINGS)
+        if at_once:
+            readings = read_all.get(sensor.device_id)
+        else:
+            readings = read(CALIBRATED_READINGS, sensor=sensor.device_id) if several else read(CALIBRATED_READINGS)
         if readings is None or len(readings) == 0:
             continue
         measured = float(np.median(np.linalg.norm(np.atleast_2d(readings), axis=1)))

