@@ -1,0 +1,93 @@
+"""When is a tumble called stalled?  (issue 27: figures printed, never asserted)
+
+A determined tumble whose coverage stops growing short of its target ends, and the operator is asked
+again (``core/tumble_stop.py``, ``Stall``).  Called too early, a good tumble's readings are thrown away;
+called too late, an operator spinning the unit about one axis is told only after many seconds.  This
+benchmark drives the shipped rule with the shipped coverage tracker (40 bins, target 60 %,
+``min_samples`` 100), readings as the acquire phase feeds them, on:
+
+* a spin about the vertical axis with a 3° and a 15° hand wobble (the classic mistake; the demo's
+  mock makes the 15° one, a fresh turn every 600 readings): it must stall, soon;
+* the simulators' tumble and gimbal at 50 Hz, begun at a random point of their sweep (a turn there
+  and back: no new direction while it retraces): they must not;
+* an operator's hand tumble through well-spread waypoints, over 600 readings and, slowly, over 3,000:
+  they must not.
+
+Printed per motion: how many were called stalled, and for the spins at how many readings (p50, p90,
+most; "never" within 4,800 readings).
+
+    python benchmarks/stall.py [--units 100] [--seed 27] [--without-growth 0.5]
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+from magline.core.fit.coverage import CoverageTracker
+from magline.core.synthetic.imu import simulator_fields
+from magline.core.synthetic.motions import hand_tumble, single_axis
+from magline.core.tumble_stop import Stall
+
+FIELD = np.array([20.0, 1.5, 42.0])  # µT, NED: 48 µT dipping 63°
+BINS, TARGET, MIN_SAMPLES = 40, 0.6, 100
+HARD_IRON = np.array([30.0, -20.0, 10.0])
+
+
+def stalled_at(directions: np.ndarray, rng: np.random.Generator) -> int | None:
+    """The reading at which the shipped rule calls the tumble stalled (None: it reached the target or
+    never stalled)."""
+    stall, tracker = Stall(MIN_SAMPLES, TARGET), CoverageTracker(BINS)
+    readings = directions * np.linalg.norm(FIELD) + HARD_IRON + rng.normal(0.0, 0.3, directions.shape)
+    for n, reading in enumerate(readings, start=1):
+        coverage = tracker.add(reading[None])
+        if coverage >= TARGET:
+            return None
+        if stall.stalled(n, coverage):
+            return n
+    return None
+
+
+def simulator(motion: str, rng: np.random.Generator) -> np.ndarray:
+    t = rng.uniform(0.0, 32.0) + np.arange(0, 40 * 50) / 50.0  # 40 s at 50 Hz, from anywhere in the sweep
+    return simulator_fields(motion, t, 1.0, FIELD) / np.linalg.norm(FIELD)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--units", type=int, default=100)
+    parser.add_argument("--seed", type=int, default=27)
+    parser.add_argument("--without-growth", type=float, default=None,
+                        help="the rule's share of readings without a new direction (default: the shipped one)")
+    args = parser.parse_args()
+    if args.without_growth is not None:
+        Stall.WITHOUT_GROWTH = args.without_growth
+    rng = np.random.default_rng(args.seed)
+    down = FIELD / np.linalg.norm(FIELD)
+    motions = {
+        "spin, 3° wobble": lambda: np.vstack([single_axis(600, rng, down, 3.0) for _ in range(8)]),
+        "spin, 15° wobble": lambda: np.vstack([single_axis(600, rng, down, 15.0) for _ in range(8)]),
+        "simulator tumble 50 Hz": lambda: simulator("tumble", rng),
+        "simulator gimbal 50 Hz": lambda: simulator("gimbal", rng),
+        "hand tumble (600)": lambda: hand_tumble(600, rng, down),
+        "slow hand tumble (3,000)": lambda: hand_tumble(3000, rng, down),
+    }
+    print(f"stall rule: no new direction over {Stall.WITHOUT_GROWTH:.2f} of the readings, at least "
+          f"{MIN_SAMPLES}; {BINS} bins, target {TARGET:.0%}; {args.units} tumbles each")
+    for name, make in motions.items():
+        at = [stalled_at(make(), rng) for _ in range(args.units)]
+        stalled = [n for n in at if n is not None]
+        line = f"  {name:<26} stalled {len(stalled):4d} of {len(at)}"
+        if name.startswith("spin") and stalled:
+            spread = [n if n is not None else np.inf for n in at]  # never stalled: later than any
+            p50, p90 = (np.percentile(spread, q) for q in (50, 90))
+            line += "  at readings " + ", ".join(f"{label} {'never' if np.isinf(v) else f'{v:.0f}'}" for label, v in
+                                                 (("p50", p50), ("p90", p90), ("most", max(stalled))))
+            if len(stalled) < len(at):
+                line += f"; never in {len(at) - len(stalled)}"
+        print(line, flush=True)
+
+
+if __name__ == "__main__":
+    main()
