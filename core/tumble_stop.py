@@ -28,7 +28,8 @@ class Stall:
     Why two thirds, not half: a turn there and back retraces exactly as long as it went before it
     reaches new directions, so at half the rule fired the moment such a motion went on to new ones
     (10 % of the PX4 simulator's tumbles at 50 Hz, their readings thrown away and the operator asked
-    again).  A ring is covered in its first turn, so a spin still stalls at ``2 × min_samples``."""
+    again).  A ring is covered in its first turn, so a spin still stalls at ``2 × min_samples``; one
+    whose wobble finds a new direction now and then stalls later than at half (``benchmarks/stall.py``)."""
 
     WITHOUT_GROWTH = 2 / 3  # the share of the readings with no new direction that is a stall
 
