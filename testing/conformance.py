@@ -284,6 +284,18 @@ def check_dut_backend(open_dut: Callable[[], Any], field_ut: float, *, samples: 
             assert abs(measured / field_ut - 1) * 100 <= tolerance_pct, (
                 f"the firmware's calibrated output reads {measured:.2f} µT in a {field_ut:g} µT field: "
                 "calibration_params() has a wrong sign, unit or matrix convention")
+        read_several = getattr(dut, "calibrated_fields_ut", None)  # optional: several sensors side by side
+        if read_several is not None:
+            several = read_several(20, [info.selected_sensor])
+            assert set(several) == {info.selected_sensor}, (
+                f"calibrated_fields_ut(20, [{info.selected_sensor}]) returned sensors {sorted(several)}: one entry "
+                "per device id asked for")
+            alone = several[info.selected_sensor]
+            if output is not None and alone is not None:
+                beside = float(np.median(np.linalg.norm(np.atleast_2d(alone), axis=1)))
+                assert abs(beside / measured - 1) * 100 <= tolerance_pct, (
+                    f"calibrated_fields_ut reads {beside:.2f} µT where calibrated_field_ut read {measured:.2f} µT: "
+                    "they must read the same calibrated output")
 
         dut.restore()
         cycle(dut)
