@@ -262,25 +262,17 @@ def test_a_tumble_stalls_only_when_its_coverage_stopped_growing_for_two_thirds_o
     assert not any(reached.stalled(n, 0.7) for n in range(10, 600, 10))  # at the target: the fit decides
 
 
-def _there_and_back(readings: int, rate_hz: float) -> np.ndarray:
-    """A sweep of the field from halfway down to the bottom pole, back up the same way and on over the
-    top (the simulators' spiral tumble begun mid-sweep): 8 s pole to pole, spinning at 0.9 turns/s."""
-    t = np.arange(readings) / rate_hz
-    u = 1.0 - np.abs(t / 8.0 - 0.4)  # 0 at the top pole, 1 at the bottom: 0.6 → 1 after 3.2 s → back up
-    z = 1.0 - 2.0 * np.clip(u, 0.0, 1.0)
-    r = np.sqrt(1.0 - z * z)
-    phi = 2 * np.pi * 0.9 * t
-    return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
-
-
 def test_a_turn_there_and_back_is_not_a_stall():
     """Retracing its way, a tumble sees no new direction for as long as it went; half the readings
     without a new one then is no stall: it goes on to new directions (it did in 10 % of the PX4
     simulator's tumbles, which were thrown away and the operator asked again)."""
     from magline.core.fit.coverage import CoverageTracker
+    from magline.core.synthetic.imu import simulator_fields
     from magline.core.tumble_stop import Stall
 
-    directions = _there_and_back(800, 50.0)
+    # the simulators' own tumble at 50 Hz, begun 4.8 s into its sweep: 60 % of the way down, going down
+    field = np.array([20.0, 1.5, 42.0])
+    directions = simulator_fields("tumble", 4.8 + np.arange(800) / 50.0, 1.0, field) / np.linalg.norm(field)
     stall, tracker = Stall(min_samples=100, target=0.6), CoverageTracker(40)
     flat = 0.0  # the largest share of the readings so far seen without a new direction
     for n, reading in enumerate(directions * 48.0 + [30.0, -20.0, 10.0], start=1):
