@@ -28,7 +28,7 @@ from magline.core.plugins import PluginError, Plugins, load_plugins
 from magline.core.record import Outcome
 from magline.core.results.sinks import close_sink, open_results
 from magline.core.results.store import reason
-from magline.core.serials import SerialRefused, clean_serial
+from magline.core.serials import Refused, SerialRefused, clean_serial, known_part, one_serial_per_slot
 from magline.core.station import Station, StationError
 from magline.core.station.checks import did_you_mean, station_problems
 from magline.core.station.loader import read_station_text
@@ -206,25 +206,27 @@ def _run(args: argparse.Namespace, plugins: Plugins) -> int:
         return 2
     batch = Batch()
     try:
+        if args.part is not None:  # a part the station does not build: refused before a serial is asked
+            known_part(args.part, list(station.products), station.station.id)
         units = _slot_batches(args, station) if station.slots else (
             {"": serial} for serial in _serials(args, station))
         with sequencer.abort.signals():
             try:
                 for unit in units:
-                    if station.slots:
-                        from magline.core.sequencer.slots import SlotRunner
+                    try:
+                        if station.slots:
+                            from magline.core.sequencer.slots import SlotRunner
 
-                        records = SlotRunner(sequencer).run(unit, args.operator)
-                        if not records:
-                            break
-                    else:
-                        try:
+                            records = SlotRunner(sequencer).run(unit, args.operator)
+                            if not records:
+                                break
+                        else:
                             records = [sequencer.run_unit(unit[""], args.part, args.operator)]
-                        except (SerialRefused, StationBusy) as exc:  # nothing recorded: say why, take the next scan
-                            _err(str(exc))
-                            if not args.loop:
-                                return 2
-                            continue
+                    except (Refused, StationBusy) as exc:  # nothing recorded: say why, take the next scan
+                        _err(str(exc))
+                        if not args.loop:
+                            return 2
+                        continue
                     for record in records:
                         batch.add(record)
                     if sequencer.abort.requested is not None:
@@ -284,6 +286,7 @@ def _slot_batches(args: argparse.Namespace, station: Station) -> Iterator[dict[s
             raise ValueError(f"--serial {item}: no slot {slot.strip()!r} on station {station.station.id} "
                              f"(slots: {', '.join(ids)}){did_you_mean(slot.strip(), ids)}")
         given[slot.strip()] = clean_serial(serial, station.slot_product(station.slot(slot.strip())))
+    one_serial_per_slot({slot: given[slot] for slot in ids if slot in given})
     if given:
         yield given
         if not args.loop:
@@ -305,8 +308,10 @@ def _ask_slots(station: Station) -> dict[str, str] | None:
                 return load if any(load.values()) else None
             try:
                 load[slot.id] = clean_serial(typed, station.slot_product(slot)) if typed.strip() else ""
+                one_serial_per_slot(load)  # a label scanned twice is asked again at once, for this slot
                 break
             except SerialRefused as exc:  # nothing recorded: say the rule and ask this slot again
+                load.pop(slot.id, None)
                 _err(str(exc))
     return load if any(load.values()) else None
 

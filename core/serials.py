@@ -6,6 +6,11 @@ newline or tab, a path separator or a 300-character paste would be stored verbat
 is trimmed, and refused with the rule said when it is empty, holds a control character or a path
 separator, is longer than the product allows, or does not match the product's ``serial_pattern``.
 ``magline run``, the station screen and slot loads all go through :func:`clean_serial`.
+
+A product's ``serial_case`` (default ``upper``: labels are printed upper case) folds what was typed,
+so ``sn-lower-01`` and ``SN-LOWER-01`` are one unit.  A load of a fixture names each unit once
+(:func:`one_serial_per_slot`): the same label scanned for two slots would record two boards under
+one serial.  A part the station does not build is refused the same way (:class:`PartRefused`).
 """
 
 from __future__ import annotations
@@ -21,12 +26,51 @@ DEFAULT_MAX_LENGTH = 64
 FORBIDDEN = "/\\"
 
 
-class SerialRefused(ValueError):
+class Refused(ValueError):
+    """A unit the station will not start: nothing is recorded; the message says the rule and what to do.
+    ``slot``: the slot of a load whose label is to be scanned again, where the refusal names one."""
+
+    slot: str | None = None
+
+
+class SerialRefused(Refused):
     """The serial breaks a rule; the message says which, in the operator's words."""
 
 
+class PartRefused(Refused):
+    """A part number the station does not build."""
+
+
+def known_part(part: str, parts: list[str], station_id: str) -> str:
+    """``part`` when the station builds it, else :class:`PartRefused` listing the parts it does."""
+    if part not in parts:
+        import difflib
+
+        close = difflib.get_close_matches(part, parts, n=1, cutoff=0.6)
+        hint = f" (did you mean {close[0]}?)" if close else ""
+        raise PartRefused(f"part {part!r} is not built on station {station_id}{hint}: its parts are "
+                          f"{', '.join(parts)} — choose one of them")
+    return part
+
+
+def one_serial_per_slot(load: dict[str, str]) -> None:
+    """Refuse a load (slot id → cleaned serial, in slot order) that names one serial for two slots,
+    naming both and the slot whose label to scan again."""
+    first: dict[str, str] = {}
+    for slot, serial in load.items():
+        if not serial:
+            continue
+        if serial in first:
+            refused = SerialRefused(f"{serial} is scanned for slots {first[serial]} and {slot}: one serial is one "
+                                    f"unit — scan {slot}'s own label")
+            refused.slot = slot
+            raise refused
+        first[serial] = slot
+
+
 def clean_serial(raw: str, product: Product | None = None) -> str:
-    """The serial as it is stored (surrounding spaces removed), or :class:`SerialRefused`."""
+    """The serial as it is stored (surrounding spaces removed, upper-cased unless the product keeps its
+    case), or :class:`SerialRefused`."""
     serial = (raw or "").strip()
     if not serial:
         raise SerialRefused("no serial number: scan or type the unit's serial")
@@ -40,6 +84,8 @@ def clean_serial(raw: str, product: Product | None = None) -> str:
     if len(serial) > limit:
         raise SerialRefused(f"serial of {len(serial)} characters ({serial[:16]}…): at most {limit} are allowed "
                             "— scan the unit's label, not a pasted text")
+    if product is None or product.serial_case == "upper":
+        serial = serial.upper()
     pattern = product.serial_pattern if product is not None else None
     if pattern is not None and re.fullmatch(pattern, serial) is None:
         raise SerialRefused(f"serial {serial!r} does not match this part's pattern {pattern} — is it the right "

@@ -7,6 +7,7 @@ import os
 import subprocess
 import sys
 import threading
+from pathlib import Path
 
 import pytest
 from simstation import FAST_SENSOR_HZ, write_station
@@ -16,7 +17,7 @@ from magline.core.cli import main
 from magline.core.plugins import hookimpl, load_plugins
 from magline.core.results.tables import runs
 from magline.core.sequencer import Sequencer
-from magline.core.sequencer.hold import StationBusy, holder_of, holding, run_locks
+from magline.core.sequencer.hold import Shared, StationBusy, holder_of, holding, unit_locks
 from magline.core.station import load_station
 from magline.plugins.mock.sim import create_sim
 
@@ -62,36 +63,39 @@ def test_a_second_run_on_a_vehicle_under_test_is_refused_naming_the_holder(tmp_p
     engine.dispose()
 
 
-def test_the_same_station_slot_twice_is_refused_and_freed_after(tmp_path):
-    keys = run_locks("demo-01", None, "in-process")
-    assert [k for k, _ in keys] == ["station-demo-01-unit"]  # the mock's in-process link is no shared vehicle
-    with holding(keys, holder_of("SN-1", "demo-01", None)):
-        try:
-            with holding(keys, holder_of("SN-2", "demo-01", None)):
-                raise AssertionError("a second holder got the lock")
-        except StationBusy as exc:
-            assert "demo-01 is busy: station demo-01 is testing serial SN-1" in str(exc)
+def test_the_same_station_slot_twice_is_refused_and_freed_after(make_station):
+    station = load_station(make_station())
+    keys = unit_locks(station, ".", station.products["MOCK-100"], None)
+    # the station's slot in its store; the mock's in-process link is no shared vehicle
+    assert [k.what for k in keys] == [f"station demo-01 (results {Path('magline-demo-results.sqlite').resolve()})"]
+    with holding(keys, holder_of("SN-1", "demo-01", None)), \
+            pytest.raises(StationBusy, match=r"demo-01 .* is busy: station demo-01 is testing serial SN-1"), \
+            holding(keys, holder_of("SN-2", "demo-01", None)):
+        raise AssertionError("a second holder got the lock")
     with holding(keys, holder_of("SN-2", "demo-01", None)):
         pass  # released when the first run ended
 
 
+LINK = [Shared("link-tcp:127.0.0.1:9", "the vehicle on tcp:127.0.0.1:9")]
+
+
 def test_a_lock_dies_with_the_process_that_held_it(tmp_path):
-    script = ("import time; from magline.core.sequencer.hold import holding, holder_of, run_locks\n"
-              "with holding(run_locks('st-9', 'A', 'tcp:127.0.0.1:9'), holder_of('SN-9', 'st-9', 'A')):\n"
+    script = ("import time; from magline.core.sequencer.hold import holding, holder_of, Shared\n"
+              "with holding([Shared('link-tcp:127.0.0.1:9', 'the vehicle on tcp:127.0.0.1:9')], "
+              "holder_of('SN-9', 'st-9', 'A')):\n"
               "    print('held', flush=True); time.sleep(60)\n")
     child = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
     try:
         assert child.stdout.readline().strip() == "held"
-        try:
-            with holding(run_locks("st-9", "A", "tcp:127.0.0.1:9"), holder_of("SN-10", "st-9", "A")):
-                raise AssertionError("the slot was free while the other process held it")
-        except StationBusy as exc:
-            assert "st-9 slot A is busy" in str(exc) and f"pid {child.pid}" in str(exc)
+        with pytest.raises(StationBusy) as busy, holding(LINK, holder_of("SN-10", "st-9", "A")):
+            raise AssertionError("the vehicle was free while the other process held it")
+        assert "the vehicle on tcp:127.0.0.1:9 is busy: station st-9 slot A" in str(busy.value)
+        assert f"pid {child.pid}" in str(busy.value)
     finally:
         child.kill()
         child.wait()
     # the operating system released it with the process: no stale lock file blocks the slot
-    with holding(run_locks("st-9", "A", "tcp:127.0.0.1:9"), holder_of("SN-10", "st-9", "A")):
+    with holding(LINK, holder_of("SN-10", "st-9", "A")):
         pass
 
 

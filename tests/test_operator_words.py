@@ -8,6 +8,7 @@ import logging
 import sqlite3
 
 import numpy as np
+import pytest
 from rich.console import Console
 from simstation import FAST_SENSOR_HZ, attempt_rows, write_station
 
@@ -220,10 +221,18 @@ def test_a_wait_ends_once_after_its_last_tick_also_when_what_it_waited_for_fails
     assert len(events) == seen
 
 
-def test_no_python_class_names_reach_the_operator(make_station):
+def test_a_part_the_station_does_not_build_is_refused_in_words_and_leaves_no_record(make_station):
+    """Issue 43: like an empty serial, a part the station does not build is refused before a record
+    exists, naming the parts it builds (no Python class name, no ERROR unit in the yield)."""
+    from magline.core.serials import PartRefused
+
     path = make_station()
     seq = Sequencer(load_station(path), load_plugins(), path.parent)
-    record = seq.run_unit("U9", part="NOPE")
-    seq.close()
-    assert record.verdict is Outcome.ERROR
-    assert record.cause == "part number 'NOPE' is not built on this station (known: MOCK-100)"
+    try:
+        with pytest.raises(PartRefused) as refused:
+            seq.run_unit("U9", part="NOPE")
+        assert seq.sink.history("U9") == []
+    finally:
+        seq.close()
+    assert str(refused.value) == ("part 'NOPE' is not built on station demo-01: its parts are MOCK-100 — choose "
+                                  "one of them")

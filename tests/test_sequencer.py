@@ -247,13 +247,16 @@ def test_a_unit_that_does_not_answer_is_an_error_not_a_fail(make_station):
     assert record.verdict is Outcome.ERROR and "does not answer" in record.cause
 
 
-def test_unknown_part_is_an_error(make_station):
-    path = make_station()
-    plugins = load_plugins()
-    seq = Sequencer(load_station(path), plugins, path.parent)
-    record = seq.run_unit("U9", part="NOPE")
-    seq.close()
-    assert record.verdict is Outcome.ERROR and "NOPE" in record.cause
+def test_a_part_the_station_does_not_build_exits_2_listing_its_parts_and_records_nothing(make_station, capsys):
+    """Issue 43: ``run --part NOPE`` is refused like an empty serial: exit 2, the known parts listed,
+    no ERROR unit in the store (it would count against the station)."""
+    path = make_station({"products": {"MOCK-200": {"backend": "mock", "connection": "in-process"}}})
+    assert main(["run", str(path), "--serial", "U9", "--part", "MOCK-10"]) == 2
+    err = capsys.readouterr().err
+    assert "part 'MOCK-10' is not built on station demo-01 (did you mean MOCK-100?): its parts are MOCK-100, " \
+           "MOCK-200 — choose one of them" in err
+    assert main(["history", "U9", "--station", str(path)]) == 1
+    assert "no runs for U9" in capsys.readouterr().out
 
 
 def test_run_exit_codes(make_station):

@@ -131,7 +131,8 @@ def select_export_rows(text: str, name: str, run: str | None = None, serial: str
     if run:
         body = [r for r in body if r[col["run_uuid"]].startswith(run.strip())]
     if serial:
-        body = [r for r in body if r[col["serial"]].strip() == serial.strip()]
+        exact = [r for r in body if r[col["serial"]].strip() == serial.strip()]
+        body = exact or [r for r in body if r[col["serial"]].strip().upper() == serial.strip().upper()]
     if attempt is not None:
         body = [r for r in body if r[col["attempt"]].strip() == str(attempt)]
     elif not with_refused:

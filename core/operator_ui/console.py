@@ -9,12 +9,14 @@ goes to the record's log (see :mod:`magline.core.sequencer.unit_log`), not here.
 from __future__ import annotations
 
 from rich.console import Console
+from rich.live import Live
 from rich.panel import Panel
 from rich.progress import BarColumn, Progress, TaskID, TextColumn
 from rich.text import Text
 
 from magline.core.measurements import Verdict, by_sensor, verdicts
 from magline.core.operator_ui.console_slots import STYLE, SlotBoard
+from magline.core.operator_ui.verdict_words import closing_line, sensor_cards, shown_verdict
 from magline.core.plugins import hookimpl
 from magline.core.record import Outcome, PhaseResult, RunRecord
 from magline.core.sequencer.batch import Batch
@@ -36,6 +38,7 @@ class OperatorConsole:
         self._attempt = 0
         self._last_pct = -1
         self._last_wait = -1
+        self._wait_line: Live | None = None  # a terminal's countdown: one line rewritten in place
         self.slots = SlotBoard(self.console, self.live)  # units of a station with slots, one panel each
 
     def note(self, text: str) -> None:
@@ -72,17 +75,31 @@ class OperatorConsole:
         if run.slot is not None:
             return self.slots.waiting(run, what, elapsed_s, limit_s)
         whole = int(elapsed_s)
-        if not self.live and whole // WAIT_EVERY_S == self._last_wait // WAIT_EVERY_S:
-            return
-        self._last_wait = whole
         left = f"{max(limit_s - elapsed_s, 0):.0f} s left of {limit_s:.0f} s" if limit_s else f"{whole} s"
-        self.console.print(f"    {what} … {left}")
+        line = f"    {what} … {left}"
+        if self.live:  # a terminal: the countdown rewrites its one line
+            self._stop_progress()
+            if self._wait_line is None:
+                self._wait_line = Live(Text(line), console=self.console, auto_refresh=False, transient=False)
+                self._wait_line.start()
+            self._wait_line.update(Text(line), refresh=True)
+            return
+        if whole // WAIT_EVERY_S == self._last_wait // WAIT_EVERY_S:
+            return  # a pipe or a log: a line every few seconds
+        self._last_wait = whole
+        self.console.print(line)
 
     @hookimpl
     def magline_wait_ended(self, run: RunContext, what: str, waited_s: float) -> None:
         if run.slot is not None:
             return self.slots.wait_ended(run)
+        self._stop_wait_line()
         self._last_wait = -1  # the next wait's countdown starts with its first line
+
+    def _stop_wait_line(self) -> None:
+        if self._wait_line is not None:
+            self._wait_line.stop()
+            self._wait_line = None
 
     @hookimpl
     def magline_acquisition_progress(self, run: RunContext, attempt: int, samples: int, coverage: float,
@@ -98,6 +115,7 @@ class OperatorConsole:
             return
         if self._progress is None or attempt != self._attempt:
             self._stop_progress()
+            self._stop_wait_line()
             self._progress = Progress(TextColumn("    coverage"), BarColumn(),
                                       TextColumn("{task.percentage:>3.0f}% (target {task.fields[target]:.0%})"
                                                  " {task.fields[samples]} readings"),
@@ -117,6 +135,7 @@ class OperatorConsole:
         self.console.print(f"    [bold green]{line}[/]" if reason == "determined" else f"    {line}")
 
     def _stop_progress(self) -> None:
+        self._stop_wait_line()
         if self._progress is not None:
             self._progress.stop()
             self._progress = None
@@ -128,9 +147,13 @@ class OperatorConsole:
         if record.slot is not None:
             title = f"slot {record.slot} · {title}"
         panel = verdict_panel(record, title, style)
+        # the last line of every unit: what the operator reads to know what to do with it, as the screen says it
+        last = f"[bold {style}]{closing_line(record, run.station.prompts.action(shown_verdict(record)))}[/]"
         if run.slot is not None:
-            return self.slots.finished(run, record, panel)
+            return self.slots.finished(run, record, panel, last)
+        self._stop_progress()
         self.console.print(panel, soft_wrap=False)  # wrapped inside the panel: no sentence cut at the edge
+        self.console.print(last)
 
     @hookimpl
     def magline_motion_started(self, round: int, slots: list[str], motion: str) -> None:
@@ -145,6 +168,21 @@ class OperatorConsole:
 
     def batch_summary(self, batch: Batch) -> None:
         self.console.print(f"[bold]{batch.summary()}[/]")
+
+
+def compass_cards(record: RunRecord) -> list[str]:
+    """A unit with several compasses, compact: a line per compass (its verdict and hard iron), under it
+    what failed or is flagged in it, then the pairs that agree on one line — so that on an 80×40
+    terminal the verdict and what to do stay in view; every measurement is in ``magline show``."""
+    lines = []
+    for card in sensor_cards(record):
+        mark = {"pass": "✓", "fail": "✗", "review": "!"}[card["verdict"]]
+        lines.append(f"  {mark} {card['title']}: {card['verdict'].upper()}  {card['detail']}".rstrip())
+        lines += [f"      {item['label']} {item['value']} {item['limit']} {item['verdict'].upper()}"
+                  + (f" — {item['why']}" if item["why"] else "") for item in card["items"]]
+    lines.append(f"  every measurement: magline show {record.run_id}" if record.run_id else
+                 "  every measurement: in the record")
+    return lines
 
 
 def verdict_panel(record: RunRecord, title: str, style: str) -> Panel:
@@ -165,9 +203,9 @@ def verdict_lines(record: RunRecord) -> list[str]:
         lines.append(f"  cause: {record.cause}")
     process = {f["name"]: f for f in record.review}
     sensors = record.sensor_titles()
-    for prefix, measured in by_sensor(verdicts(record.measurements)).items():
-        if len(sensors) > 1:  # several magnetometers: a section each, then the pairs
-            lines.append(f"  — {sensors.get(prefix) or 'agreement ' + prefix.rstrip('.').replace('-', ' and ')}")
+    if len(sensors) > 1:  # several compasses: a card each, as the screen shows them; every row in ``show``
+        lines += compass_cards(record)
+    for measured in ([] if len(sensors) > 1 else by_sensor(verdicts(record.measurements)).values()):
         for m in measured:
             limit = f"[{fmt(m.low)}, {fmt(m.high)}]" if m.low is not None or m.high is not None else "no limit"
             flag = "  FAIL" if m.verdict is Verdict.FAIL else ""
@@ -180,7 +218,7 @@ def verdict_lines(record: RunRecord) -> list[str]:
         lines += [f"    {f['reason']}" for f in record.review]
     elif record.review_note.startswith("no process review"):
         lines.append(f"  {record.review_note}")
-    if record.calibration:
+    if record.calibration and len(sensors) < 2:
         cal = record.calibration
         h = ", ".join(fmt(v, digits=4) for v in cal["hard_iron_ut"])
         lines.append(f"  hard iron [{h}] µT, field {fmt(cal['field_ut'], 'µT')}, attempts {len(record.attempts)}")

@@ -141,11 +141,13 @@ class SlotBoard:
         with self._lock:
             self.console.print(f"[bold]{text}[/bold]")
 
-    def finished(self, run: RunContext, record: RunRecord, panel: Panel) -> None:
-        """The unit's verdict panel (printed above the live board); the board ends with the last slot."""
+    def finished(self, run: RunContext, record: RunRecord, panel: Panel, last: str) -> None:
+        """The unit's verdict panel and its closing line (verdict, serial, what to do), printed above the
+        live board; the board ends with the last slot."""
         with self._lock:
             self.views[run.slot].verdict = str(record.verdict)
             self.console.print(panel, soft_wrap=False)  # wrapped inside the panel, never cropped
+            self.console.print(last)
             self._refresh()
             if all(v.verdict for v in self.views.values()) and self._board is not None:
                 self._board.stop()

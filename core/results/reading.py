@@ -13,7 +13,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
 
-from sqlalchemy import Connection, select
+from sqlalchemy import Connection, func, select
 
 from magline.core.fit.samples_csv import RawSamples
 from magline.core.measurements import CATALOGUE
@@ -71,12 +71,22 @@ def find_run(conn: Connection, run: str) -> dict[str, Any] | None:
     return out
 
 
+def same_serial(conn: Connection, wanted: str) -> Any:
+    """The condition that finds a unit's runs whatever the case its serial is typed in: the serial as
+    typed where the store holds it so (a part with ``serial_case: exact`` may hold ``sn-a`` and ``SN-A``
+    as two units), else case-folded (``sn-lower-01`` finds ``SN-LOWER-01``).  Spaces around it ignored."""
+    wanted = wanted.strip()
+    if conn.execute(select(runs.c.id).where(runs.c.serial == wanted).limit(1)).first() is not None:
+        return runs.c.serial == wanted
+    return func.upper(runs.c.serial) == wanted.upper()
+
+
 def find_run_or_serial(conn: Connection, wanted: str) -> dict[str, Any] | None:
-    """A run by local id or UUID, else the latest run of a serial (surrounding spaces ignored)."""
+    """A run by local id or UUID, else the latest run of a serial (spaces around it and its case ignored)."""
     wanted = wanted.strip()
     found = find_run(conn, wanted)
     if found is None:
-        latest = conn.execute(select(runs.c.id).where(runs.c.serial == wanted).order_by(runs.c.id.desc())).first()
+        latest = conn.execute(select(runs.c.id).where(same_serial(conn, wanted)).order_by(runs.c.id.desc())).first()
         found = find_run(conn, str(latest[0])) if latest is not None else None
     return found
 
@@ -141,6 +151,6 @@ def serial_attempts(conn: Connection, serial: str) -> list[dict[str, Any]]:
     """Every stored attempt of a unit, oldest run first, with its raw readings — what a quality
     engineer pulls to re-fit a unit."""
     found = []
-    for (rid,) in conn.execute(select(runs.c.id).where(runs.c.serial == serial).order_by(runs.c.id)):
+    for (rid,) in conn.execute(select(runs.c.id).where(same_serial(conn, serial)).order_by(runs.c.id)):
         found += [{"run_id": rid, **a} for a in run_attempts(conn, rid, with_samples=True)]
     return found

@@ -24,7 +24,7 @@ from magline.core.faults import StationFault
 from magline.core.measurements import Array, Json, Numeric
 from magline.core.record import AttemptRecord, RunRecord
 from magline.core.results import raw_blob, schema_version
-from magline.core.results.reading import RunFilter
+from magline.core.results.reading import RunFilter, same_serial
 from magline.core.results.series import RunSeries, load_series
 from magline.core.results.tables import attachments, attempt_streams, attempts, measurements, params, phases, runs
 
@@ -197,14 +197,15 @@ class SqlStore:
         return found
 
     def history(self, serial: str) -> list[dict[str, Any]]:
-        """Every run of a unit, oldest first, with attempts and failed measurements."""
+        """Every run of a unit (whatever the case its serial is typed in), oldest first, with attempts and
+        failed measurements."""
         try:
             with self.engine.connect() as conn:
                 found = [dict(r._mapping) for r in conn.execute(
                     select(runs.c.id, runs.c.run_uuid, runs.c.serial, runs.c.part, runs.c.station_id, runs.c.line,
                            runs.c.operator, runs.c.started, runs.c.finished, runs.c.verdict, runs.c.cause,
                            runs.c.limit_hash, runs.c.calibration, runs.c.aborted_phase)
-                    .where(runs.c.serial == serial).order_by(runs.c.id))]
+                    .where(same_serial(conn, serial)).order_by(runs.c.id))]
                 for run in found:
                     run["attempts"] = [dict(r._mapping) for r in conn.execute(
                         select(attempts.c.attempt, attempts.c.samples, attempts.c.coverage, attempts.c.accepted,

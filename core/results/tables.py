@@ -20,6 +20,7 @@ from sqlalchemy import (
     String,
     Table,
     Text,
+    func,
     text,
 )
 
@@ -45,6 +46,8 @@ runs = Table(
     Index("runs_serial", "serial"), Index("runs_part_id", "part", "id"), Index("runs_started", "started"),
     Index("runs_running", "id", postgresql_where=text("verdict = 'running'"), sqlite_where=text("verdict = 'running'")),
 )
+# a serial looked up whatever the case it is typed in (history, show, report)
+Index("runs_serial_upper", func.upper(runs.c.serial))
 
 phases = Table(
     "phases", metadata,
@@ -97,4 +100,5 @@ slot_claims = Table(
     Column("station_id", Text, primary_key=True), Column("slot", Text, primary_key=True),
     Column("host", Text), Column("pid", Integer), Column("serial", Text),
     Column("since", Text), Column("heartbeat", Text),
+    Index("slot_claims_serial", "serial", unique=True),  # one serial under test once, across computers
 )

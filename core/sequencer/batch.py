@@ -47,8 +47,13 @@ class Batch:
         return 1 if any(r.verdict is Outcome.FAIL for r in self.records) else 0
 
     def summary(self) -> str:
+        """One line that never contradicts itself: the verdicts count runs, the yield counts units, and
+        where a unit was tested twice (a re-test in ``--loop``) the line says runs of how many units."""
         passed, judged = self.first_pass_yield()
         counts = ", ".join(f"{self.count(o)} {o}" for o in (Outcome.PASS, Outcome.FAIL, Outcome.ERROR, Outcome.ABORTED)
                            if self.count(o) or o in JUDGED)
+        units = len(self.first_runs())
+        tested = (f"{self.units} unit{'s' if self.units != 1 else ''}" if units == self.units
+                  else f"{self.units} runs of {units} unit{'s' if units != 1 else ''}")
         fpy = f"{passed / judged:.0%} ({passed} of {judged} judged units)" if judged else "— (no unit judged)"
-        return f"batch: {self.units} unit{'s' if self.units != 1 else ''} — {counts}; first-pass yield {fpy}"
+        return f"batch: {tested} — {counts}; first-pass yield {fpy}"

@@ -34,12 +34,19 @@ from magline.core.results.reading import RunFilter
 from magline.core.results.sinks import open_results
 from magline.core.sequencer.abort import AbortSwitch
 from magline.core.sequencer.context import Acquisition, AcquisitionAborted, RunContext
-from magline.core.sequencer.hold import claimed_in_store, holder_of, holding, run_locks
+from magline.core.sequencer.hold import (
+    claimed_in_store,
+    fixture_locks,
+    holder_of,
+    holding,
+    store_identity,
+    unit_locks,
+)
 from magline.core.sequencer.rounds import MotionRounds
 from magline.core.sequencer.settling import offset_moved
 from magline.core.sequencer.unit_log import unit_log_capture
 from magline.core.sequencer.warm_up import wait_until_warm
-from magline.core.serials import clean_serial
+from magline.core.serials import clean_serial, known_part
 from magline.core.station.schema import Slot, Station
 from magline.core.text import fmt, percent
 
@@ -97,25 +104,27 @@ class Sequencer:
     # ------------------------------------------------------------------ one unit
     def run_unit(self, serial: str, part: str | None = None, operator: str = "", slot: Slot | None = None,
                  rounds: MotionRounds | None = None, abort: AbortSwitch | None = None,
-                 slot_group: str | None = None) -> RunRecord:
+                 slot_group: str | None = None, held: bool = False) -> RunRecord:
         """One unit through every phase.  On a station with slots the slot runner calls this once per
         slot, each on its own thread, with the slot, the shared motion's rounds and the slot's own
-        abort switch; alone, the unit has the motion to itself."""
-        part = slot.part if slot is not None else part or self.station.default_part or next(iter(self.station.products))
-        known = part in self.station.products
-        product = self.station.slot_product(slot) if slot is not None else self.station.products.get(part)
-        serial = clean_serial(serial, product)  # SerialRefused before any record exists
-        record = RunRecord(serial=serial, part=part, station_id=self.station.station.id,
-                           line=self.station.station.line, operator=operator,
-                           software_version=__version__,
-                           limit_hash=self.station.limit_hash(part) if known else "",
-                           station_hash=self.station.content_hash(),
+        abort switch, having taken the load's locks and claims itself (``held``); alone, the unit has
+        the motion to itself and takes its own.  A part the station does not build, a serial that
+        breaks its rule (:class:`Refused`) or anything shared held by another run (``StationBusy``)
+        is refused before any record exists."""
+        station = self.station
+        part = slot.part if slot is not None else part or station.default_part or next(iter(station.products))
+        known_part(part, list(station.products), station.station.id)
+        product = station.slot_product(slot) if slot is not None else station.products[part]
+        serial = clean_serial(serial, product)
+        record = RunRecord(serial=serial, part=part, station_id=station.station.id,
+                           line=station.station.line, operator=operator,
+                           software_version=__version__, limit_hash=station.limit_hash(part),
+                           station_hash=station.content_hash(),
                            slot=slot.id if slot is not None else None, slot_group=slot_group)
         slot_id = slot.id if slot is not None else ""
-        run = RunContext(station=self.station, station_dir=self.station_dir, part=part,
+        run = RunContext(station=station, station_dir=self.station_dir, part=part,
                          product=product, serial=serial, operator=operator,
-                         plugins=self.plugins, record=record,
-                         limits=self.station.effective_limits(part) if known else {},
+                         plugins=self.plugins, record=record, limits=station.effective_limits(part),
                          abort=abort or self.abort, slot=slot.id if slot is not None else None,
                          rounds=rounds or self.rounds([slot_id]))
         steps: list[tuple[str, Callable[[RunContext], Any]]] = [
@@ -125,11 +134,21 @@ class Sequencer:
         ]
         if self.stopped is not None:
             steps = [("identify", self._identify), ("connect", self._refuse_stopped_batch)]
-        locks = run_locks(self.station.station.id, record.slot, product.connection if product else "")
-        holder = holder_of(serial, self.station.station.id, record.slot)
-        with holding(locks, holder), claimed_in_store(self.sink, holder), \
-                unit_log_capture(record, this_thread_only=slot is not None):  # StationBusy before any record
+        with ExitStack() as stack:
+            if not held:
+                holder = self.holder(serial, record.slot)
+                shared = unit_locks(station, self.station_dir, product, record.slot)
+                if slot is None:  # alone on the fixture: its instruments are this unit's for the run
+                    shared = fixture_locks(station) + shared
+                stack.enter_context(holding(shared, holder))  # StationBusy before any record
+                stack.enter_context(claimed_in_store(self.sink, holder))
+            stack.enter_context(unit_log_capture(record, this_thread_only=slot is not None))
             return self._run_steps(run, steps)
+
+    def holder(self, serial: str, slot: str | None) -> dict:
+        """Who holds this station's locks and claims for a unit: as a refusal names them."""
+        return holder_of(serial, self.station.station.id, slot, str(self.station_dir.resolve()),
+                         store_identity(self.station, self.station_dir))
 
     def _run_steps(self, run: RunContext, steps: list[tuple[str, Callable[[RunContext], Any]]]) -> RunRecord:
         record = run.record
@@ -222,11 +241,6 @@ class Sequencer:
 
     # ------------------------------------------------------------------ phases
     def _identify(self, run: RunContext) -> None:
-        if not run.serial.strip():
-            raise StationFault("no serial number given")
-        if run.product is None:
-            raise StationFault(f"part number {run.part!r} is not built on this station "
-                               f"(known: {', '.join(self.station.products)})")
         run.log(f"unit {run.serial}, part {run.part}, limit set {run.record.limit_hash}")
         self._count_earlier_runs(run)
         self.sink.begin(run.record)

@@ -12,12 +12,16 @@ from __future__ import annotations
 
 import threading
 import uuid
+from contextlib import ExitStack
 from typing import Any
 
 from magline.core.faults import UnitAborted
 from magline.core.record import Outcome, RunRecord
 from magline.core.sequencer.abort import AbortSwitch
+from magline.core.sequencer.hold import claimed_in_store, fixture_locks, holding, unit_locks
 from magline.core.sequencer.sequencer import Sequencer
+from magline.core.serials import clean_serial, one_serial_per_slot
+from magline.core.station.schema import Slot
 
 JOIN_S = 0.2
 
@@ -53,7 +57,10 @@ class SlotRunner:
         self.switches: dict[str, AbortSwitch] = {}
 
     def run(self, serials: dict[str, str], operator: str = "") -> list[RunRecord]:
-        """The records of the slots that held a unit, in the station file's slot order."""
+        """The records of the slots that held a unit, in the station file's slot order.  A load that
+        cannot start — a serial that breaks its rule or names two slots (``SerialRefused``), a slot,
+        vehicle, fixture or serial held by another run (``StationBusy``) — is refused whole, before
+        any record exists."""
         station = self.sequencer.station
         unknown = [s for s in serials if s not in {slot.id for slot in station.slots}]
         if unknown:
@@ -62,6 +69,27 @@ class SlotRunner:
         slots = [slot for slot in station.slots if serials.get(slot.id, "").strip()]
         if not slots:
             return []
+        cleaned = {slot.id: clean_serial(serials[slot.id], station.slot_product(slot)) for slot in slots}
+        one_serial_per_slot(cleaned)
+        with ExitStack() as held:
+            self._hold(held, slots, cleaned)
+            return self._run_load(slots, cleaned, operator)
+
+    def _hold(self, held: ExitStack, slots: list[Slot], serials: dict[str, str]) -> None:
+        """The load's locks: the fixture's instruments once, then each slot's own, and each slot's
+        claim in the results store (which also refuses a serial under test elsewhere)."""
+        seq = self.sequencer
+        station = seq.station
+        load = seq.holder(", ".join(serials.values()), ", ".join(serials))
+        held.enter_context(holding(fixture_locks(station), load))
+        for slot in slots:
+            holder = seq.holder(serials[slot.id], slot.id)
+            held.enter_context(holding(unit_locks(station, seq.station_dir, station.slot_product(slot), slot.id),
+                                       holder))
+            held.enter_context(claimed_in_store(seq.sink, holder))
+
+    def _run_load(self, slots: list[Slot], serials: dict[str, str], operator: str) -> list[RunRecord]:
+        station = self.sequencer.station
         group = str(uuid.uuid4())
         rounds = self.sequencer.rounds([slot.id for slot in slots])
         self.switches = {slot.id: AbortSwitch() for slot in slots}
@@ -71,9 +99,9 @@ class SlotRunner:
 
         def unit(slot: Any) -> None:
             try:
-                records[slot.id] = self.sequencer.run_unit(serials[slot.id].strip(), operator=operator, slot=slot,
+                records[slot.id] = self.sequencer.run_unit(serials[slot.id], operator=operator, slot=slot,
                                                            rounds=rounds, abort=self.switches[slot.id],
-                                                           slot_group=group)
+                                                           slot_group=group, held=True)
             except BaseException as exc:  # run_unit classifies every fault itself; this is a last guard
                 record = RunRecord(serial=serials[slot.id], part=slot.part, station_id=station.station.id,
                                    line=station.station.line, operator=operator, software_version="",

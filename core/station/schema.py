@@ -149,6 +149,9 @@ class Product(_Strict):
     # the serial rule of this part (see core/serials.py): a full-match regular expression and a length
     serial_pattern: str | None = None
     serial_max_length: Annotated[int, Field(ge=1, le=256)] = 64
+    # ``upper`` (default): labels are printed upper case, so ``sn-lower-01`` typed on a keyboard with
+    # Caps Lock off is the unit ``SN-LOWER-01``; ``exact``: the case is part of the serial
+    serial_case: Literal["upper", "exact"] = "upper"
 
     @field_validator("serial_pattern")
     @classmethod
@@ -161,6 +164,16 @@ class Product(_Strict):
             except re.error as exc:
                 raise ValueError(f"not a regular expression: {exc}") from None
         return pattern
+
+    @model_validator(mode="after")
+    def _pattern_can_match_folded_serials(self) -> Product:
+        """A pattern that asks for lower-case letters refuses every serial once it is upper-cased."""
+        pattern = self.serial_pattern or ""
+        if self.serial_case == "upper" and "a-z" in pattern and "A-Z" not in pattern and "(?i)" not in pattern:
+            raise ValueError(f"serial_pattern {pattern} asks for lower-case letters, but serial_case 'upper' "
+                             "folds every serial to upper case: write the pattern in upper case, or set "
+                             "serial_case: exact")
+        return self
     soft_iron_model: Literal["auto", "full", "diagonal", "sphere"] = "auto"
     options: dict[str, Any] = Field(default_factory=dict)
     power: PowerConfig = Field(default_factory=PowerConfig)

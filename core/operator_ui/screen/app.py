@@ -128,8 +128,8 @@ def create_app(state: ScreenState, runner: UnitRunner, token: str | None = None,
                 runner.start(str(body.get("serial", "")), body.get("part") or None, str(body.get("operator", "")))
         except Busy as exc:
             return JSONResponse({"error": str(exc)}, status_code=409)
-        except ValueError as exc:
-            return JSONResponse({"error": str(exc)}, status_code=400)
+        except ValueError as exc:  # the slot a refused load's label is to be scanned again for, where named
+            return JSONResponse({"error": str(exc), "slot": getattr(exc, "slot", None)}, status_code=400)
         return JSONResponse({"started": body.get("serial")})
 
     @app.post("/api/abort")

@@ -10,7 +10,8 @@ from typing import Any
 from magline.core.faults import UnitAborted
 from magline.core.operator_ui.screen.state import ScreenState
 from magline.core.sequencer import Sequencer
-from magline.core.serials import clean_serial
+from magline.core.sequencer.hold import StationBusy
+from magline.core.serials import Refused, SerialRefused, clean_serial, known_part, one_serial_per_slot
 
 
 class Busy(Exception):
@@ -27,9 +28,9 @@ class UnitRunner:
         self.standing()
 
     def start(self, serial: str, part: str | None, operator: str = "") -> None:
-        if part is not None and part not in self.sequencer.station.products:
-            raise ValueError(f"unknown part {part!r} (this station tests {', '.join(self.sequencer.station.products)})")
         station = self.sequencer.station
+        if part is not None:
+            known_part(part, list(station.products), station.station.id)
         serial = clean_serial(serial, station.products[part or self.state.state["station"]["default_part"]])
         with self._lock:
             if self._thread is not None and self._thread.is_alive():
@@ -51,10 +52,17 @@ class UnitRunner:
         unknown = [s for s in serials if s not in known]
         if unknown:
             raise ValueError(f"no slot {unknown[0]!r} on this station (slots: {', '.join(known)})")
-        load = {slot: clean_serial(serial, station.products[known[slot]]) for slot, serial in serials.items()
-                if serial.strip()}
+        load = {}
+        for slot in known:  # in the station's slot order: a repeated label is said for the later slot
+            if (serials.get(slot) or "").strip():
+                try:
+                    load[slot] = clean_serial(serials[slot], station.slot_product(station.slot(slot)))
+                except SerialRefused as exc:
+                    exc.slot = slot
+                    raise
         if not load:
             raise ValueError("scan the serial of at least one slot's unit")
+        one_serial_per_slot(load)
         with self._lock:
             if self._thread is not None and self._thread.is_alive():
                 raise Busy("units are under test: wait for their verdicts or abort them")
@@ -71,6 +79,8 @@ class UnitRunner:
             if self._slots is None:
                 self._slots = SlotRunner(self.sequencer)
             self._slots.run(load, operator)
+        except (StationBusy, Refused) as exc:  # nothing recorded: the station's refusal, not a verdict
+            self.state.unit_refused(str(exc))
         except Exception as exc:  # the screen must say it, not die with the worker
             self.state.unit_refused(f"the station could not run the load: {exc}")
         finally:
@@ -80,6 +90,8 @@ class UnitRunner:
     def _run(self, serial: str, part: str, operator: str) -> None:
         try:
             self.sequencer.run_unit(serial, part, operator)
+        except (StationBusy, Refused) as exc:  # nothing recorded: the station's refusal, not a verdict
+            self.state.unit_refused(str(exc))
         except UnitAborted as exc:
             self.state.unit_refused(f"{exc.reason}: no unit under test")
         except Exception as exc:  # the screen must say it, not die with the worker

@@ -16,13 +16,14 @@ import threading
 import time
 from typing import Any
 
-from magline.core.measurements import CATALOGUE, Verdict, base_name, by_sensor, verdicts
-from magline.core.operator_ui.screen.sides import SIDES, missing_sides
+from magline.core.measurements import verdicts
+from magline.core.operator_ui.screen.sides import MISSING_WORDS, SIDES, missing_sides
+from magline.core.operator_ui.verdict_words import sensor_cards, shown_verdict, verdict_items
 from magline.core.plugins import hookimpl
 from magline.core.record import PhaseResult, RunRecord
 from magline.core.sequencer.batch import Batch
 from magline.core.sequencer.sequencer import PHASES
-from magline.core.text import fmt, stop_line
+from magline.core.text import stop_line
 
 RECENT = 12  # units listed on the screen
 
@@ -39,7 +40,10 @@ class ScreenState:
                         "default_part": station.default_part or next(iter(station.products)),
                         "slots": [{"id": s.id, "part": s.part} for s in station.slots]},
             "sides": side_labels(),  # the sphere's six words (core/operator_ui/screen/sides.py)
-            "busy": False, "run": None, "result": None, "recent": [], "shift": {"units": 0, "fpy": None},
+            "missing_words": MISSING_WORDS,
+            # refusal: why the station did not start what was asked (not a unit's verdict: nothing recorded)
+            "busy": False, "run": None, "result": None, "refusal": None,
+            "recent": [], "shift": {"units": 0, "fpy": None},
             # a station with slots: one run and one result per slot (the page draws one panel each)
             "slots": {}, "round": None,
             "field": {}, "store": {}, "sent_at_ms": 0.0,
@@ -67,13 +71,13 @@ class ScreenState:
     # ------------------------------------------------------------------ a unit starts
     def unit_started(self, serial: str, part: str) -> None:
         with self._lock:
-            self.state.update(busy=True, result=None, slots={}, run=_new_run(serial, part))
+            self.state.update(busy=True, result=None, refusal=None, slots={}, run=_new_run(serial, part))
             self._changed()
 
     def slots_started(self, serials: dict[str, str], parts: dict[str, str]) -> None:
         """The units of a slot station's load (slots left empty are not shown as running)."""
         with self._lock:
-            self.state.update(busy=True, result=None, run=None, round=None, slots={
+            self.state.update(busy=True, result=None, refusal=None, run=None, round=None, slots={
                 slot: {"run": _new_run(serial, parts[slot]), "result": None} for slot, serial in serials.items()})
             self._changed()
 
@@ -86,10 +90,10 @@ class ScreenState:
         return entry["run"] if entry else None
 
     def unit_refused(self, message: str) -> None:
-        """A start that could not begin (bad serial, a crash before the first phase)."""
+        """A start the station refused before any record (another run holds the station, the vehicle or
+        the serial; a fault before the first phase): a refusal, not a unit's verdict."""
         with self._lock:
-            self.state.update(busy=False, run=None,
-                              result={"verdict": "error", "serial": "", "cause": message, "items": []})
+            self.state.update(busy=False, run=None, result=None, refusal=message)
             self._changed()
 
     def _phase(self, run: Any, name: str) -> dict[str, Any] | None:
@@ -188,7 +192,7 @@ class ScreenState:
             self.batch.add(record)
             passed, judged = self.batch.first_pass_yield()
             items = verdict_items(record, verdicts(record.measurements))
-            shown = "review" if str(record.verdict) == "pass" and items else str(record.verdict)
+            shown = shown_verdict(record)
             result = {"verdict": shown, "serial": record.serial, "part": record.part, "slot": record.slot,
                       "cause": record.cause, "items": items, "sensors": sensor_cards(record),
                       "store": record.store or "NOT stored",
@@ -211,66 +215,6 @@ class ScreenState:
         with self._lock:
             self.state["busy"] = False
             self._changed()
-
-
-def verdict_items(record: RunRecord, measured: list, owner: bool = True) -> list[dict[str, str]]:
-    """The measurements the operator must see: every FAIL and REVIEW, with why a REVIEW was flagged.
-    ``owner`` False: their words without the compass or pair they are of (a card titled with it)."""
-    flags = {f["name"]: f["reason"] for f in record.review}
-    return [{"name": m.name, "label": label_of(m.name, owner), "value": fmt(m.value, m.unit),
-             "limit": f"[{fmt(m.low)}, {fmt(m.high)}]", "verdict": str(m.verdict),
-             "why": flags.get(m.name, "within the marginal band" if m.verdict is Verdict.REVIEW else "")}
-            for m in measured if m.verdict in (Verdict.FAIL, Verdict.REVIEW)]
-
-
-def label_of(name: str, owner: bool = True) -> str:
-    """A measurement in words (the catalogue's meaning, capitalised), the compass or pair it is of in front
-    unless ``owner`` is False: "compass 2: Hard-iron offset, x"."""
-    meaning = CATALOGUE.get(base_name(name), ("", ""))[1]
-    if not meaning:
-        return name
-    if not owner:
-        return meaning[0].upper() + meaning[1:]
-    prefix = name[: len(name) - len(base_name(name))].rstrip(".")
-    owner = ("compass " + prefix[3:] + ": ") if prefix.startswith("mag") and "-" not in prefix else (
-        f"compasses {prefix.replace('mag', '').replace('-', ' and ')}: " if prefix else "")
-    return owner + meaning[0].upper() + meaning[1:]
-
-
-def sensor_cards(record: RunRecord) -> list[dict[str, Any]]:
-    """A unit with several magnetometers: one card per compass, then the pairs' agreement, each with
-    its own verdict, its hard iron and what failed in it — so the operator sees *which* compass to look at
-    (the GPS mast's, the board's). One magnetometer: no cards (the verdict says it all).  Pairs that
-    agree share one card (three compasses make three pairs: six cards ran off a 1366×768 screen); a
-    pair that failed or is marginal has its own."""
-    titles = record.sensor_titles()
-    if len(titles) < 2:
-        return []
-    hard_iron = {"": (record.calibration or {}).get("hard_iron_ut")}
-    for prefix, other in ((record.calibration or {}).get("magnetometers") or {}).items():
-        hard_iron[prefix + "."] = other.get("hard_iron_ut")
-    cards, agreeing = [], []
-    for prefix, measured in by_sensor(verdicts(record.measurements)).items():
-        failed = any(m.verdict is Verdict.FAIL for m in measured)
-        marginal = any(m.verdict is Verdict.REVIEW for m in measured)
-        pair = "-" in prefix  # mag1-mag2.: a pair; "" and mag2.: a compass
-        if pair and not failed and not marginal:
-            agreeing.append(_pair_words(prefix))
-            continue
-        h = hard_iron.get(prefix)
-        title = f"agreement {_pair_words(prefix)}" if pair else titles.get(prefix, prefix.rstrip("."))
-        cards.append({"title": title,
-                      "verdict": "fail" if failed else "review" if marginal else "pass",
-                      "detail": ("hard iron [" + ", ".join(fmt(v, digits=3) for v in h) + "] µT") if h else "",
-                      "items": verdict_items(record, measured, owner=False)})
-    if agreeing:
-        cards.append({"title": "agreement", "verdict": "pass", "detail": " · ".join(agreeing), "items": []})
-    return cards
-
-
-def _pair_words(prefix: str) -> str:
-    """``mag1-mag2.`` → "mag1 and mag2", as the console titles a pair's section."""
-    return prefix.rstrip(".").replace("-", " and ")
 
 
 def side_labels() -> list[dict[str, object]]:

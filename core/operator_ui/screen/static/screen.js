@@ -122,8 +122,7 @@ function slotPanel(slot, entry) {
     + `<div class="phase">${esc(running ? running.name : "…")}${run.waiting ? ` · ${esc(run.waiting.what)} ${run.waiting.elapsed_s} s` : ""}</div>`
     + `<div class="attempt">${run.attempt ? `attempt ${run.attempt}` : ""}</div>`
     + `<div class="bar"><div style="width:${fraction * 100}%"></div></div>`
-    + `<div>${run.target_samples ? `${run.samples} readings (at most ${run.target_samples})` : ""}`
-    + `${run.n_bins ? `, coverage ${pct(run.coverage)} (target ${pct(run.target)})` : ""}</div>`
+    + `<div>${esc(progressLabel(run))}</div>`
     + `<div class="prompt">${esc(promptOf(run))}</div></div>`;
 }
 
@@ -136,6 +135,18 @@ function progressFraction(run) {
   if (run.waiting && run.waiting.limit_s && !run.samples) { return Math.min(1, run.waiting.elapsed_s / run.waiting.limit_s); }
   if (run.n_bins && run.target) { return Math.min(1, run.coverage / run.target); }
   return run.target_samples ? Math.min(1, run.samples / run.target_samples) : 0;
+}
+
+// The words on the bar say what fills it: the coverage toward its target where directions are judged,
+// else the readings toward the most the station takes ("400 readings (at most 600)" under a bar filled
+// by coverage told the operator the wrong story).
+function progressLabel(run) {
+  if (!run) { return ""; }
+  if (run.waiting && run.waiting.limit_s && !run.samples) { return `${run.waiting.what} ${run.waiting.elapsed_s} s`; }
+  if (run.n_bins && run.target) {
+    return `coverage ${pct(run.coverage)} of the ${pct(run.target)} needed` + (run.samples ? ` · ${run.samples} readings` : "");
+  }
+  return run.target_samples ? `${run.samples} of at most ${run.target_samples} readings` : "";
 }
 
 function stoppedNow(run) { return run && run.stopped && run.stopped.attempt === run.attempt; }
@@ -167,7 +178,7 @@ function renderSlots(s) {
   $("slots").innerHTML = slots.map((slot) => slotPanel(slot, (s.slots || {})[slot.id])).join("");
   const r = s.round;
   $("round").textContent = r && r.moving ? `${r.motion} round ${r.number}: slots ${r.slots.join(", ")} sampling` : "";
-  if (s.result && !s.busy && s.result.cause) { $("form-error").textContent = s.result.cause; }
+  if (s.refusal && !s.busy) { $("form-error").textContent = s.refusal; }
 }
 
 function itemRows(items) {
@@ -205,7 +216,17 @@ function cue(key) {
   } catch (e) { /* no audio device: the look alone tells */ }
 }
 
+// A scan refused while a unit runs ("… was not started: … finish or abort it first") says so until that
+// unit's verdict is shown: then it is old news, and under a PASS it read like a second unit's refusal.
+let refusedWhileBusy = false;
+let shownBusy = false;
+function forgetOldRefusal(s) {
+  if (shownBusy && !s.busy && refusedWhileBusy) { $("form-error").textContent = ""; refusedWhileBusy = false; }
+  shownBusy = Boolean(s.busy);
+}
+
 function render(s) {
+  forgetOldRefusal(s);
   $("station-name").textContent = `${s.station.id} · line ${s.station.line}`;
   const f = s.field || {};
   let field = `field ${f.source || "—"}` + (f.field_ut != null ? ` ${f.field_ut} µT (${f.model})` : "");
@@ -231,6 +252,10 @@ function render(s) {
   if (s.station.slots && s.station.slots.length) { renderSlots(s); return; }
 
   const run = s.run;
+  // a station refusal (another screen or console holds the station, a fault before the first phase) is
+  // not a unit's verdict: said where the scan is, with nothing recorded, the idle screen kept under it
+  $("refusal").hidden = !(s.refusal && !s.busy);
+  $("refusal-text").textContent = s.refusal || "";
   $("idle").hidden = Boolean(run) || s.busy;
   $("idle-what").textContent = s.station.serial_prompt;
   $("idle-shift").textContent = `${units} unit${units === 1 ? "" : "s"} this shift`
@@ -243,13 +268,13 @@ function render(s) {
   $("attempt").textContent = run && run.attempt ? `attempt ${run.attempt}` : "";
   const fraction = progressFraction(run);
   $("progress-bar").style.width = `${fraction * 100}%`;
-  $("progress-text").textContent = run && run.target_samples ? `${run.samples} readings (at most ${run.target_samples})` : "";
+  $("progress-text").textContent = progressLabel(run);
   $("phases").innerHTML = run ? run.phases.map((p) =>
     `<li class="${esc(p.state)}">${esc(p.name)} — ${esc(p.state)}${p.duration_s != null ? ` (${p.duration_s} s)` : ""}`
     + `${p.state === "running" && run.waiting ? ` · ${esc(run.waiting.what)} ${run.waiting.elapsed_s} s` : ""}</li>`).join("") : "";
   const missing = run && run.n_bins && !stoppedNow(run) ? (run.missing || []) : [];
   $("coverage-text").textContent = run && run.n_bins ? `coverage ${pct(run.coverage)} (target ${pct(run.target)})` : "";
-  $("missing").textContent = missing.length ? `still to turn down: ${missing.join(", ")}` : "";
+  $("missing").textContent = missing.length ? `${s.missing_words}: ${missing.join(", ")}` : "";
   // a second tumble looks and sounds different: the operator watching the unit knows the first was refused
   const retrying = Boolean(run && run.attempt > 1 && !stoppedNow(run));
   $("left").classList.toggle("retry", retrying);
@@ -320,23 +345,37 @@ async function post(path, body) {
     method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify(body || {}) });
   const answer = await response.json().catch(() => ({}));
   $("form-error").textContent = response.ok ? "" : (answer.error || `error ${response.status}`);
-  return response.ok;
+  if (response.status === 409) { refusedWhileBusy = true; }
+  return { ok: response.ok, busy: response.status === 409, slot: answer.slot };
 }
 
+// A scanner types its label and Enter into whatever field has the focus.  A scan that was not started
+// must leave nothing for the next one to join: refused because a unit runs, the field is emptied (the
+// refusal names the serial); refused by a rule, its text is selected, so the next scan replaces it and
+// a person can still correct a typing slip.
 $("start-form").addEventListener("submit", async (e) => {
   e.preventDefault();
-  const serial = $("serial").value.trim();
+  const field = $("serial");
+  const serial = field.value.trim();
   const part = $("part").hidden ? null : $("part").value;
-  if (await post("/api/start", { serial, part })) { $("serial").value = ""; }
-  $("serial").focus();
+  const answer = await post("/api/start", { serial, part });
+  field.focus();
+  if (answer.ok || answer.busy) { field.value = ""; } else { field.select(); }
 });
 $("abort").addEventListener("click", () => { post("/api/abort"); $("serial").focus(); });
 $("slot-form").addEventListener("submit", async (e) => {
   e.preventDefault();
   const inputs = [...document.querySelectorAll("#slot-inputs input")];
   const serials = Object.fromEntries(inputs.map((i) => [i.dataset.slot, i.value.trim()]));
-  if (await post("/api/start", { serials })) { inputs.forEach((i) => { i.value = ""; }); }
-  inputs[0].focus();
+  const answer = await post("/api/start", { serials });
+  if (answer.ok || answer.busy) {
+    inputs.forEach((i) => { i.value = ""; });
+    inputs[0].focus();
+  } else {  // the slot the refusal names (a repeated or malformed label) is the one to scan again
+    const named = inputs.find((i) => i.dataset.slot === answer.slot) || inputs[0];
+    named.focus();
+    named.select();
+  }
 });
 $("slot-abort").addEventListener("click", () => { post("/api/abort"); });
 connect();
