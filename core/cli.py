@@ -205,6 +205,11 @@ def _run(args: argparse.Namespace, plugins: Plugins) -> int:
             tap.close()
         return 2
     batch = Batch()
+    global _terminal_scans
+    if args.loop and sys.stdin.isatty():  # scans typed while a unit runs are queued and said, not echoed
+        from magline.core.operator_ui.scans import TerminalScans
+
+        _terminal_scans = TerminalScans(console.note)
     try:
         if args.part is not None:  # a part the station does not build: refused before a serial is asked
             known_part(args.part, list(station.products), station.station.id)
@@ -244,6 +249,9 @@ def _run(args: argparse.Namespace, plugins: Plugins) -> int:
         for tap in taps:
             tap.close()
             print(f"MAVLink traffic: {tap.tlog} ({tap.log.packets} packets)", file=sys.stderr)
+        if _terminal_scans is not None:
+            _terminal_scans.close()
+            _terminal_scans = None
     if batch.units == 0:
         _err("no unit tested")
         return 2
@@ -335,9 +343,15 @@ def _serials(args: argparse.Namespace, station: Station) -> Iterator[str]:
         yield serial
 
 
+_terminal_scans: Any = None  # ``--loop`` on a terminal: core.operator_ui.scans.TerminalScans
+
+
 def _ask(prompt: str) -> str:
     """``input`` that ends its line on a pipe too: a terminal echoes the operator's Enter, a pipe
-    (a scanner script, a log) does not, and the next line would run on after the prompt."""
+    (a scanner script, a log) does not, and the next line would run on after the prompt.  With
+    ``--loop`` on a terminal the answer comes from the scans read meanwhile (``TerminalScans``)."""
+    if _terminal_scans is not None:
+        return _terminal_scans.ask(prompt)
     piped = not sys.stdin.isatty()
     try:
         typed = input(prompt)

@@ -8,6 +8,8 @@ truncate toward zero as both firmwares do.
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from simstation import write_station
@@ -129,8 +131,13 @@ def test_a_sensor_too_slow_for_the_timeout_is_a_station_error_that_says_why(tmp_
                                 {"acquisition": {"samples": 400, "rate_hz": 50.0, "timeout_s": 3.0, "retries": 0}})
         record = run(station)
     assert record.verdict is Outcome.ERROR
-    assert "of 400 readings within 3 s: the sensor delivers about 10 readings/s" in record.cause
-    assert "the stream carried each about 5 times" in record.cause
+    # what the station must say, whatever pace a loaded machine lets the 10 Hz simulator keep (the rate is
+    # measured from the readings' own stamps: a starved simulator stamps them late, 6/s was seen at load 18)
+    said = re.search(r"only (\d+) of 400 readings within 3 s: the sensor delivers about (\d+) readings/s", record.cause)
+    assert said is not None, record.cause
+    got, rate = int(said[1]), int(said[2])
+    assert 0 < got < 400 and rate > 0 and rate * 3 < 400  # the rate it names cannot fill the count in time
+    assert re.search(r"the stream carried each about \d+ times", record.cause)
     assert "raise acquisition.timeout_s or lower acquisition.samples" in record.cause
     assert record.attempts and record.attempts[0].refused.startswith("interrupted: only")
 

@@ -55,7 +55,7 @@ class OperatorConsole:
     def magline_phase_finished(self, run: RunContext, phase: str, result: PhaseResult) -> None:
         if run.slot is not None:
             return self.slots.phase_finished(run, phase, result)
-        self._stop_progress()
+        self._stop_live()
         self._last_wait = -1
         if phase == "record" and result.outcome is Outcome.PASS:
             return
@@ -131,11 +131,15 @@ class OperatorConsole:
         line = stop_line(reason, after_s, readings, run.unit_moves)
         if run.slot is not None:
             return self.slots.note(run, line)
-        self._stop_progress()
+        self._stop_live()
         self.console.print(f"    [bold green]{line}[/]" if reason == "determined" else f"    {line}")
 
-    def _stop_progress(self) -> None:
+    def _stop_live(self) -> None:
+        """Both live lines (a countdown, a coverage bar) end where they are: plain lines follow."""
         self._stop_wait_line()
+        self._stop_progress()
+
+    def _stop_progress(self) -> None:
         if self._progress is not None:
             self._progress.stop()
             self._progress = None
@@ -151,7 +155,7 @@ class OperatorConsole:
         last = f"[bold {style}]{closing_line(record, run.station.prompts.action(shown_verdict(record)))}[/]"
         if run.slot is not None:
             return self.slots.finished(run, record, panel, last)
-        self._stop_progress()
+        self._stop_live()
         self.console.print(panel, soft_wrap=False)  # wrapped inside the panel: no sentence cut at the edge
         self.console.print(last)
 
