@@ -180,14 +180,18 @@ def test_a_good_three_compass_ardupilot_unit_passes_with_every_compass_calibrate
             assert abs(measured(record, prefix + "inclination_error_deg").value) < 1.0
         for pair in ("mag1-mag2.", "mag1-mag3.", "mag2-mag3."):
             assert measured(record, pair + "heading_agreement_median_deg").value < 1.0
-        # the verdict panel: a section per compass, then the pairs, and each compass's hard iron
+        # the verdict panel (issue 43): a compact card per compass with its hard iron, then the pairs that
+        # agree on one line, and where every row is — an 80×40 terminal keeps the verdict and action in view
         from magline.core.operator_ui.console import verdict_lines
 
-        panel = "\n".join(verdict_lines(record))
-        order = ["— compass 1: ", " hard_iron_x_ut", "— compass 2: ", "mag2.hard_iron_x_ut", "— compass 3: ",
-                 "— agreement mag1 and mag2"]
+        lines = verdict_lines(record)
+        panel = "\n".join(lines)
+        order = ["✓ compass 1", "✓ compass 2", "✓ compass 3", "✓ agreement: PASS  mag1 and mag2 · mag1 and mag3 · "
+                 "mag2 and mag3", f"every measurement: magline show {record.run_id}"]
         assert [panel.index(part) for part in order] == sorted(panel.index(part) for part in order)
-        assert f"mag3 ({sim.magnetometers[2].device_id}): hard iron [" in panel
+        assert all(f"compass {n}" in line and ": PASS  hard iron [" in line
+                   for n, line in zip((1, 2, 3), (line for line in lines if "✓ compass" in line), strict=True))
+        assert "hard_iron_x_ut" not in panel and len(lines) <= 14
         # every sensor's readings and the accelerometer's are kept with the attempt
         engine = create_engine(f"sqlite:///{tmp_path / 'results.sqlite'}")
         with engine.connect() as conn:

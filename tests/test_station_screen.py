@@ -8,6 +8,7 @@ import contextlib
 import copy
 import datetime as dt
 import json
+import re
 import socket
 import threading
 import time
@@ -129,12 +130,12 @@ def test_a_unit_driven_only_through_the_page_shows_the_retry_and_passes(screen, 
     first = [x for x in looks if not x["banner"]]
     again = [x for x in looks if x["banner"]]
     # the one-axis spin left sides uncovered, named in words; the retry looks and sounds different
-    assert any(x["missing"].startswith("still to turn down: ") for x in first)
+    assert any(x["missing"].startswith("still to face the floor: ") for x in first)
     assert again and again[0]["banner"] == "TUMBLE AGAIN — attempt 2" and "retry" in again[0]["left"]
     assert again[0]["background"] != first[0]["background"]
     assert page.evaluate("window.__cues") == ["SCR-1:2"]  # one cue for the retry, none for the first prompt
     sides = page.evaluate("document.getElementById('sphere').data[1].text")
-    assert "nose down" in sides and "upside down" in sides  # the same words where they are on the sphere
+    assert "nose" in sides and "top" in sides  # the same words where they are on the sphere
     page.wait_for_selector("#verdict:not([hidden])", timeout=30_000)
     assert page.inner_text("#verdict-word") == "PASS" and page.inner_text("#verdict-serial") == "SCR-1"
     assert "SCR-1 PASS" in page.inner_text("#recent") and "first-pass yield 100%" in page.inner_text("#shift")
@@ -319,8 +320,8 @@ def test_a_slot_station_shows_one_panel_per_slot_and_starts_a_load_from_the_keyb
 
 def test_idle_screen_second_scan_and_what_to_do_after_the_verdict(screen, browser, tmp_path):
     """Issue 30: the idle screen says what to do at two metres; a second scan while a unit runs gets
-    an answer and keeps the serial; the verdict says what to do with the unit (the station file's words
-    where it sets them); ABORTED and ERROR have colours of their own; "1 unit"."""
+    an answer (and, issue 43, leaves an empty field); the verdict says what to do with the unit (the
+    station file's words where it sets them); ABORTED and ERROR have colours of their own; "1 unit"."""
     served, _ = screen({**BUSY_UNIT, "prompts": {"verdicts": {"aborted": "Back to the rack, then test again"}}})
     page = open_page(browser, served.url).page
     page.wait_for_selector("#station-name:has-text('demo-01')")
@@ -338,7 +339,7 @@ def test_idle_screen_second_scan_and_what_to_do_after_the_verdict(screen, browse
     page.press("#serial", "Enter")
     page.wait_for_selector("#form-error:has-text('SCR-2 was not started')")
     assert page.inner_text("#form-error") == "SCR-2 was not started: SCR-1 is under test — finish or abort it first"
-    assert page.input_value("#serial") == "SCR-2"  # not lost: Enter again once the verdict is in
+    assert page.input_value("#serial") == ""  # issue 43: nothing left for the next scan to join
     page.click("#abort")
     page.wait_for_selector("#verdict:not([hidden])", timeout=30_000)
     assert page.inner_text("#verdict-word") == "ABORTED"
@@ -384,6 +385,13 @@ def test_a_three_compass_unit_shows_a_card_per_compass_naming_the_one_that_faile
             assert cards[3:] == [{"cls": "sensor pass", "title": "agreement",
                                   "text": "agreement\nPASS\nmag1 and mag2 · mag1 and mag3 · mag2 and mag3"}]
             assert page.inner_text("#verdict-items") == ""  # the failures are in their compass's card, once
+            # issue 43: no catalogue name spills out of its card
+            spills = page.evaluate("""() => [...document.querySelectorAll('#verdict-sensors .sensor')]
+              .flatMap((card) => {
+                const edge = card.getBoundingClientRect().right;
+                return [...card.querySelectorAll('*')].filter((e) => e.getBoundingClientRect().right > edge + 0.5)
+                    .map((e) => e.textContent); })""")
+            assert spills == []
             # read from two metres, where nobody scrolls: the whole verdict is on the screen, on a line
             # PC's full-HD monitor and on the short screens, the words that say what to do at full size
             for width, height in [FULL_HD, *SHORT_SCREENS]:
@@ -457,7 +465,7 @@ def test_on_a_short_screen_the_sides_still_to_turn_are_on_it_without_scrolling(s
         if attempt == 2:
             assert page.inner_text("#retry-title") == "TUMBLE AGAIN — attempt 2"
             assert "down" not in page.inner_text("#retry-banner")  # the sides are said once, under the sphere
-        assert len(sides) == 6 and page.inner_text("#missing") == f"still to turn down: {', '.join(sides)}"
+        assert len(sides) == 6 and page.inner_text("#missing") == f"still to face the floor: {', '.join(sides)}"
         for width, height in [*SHORT_SCREENS, FULL_HD]:
             page.set_viewport_size({"width": width, "height": height})
             page.wait_for_function(f"innerWidth === {width} && innerHeight === {height}")
@@ -474,7 +482,7 @@ def test_on_a_short_screen_the_sides_still_to_turn_are_on_it_without_scrolling(s
 
 def test_a_coil_unit_lights_the_field_directions_applied_and_asks_nobody_to_turn_it(browser, tmp_path):
     """In a Helmholtz coil the field turns round a unit that must not be touched: the sphere lights the
-    directions the coil applied, and no "still to turn down" words or tumble count appear."""
+    directions the coil applied, and no "still to face the floor" words or tumble count appear."""
     from test_helmholtz import Cell
 
     with Cell() as cell:
@@ -509,7 +517,7 @@ def test_a_coil_unit_lights_the_field_directions_applied_and_asks_nobody_to_turn
             assert any(s["coverage"].startswith("coverage ") for s in seen)
             assert all(s["missing"] == "" and "at most" not in s["count"] for s in seen)
             words = page.evaluate("document.getElementById('sphere').data[1].text")
-            assert list(words) == []  # no "nose down" on a sphere of field directions
+            assert list(words) == []  # no "nose" on a sphere of field directions
             assert [line for line in opened.console if line.startswith("error")] == []
         finally:
             served.stop()
@@ -537,3 +545,71 @@ def test_the_screen_shows_a_wait_until_it_says_it_ended_a_prompt_given_meanwhile
     current = state.snapshot()[1]["run"]
     assert current["waiting"] is None and current["prompt"] == "Keep the unit on the fixture"
     assert next(p for p in current["phases"] if p["name"] == "verify")["state"] == "running"
+
+
+@pytest.mark.parametrize("verdict", ["pass", "fail"])
+def test_a_scanner_typing_into_a_busy_screen_never_joins_two_scans(screen, browser, tmp_path, verdict):
+    """Issue 43: scan APP-0001, scan APP-0002 while it runs, let APP-0001 end, scan APP-0003 — the station
+    calibrated a unit "APP-0002APP-0003" and kept the red refusal under the PASS.  Typed like a scanner
+    (keystrokes, then Enter) into whatever field has the focus, on a PASS and on a FAIL station."""
+    limits = {"hard_iron_norm_ut": {"le": 1.0}} if verdict == "fail" else {}
+    served, _ = screen({**REALTIME, "products": {"MOCK-100": {"options": {"realtime": True}, "limits": limits}}})
+    page = open_page(browser, served.url).page
+    page.wait_for_selector("#station-name:has-text('demo-01')")
+    page.keyboard.type("APP-0001")
+    page.keyboard.press("Enter")
+    page.wait_for_selector("#attempt:has-text('attempt 1')")
+    page.wait_for_function("document.getElementById('progress-text').textContent.startsWith('coverage')")
+    assert re.fullmatch(r"coverage \d+% of the \d+% needed( · \d+ readings)?", page.inner_text("#progress-text"))
+    page.keyboard.type("APP-0002")  # the next label, too early
+    page.keyboard.press("Enter")
+    page.wait_for_selector("#form-error:has-text('APP-0002 was not started')")
+    assert page.input_value("#serial") == ""  # nothing left for the next scan to join
+    page.wait_for_selector("#verdict:not([hidden])", timeout=60_000)
+    assert page.inner_text("#verdict-word") == verdict.upper() and page.inner_text("#verdict-serial") == "APP-0001"
+    page.wait_for_function("document.getElementById('form-error').textContent === ''")  # old news once judged
+    page.keyboard.type("APP-0003")
+    page.keyboard.press("Enter")
+    page.wait_for_selector("#unit:has-text('APP-0003')")
+    page.wait_for_selector("#verdict:not([hidden])", timeout=60_000)
+    assert page.inner_text("#verdict-serial") == "APP-0003" and page.inner_text("#form-error") == ""
+    screenshot(page, tmp_path / f"scans-{verdict}.png")
+    engine = create_engine(f"sqlite:///{tmp_path / 'magline-demo-results.sqlite'}")
+    with engine.connect() as conn:
+        serials = [r[0] for r in conn.exec_driver_sql("SELECT serial FROM runs ORDER BY id")]
+    engine.dispose()
+    assert serials == ["APP-0001", "APP-0003"]
+
+
+def test_a_second_screen_on_a_busy_station_shows_a_refusal_not_a_verdict(screen, browser, tmp_path):
+    """Issue 43: a second screen on the station file the first is testing with is refused by the station
+    (its slot in the store is held): said as NOT STARTED under the scan field, nothing recorded, never a
+    full-screen ERROR as if a unit had failed."""
+    first, first_runner = screen(BUSY_UNIT)
+    app, runner = build(load_station(tmp_path / "station.yaml"), tmp_path, load_plugins(), None)
+    second = Served(app, free_port())
+    try:
+        page = open_page(browser, first.url).page
+        page.keyboard.type("BUSY-1")
+        page.keyboard.press("Enter")
+        page.wait_for_selector("#attempt:has-text('attempt 1')")
+        other = open_page(browser, second.url).page
+        other.wait_for_selector("#station-name:has-text('demo-01')")
+        other.keyboard.type("BUSY-2")
+        other.keyboard.press("Enter")
+        other.wait_for_selector("#refusal:not([hidden])", timeout=30_000)
+        text = other.inner_text("#refusal")
+        assert "NOT STARTED" in text.upper() and "is busy: station demo-01 is testing serial BUSY-1" in text
+        assert f"folder {tmp_path.resolve()}" in text and "Nothing was recorded" in text
+        assert other.is_hidden("#verdict") and other.is_visible("#idle")
+        screenshot(other, tmp_path / "second-screen-refused.png")
+    finally:
+        first_runner.abort()
+        first_runner.wait(30)
+        second.stop()
+        runner.close()
+    engine = create_engine(f"sqlite:///{tmp_path / 'magline-demo-results.sqlite'}")
+    with engine.connect() as conn:
+        serials = [r[0] for r in conn.exec_driver_sql("SELECT serial FROM runs ORDER BY id")]
+    engine.dispose()
+    assert serials == ["BUSY-1"]

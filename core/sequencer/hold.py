@@ -180,7 +180,7 @@ def unit_locks(station: Station, station_dir: Path | str, product: Product | Non
     where it has one, and its own power instrument (a supply and channel)."""
     store = store_identity(station, station_dir)
     name = f"station {station.station.id}" + (f" slot {slot}" if slot else "")
-    keys = [Shared(f"station-{station.station.id}-{slot or 'unit'}-{store}", f"{name} (results {store})")]
+    keys = [Shared(f"station-{station.station.id}-{slot or 'unit'}-{store}", name)]  # the holder names the store
     connection = product.connection.strip() if product is not None else ""
     if VEHICLE_LINK.match(connection):
         keys.append(Shared(f"link-{connection}", f"the vehicle on {connection}"))
