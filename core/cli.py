@@ -94,6 +94,7 @@ def main(argv: list[str] | None = None) -> int:
     exp.add_argument("--station", help="station file naming the results store (default: demo)")
     _run_filter_arguments(exp, "part number")
     exp.add_argument("--verdict", choices=["pass", "fail", "error", "aborted", "incomplete", "running"])
+    exp.add_argument("--serial", help="one unit's runs (whatever the case it is typed in)")
     exp.add_argument("--format", choices=["csv", "jsonl"], default="csv")
     exp.add_argument("--raw", action="store_true", help="every raw sample (CSV: a row per sample)")
 
@@ -621,7 +622,7 @@ def _export(args: argparse.Namespace, plugins: Plugins) -> int:
     from magline.core.results.reading import RunFilter
 
     where = RunFilter(since=args.since, until=args.until, part=args.part, station_id=args.station_id,
-                      verdict=args.verdict)
+                      verdict=args.verdict, serial=args.serial)
     return _with_store(args, plugins, lambda store, *_: export(store, where, args.format, args.raw))
 
 

@@ -4,6 +4,7 @@ two stations in two folders, the batch line, and the console's last word on each
 
 from __future__ import annotations
 
+import json
 import threading
 from importlib.resources import as_file, files
 
@@ -106,6 +107,11 @@ def test_serials_are_one_unit_whatever_the_case_typed_and_found_so(make_station,
     assert '"serial": "SN-LOWER-01"' in capsys.readouterr().out
     assert main(["report", "sn-lower-01", "--station", str(path), "-o", str(tmp_path / "r.html")]) == 0
     assert "SN-LOWER-01" in (tmp_path / "r.html").read_text(encoding="utf-8")
+    assert main(["run", str(path), "--serial", "SN-OTHER"]) == 0
+    capsys.readouterr()
+    assert main(["export", "--station", str(path), "--serial", " Sn-Lower-01", "--format", "jsonl"]) == 0
+    exported = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert [r["serial"] for r in exported] == ["SN-LOWER-01", "SN-LOWER-01"]
     # a product whose serials keep their case: two units, each found as typed
     exact = make_station({"products": {"MOCK-100": {"serial_case": "exact"}}, "results": {"path": "exact.sqlite"}},
                          name="exact.yaml")
@@ -277,3 +283,41 @@ def test_a_countdown_on_a_terminal_rewrites_one_line_and_a_log_gets_a_line_every
         else:
             assert [line.strip() for line in text.splitlines()] == [
                 f"warming up before the tumble … {left} s left of 20 s" for left in (20, 15, 10)]
+
+
+def test_the_screen_refuses_a_load_naming_one_serial_twice_and_names_the_slot_to_scan_again(make_station):
+    """The station screen's slot load: the same label in two slot fields is refused before anything starts,
+    with the slot whose field the page selects for the next scan (screen.js focuses it)."""
+    import urllib.error
+    import urllib.request
+
+    from test_station_screen import Served, free_port
+
+    from magline.core.operator_ui.screen.serve import build
+
+    path = make_station(MOCK_SLOTS)
+    app, runner = build(load_station(path), path.parent, load_plugins(extra=[counting_plugin(CountingMotion())]),
+                        None)
+    served = Served(app, free_port())
+
+    def start(serials: dict) -> tuple[int, dict]:
+        request = urllib.request.Request(served.url + "api/start", data=json.dumps({"serials": serials}).encode(),
+                                         headers={"Content-Type": "application/json"}, method="POST")
+        try:
+            with urllib.request.urlopen(request, timeout=10) as answer:
+                return answer.status, json.loads(answer.read())
+        except urllib.error.HTTPError as refused:
+            return refused.code, json.loads(refused.read())
+
+    try:
+        status, answer = start({"A": "SL-7", "B": "", "C": "sl-7"})
+        assert status == 400
+        assert answer == {"error": "SL-7 is scanned for slots A and C: one serial is one unit — scan C's own label",
+                          "slot": "C"}
+        assert not runner.busy()
+        status, answer = start({"A": "SL-8", "B": "SL/9"})
+        assert status == 400 and answer["slot"] == "B" and "SL/9" in answer["error"]
+    finally:
+        served.stop()
+        runner.close()
+    assert stored_serials(path.parent / "magline-demo-results.sqlite") == []

@@ -181,7 +181,7 @@ def compass_cards(record: RunRecord) -> list[str]:
     lines = []
     for card in sensor_cards(record):
         mark = {"pass": "✓", "fail": "✗", "review": "!"}[card["verdict"]]
-        lines.append(f"  {mark} {card['title']}: {card['verdict'].upper()}  {card['detail']}".rstrip())
+        lines.append(f"  {mark} {card['title']}  {card['verdict'].upper()}  {card['detail']}".rstrip())
         lines += [f"      {item['label']} {item['value']} {item['limit']} {item['verdict'].upper()}"
                   + (f" — {item['why']}" if item["why"] else "") for item in card["items"]]
     lines.append(f"  every measurement: magline show {record.run_id}" if record.run_id else

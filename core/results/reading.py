@@ -32,8 +32,11 @@ class RunFilter:
     station_id: str | None = None
     line: str | None = None
     verdict: str | None = None
+    serial: str | None = None  # one unit's runs, whatever the case it is typed in (spaces around it ignored)
 
     def apply(self, query: Any) -> Any:
+        if self.serial is not None:
+            query = query.where(func.upper(runs.c.serial) == self.serial.strip().upper())
         for column, value, op in ((runs.c.started, self.since, "ge"), (runs.c.started, self.until, "lt"),
                                   (runs.c.part, self.part, "eq"), (runs.c.station_id, self.station_id, "eq"),
                                   (runs.c.line, self.line, "eq"),
