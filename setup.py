@@ -7,7 +7,7 @@ the package list is computed so a new sub-package cannot be forgotten.
 
 from setuptools import find_packages, setup
 
-ROOTS = {"core": "magline.core", "plugins": "magline.plugins", "stations": "magline.stations",
+ROOTS = {"core": "magline.core", "plugins": "magline.plugins", "sim": "magline.sim", "stations": "magline.stations",
          "testing": "magline.testing"}
 
 packages = []

@@ -26,7 +26,7 @@ from scipy.stats import f as f_distribution
 
 from magline.core.fit import coverage_of
 from magline.core.readings import untruncate_mg
-from magline.core.synthetic import random_truth
+from magline.sim.truth import random_truth
 
 sys.path.insert(0, str(Path(__file__).parent))
 from early_stop import BINS, TARGET, fit
@@ -37,7 +37,7 @@ PARAMETERS = 12  # the full soft iron, the offset and its drift
 
 def statistics(motion: str, units: int, readings: int, rng: np.random.Generator, shuffled: bool):
     """(statistic, its reference's 95 %, 99 % and 10⁻³ points) per judged unit, and the count not judged."""
-    from magline.core.synthetic.imu import simulator_fields
+    from magline.sim.truth.imu import simulator_fields
 
     out, not_judged = [], 0
     field_ned = E / np.linalg.norm(E) * FIELD

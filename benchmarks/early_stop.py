@@ -40,7 +40,7 @@ import numpy as np
 from magline.core.fit import FitOptions, FitRefused, coverage_of, fit_calibration
 from magline.core.fit.running import StopRule
 from magline.core.phases import CHECK_EVERY_FRACTION, CHECK_EVERY_MIN
-from magline.core.synthetic import motion_directions, random_truth
+from magline.sim.truth import motion_directions, random_truth
 
 sys.path.insert(0, str(Path(__file__).parent))
 from fit_benchmark import FIELD, E, heading_max
@@ -88,7 +88,7 @@ def seen_error_deg(found, truth, directions: np.ndarray) -> float:
 def simulator_unit(rng: np.random.Generator):
     """One unit as a simulator streams it: (truth, directions, readings µT, times ms)."""
     from magline.core.readings import untruncate_mg
-    from magline.core.synthetic.imu import simulator_fields
+    from magline.sim.truth.imu import simulator_fields
 
     truth = random_truth(rng)
     motion, speed = str(rng.choice(["tumble", "gimbal"])), float(rng.uniform(0.5, 2.0))

@@ -144,7 +144,7 @@ def mock_units(count: int, rng: np.random.Generator) -> None:
 
 def _sim_unit(flavour: str, i: int, mags: int, seed: int, speed: float, rate_hz: float, motion: str) -> RunRecord:
     """One good unit on a simulator, in a folder of its own (units may go in parallel processes)."""
-    from magline.plugins.mock.sim import create_sim
+    from magline.sim import create_sim
 
     example, scheme = {"px4": ("px4-sim.yaml", "udp"), "ardupilot": ("ardupilot-sim.yaml", "tcp")}[flavour]
     with tempfile.TemporaryDirectory() as tmp:
@@ -184,7 +184,7 @@ def _fault_run(name: str, i: int, seed: int) -> tuple[str, bool, str | None]:
     """One run of the fault table's row ``name`` on the simulated ArduPilot, in a folder of its own
     (runs may go in parallel processes): (outcome, or "missed"; the cause's words found; the line
     to print when it was not classified as the table says, else None)."""
-    from magline.plugins.mock.sim import SimFaults, create_sim
+    from magline.sim import SimFaults, create_sim
     from magline.testing.faults import ARDUPILOT_FAULTS
 
     case = next(c for c in ARDUPILOT_FAULTS if c.name == name)

@@ -41,7 +41,7 @@ from scipy.spatial.transform import Rotation
 from magline.core.fit import FitOptions, FitRefused, fit_calibration
 from magline.core.fit import model as mdl
 from magline.core.fit.algebraic import AlgebraicFitError, fit_ellipsoid
-from magline.core.synthetic import earth_field_ned, motion_directions, random_truth
+from magline.sim.truth import earth_field_ned, motion_directions, random_truth
 
 FIELD, INCLINATION, NOISE_UT, SAMPLES = 48.0, 62.0, 0.3, 600
 E = earth_field_ned(FIELD, INCLINATION)

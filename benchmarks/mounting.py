@@ -31,7 +31,7 @@ from scipy.spatial.transform import Rotation
 
 from magline.core.mounting import RIGHT_ANGLE, ImuSeries, estimate_mounting, orientation_matrix
 from magline.core.mounting.orientations import rotation_angle_deg
-from magline.core.synthetic.imu import tumble_with_imu
+from magline.sim.truth.imu import tumble_with_imu
 
 INCLINATION = 62.0
 
@@ -93,7 +93,7 @@ def sim_time(units: int) -> None:
     from magline.core.plugins import load_plugins
     from magline.core.sequencer import Sequencer
     from magline.core.station import load_station
-    from magline.plugins.mock.sim import create_sim
+    from magline.sim import create_sim
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
     from simstation import write_station
@@ -128,7 +128,7 @@ def sim_time(units: int) -> None:
 
 def agreement_pair(rng: np.random.Generator, turn_deg: float = 0.0):
     """Two calibrated compasses as a simulator reads them: (a, t_a, b, t_b, imu)."""
-    from magline.core.synthetic.imu import compass_pair
+    from magline.sim.truth.imu import compass_pair
 
     a, t_a, b, t_b, (t_imu, accel) = compass_pair(
         rng, motion=str(rng.choice(["tumble", "gimbal"])), speed=float(rng.uniform(0.5, 2.0)),

@@ -27,9 +27,9 @@ import argparse
 import numpy as np
 
 from magline.core.fit.coverage import CoverageTracker
-from magline.core.synthetic.imu import simulator_fields
-from magline.core.synthetic.motions import hand_tumble, single_axis
 from magline.core.tumble_stop import Stall
+from magline.sim.truth.imu import simulator_fields
+from magline.sim.truth.motions import hand_tumble, single_axis
 
 FIELD = np.array([20.0, 1.5, 42.0])  # µT, NED: 48 µT dipping 63°
 BINS, TARGET, MIN_SAMPLES = 40, 0.6, 100

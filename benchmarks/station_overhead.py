@@ -22,7 +22,7 @@ import yaml
 from magline.core.plugins import load_plugins
 from magline.core.sequencer import Sequencer
 from magline.core.station import load_station
-from magline.plugins.mock.sim import create_sim
+from magline.sim import create_sim
 
 REPO = Path(__file__).resolve().parents[1]
 FLAVOURS = {"px4": ("px4-sim.yaml", "udp", "udpout://{host}:{port}"),

@@ -24,7 +24,7 @@ its fixtures (``magline_station``, ``magline_run``, ``magline_px4``, ``magline_a
 there for any test that names them, and do nothing otherwise.
 """
 
-from magline.core.synthetic import SensorTruth, earth_field_ned, gravity_body, motion_directions, random_truth
+from magline.sim.truth import SensorTruth, earth_field_ned, gravity_body, motion_directions, random_truth
 from magline.testing.builders import make_fit, make_record
 from magline.testing.conformance import check_dut_backend, check_field_source, check_power_control, check_result_sink
 from magline.testing.replay import mavlink_replay, read_tlog

@@ -37,7 +37,7 @@ class FaultCase:
 
 # The compasses' offsets settle by 10 µT (time constant 3 s) as the board warms after power-on, a few µT
 # of it during the acquisition; the board stays warm through the MAVLink reboot
-# (plugins/mock/sim/thermal.py).  The drift test catches it (190 of 190 runs), and the station measures
+# (sim/thermal.py).  The drift test catches it (190 of 190 runs), and the station measures
 # again (acquisition.retry_on_warm_up): a calibration salvaged from the warm-up was the offset *during*
 # it, and the sensor went on settling — the post-reboot field check FAILed the good unit in 2 of 190 runs.
 WARM_UP = FaultCase("warm-up", ("mag_warmup=10:3",), "pass", "", passing_boot=True, drift_caught=True)

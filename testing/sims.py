@@ -17,7 +17,7 @@ FAST = {"boot_time_s": 0.3, "mag_rate_hz": 100.0, "speed": 5.0}  # what magline'
 
 @dataclass
 class SimulatedVehicle:
-    sim: Any  # magline.plugins.mock.sim.SimulatedAutopilot: faults, parameters, storage, magnetometers
+    sim: Any  # magline.sim.SimulatedAutopilot: faults, parameters, storage, magnetometers
     connection: str  # what a station's ``connection`` says to reach it
 
     @property
@@ -27,7 +27,7 @@ class SimulatedVehicle:
 
 @contextmanager
 def _vehicle(flavour: str, listen: str, scheme: str, workdir: str | Path, **options: Any) -> Iterator[SimulatedVehicle]:
-    from magline.plugins.mock.sim import create_sim
+    from magline.sim import create_sim
 
     sim = create_sim(flavour, listen, workdir=Path(workdir), **{**FAST, **options}).start()
     try:

@@ -12,7 +12,7 @@ from simstation import FAST_SENSOR_HZ, load_json, run_unit, stored_attempts, wri
 
 from magline.core.record import Outcome
 from magline.plugins.ardupilot.calibration import HeldCalibration, fit_to_params
-from magline.plugins.mock.sim import SimFaults, create_sim
+from magline.sim import SimFaults, create_sim
 
 OPTIONS = {"connect_timeout_s": 5.0, "boot_timeout_s": 10.0, "prearm_wait_s": 0.3}
 

@@ -144,7 +144,7 @@ def test_fit_piped_into_head_exits_quietly(tmp_path):
     import numpy as np
 
     from magline.core.fit.samples_csv import RawSamples, format_samples
-    from magline.core.synthetic import SensorTruth, motion_directions
+    from magline.sim.truth import SensorTruth, motion_directions
     rng = np.random.default_rng(1)
     truth = SensorTruth(hard_iron_ut=np.array([10.0, -5.0, 20.0]), soft_iron=np.eye(3), noise_ut=0.3)
     mag = truth.read(motion_directions("hand_tumble", 600, rng, np.array([20.0, 0.0, 40.0])) * 48.0, rng)

@@ -16,9 +16,9 @@ from magline.core.plugins import hookimpl, load_plugins
 from magline.core.record import Outcome
 from magline.core.sequencer import Sequencer
 from magline.core.station import StationError, load_station
-from magline.core.synthetic import motion_directions, random_truth
-from magline.plugins.mock.sim import SimMagnetometer, create_sim
-from magline.plugins.mock.sim.magnetometers import DEFAULT_IDS
+from magline.sim import SimMagnetometer, create_sim
+from magline.sim.magnetometers import DEFAULT_IDS
+from magline.sim.truth import motion_directions, random_truth
 
 AP = {"connect_timeout_s": 5.0, "boot_timeout_s": 10.0, "prearm_wait_s": 0.3}
 RULE = StopRule(min_samples=50, coverage_target=0.5, margin=0.7,
@@ -267,8 +267,8 @@ def test_a_turn_there_and_back_is_not_a_stall():
     without a new one then is no stall: it goes on to new directions (it did in 10 % of the PX4
     simulator's tumbles, which were thrown away and the operator asked again)."""
     from magline.core.fit.coverage import CoverageTracker
-    from magline.core.synthetic.imu import simulator_fields
     from magline.core.tumble_stop import Stall
+    from magline.sim.truth.imu import simulator_fields
 
     # the simulators' own tumble at 50 Hz, begun 4.8 s into its sweep: 60 % of the way down, going down
     field = np.array([20.0, 1.5, 42.0])

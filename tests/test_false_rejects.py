@@ -57,7 +57,7 @@ def test_the_drift_statistic_on_good_short_tumbles_follows_its_chi2_reference():
     from scipy.stats import chi2
 
     from magline.core.fit import FitOptions, fit_calibration
-    from magline.core.synthetic import motion_directions, random_truth
+    from magline.sim.truth import motion_directions, random_truth
 
     rng = np.random.default_rng(sum(map(ord, "drift statistic")))  # from the test's name, never its outcome
     stats = []
@@ -81,8 +81,8 @@ def _sim_tumble(rng, seconds: float, rate_hz: float = 25.0, start_s: float = 0.0
                 drift_ut=(0.0, 0.0, 0.0)):
     """A good unit on the simulators' own tumble (the field sweeps pole to pole at an even pace), read
     at ``rate_hz`` from ``start_s``, with an optional warm-up: the offset settles by ``drift_ut``."""
-    from magline.core.synthetic import earth_field_ned, random_truth
-    from magline.core.synthetic.imu import simulator_fields
+    from magline.sim.truth import earth_field_ned, random_truth
+    from magline.sim.truth.imu import simulator_fields
 
     t = start_s + np.arange(int(seconds * rate_hz)) / rate_hz
     truth = random_truth(rng)
@@ -231,7 +231,7 @@ def test_after_a_warm_up_an_offset_that_stayed_is_settled_and_one_that_moved_is_
     unit agree (the moved offset's χ²₃ keeps its 10⁻³ alarm: σ is honest), an offset 1 µT away is seen
     past the station's 0.5 µT limit on the offset σ, and not where the station accepts 1.5 µT."""
     from magline.core.sequencer.settling import offset_moved
-    from magline.core.synthetic import motion_directions, random_truth
+    from magline.sim.truth import motion_directions, random_truth
 
     rng = np.random.default_rng(sum(map(ord, "settled after a warm-up")))  # from the test's name, never its outcome
     alarms, seen, accepted = 0, [], 0

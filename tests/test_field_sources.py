@@ -15,7 +15,7 @@ from simstation import run_unit
 from magline.core.cli import main
 from magline.core.field.wmm import decimal_year, wmm_field_nt
 from magline.core.record import Outcome
-from magline.plugins.mock.sim.fluxgate import FluxgateSim
+from magline.sim.fluxgate import FluxgateSim
 
 PLACES = [  # (lat, lon, height above the ellipsoid in m, date)
     (47.3769, 8.5417, 408.0, dt.date(2026, 11, 22)),  # Zurich

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from magline.core.fit import FitOptions, FitRefused, fit_calibration
-from magline.core.synthetic import earth_field_ned, motion_directions, random_truth
+from magline.sim.truth import earth_field_ned, motion_directions, random_truth
 
 FIELD = 48.0
 E = earth_field_ned(FIELD, 62.0)

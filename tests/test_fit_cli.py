@@ -10,7 +10,7 @@ from simstation import attempt_rows
 
 from magline.core.cli import main
 from magline.core.fit.samples_csv import RawSamples, format_samples
-from magline.core.synthetic import earth_field_ned, motion_directions, random_truth
+from magline.sim.truth import earth_field_ned, motion_directions, random_truth
 
 
 def write_csv(path, motion="hand_tumble", seed=3):
@@ -50,7 +50,7 @@ def test_fit_summary_is_readable(tmp_path, capsys):
 
 def test_fit_summary_says_when_the_drift_could_not_be_judged(tmp_path, capsys):
     """On half a sweep of the simulators' even tumble a drift is a soft-iron change: said, not hidden."""
-    from magline.core.synthetic.imu import simulator_fields
+    from magline.sim.truth.imu import simulator_fields
 
     rng = np.random.default_rng(sum(map(ord, "drift not judged summary")))
     t = 1.0 + np.arange(300) / 50.0

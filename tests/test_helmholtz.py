@@ -18,8 +18,8 @@ from magline.core.record import Outcome
 from magline.core.sequencer import Sequencer
 from magline.core.station import load_station
 from magline.plugins.mock.options import MockOptions
-from magline.plugins.mock.sim.coil import CoilSim
-from magline.plugins.mock.sim.fluxgate import FluxgateSim
+from magline.sim.coil import CoilSim
+from magline.sim.fluxgate import FluxgateSim
 
 MISALIGNMENT = [1.2, -1.0, 1.2]  # rotation vector, degrees: 1.97° in all
 
@@ -170,7 +170,7 @@ def test_every_beginning_of_the_coil_schedule_is_spread_and_the_offset_comes_fir
 
 
 def test_three_separate_current_sources_drive_the_coil(tmp_path):
-    from magline.plugins.mock.sim.coil import CoilChannelSim
+    from magline.sim.coil import CoilChannelSim
 
     with Cell() as cell:
         sources = [CoilChannelSim("tcp:127.0.0.1:0", cell.coil, axis).start() for axis in range(3)]
@@ -236,7 +236,7 @@ def test_magline_fit_uses_the_affine_model_when_the_csv_has_the_applied_field(tm
 def test_coil_station_writes_px4_custom_rotation_and_the_board_then_reports_the_true_vector(tmp_path):
     """PX4 ≥ 1.15 holds R·S·(raw − OFF): the affine fit's rotation goes into CAL_MAGn_ROLL/PITCH/YAW,
     so the simulated board's corrected field equals the applied vector, direction included."""
-    from magline.plugins.mock.sim import SimMagnetometer, create_sim
+    from magline.sim import SimMagnetometer, create_sim
 
     sensor = SimMagnetometer(396809, [25.0, -40.0, 12.0], [[1.04, 0.02, 0.0], [0.02, 0.97, -0.01], [0.0, -0.01, 1.0]],
                              misalignment_deg=(1.2, -1.0, 1.2), noise_ut=0.3)

@@ -15,7 +15,7 @@ from magline.core.cli import main
 from magline.core.plugins import load_plugins
 from magline.core.results.tables import runs
 from magline.core.station import load_station
-from magline.plugins.mock.sim import create_sim
+from magline.sim import create_sim
 from magline.testing import mavlink_replay, read_tlog
 
 AP = {"connect_timeout_s": 5.0, "boot_timeout_s": 10.0, "prearm_wait_s": 0.3}

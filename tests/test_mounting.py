@@ -26,8 +26,8 @@ from magline.core.mounting.orientations import rotation_angle_deg
 from magline.core.record import Outcome
 from magline.core.results import raw_blob
 from magline.core.results.tables import attempt_streams
-from magline.core.synthetic.imu import tumble_with_imu
-from magline.plugins.mock.sim import SimFaults, create_sim
+from magline.sim import SimFaults, create_sim
+from magline.sim.truth.imu import tumble_with_imu
 
 AP_OPTIONS = {"connect_timeout_s": 5.0, "boot_timeout_s": 10.0, "prearm_wait_s": 0.3}
 PX4_OPTIONS = {"connect_timeout_s": 5.0, "boot_timeout_s": 10.0, "save_settle_s": 0.1}
@@ -111,7 +111,7 @@ def test_two_sensors_four_degrees_apart_in_yaw_are_told_apart(rng):
 def gimbal_pair(rng, *, speed: float, lag_s: float, seconds: float = 11.0):
     """Two good, calibrated 10 Hz compasses on the simulators' two-axis gimbal (continuous spin, pitch
     in steps), compass B read ``lag_s`` after compass A, each stamped at its own instant."""
-    from magline.core.synthetic.imu import compass_pair
+    from magline.sim.truth.imu import compass_pair
 
     a, t_a, b, t_b, (t_imu, accel) = compass_pair(rng, motion="gimbal", speed=speed, lag_s=lag_s, seconds=seconds)
     return a, t_a, b, t_b, ImuSeries(t_ms=t_imu, accel_mss=accel)

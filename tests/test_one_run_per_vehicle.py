@@ -19,7 +19,7 @@ from magline.core.results.tables import runs
 from magline.core.sequencer import Sequencer
 from magline.core.sequencer.hold import Shared, StationBusy, holder_of, holding, unit_locks
 from magline.core.station import load_station
-from magline.plugins.mock.sim import create_sim
+from magline.sim import create_sim
 
 AP = {"connect_timeout_s": 5.0, "boot_timeout_s": 10.0, "prearm_wait_s": 0.3}
 

@@ -19,7 +19,7 @@ from magline.core.plugins import hookimpl, load_plugins
 from magline.core.record import Outcome
 from magline.core.sequencer import Sequencer
 from magline.core.station import load_station
-from magline.plugins.mock.sim import create_sim
+from magline.sim import create_sim
 
 
 def run_with(path, *listeners, serial="U1"):

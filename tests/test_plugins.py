@@ -139,7 +139,7 @@ def test_acquire_persist_and_verify_hooks_can_be_replaced(make_station, tmp_path
     from magline.core.fit.samples_csv import RawSamples
     from magline.core.record import PersistReport, VerifyReport
     from magline.core.sequencer import Acquisition
-    from magline.core.synthetic import earth_field_ned, motion_directions, random_truth
+    from magline.sim.truth import earth_field_ned, motion_directions, random_truth
 
     truth = random_truth(rng, max_offset_ut=40.0)
     d = motion_directions("full_sphere", 600, rng, earth_field_ned(48.0, 63.0))

@@ -14,8 +14,8 @@ from simstation import FAST_SENSOR_HZ, run_unit, write_station
 from magline.core.cli import main
 from magline.core.plugins import load_plugins
 from magline.core.record import Outcome
-from magline.plugins.mock.sim import create_sim
-from magline.plugins.mock.sim.supply import SupplySim
+from magline.sim import create_sim
+from magline.sim.supply import SupplySim
 
 HERE = Path(__file__).parent
 PX4_OPTIONS = {"connect_timeout_s": 5.0, "boot_timeout_s": 10.0}

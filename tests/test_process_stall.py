@@ -18,7 +18,7 @@ from magline.core.plugins import hookimpl, load_plugins
 from magline.core.record import Outcome
 from magline.core.sequencer import Sequencer
 from magline.core.station import load_station
-from magline.plugins.mock.sim import create_sim
+from magline.sim import create_sim
 
 BACKENDS = {
     # flavour: (listen, station file, the product's options)

@@ -11,8 +11,8 @@ from simstation import FAST_SENSOR_HZ, load_json, run_unit, stored_attempts, wri
 
 from magline.core.dut import DutError
 from magline.core.record import Outcome
-from magline.plugins.mock.sim import SimFaults, SimMagnetometer, create_sim
 from magline.plugins.px4.calibration import choose_slot, fit_to_params
+from magline.sim import SimFaults, SimMagnetometer, create_sim
 
 OPTIONS = {"connect_timeout_s": 5.0, "boot_timeout_s": 10.0}
 STATION = "px4-sim.yaml"

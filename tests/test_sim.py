@@ -15,8 +15,8 @@ import pytest
 from gcs_client import Gcs, bytewise_float_as_int, int_as_bytewise_float
 from pymavlink import mavutil
 
-from magline.plugins.mock.sim import SimFaults, create_sim
-from magline.plugins.mock.sim.thermal import BoardWarmth
+from magline.sim import SimFaults, create_sim
+from magline.sim.thermal import BoardWarmth
 
 ML = mavutil.mavlink
 INT32, REAL32 = ML.MAV_PARAM_TYPE_INT32, ML.MAV_PARAM_TYPE_REAL32

@@ -23,8 +23,8 @@ from magline.core.sequencer import Sequencer
 from magline.core.sequencer.slots import SlotRunner
 from magline.core.station import load_station
 from magline.core.station.checks import station_problems
-from magline.plugins.mock.sim import create_sim
-from magline.plugins.mock.sim.gimbal import GimbalSim
+from magline.sim import create_sim
+from magline.sim.gimbal import GimbalSim
 
 SLOTS = {"A": "px4", "B": "px4", "C": "ardupilot", "D": "ardupilot"}
 # distinct boards (each must get its own calibration), seeded from the slot's name — never chosen by outcome

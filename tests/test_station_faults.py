@@ -17,7 +17,7 @@ from magline.core.plugins import hookimpl, load_plugins
 from magline.core.record import Outcome
 from magline.core.sequencer import Sequencer
 from magline.core.station import load_station
-from magline.plugins.mock.sim import SimFaults, create_sim
+from magline.sim import SimFaults, create_sim
 from magline.testing.faults import ARDUPILOT_FAULTS, WARM_UP
 
 AP = {"connect_timeout_s": 1.0, "boot_timeout_s": 3.0, "prearm_wait_s": 0.3}

@@ -29,8 +29,8 @@ from magline.core.operator_ui.screen.serve import build, is_loopback
 from magline.core.plugins import load_plugins
 from magline.core.results.reading import find_run
 from magline.core.station import load_station
-from magline.plugins.mock.sim.fluxgate import FluxgateSim
-from magline.plugins.mock.storage import NvStorage
+from magline.sim.fluxgate import FluxgateSim
+from magline.sim.storage import NvStorage
 
 LOCAL = ("http://127.0.0.1:",)
 
@@ -358,7 +358,7 @@ def test_a_three_compass_unit_shows_a_card_per_compass_naming_the_one_that_faile
     turned 90° about Z: its card is FAIL with its orientation, compasses 1 and 3 PASS with their hard iron."""
     from simstation import FAST_SENSOR_HZ, write_station
 
-    from magline.plugins.mock.sim import SimFaults, create_sim
+    from magline.sim import SimFaults, create_sim
 
     workdir = tmp_path / "fc"
     workdir.mkdir()

@@ -19,9 +19,9 @@ from magline.core.readings import RepeatFilter, untruncate_mg
 from magline.core.record import Outcome
 from magline.core.sequencer import Sequencer
 from magline.core.station import load_station
-from magline.plugins.mock.sim import SimMagnetometer, create_sim
-from magline.plugins.mock.sim.magnetometers import DEFAULT_IDS
-from magline.plugins.mock.sim.vehicle import int16_mg
+from magline.sim import SimMagnetometer, create_sim
+from magline.sim.magnetometers import DEFAULT_IDS
+from magline.sim.vehicle import int16_mg
 
 AP = {"connect_timeout_s": 5.0, "boot_timeout_s": 10.0, "prearm_wait_s": 0.3}
 
@@ -147,7 +147,7 @@ def test_an_extreme_reading_repeated_by_chance_is_not_called_clipped(rng):
     against the range the readings can carry (the backends say ±3276.7 µT), nothing is clipped."""
     from magline.core.fit import FitOptions, fit_calibration
     from magline.core.readings import INT16_MG_RANGE_UT
-    from magline.core.synthetic import earth_field_ned, motion_directions, random_truth
+    from magline.sim.truth import earth_field_ned, motion_directions, random_truth
 
     truth = random_truth(rng, max_offset_ut=40.0)
     m = truth.read(motion_directions("full_sphere", 600, rng, earth_field_ned(48.0, 62.0)) * 48.0, rng)

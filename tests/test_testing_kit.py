@@ -143,10 +143,10 @@ def test_magline_power_controls_meet_the_contract(magline_px4, tmp_path):
     from magline.core.power import MavlinkReboot
     from magline.plugins.mock.dut import MockDut
     from magline.plugins.mock.options import MockOptions
-    from magline.plugins.mock.sim.supply import SupplySim
     from magline.plugins.power.scpi_supply import ScpiSupply, ScpiSupplyOptions
     from magline.plugins.px4.dut import Px4Dut
     from magline.plugins.px4.options import Px4Options
+    from magline.sim.supply import SupplySim
 
     mock = MockOptions(storage=str(tmp_path / "nv.json"))
     assert check_power_control(MavlinkReboot, lambda: MockDut(mock))["method"] == "mavlink-reboot"

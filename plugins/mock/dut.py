@@ -13,10 +13,10 @@ from scipy.spatial.transform import Rotation
 from magline.core.dut import LinkError, NotRestored, ParamValue, SampleChunk, UnitInfo
 from magline.core.fit import FitResult
 from magline.core.mounting import ImuSeries
-from magline.core.synthetic import GRAVITY_MSS, SensorTruth, earth_field_ned, gravity_body, motion_directions
-from magline.core.synthetic.motions import single_axis
 from magline.plugins.mock.options import MockOptions
-from magline.plugins.mock.storage import NvStorage
+from magline.sim.storage import NvStorage
+from magline.sim.truth import GRAVITY_MSS, SensorTruth, earth_field_ned, gravity_body, motion_directions
+from magline.sim.truth.motions import single_axis
 
 # The mock's own parameter names: offsets in µT (subtracted), the symmetric matrix S entries.
 OFFSETS = ("MAG_OFS_X", "MAG_OFS_Y", "MAG_OFS_Z")

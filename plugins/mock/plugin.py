@@ -1,4 +1,4 @@
-"""Registers the ``mock`` DUT backend and the ``magline sim`` command (simulated flight controllers)."""
+"""Registers the ``mock`` DUT backend: an in-process unit (the simulators on real sockets are ``magline.sim``)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,6 @@ from typing import TYPE_CHECKING
 
 from magline.core.plugins import hookimpl
 from magline.core.station.schema import Product
-from magline.plugins.mock.commands import add_sim_command
 from magline.plugins.mock.options import MockOptions
 
 if TYPE_CHECKING:
@@ -25,7 +24,3 @@ def create_mock_dut(product: Product, options: MockOptions) -> MockDut:
 def magline_register_dut_backends(register):
     register("mock", create_mock_dut, options=MockOptions)
 
-
-@hookimpl
-def magline_add_commands(subparsers):
-    add_sim_command(subparsers)

@@ -1,8 +1,10 @@
-"""``magline sim px4|ardupilot``: run a simulated flight controller until Ctrl-C / SIGTERM.
+"""``magline sim px4|ardupilot|coil|gimbal``: run a simulator on a real socket until Ctrl-C / SIGTERM.
 
 The first line printed names the address it listens on, so a script (or a person in another
 terminal) knows where to point the station.  The simulator itself is imported only when the
-command runs.
+command runs.  The command comes through its own ``sim`` entry point in the ``magline`` group
+(``magline_add_commands``), as any plugin's command does: the core CLI knows nothing of simulators,
+and the mock DUT plugin (an in-process unit) has nothing to do with them.
 """
 
 from __future__ import annotations
@@ -14,6 +16,13 @@ import threading
 import time
 from collections.abc import Callable
 from typing import Any
+
+from magline.core.plugins import hookimpl
+
+
+@hookimpl
+def magline_add_commands(subparsers: Any) -> None:
+    add_sim_command(subparsers)
 
 
 def add_sim_command(subparsers: argparse._SubParsersAction) -> None:
@@ -91,8 +100,8 @@ def run_sim(args: argparse.Namespace) -> int:
         return run_coil_sim(args)
     if args.flavour == "gimbal":
         return run_gimbal_sim(args)
-    from magline.plugins.mock.sim import SimFaults, create_sim
-    from magline.plugins.mock.sim.magnetometers import MOTIONS
+    from magline.sim import SimFaults, create_sim
+    from magline.sim.magnetometers import MOTIONS
 
     motions = tuple(m.strip() for m in (args.motion or "").split(",") if m.strip()) or None
     unknown = [m for m in motions or () if m not in MOTIONS]
@@ -113,7 +122,7 @@ def run_sim(args: argparse.Namespace) -> int:
         sim.start()
         supply = None
         if args.supply:
-            from magline.plugins.mock.sim.supply import SupplySim
+            from magline.sim.supply import SupplySim
             supply = SupplySim(args.supply, board=sim, fault=args.supply_fault).start()
             sim.power_off()  # the supply's output starts off
     except (ValueError, OSError) as exc:
@@ -137,8 +146,8 @@ def run_sim(args: argparse.Namespace) -> int:
 
 
 def run_coil_sim(args: argparse.Namespace) -> int:
-    from magline.plugins.mock.sim.coil import CoilSim
-    from magline.plugins.mock.sim.fluxgate import FluxgateSim
+    from magline.sim.coil import CoilSim
+    from magline.sim.fluxgate import FluxgateSim
 
     try:
         coil = CoilSim(args.listen or "tcp:127.0.0.1:5026", fault=args.coil_fault, seed=args.seed).start()
@@ -158,7 +167,7 @@ def run_coil_sim(args: argparse.Namespace) -> int:
 
 
 def run_gimbal_sim(args: argparse.Namespace) -> int:
-    from magline.plugins.mock.sim.gimbal import GimbalSim
+    from magline.sim.gimbal import GimbalSim
 
     try:
         gimbal = GimbalSim(args.listen or "tcp:127.0.0.1:5030").start()

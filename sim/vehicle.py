@@ -29,13 +29,13 @@ from numpy.typing import NDArray
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from scipy.spatial.transform import Rotation
 
-from magline.core.synthetic import earth_field_ned
-from magline.plugins.mock.sim.faults import SimFaults
-from magline.plugins.mock.sim.magnetometers import SimMagnetometer, attitude, default_magnetometers, driver_rate_hz
-from magline.plugins.mock.sim.params import ParamSpec, ParamTable, ParamValue
-from magline.plugins.mock.sim.thermal import BoardWarmth
-from magline.plugins.mock.sim.transport import open_server
-from magline.plugins.mock.storage import NvStorage
+from magline.sim.faults import SimFaults
+from magline.sim.magnetometers import SimMagnetometer, attitude, default_magnetometers, driver_rate_hz
+from magline.sim.params import ParamSpec, ParamTable, ParamValue
+from magline.sim.storage import NvStorage
+from magline.sim.thermal import BoardWarmth
+from magline.sim.transport import open_server
+from magline.sim.truth import earth_field_ned
 
 ACCEPTED, DENIED, UNSUPPORTED, FAILED = (
     mavlink.MAV_RESULT_ACCEPTED, mavlink.MAV_RESULT_DENIED,
@@ -190,7 +190,7 @@ class SimulatedAutopilot(ABC):
     def start(self) -> SimulatedAutopilot:
         self.workdir.mkdir(parents=True, exist_ok=True)
         if self.motion_source:
-            from magline.plugins.mock.sim.gimbal import MotionFollower
+            from magline.sim.gimbal import MotionFollower
 
             self.follower = MotionFollower(self.motion_source)
         self.link = open_server(self.listen)

@@ -31,9 +31,9 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from scipy.spatial.transform import Rotation
 
 from magline.core.mounting import orientation_matrix
-from magline.plugins.mock.sim.magnetometers import SimMagnetometer
-from magline.plugins.mock.sim.params import INT32, REAL32, ParamSpec, ParamValue, bytewise_from_wire, bytewise_to_wire
-from magline.plugins.mock.sim.vehicle import ACCEPTED, DENIED, UNSUPPORTED, Power, SimulatedAutopilot, int16_mg
+from magline.sim.magnetometers import SimMagnetometer
+from magline.sim.params import INT32, REAL32, ParamSpec, ParamValue, bytewise_from_wire, bytewise_to_wire
+from magline.sim.vehicle import ACCEPTED, DENIED, UNSUPPORTED, Power, SimulatedAutopilot, int16_mg
 
 SLOTS = 4
 AXES = ("X", "Y", "Z")

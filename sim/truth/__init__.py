@@ -4,8 +4,8 @@ Why in core: the mock DUT, the tests and the benchmarks must all draw from the s
 and the same operator motions, so that "accuracy against known synthetic truth" means one thing.
 """
 
-from magline.core.synthetic.motions import MOTIONS, motion_directions
-from magline.core.synthetic.sensor import GRAVITY_MSS, SensorTruth, earth_field_ned, gravity_body, random_truth
+from magline.sim.truth.motions import MOTIONS, motion_directions
+from magline.sim.truth.sensor import GRAVITY_MSS, SensorTruth, earth_field_ned, gravity_body, random_truth
 
 __all__ = ["GRAVITY_MSS", "MOTIONS", "SensorTruth", "earth_field_ned", "gravity_body", "motion_directions",
            "random_truth"]

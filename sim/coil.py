@@ -20,7 +20,7 @@ import time
 import numpy as np
 from numpy.typing import NDArray
 
-from magline.plugins.mock.sim.scpi_server import ScpiServer
+from magline.sim.scpi_server import ScpiServer
 
 FAULTS = ("output_off", "over_current", "scpi_error", "silent")
 

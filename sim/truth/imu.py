@@ -2,7 +2,7 @@
 
 Why in core: the mounting check's tests and benchmark must draw the same tumbles, so that "the
 mounting is recovered to 0.3°" means one thing.  The attitude is the simulators' spiral
-(:func:`magline.plugins.mock.sim.magnetometers.attitude` follows the same path) at a careful
+(:func:`magline.sim.magnetometers.attitude` follows the same path) at a careful
 operator's rate; the accelerometer reads gravity plus its own noise and a hand's slow accelerations.
 """
 
@@ -12,7 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from magline.core.synthetic.sensor import GRAVITY_MSS, earth_field_ned
+from magline.sim.truth.sensor import GRAVITY_MSS, earth_field_ned
 
 HAND_MSS = 0.1  # RMS of the small, slow accelerations of a hand holding the unit (smoothed over 0.5 s)
 ACCEL_NOISE_MSS = 0.05
@@ -42,7 +42,7 @@ def tumble_with_imu(mounted: NDArray, rng: np.random.Generator, *, seconds: floa
 def _poses(t: NDArray, steady: bool, field: NDArray) -> Rotation:
     """Body → NED attitudes along the simulators' spiral (the field sweeps the sphere pole to pole while
     the unit spins), each the smallest turn that shows the field in that body direction."""
-    from magline.plugins.mock.sim.magnetometers import SPIN_RAD_S, SWEEP_S
+    from magline.sim.magnetometers import SPIN_RAD_S, SWEEP_S
 
     t = RATE * (t if steady else t + 1.5 * np.sin(0.8 * t))
     phase = (t / SWEEP_S) % 2.0
@@ -65,7 +65,7 @@ def simulator_fields(motion: str, t_s: NDArray, speed: float, field_ned: NDArray
 
     Why here: the agreement, early-stop and drift benchmarks and their tests must see the simulators'
     own motion, pitch steps and all, not a look-alike."""
-    from magline.plugins.mock.sim.magnetometers import attitude
+    from magline.sim.magnetometers import attitude
 
     field = np.asarray(field_ned, float)
     seen = field if vector_ned is None else np.asarray(vector_ned, float)

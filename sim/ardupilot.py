@@ -31,9 +31,9 @@ from numpy.typing import NDArray
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from magline.core.mounting import orientation_matrix
-from magline.plugins.mock.sim.magnetometers import SimMagnetometer
-from magline.plugins.mock.sim.params import INT8, INT16, INT32, REAL32, ParamSpec, ParamValue, ccast_from_wire
-from magline.plugins.mock.sim.vehicle import ACCEPTED, UNSUPPORTED, SimulatedAutopilot, int16_mg
+from magline.sim.magnetometers import SimMagnetometer
+from magline.sim.params import INT8, INT16, INT32, REAL32, ParamSpec, ParamValue, ccast_from_wire
+from magline.sim.vehicle import ACCEPTED, UNSUPPORTED, SimulatedAutopilot, int16_mg
 
 SETS = ("", "2", "3")
 AXES = ("X", "Y", "Z")

@@ -13,8 +13,8 @@ Faults: ``dead_board`` (draws nothing, never boots), ``short`` (draws the limit,
 
 from __future__ import annotations
 
-from magline.plugins.mock.sim.scpi_server import ScpiServer
-from magline.plugins.mock.sim.vehicle import Power, SimulatedAutopilot
+from magline.sim.scpi_server import ScpiServer
+from magline.sim.vehicle import Power, SimulatedAutopilot
 
 MAX_VOLTAGE, MAX_CURRENT = 30.0, 5.0
 BOARD_MIN_VOLTAGE = 4.5

@@ -12,7 +12,7 @@ from collections.abc import Callable
 import numpy as np
 from numpy.typing import NDArray
 
-from magline.plugins.mock.sim.scpi_server import ScpiServer
+from magline.sim.scpi_server import ScpiServer
 
 
 class FluxgateSim(ScpiServer):

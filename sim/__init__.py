@@ -11,11 +11,11 @@ from __future__ import annotations
 
 from typing import Any
 
-from magline.plugins.mock.sim.ardupilot import ArduPilotSim
-from magline.plugins.mock.sim.faults import SimFaults
-from magline.plugins.mock.sim.magnetometers import SimMagnetometer, device_id
-from magline.plugins.mock.sim.px4 import Px4Sim
-from magline.plugins.mock.sim.vehicle import Power, SimulatedAutopilot
+from magline.sim.ardupilot import ArduPilotSim
+from magline.sim.faults import SimFaults
+from magline.sim.magnetometers import SimMagnetometer, device_id
+from magline.sim.px4 import Px4Sim
+from magline.sim.vehicle import Power, SimulatedAutopilot
 
 FLAVOURS: dict[str, type[SimulatedAutopilot]] = {"px4": Px4Sim, "ardupilot": ArduPilotSim}
 

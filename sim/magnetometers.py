@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from magline.core.synthetic import SensorTruth
+from magline.sim.truth import SensorTruth
 
 BUS_I2C, BUS_SPI = 1, 2
 

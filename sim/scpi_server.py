@@ -13,7 +13,7 @@ import socket
 import threading
 from collections import deque
 
-from magline.plugins.mock.sim.transport import parse_listen
+from magline.sim.transport import parse_listen
 
 NO_ERROR = '0,"No error"'
 

@@ -17,8 +17,8 @@ import time
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from magline.plugins.mock.sim.magnetometers import attitude
-from magline.plugins.mock.sim.scpi_server import ScpiServer
+from magline.sim.magnetometers import attitude
+from magline.sim.scpi_server import ScpiServer
 
 PATTERNS = ("TUMBLE", "GIMBAL")
 FOLLOW_S = 0.05

@@ -32,7 +32,7 @@ class SimFaults:
     # "N:DEG": magnetometer N is turned DEG degrees about the body's Z axis (two compasses disagree)
     mag_yaw_error: list[str] = field(default_factory=list)
     # "UT:TAU_S": every compass's offset is UT µT from its settled value while the board is cold and
-    # settles with time constant TAU_S as it warms; a reboot keeps it warm (plugins/mock/sim/thermal.py)
+    # settles with time constant TAU_S as it warms; a reboot keeps it warm (sim/thermal.py)
     mag_warmup: str = ""
 
     @classmethod

@@ -1,4 +1,5 @@
-"""The mock DUT's non-volatile parameter storage: a JSON file, written atomically.
+"""A simulated unit's non-volatile parameter storage: a JSON file, written atomically (the in-process mock
+DUT's and every simulated flight controller's).
 
 Why a real file: the verify phase must prove that a calibration survives a power cycle; with a
 file, "survives" means exactly "was committed to storage before the power went".
