@@ -10,11 +10,14 @@ and the mock DUT plugin (an in-process unit) has nothing to do with them.
 from __future__ import annotations
 
 import argparse
+import re
 import signal
 import sys
+import tempfile
 import threading
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 from magline.core.plugins import hookimpl
@@ -26,46 +29,87 @@ def magline_add_commands(subparsers: Any) -> None:
 
 
 def add_sim_command(subparsers: argparse._SubParsersAction) -> None:
-    sim = subparsers.add_parser("sim", help="run a simulated flight controller (MAVLink) or Helmholtz coil (SCPI)")
-    sim.add_argument("flavour", choices=["px4", "ardupilot", "coil", "gimbal"],
-                     help="coil: a 3-axis Helmholtz coil current source (default tcp:127.0.0.1:5026) with a "
-                          "fluxgate DAQ at its centre (--fluxgate, default tcp:127.0.0.1:5027); gimbal: a "
-                          "motorised gimbal controller (default tcp:127.0.0.1:5030) for slot stations")
-    sim.add_argument("--listen", help="udp:HOST:PORT or tcp:HOST:PORT (default: px4 udp:127.0.0.1:14550, "
-                                      "ardupilot tcp:127.0.0.1:5760; port 0 picks a free one)")
-    sim.add_argument("--workdir", default=".", help="where the parameter storage file lives (default: .)")
-    sim.add_argument("--mags", type=int, default=1, choices=[1, 2, 3], help="number of magnetometers")
-    sim.add_argument("--boot-time", type=float, default=2.0, help="seconds silent after a reboot (default 2)")
-    sim.add_argument("--motion",
-                     help="comma list, one per acquisition (tumble, single_axis, gimbal, still, shared); last "
-                          "repeats (default: tumble, or shared with --gimbal)")
-    sim.add_argument("--gimbal", metavar="tcp:HOST:PORT",
-                     help="the board is mounted on this gimbal simulator and moves with it (motion 'shared')")
-    sim.add_argument("--speed", type=float, default=1.0, help="tumble speed factor")
-    sim.add_argument("--field-ut", type=float, default=48.0, help="local field magnitude (µT)")
-    sim.add_argument("--inclination-deg", type=float, default=62.0)
-    sim.add_argument("--noise-ut", type=float, default=0.3)
-    sim.add_argument("--mag-rate", type=float, metavar="HZ",
-                     help="how often the sensors publish a new reading (default: ardupilot 10 Hz, px4 per driver); "
-                          "a faster stream repeats readings, as real vehicles do")
-    sim.add_argument("--seed", type=int, default=7, help="seed of the sensors' distortion and noise")
-    sim.add_argument("--firmware", default="1.15.0", help="px4 only: firmware version (ODIAG from 1.12)")
-    sim.add_argument("--untagged", action="store_true",
-                     help="px4 only: report version 0.0.0, as a build from an untagged tree (SITL) does")
-    sim.add_argument("--no-shell", action="store_true",
-                     help="px4 only: the MAVLink shell answers nothing, as on POSIX builds (SITL)")
-    sim.add_argument("--preset-ids", action="store_true",
-                     help="px4 only: CAL_MAGn_ID preset to the detected sensors, as POSIX startup scripts do")
-    sim.add_argument("--fault", action="append", default=[], metavar="NAME[=VALUE]",
-                     help="inject a fault, e.g. drop_percent=5, ignore_param_set=CAL_MAG0_XOFF, "
-                          "no_persist=NAME, reboot_fails, link_loss_after_s=3, mag_missing_after_reboot=ID, "
-                          "swap_mags_after_reboot")
-    sim.add_argument("--supply", metavar="tcp:HOST:PORT",
-                     help="also run a simulated SCPI bench supply that powers this board (it starts off)")
-    sim.add_argument("--supply-fault", choices=["dead_board", "short", "output_error"])
-    sim.add_argument("--fluxgate", default="tcp:127.0.0.1:5027", help="coil only: the fluxgate DAQ's address")
-    sim.add_argument("--coil-fault", choices=["output_off", "over_current", "scpi_error", "silent"])
+    """``magline sim FLAVOUR``: one sub-command per simulator, each listing its own options only."""
+    sim = subparsers.add_parser("sim", help="run a simulator: a flight controller (MAVLink), a Helmholtz coil with "
+                                            "its fluxgate or a gimbal (SCPI)")
+    flavours = sim.add_subparsers(dest="flavour", required=True, metavar="{px4,ardupilot,coil,gimbal}")
+    board = argparse.ArgumentParser(add_help=False)  # what both flight controllers take
+    board.add_argument("--workdir", help="where the board keeps its parameter storage (default: a folder of its own "
+                                         "under the system's temporary folder, named for the simulator and its "
+                                         "address; the storage file is said when it starts)")
+    board.add_argument("--mags", type=int, default=1, choices=[1, 2, 3], help="number of magnetometers")
+    board.add_argument("--boot-time", type=float, default=2.0, help="seconds silent after a reboot (default 2)")
+    board.add_argument("--motion",
+                       help="comma list, one per acquisition (tumble, single_axis, gimbal, still, shared); last "
+                            "repeats (default: tumble, or shared with --gimbal)")
+    board.add_argument("--gimbal", metavar="tcp:HOST:PORT",
+                       help="the board is mounted on this gimbal simulator and moves with it (motion 'shared')")
+    board.add_argument("--speed", type=float, default=1.0, help="tumble speed factor")
+    board.add_argument("--field-ut", type=float, default=48.0, help="local field magnitude (µT)")
+    board.add_argument("--inclination-deg", type=float, default=62.0)
+    board.add_argument("--noise-ut", type=float, default=0.3)
+    board.add_argument("--mag-rate", type=float, metavar="HZ",
+                       help="how often the sensors publish a new reading (default: ardupilot 10 Hz, px4 per driver); "
+                            "a faster stream repeats readings, as real vehicles do")
+    board.add_argument("--seed", type=int, default=7, help="seed of the sensors' distortion and noise")
+    board.add_argument("--fault", action="append", default=[], metavar="NAME[=VALUE]",
+                       help=f"inject a fault (repeat for several): {fault_list()}")
+    board.add_argument("--supply", metavar="tcp:HOST:PORT",
+                       help="also run a simulated SCPI bench supply that powers this board (it starts off)")
+    board.add_argument("--supply-fault", choices=["dead_board", "short", "output_error"])
+    px4 = flavours.add_parser("px4", parents=[board], help="a simulated PX4 flight controller (MAVLink)")
+    px4.add_argument("--listen", default="udp:127.0.0.1:14550",
+                     help="udp:HOST:PORT or tcp:HOST:PORT (default udp:127.0.0.1:14550; port 0 picks a free one)")
+    px4.add_argument("--firmware", default="1.15.0", help="firmware version (ODIAG from 1.12)")
+    px4.add_argument("--untagged", action="store_true",
+                     help="report version 0.0.0, as a build from an untagged tree (SITL) does")
+    px4.add_argument("--no-shell", action="store_true",
+                     help="the MAVLink shell answers nothing, as on POSIX builds (SITL)")
+    px4.add_argument("--preset-ids", action="store_true",
+                     help="CAL_MAGn_ID preset to the detected sensors, as POSIX startup scripts do")
+    ardupilot = flavours.add_parser("ardupilot", parents=[board], help="a simulated ArduPilot flight controller "
+                                                                        "(MAVLink)")
+    ardupilot.add_argument("--listen", default="tcp:127.0.0.1:5760",
+                           help="tcp:HOST:PORT or udp:HOST:PORT (default tcp:127.0.0.1:5760; port 0 picks a free one)")
+    coil = flavours.add_parser("coil", help="a 3-axis Helmholtz coil current source with a fluxgate DAQ at its "
+                                            "centre (SCPI)")
+    coil.add_argument("--listen", default="tcp:127.0.0.1:5026", help="the coil's address (default tcp:127.0.0.1:5026)")
+    coil.add_argument("--fluxgate", default="tcp:127.0.0.1:5027", help="the fluxgate DAQ's address "
+                                                                       "(default tcp:127.0.0.1:5027)")
+    coil.add_argument("--coil-fault", choices=["output_off", "over_current", "scpi_error", "silent"])
+    coil.add_argument("--seed", type=int, default=7, help="seed of the ambient field and the fluxgate's noise")
+    gimbal = flavours.add_parser("gimbal", help="a motorised gimbal controller for slot stations (SCPI)")
+    gimbal.add_argument("--listen", default="tcp:127.0.0.1:5030", help="its address (default tcp:127.0.0.1:5030)")
     sim.set_defaults(handler=run_sim)
+
+
+def fault_list() -> str:
+    """Every fault :class:`~magline.sim.faults.SimFaults` knows, with what its value says: the help is
+    made from the class, so a fault added there is listed here."""
+    from dataclasses import fields
+
+    from magline.sim.faults import SimFaults
+
+    def shown(f: Any) -> str:
+        default = f.default_factory() if callable(f.default_factory) else f.default
+        if isinstance(default, bool):
+            return f.name
+        if isinstance(default, list):
+            return f"{f.name}=A,B"
+        return f"{f.name}=V"
+
+    return ", ".join(shown(f) for f in fields(SimFaults))
+
+
+def default_workdir(flavour: str, listen: str) -> Path:
+    """Where a board keeps its storage unless told: a folder of its own under the temporary folder, the
+    same for the same simulator on the same address (a board keeps its parameters across restarts, as
+    a real one does), a fresh one for a free port (port 0) — never the folder magline is started in."""
+    if listen.rsplit(":", 1)[-1] == "0":
+        return Path(tempfile.mkdtemp(prefix=f"magline-sim-{flavour}-"))
+    folder = Path(tempfile.gettempdir()) / "magline-sim" / f"{flavour}-{re.sub(r'[^A-Za-z0-9]+', '_', listen)}"
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder
 
 
 _STOP_REQUESTED = threading.Event()  # set by SIGTERM; polled, never waited on inside a signal handler
@@ -83,15 +127,18 @@ def _serve(lines: list[str], wait: Callable[[], None], stop: Callable[[], None])
     """Announce (first line: ``listening on …``), run until Ctrl-C or SIGTERM, then stop; exit 0.
     ``wait`` is the simulator's own blocking wait (kept for callers; the loop here polls instead)."""
     signal.signal(signal.SIGTERM, _terminate)  # before "listening on": a caller may stop us at once
+    why = "stopped"
     try:
         for line in lines:
             print(line, flush=True)
         while not _STOP_REQUESTED.is_set():
             time.sleep(0.1)
+        why = "stopped by SIGTERM"
     except KeyboardInterrupt:
-        pass
+        why = "stopped by Ctrl-C"
     finally:
         stop()
+    print(f"{why}: the simulator has closed its socket", flush=True)
     return 0
 
 
@@ -108,7 +155,8 @@ def run_sim(args: argparse.Namespace) -> int:
     try:
         if unknown:
             raise ValueError(f"unknown motion {unknown[0]!r}; choose from {', '.join(MOTIONS)}")
-        options: dict[str, Any] = {"workdir": args.workdir, "mag_count": args.mags, "boot_time_s": args.boot_time,
+        workdir = args.workdir or default_workdir(args.flavour, args.listen)
+        options: dict[str, Any] = {"workdir": workdir, "mag_count": args.mags, "boot_time_s": args.boot_time,
                                    "motions": motions, "speed": args.speed, "field_ut": args.field_ut,
                                    "inclination_deg": args.inclination_deg, "seed": args.seed,
                                    "faults": SimFaults.parse(args.fault), "mag_rate_hz": args.mag_rate,
@@ -150,7 +198,7 @@ def run_coil_sim(args: argparse.Namespace) -> int:
     from magline.sim.fluxgate import FluxgateSim
 
     try:
-        coil = CoilSim(args.listen or "tcp:127.0.0.1:5026", fault=args.coil_fault, seed=args.seed).start()
+        coil = CoilSim(args.listen, fault=args.coil_fault, seed=args.seed).start()
         fluxgate = FluxgateSim(args.fluxgate, coil.true_field_ut, seed=args.seed).start()
     except (ValueError, OSError) as exc:
         print(f"magline sim: {exc}", file=sys.stderr)
@@ -170,7 +218,7 @@ def run_gimbal_sim(args: argparse.Namespace) -> int:
     from magline.sim.gimbal import GimbalSim
 
     try:
-        gimbal = GimbalSim(args.listen or "tcp:127.0.0.1:5030").start()
+        gimbal = GimbalSim(args.listen).start()
     except (ValueError, OSError) as exc:
         print(f"magline sim: {exc}", file=sys.stderr)
         return 2

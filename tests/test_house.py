@@ -43,3 +43,62 @@ def test_magline_sim_comes_through_its_own_entry_point_and_the_mock_plugin_adds_
 
     assert not hasattr(mock, "magline_add_commands")
     assert not (REPO / "plugins" / "mock" / "sim").exists()
+
+
+def test_each_simulator_lists_its_own_options_and_every_fault(capsys):
+    import pytest
+
+    from magline.core.cli import main
+    from magline.sim.faults import SimFaults
+
+    def helped(*args: str) -> str:
+        with pytest.raises(SystemExit):
+            main(["sim", *args, "--help"])
+        return " ".join(capsys.readouterr().out.split())  # argparse wraps: compare as one line
+
+    px4, ardupilot, coil = helped("px4"), helped("ardupilot"), helped("coil")
+    from dataclasses import fields
+
+    assert all(f.name in px4 and f.name in ardupilot for f in fields(SimFaults))  # mag_mounting, mag_warmup …
+    assert "--firmware" in px4 and "--firmware" not in ardupilot
+    assert "--fault" not in coil and "--firmware" not in coil and "--fluxgate" in coil and "--coil-fault" in coil
+    assert "default tcp:127.0.0.1:5760" in ardupilot and "default udp:127.0.0.1:14550" in px4
+
+
+def test_a_simulator_keeps_its_storage_out_of_the_folder_it_is_started_in_and_says_where_and_why_it_stopped(
+        tmp_path):
+    import os
+    import signal
+    import subprocess
+    import sys
+    import tempfile
+
+    proc = subprocess.Popen([sys.executable, "-m", "magline.core.cli", "sim", "ardupilot", "--listen",
+                             "tcp:127.0.0.1:0", "--boot-time", "0.2"], cwd=tmp_path, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    try:
+        assert proc.stdout.readline().startswith("listening on tcp:127.0.0.1:")
+        said = proc.stdout.readline()
+        storage = said.split("storage ", 1)[1].split(",", 1)[0]
+        assert storage.startswith(tempfile.gettempdir()) and storage.endswith("eeprom.json"), said
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        rest = proc.communicate(timeout=20)[0]
+    assert proc.returncode == 0 and "stopped by SIGTERM: the simulator has closed its socket" in rest
+    assert list(tmp_path.iterdir()) == []  # nothing written where it was started
+
+
+def test_a_station_screen_on_a_taken_port_says_so_before_announcing_anything(tmp_path, capsys, monkeypatch):
+    import socket
+
+    from magline.core.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        assert main(["station", "--port", str(port)]) == 2
+    out, err = capsys.readouterr()
+    assert "station screen on" not in out
+    assert f"magline station: cannot listen on 127.0.0.1:{port}: Address already in use" in err

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import ipaddress
 import secrets
+import socket
 import sys
 import threading
 from pathlib import Path
@@ -37,13 +38,34 @@ def build(station: Station, where: Path, plugins: Plugins, token: str | None = N
     return create_app(state, runner, token, reports), runner
 
 
+def listening_socket(host: str, port: int) -> socket.socket:
+    """The screen's socket, bound before anything is announced: a port another program holds is said
+    as the refusal it is, not after a "station screen on …" line that was never true."""
+    family, kind, proto, _, address = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0]
+    sock = socket.socket(family, kind, proto)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        sock.bind(address)
+    except OSError:
+        sock.close()
+        raise
+    return sock
+
+
 def serve(station: Station, where: Path, plugins: Plugins, host: str, port: int) -> int:
     import uvicorn
 
+    try:
+        sock = listening_socket(host, port)
+    except OSError as exc:
+        print(f"magline station: cannot listen on {host}:{port}: {exc.strerror or exc} — another station screen or "
+              "program holds it; stop it or give another --port", file=sys.stderr)
+        return 2
     token = None if is_loopback(host) else secrets.token_urlsafe(18)
     try:
         app, runner = build(station, where, plugins, token)
     except (StationFault, OSError, ValueError) as exc:
+        sock.close()
         print(str(exc), file=sys.stderr)
         return 2
     address = f"http://{host}:{port}/"
@@ -53,9 +75,10 @@ def serve(station: Station, where: Path, plugins: Plugins, host: str, port: int)
         print(f"station screen on {address}", flush=True)
     server = _station_server(uvicorn, uvicorn.Config(app, host=host, port=port, log_level="warning"), runner)
     try:
-        server.run()
+        server.run(sockets=[sock])
     finally:
         runner.close()
+        sock.close()
     return 0
 
 
