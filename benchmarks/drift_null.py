@@ -25,7 +25,7 @@ import numpy as np
 from scipy.stats import f as f_distribution
 
 from magline.core.fit import coverage_of
-from magline.core.readings import untruncate_mg
+from magline.core.links.readings import untruncate_mg
 from magline.sim.truth import random_truth
 
 sys.path.insert(0, str(Path(__file__).parent))

@@ -87,7 +87,7 @@ def seen_error_deg(found, truth, directions: np.ndarray) -> float:
 
 def simulator_unit(rng: np.random.Generator):
     """One unit as a simulator streams it: (truth, directions, readings µT, times ms)."""
-    from magline.core.readings import untruncate_mg
+    from magline.core.links.readings import untruncate_mg
     from magline.sim.truth.imu import simulator_fields
 
     truth = random_truth(rng)

@@ -1,7 +1,7 @@
 """When is a tumble called stalled?  (issue 27: figures printed, never asserted)
 
 A determined tumble whose coverage stops growing short of its target ends, and the operator is asked
-again (``core/tumble_stop.py``, ``Stall``).  Called too early, a good tumble's readings are thrown away;
+again (``core/acquisition/tumble_stop.py``, ``Stall``).  Called too early, a good tumble's readings are thrown away;
 called too late, an operator spinning the unit about one axis is told only after many seconds.  This
 benchmark drives the shipped rule with the shipped coverage tracker (40 bins, target 60 %,
 ``min_samples`` 100), readings as the acquire phase feeds them, on:
@@ -26,8 +26,8 @@ import argparse
 
 import numpy as np
 
+from magline.core.acquisition.tumble_stop import Stall
 from magline.core.fit.coverage import CoverageTracker
-from magline.core.tumble_stop import Stall
 from magline.sim.truth.imu import simulator_fields
 from magline.sim.truth.motions import hand_tumble, single_axis
 

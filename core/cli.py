@@ -263,7 +263,7 @@ def _run(args: argparse.Namespace, plugins: Plugins) -> int:
 
 def _tap_links(station: Station, tlog: Path) -> tuple[Station, list[Any]]:
     """The station with each MAVLink link pointed at a recording proxy, and the proxies."""
-    from magline.core.mavlink_tap import MavlinkTap, can_tap
+    from magline.core.links.mavlink_tap import MavlinkTap, can_tap
 
     links = [(part, p.connection) for part, p in station.products.items() if can_tap(p.connection)]
     links += [(slot.id, slot.connection) for slot in station.slots if slot.connection and can_tap(slot.connection)]

@@ -14,6 +14,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from magline.core.acquisition.tumble_stop import Stall, running_fit
 from magline.core.dut import DutError, LinkError, ParamValue, SampleChunk
 from magline.core.faults import StationFault, UnitAborted
 from magline.core.fit import CoverageTracker, FitOptions, FitResult, coverage_of, fit_calibration
@@ -24,7 +25,6 @@ from magline.core.mounting import ImuSeries, orientation_matrix
 from magline.core.plugins import hookimpl
 from magline.core.record import PersistReport, VerifyReport
 from magline.core.sequencer.context import Acquisition, AcquisitionAborted, RunContext
-from magline.core.tumble_stop import Stall, running_fit
 
 # The running fit is handed the tumble at checkpoints of the primary's count, every 2.5 % more
 # readings (at least 3): at 10 Hz about every half second, at 200 Hz every tenth.  Counts, not

@@ -77,13 +77,13 @@ class ReplayVehicle:
         self.server.close()
 
     def _accept(self) -> None:
-        from magline.core.mavlink_tap import accepted_links
+        from magline.core.links.mavlink_tap import accepted_links
 
         for client in accepted_links(self.server, self._stop):
             self._serve(client)
 
     def _serve(self, client: socket.socket) -> None:
-        from magline.core.mavlink_tap import packet_parser, received
+        from magline.core.links.mavlink_tap import packet_parser, received
 
         heard: collections.Counter[str] = collections.Counter()
         gone = threading.Event()

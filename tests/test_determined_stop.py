@@ -189,9 +189,9 @@ def test_the_fit_refuses_above_each_sensors_own_sigma_limit(make_station, tmp_pa
 
 def test_the_station_says_whether_the_stop_waits_for_the_drift_test(make_station, tmp_path):
     """Waiting for a judgeable drift is the default; a line of warm units turns it off in its file."""
+    from magline.core.acquisition.tumble_stop import stop_rule
     from magline.core.record import RunRecord
     from magline.core.sequencer.context import RunContext
-    from magline.core.tumble_stop import stop_rule
 
     def rule(overrides, name):
         station = load_station(make_station(overrides, name=name))
@@ -249,7 +249,7 @@ def determined(samples: RawSamples, until_ms: float) -> bool:
 
 
 def test_a_tumble_stalls_only_when_its_coverage_stopped_growing_for_two_thirds_of_its_readings():
-    from magline.core.tumble_stop import Stall
+    from magline.core.acquisition.tumble_stop import Stall
 
     growing = Stall(min_samples=100, target=0.6)
     assert not any(growing.stalled(n, min(0.59, n / 1000)) for n in range(10, 600, 10))  # slow but growing
@@ -266,8 +266,8 @@ def test_a_turn_there_and_back_is_not_a_stall():
     """Retracing its way, a tumble sees no new direction for as long as it went; half the readings
     without a new one then is no stall: it goes on to new directions (it did in 10 % of the PX4
     simulator's tumbles, which were thrown away and the operator asked again)."""
+    from magline.core.acquisition.tumble_stop import Stall
     from magline.core.fit.coverage import CoverageTracker
-    from magline.core.tumble_stop import Stall
     from magline.sim.truth.imu import simulator_fields
 
     # the simulators' own tumble at 50 Hz, begun 4.8 s into its sweep: 60 % of the way down, going down

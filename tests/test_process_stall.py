@@ -3,7 +3,7 @@
 A paused VM, a long garbage collection or a starved CI worker stops every thread of the station for
 seconds.  A wait for the stream under way then came back past its deadline without having listened,
 and the link was declared lost ("nothing received for 3 s") — a CI run ERRORed a good ArduPilot unit
-so; on PX4 the same wait would have said the compass delivers no readings.  See core/listening.py.
+so; on PX4 the same wait would have said the compass delivers no readings.  See core/links/listening.py.
 """
 
 from __future__ import annotations

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 from simstation import write_station
 
+from magline.core.links.readings import RepeatFilter, untruncate_mg
 from magline.core.plugins import load_plugins
-from magline.core.readings import RepeatFilter, untruncate_mg
 from magline.core.record import Outcome
 from magline.core.sequencer import Sequencer
 from magline.core.station import load_station
@@ -48,7 +48,7 @@ def test_a_streams_first_reading_is_of_unknown_age_and_not_paired_with_gravity()
     Paired with the accelerometer by time it was one outlier that held the mounting σ, and the
     tumble, at its count.  It is held back per sensor with its copies; the first reading that
     changes is taken, at the time it first appears."""
-    from magline.core.readings import SensorStreams
+    from magline.core.links.readings import SensorStreams
 
     streams = SensorStreams(1, [1, 2], lambda _, mg: mg / 10.0)
     stale = {1: (100, 200, 300), 2: (-100, 50, 0)}
@@ -146,7 +146,7 @@ def test_an_extreme_reading_repeated_by_chance_is_not_called_clipped(rng):
     """Issue 31: int16 milligauss readings (0.1 µT steps) repeat their extreme by chance; judged
     against the range the readings can carry (the backends say ±3276.7 µT), nothing is clipped."""
     from magline.core.fit import FitOptions, fit_calibration
-    from magline.core.readings import INT16_MG_RANGE_UT
+    from magline.core.links.readings import INT16_MG_RANGE_UT
     from magline.sim.truth import earth_field_ned, motion_directions, random_truth
 
     truth = random_truth(rng, max_offset_ut=40.0)

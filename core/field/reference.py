@@ -15,8 +15,8 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from magline.core.field import FieldSourceError
+from magline.core.links.scpi import InstrumentError, ScpiInstrument
 from magline.core.record import now_iso
-from magline.core.scpi import InstrumentError, ScpiInstrument
 
 
 class ReferenceOptions(BaseModel):

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from magline.core.fit.samples_csv import RawSamples
-from magline.core.periodic import every
+from magline.core.sequencer.periodic import every
 
 if TYPE_CHECKING:
     from magline.core.dut import DutBackend, Magnetometer, UnitInfo

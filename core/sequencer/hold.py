@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
 
 from magline.core.faults import StationFault
-from magline.core.periodic import every
+from magline.core.sequencer.periodic import every
 
 if TYPE_CHECKING:
     from magline.core.station.schema import Product, Station

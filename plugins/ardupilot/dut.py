@@ -32,7 +32,7 @@ from magline.core.dut import (
 )
 from magline.core.faults import StationFault
 from magline.core.fit import FitResult
-from magline.core.readings import INT16_MG_RANGE_UT, RepeatFilter, SensorStreams, untruncate_mg
+from magline.core.links.readings import INT16_MG_RANGE_UT, RepeatFilter, SensorStreams, untruncate_mg
 from magline.core.station.schema import Product
 from magline.plugins.ardupilot.calibration import (
     SETS,

@@ -23,7 +23,7 @@ import socket
 from pymavlink import mavutil
 
 from magline.core.dut import DutError, LinkError, UnansweredRequest, float32_equal, prove_unechoed_write
-from magline.core.listening import SLICE_S, stall_s
+from magline.core.links.listening import SLICE_S, stall_s
 
 ML = mavutil.mavlink
 GCS_SYSTEM, GCS_COMPONENT = 255, 190
@@ -91,7 +91,7 @@ class ArduPilotLink:
         self.target_component = ML.MAV_COMP_ID_AUTOPILOT1
         self._next_heartbeat = 0.0
         self.last_rx = 0.0  # monotonic time of the last message from the vehicle
-        self.stalled_s = 0.0  # this process's own stalls since then (core/listening.py)
+        self.stalled_s = 0.0  # this process's own stalls since then (core/links/listening.py)
         self.statustexts: list[str] = []
 
     # ------------------------------------------------------------------ connection
@@ -167,7 +167,7 @@ class ArduPilotLink:
             except OSError as exc:
                 raise self._lost(exc) from exc
             stalled = stall_s(asked, wait)
-            if stalled:  # not listening (core/listening.py): the vehicle's messages wait in the socket
+            if stalled:  # not listening (core/links/listening.py): the vehicle's messages wait in the socket
                 deadline += stalled
                 self.stalled_s += stalled
             if msg is not None:
@@ -204,7 +204,7 @@ class ArduPilotLink:
 
     def silent_for_s(self) -> float:
         """Seconds the station listened without hearing the vehicle (its 1 Hz heartbeat included):
-        since the last message, less this process's own stalls (:mod:`magline.core.listening`)."""
+        since the last message, less this process's own stalls (:mod:`magline.core.links.listening`)."""
         return time.monotonic() - self.last_rx - self.stalled_s
 
     def require_alive(self, what: str) -> None:

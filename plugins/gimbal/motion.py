@@ -1,4 +1,4 @@
-"""A motorised gimbal controller driven over SCPI (TCP socket or serial, through ``core.scpi``).
+"""A motorised gimbal controller driven over SCPI (TCP socket or serial, through ``core.links.scpi``).
 
 Commands (the controller's line protocol; ``magline sim gimbal`` speaks it):
 
@@ -17,7 +17,7 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from magline.core.scpi import InstrumentError, ScpiInstrument
+from magline.core.links.scpi import InstrumentError, ScpiInstrument
 from magline.core.station.schema import Station
 
 

@@ -37,8 +37,8 @@ from magline.core.dut import (
 )
 from magline.core.faults import StationFault
 from magline.core.fit import FitResult
-from magline.core.listening import get_listening
-from magline.core.readings import INT16_MG_RANGE_UT, SensorStreams
+from magline.core.links.listening import get_listening
+from magline.core.links.readings import INT16_MG_RANGE_UT, SensorStreams
 from magline.core.station.schema import Product
 from magline.plugins.px4.calibration import (
     PRIO_EXTERNAL,

@@ -29,7 +29,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from magline.core.dut import DutError, LinkError, UnansweredRequest, prove_unechoed_write
 from magline.core.faults import StationFault
-from magline.core.listening import get_listening
+from magline.core.links.listening import get_listening
 
 log = logging.getLogger("magline.px4.mavsdk")
 # MAVSDK's results that mean the command was not answered, as opposed to answered with a no
