@@ -168,13 +168,16 @@ def test_two_station_files_on_one_gimbal_share_its_lock_and_the_refusal_names_it
     gimbal = {"motion": {"type": "gimbal", "options": {"resource": "TCPIP0::127.0.0.1::5030::SOCKET"}},
               "slots": MOCK_SLOTS["slots"]}
     first = load_station(make_station({**gimbal, "results": {"path": "a.sqlite"}}))
-    second = load_station(make_station({**gimbal, "station": {"id": "demo-02"}, "results": {"path": "b.sqlite"}},
+    # the same gimbal, written as a plain socket address in the second file
+    second = load_station(make_station({**gimbal, "motion": {"type": "gimbal",
+                                                             "options": {"resource": "tcp:127.0.0.1:5030"}},
+                                        "station": {"id": "demo-02"}, "results": {"path": "b.sqlite"}},
                                        name="b.yaml"))
     with holding(fixture_locks(first), holder_of("G-1, G-2", "demo-01", "A, B", "/line/one", "a.sqlite")), \
             pytest.raises(StationBusy) as busy, \
             holding(fixture_locks(second), holder_of("G-3", "demo-02", "A")):
         raise AssertionError("two loads moved one gimbal")
-    assert str(busy.value).startswith("the gimbal motion on TCPIP::127.0.0.1::5030::SOCKET is busy: station demo-01 "
+    assert str(busy.value).startswith("the gimbal motion on tcp:127.0.0.1:5030 is busy: station demo-01 "
                                       "slot A, B is testing serial G-1, G-2 (folder /line/one, results a.sqlite;")
 
 

@@ -7,10 +7,10 @@ on each thing two runs must not share: its station slot *in its results store* (
 embedded demo have two stores and both run; two runs of one station file share one), its vehicle link,
 its power instrument, and the fixture's instruments (gimbal, coil, fluxgate) for the whole load.  The
 operating system releases them if the process dies (``flock``), so a crashed station never leaves a
-unit locked.  A second run is refused before
-anything is recorded, in a sentence that names the holder.  The locks are per computer (a directory
-under the system's temporary folder); across computers the results store keeps which station holds
-which slot (``claimed_in_store``, :mod:`magline.core.results.claims`).
+unit locked.  A second run is refused before anything is recorded, in a sentence that names what is
+shared and the holder.  The locks are per computer (a directory under the system's temporary
+folder); across computers the results store keeps which station holds which slot, and which serial
+(``claimed_in_store``, :mod:`magline.core.results.claims`).
 """
 
 from __future__ import annotations
@@ -40,6 +40,7 @@ VEHICLE_LINK = re.compile(r"^(tcp|tcpin|tcpout|udp|udpin|udpout|serial|com|/dev/
 # an instrument's address in a plugin's options: a VISA resource or a socket / serial address
 ADDRESS = re.compile(r"^(TCPIP\d*::|GPIB\d*::|USB\d*::|ASRL|tcp:|tcpin:|udp:|udpin:|udpout:|serial:|/dev/)",
                      re.IGNORECASE)
+VISA_SOCKET = re.compile(r"^TCPIP\d*::([^:]+)::(\d+)::SOCKET$", re.IGNORECASE)
 
 
 class StationBusy(StationFault):
@@ -64,7 +65,7 @@ def holding(keys: list[Shared], holder: dict) -> Iterator[None]:
     the first one taken.  A key listed twice (two slots of one load on one supply) is taken once."""
     held: list[IO[str]] = []
     try:
-        for key, what in dict.fromkeys((k.key, k.what) for k in keys):
+        for key, what in {k.key: k.what for k in keys}.items():
             handle = (lock_dir() / _file_name(key)).open("a+", encoding="utf-8")
             try:
                 fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -160,8 +161,9 @@ def store_identity(station: Station, station_dir: Path | str) -> str:
 
 
 def instrument_addresses(options: Any) -> list[str]:
-    """Every instrument or vehicle address in a plugin's options (nested too), spelled one way:
-    a VISA resource's board number dropped (``TCPIP0::h::p::SOCKET`` is ``TCPIP::h::p::SOCKET``)."""
+    """Every instrument or vehicle address in a plugin's options (nested too), spelled one way: a VISA
+    socket resource as its ``tcp:`` address (``TCPIP0::h::p::SOCKET`` is ``tcp:h:p``), another VISA
+    resource without its board number."""
     found: list[str] = []
     if isinstance(options, dict):
         for value in options.values():
@@ -170,7 +172,11 @@ def instrument_addresses(options: Any) -> list[str]:
         for value in options:
             found += instrument_addresses(value)
     elif isinstance(options, str) and ADDRESS.match(options.strip()):
-        found.append(re.sub(r"^(TCPIP|GPIB|USB|ASRL)\d+", r"\1", options.strip(), flags=re.IGNORECASE))
+        address = options.strip()
+        socket_resource = VISA_SOCKET.match(address)
+        if socket_resource:  # one instrument, however it is written: a VISA socket resource is its tcp: address
+            address = f"tcp:{socket_resource[1]}:{socket_resource[2]}"
+        found.append(re.sub(r"^(GPIB|USB|ASRL)\d+", r"\1", address, flags=re.IGNORECASE))
     return found
 
 
