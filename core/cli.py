@@ -295,8 +295,7 @@ def _slot_batches(args: argparse.Namespace, station: Station) -> Iterator[dict[s
             raise ValueError(f"--serial {item}: no slot {slot.strip()!r} on station {station.station.id} "
                              f"(slots: {', '.join(ids)}){did_you_mean(slot.strip(), ids)}")
         given[slot.strip()] = clean_serial(serial, station.slot_product(station.slot(slot.strip())))
-    one_serial_per_slot({slot: given[slot] for slot in ids if slot in given})
-    if given:
+    if given:  # a label given for two slots is refused by the slot runner, before anything is recorded
         yield given
         if not args.loop:
             return
