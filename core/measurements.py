@@ -54,6 +54,9 @@ CATALOGUE: dict[str, tuple[str, str]] = {
     "mounting_error_deg": ("°", "sensor axes against the nearest firmware orientation, from gravity and the field"),
     "mounting_sigma_deg": ("°", "1σ uncertainty of the mounting estimate"),
     "inclination_deg": ("°", "field inclination the unit saw (angle between gravity and the calibrated field)"),
+    "time_skew_ms": ("ms", "how much later than its message's time stamp a magnetometer reading was taken, on the "
+                           "accelerometer's clock (negative: earlier)"),
+    "time_skew_sigma_ms": ("ms", "1σ uncertainty of the time skew"),
     "inclination_error_deg": ("°", "field inclination the unit saw minus the reference's"),
     "heading_agreement_median_deg": ("°", "median heading difference between two calibrated magnetometers"),
     "heading_agreement_max_deg": ("°", "largest heading difference between two magnetometers (over the tumble)"),
@@ -70,6 +73,7 @@ POSSIBLE: dict[str, tuple[float, float]] = {
     "model_misfit_deg": (0.0, 180.0),
     "mounting_error_deg": (0.0, 180.0), "mounting_sigma_deg": (0.0, float("inf")),
     "inclination_deg": (-90.0, 90.0), "inclination_error_deg": (-180.0, 180.0),
+    "time_skew_ms": (-float("inf"), float("inf")), "time_skew_sigma_ms": (0.0, float("inf")),
     "heading_agreement_median_deg": (0.0, 180.0), "heading_agreement_max_deg": (0.0, 180.0),
     "residual_ut.std": (0.0, float("inf")), "residual_ut.ptp": (0.0, float("inf")),
 }

@@ -94,6 +94,12 @@ class MotionFollower:
         wall = time.time() if at is None else at + self._wall_minus_monotonic
         return attitude(name.lower(), wall - t0, speed)
 
+    @property
+    def speed(self) -> float:
+        """The pattern's speed (1 while the gimbal holds still)."""
+        with self._lock:
+            return 1.0 if self._pattern is None else self._pattern[1]
+
     def stop(self) -> None:
         self._stop.set()
 

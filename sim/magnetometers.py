@@ -15,6 +15,7 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from magline.sim.truth import SensorTruth
+from magline.sim.truth.attitudes import spiral_attitude
 
 BUS_I2C, BUS_SPI = 1, 2
 
@@ -86,29 +87,16 @@ def default_magnetometers(count: int, rng: np.random.Generator) -> list[SimMagne
 # --------------------------------------------------------------------------- attitude
 
 MOTIONS = ("tumble", "single_axis", "gimbal", "still", "shared")  # shared: follow a gimbal simulator
-SWEEP_S = 8.0  # a full pole-to-pole sweep of the tumble at speed 1
-SPIN_RAD_S = 2 * np.pi * 0.9
-
-
-def _spiral(t: float, stepped: bool) -> NDArray:
-    """Direction of the field in the body: a spherical spiral sweeping pole to pole and back."""
-    phase = (t / SWEEP_S) % 2.0
-    u = phase if phase <= 1.0 else 2.0 - phase  # 0..1..0
-    if stepped:
-        u = (np.floor(u * 8) + 0.5) / 8  # a two-axis gimbal: eight pitch steps, continuous yaw
-    z = 1.0 - 2.0 * u
-    r = np.sqrt(max(0.0, 1.0 - z * z))
-    phi = SPIN_RAD_S * t
-    return np.array([r * np.cos(phi), r * np.sin(phi), z])
 
 
 def attitude(motion: str, t: float, speed: float = 1.0, field_dir: NDArray | None = None) -> Rotation:
     """Body attitude (body → NED) at ``t`` seconds into a scripted motion.
 
     ``tumble`` turns the unit so the field sweeps the whole sphere in a spiral every
-    ``SWEEP_S / speed`` seconds (what a trained operator or a tumbling fixture achieves);
-    ``single_axis`` is the operator's classic mistake (yaw only); ``gimbal`` is a two-axis
-    fixture (continuous yaw, stepped pitch); ``still`` does not move.
+    ``SWEEP_S / speed`` seconds while the unit rocks about the field line (what a trained operator
+    achieves; :mod:`magline.sim.truth.attitudes`); ``single_axis`` is the operator's classic mistake
+    (yaw only); ``gimbal`` is a fixture (continuous yaw, stepped pitch, rocking about the field line
+    as a three-axis gimbal can); ``still`` does not move.
     """
     t = t * speed
     if motion == "single_axis":
@@ -117,7 +105,4 @@ def attitude(motion: str, t: float, speed: float = 1.0, field_dir: NDArray | Non
         return Rotation.identity()
     if motion not in ("tumble", "gimbal"):
         raise ValueError(f"unknown motion {motion!r}; choose from {', '.join(m for m in MOTIONS if m != 'shared')}")
-    f = np.array([0.47, 0.0, 0.88]) if field_dir is None else field_dir / np.linalg.norm(field_dir)
-    body_dir = _spiral(t, stepped=motion == "gimbal")
-    view, _ = Rotation.align_vectors([body_dir], [f])  # maps the NED field direction into the body
-    return view.inv()
+    return spiral_attitude(t, field_dir, stepped=motion == "gimbal")

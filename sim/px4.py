@@ -208,6 +208,13 @@ class Px4Sim(SimulatedAutopilot):
                 self._save_due = max(now + self.AUTOSAVE_DELAY_S, self._last_save + self.autosave_interval_s)
 
     # ------------------------------------------------------------------ streams
+    # SCALED_IMU carries the IMU's time stamp with the latest sensor_mag, measured 28–36 ms older on
+    # PX4 v1.16 SITL against an analytic truth (issue 50; 12–32 ms on an older build, shared/reference §14)
+    MAG_AGE_S = (0.028, 0.036)
+
+    def mag_age_s(self) -> float:
+        return float(self.rng.uniform(*self.MAG_AGE_S))
+
     def stream_message(self, msg_id: int, now: float) -> Any | None:
         reading = self.raw_reading_ut(self.stream_sensor[msg_id], now)
         if reading is None:

@@ -420,11 +420,34 @@ class SimulatedAutopilot(ABC):
     def time_boot_ms(self, now: float) -> int:
         return int((now - self._booted_at) * 1000) & 0xFFFFFFFF
 
+    def current_motion(self) -> str:
+        return self.motions[min(max(self._motion_index, 0), len(self.motions) - 1)]
+
     def attitude_at(self, now: float) -> Rotation:
-        motion = self.motions[min(max(self._motion_index, 0), len(self.motions) - 1)]
+        motion = self.current_motion()
         if motion == "shared" and self.follower is not None:
             return self.follower.attitude(now)
         return attitude(motion, now - self._t0, self.speed, self.field_ned)
+
+    def motion_speed(self) -> float:
+        """How much faster than a real tumble the unit turns (the gimbal's speed when it follows one)."""
+        if self.follower is not None and self.current_motion() == "shared":
+            return self.follower.speed
+        return self.speed
+
+    # The firmware's timing of its magnetometer against its accelerometer (issue 50): how old a new
+    # magnetometer reading is when it first appears in a message, and how old the message's
+    # accelerometer reading is — both against the message's time stamp, in seconds of a real tumble.
+    # A motion sped up for a test compresses them with it (divided by its speed), so a skew turns the
+    # unit by the angle it does on a real tumble; a slowed motion keeps the firmware's own milliseconds.
+    def mag_age_s(self) -> float:
+        return 0.0
+
+    def accel_age_s(self) -> float:
+        return 0.0
+
+    def _real_time(self, seconds: float) -> float:
+        return seconds / max(1.0, self.motion_speed())
 
     def body_field_ut(self, now: float) -> NDArray:
         if self.field_provider is not None:
@@ -433,7 +456,7 @@ class SimulatedAutopilot(ABC):
 
     def accel_mg(self, now: float) -> NDArray:
         """Gravity in the body frame (mG), for the IMU fields of the streamed messages."""
-        return self.attitude_at(now).inv().apply([0.0, 0.0, -1000.0])
+        return self.attitude_at(now - self._real_time(self.accel_age_s())).inv().apply([0.0, 0.0, -1000.0])
 
     def sensor_rate_hz(self, sensor: SimMagnetometer) -> float:
         return self.mag_rate_hz or self.firmware_mag_rate_hz or driver_rate_hz(sensor.device_id)
@@ -446,7 +469,8 @@ class SimulatedAutopilot(ABC):
         period = 1.0 / self.sensor_rate_hz(sensor)
         due, reading = self._held.get(sensor.device_id, (now, None))
         if reading is None or now >= due:
-            reading = sensor.read_ut(self.body_field_ut(now), self.rng) + self.warmup_offset_ut(now)
+            taken = now - self._real_time(self.mag_age_s())
+            reading = sensor.read_ut(self.body_field_ut(taken), self.rng) + self.warmup_offset_ut(now)
             due = due + period if now - due < period else now + period
             self._held[sensor.device_id] = (due, reading)
         return reading

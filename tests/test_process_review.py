@@ -6,6 +6,7 @@ from __future__ import annotations
 import io
 import json
 import re
+import zlib
 
 import numpy as np
 import pytest
@@ -65,13 +66,19 @@ def run(path, serial: str, console: OperatorConsole | None = None) -> RunRecord:
 
 def seed_history(store_path, like: RunRecord, units: int, rng: np.random.Generator) -> None:
     """``units`` passing MOCK-100 records on line DEMO whose numeric measurements scatter around
-    ``like``'s by 2 % (at least 0.01): a process the real unit belongs to."""
+    ``like``'s by 2 % (at least 0.001): a process the real unit belongs to.  Each measurement draws
+    its own scatter (a generator per name), so a new measurement does not change another's history;
+    the floor is below the smallest figure a test compares (an offset σ of 0.04 µT: under a floor of
+    0.01 its doubling stood only ≈ 3.7σ out, within a draw's reach of the 3σ threshold)."""
     sink = SqliteSink(store_path)
+    seed = int(rng.integers(1 << 31))
+    draws = {m.name: np.random.default_rng([seed, zlib.crc32(m.name.encode())]) for m in _numerics(like)}
     try:
         for i in range(units):
             r = RunRecord(serial=f"HIST-{i}", part=like.part, station_id=like.station_id, line=like.line,
                           operator="", software_version="test", limit_hash=like.limit_hash)
-            r.measurements = [Numeric(name=m.name, value=m.value + rng.normal(scale=max(0.02 * abs(m.value), 0.01)),
+            r.measurements = [Numeric(name=m.name, value=m.value + draws[m.name].normal(scale=max(0.02 * abs(m.value),
+                                                                                                  0.001)),
                                       unit=m.unit, low=m.low, high=m.high, verdict=Verdict.PASS)
                               for m in _numerics(like)]
             r.verdict, r.finished = Outcome.PASS, like.finished

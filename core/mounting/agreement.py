@@ -30,6 +30,12 @@ from numpy.typing import NDArray
 
 from magline.core.mounting.estimate import ImuSeries
 
+# Headings are compared where the field has a horizontal part to give one: at least this fraction of
+# its length.  Why: a heading is the angle of the field's horizontal part, so near a vertical field a
+# relation error of ε turns it by ε·|B|/|B_h|; a good pair on a tumble that rocks through such
+# attitudes read 3.5° "apart" there.  The attitudes a drone flies in (tilt ≤ 45° at inclinations up to
+# 60°) keep at least 0.25.
+HORIZONTAL_MIN = 0.25
 OUTLIER_FACTOR = 4.0  # a pair whose misfit exceeds this many times the median misfit is left out
 REFITS = 3
 
@@ -119,6 +125,11 @@ def heading_agreement(body_a: NDArray, t_a_ms: NDArray, body_b: NDArray, t_b_ms:
     up = _interp_rows(t, imu.t_ms, imu.accel_mss)
     up = up / np.linalg.norm(up, axis=1, keepdims=True)
     relation, used = fit_relation(a, b)
-    diff = heading_difference_deg(a, a @ relation.T, up)
+    vertical = np.einsum("ij,ij->i", a, up)
+    horizontal = np.sqrt(np.maximum(np.einsum("ij,ij->i", a, a) - vertical**2, 0.0)) / np.linalg.norm(a, axis=1)
+    headed = horizontal >= HORIZONTAL_MIN
+    if headed.sum() < 10:
+        return None
+    diff = heading_difference_deg(a[headed], a[headed] @ relation.T, up[headed])
     return HeadingAgreement(median_deg=float(np.median(np.abs(diff))), max_deg=float(np.max(np.abs(diff))),
                             mean_deg=float(np.mean(diff)), pairs=len(diff), used=int(used.sum()), relation=relation)

@@ -12,6 +12,9 @@ What is judged, per sensor (names prefixed ``mag2.`` … for sensors after the p
   (``rotation_params``: PX4's custom Euler angles), the note saying so or why not — the limit still
   judges the mechanical misalignment;
 - ``inclination_error_deg``: the field's inclination the unit saw against the field source's;
+- ``time_skew_ms`` (and its σ): when the sensor's readings were taken against their messages' stamps, on
+  the accelerometer's clock — found from the tumble with the mounting (:mod:`magline.core.mounting.skew`),
+  recorded as a station figure, and used to pair the sensors' readings for their heading agreement;
 and per pair ``heading_agreement_median_deg`` / ``_max_deg`` (names ``mag1-mag2.…``), the headings
 taken as the firmware will take them once each sensor's orientation is right (a wrong orientation is
 its own failure, not a second one of every pair).
@@ -34,7 +37,7 @@ from magline.core.dut import DutError, ParamValue
 from magline.core.faults import StationFault
 from magline.core.measurements import Json, Measurement, Numeric, Verdict
 from magline.core.mounting.agreement import heading_agreement
-from magline.core.mounting.estimate import MountingUnobservable, estimate_mounting
+from magline.core.mounting.estimate import MountingEstimate, MountingUnobservable, estimate_mounting
 from magline.core.mounting.orientations import (
     nearest_right_angle,
     orientation_matrix,
@@ -86,7 +89,7 @@ def magline_validate_unit(run: RunContext, fits: dict[int, FitResult]) -> list[M
     limits = run.limits
     reference = getattr(run.field_source, "reference_inclination_deg", lambda: None)()
     out: list[Measurement] = []
-    bodies: dict[int, tuple[NDArray, NDArray]] = {}
+    bodies: dict[int, tuple[NDArray, NDArray, MountingEstimate]] = {}
     report: dict[str, dict] = {}
     fixes: dict[int, int] = {}
     rotations: dict[int, HeldRotation] = {}
@@ -133,15 +136,19 @@ def magline_validate_unit(run: RunContext, fits: dict[int, FitResult]) -> list[M
                            note=held.note if held is not None else ""))
         out.append(Numeric.of(prefix + "mounting_sigma_deg", estimate.sigma_deg, limits))
         out.append(Numeric.of(prefix + "inclination_deg", estimate.inclination_deg, limits))
+        out.append(Numeric.of(prefix + "time_skew_ms", estimate.skew_ms, limits))
+        out.append(Numeric.of(prefix + "time_skew_sigma_ms", estimate.skew_sigma_ms, limits))
         if reference is not None:
             out.append(Numeric.of(prefix + "inclination_error_deg", estimate.inclination_deg - reference, limits))
-        bodies[sensor.device_id] = (cal @ (final @ applied.T).T, np.asarray(samples.t_ms, float))
+        bodies[sensor.device_id] = (cal @ (final @ applied.T).T, np.asarray(samples.t_ms, float), estimate)
         report[prefix.rstrip(".") or "mag1"] = {"device_id": sensor.device_id, "found": found,
                                                 "configured": sensor.orientation, **estimate.to_dict()}
         if held is not None:
             report[prefix.rstrip(".") or "mag1"]["misalignment_written"] = held.params or held.note
     for a, b in itertools.combinations(run.magnetometers, 2):
-        agreement = heading_agreement(*bodies[a.device_id], *bodies[b.device_id], attempt.imu)
+        (body_a, t_a, est_a), (body_b, t_b, est_b) = bodies[a.device_id], bodies[b.device_id]
+        skew_a, skew_b = paired_skews(est_a, est_b)
+        agreement = heading_agreement(body_a, t_a + skew_a, body_b, t_b + skew_b, attempt.imu)
         if agreement is None:
             raise StationFault(f"{run.sensor_label(a.device_id)} and {run.sensor_label(b.device_id)} have no "
                                "readings at the same time to compare")
@@ -156,6 +163,19 @@ def magline_validate_unit(run: RunContext, fits: dict[int, FitResult]) -> list[M
     run.record.unit_info["mounting"] = report
     out.append(Json(name="mounting", data=report))
     return out
+
+
+def paired_skews(a: MountingEstimate, b: MountingEstimate) -> tuple[float, float]:
+    """The skews two sensors' readings are paired with: each its own where they differ beyond 3σ, else
+    one common skew (their inverse-variance mean).  Why: on a fast tumble a few tenths of a
+    millisecond between two estimates of one and the same skew turn one sensor against the other by
+    half a degree; sensors read by the same driver cycle share their skew, and a difference the
+    tumble cannot show is taken as none."""
+    wa, wb = 1.0 / max(a.skew_sigma_ms, 1e-6) ** 2, 1.0 / max(b.skew_sigma_ms, 1e-6) ** 2
+    if abs(a.skew_ms - b.skew_ms) > 3.0 * np.hypot(a.skew_sigma_ms, b.skew_sigma_ms):
+        return a.skew_ms, b.skew_ms
+    common = (wa * a.skew_ms + wb * b.skew_ms) / (wa + wb)
+    return common, common
 
 
 @dataclass(frozen=True)

@@ -8,14 +8,14 @@ perfect sphere, but its angle to gravity then swings by tens of degrees.  With a
 the sphere the rotation is fully determined (no rotation other than the identity keeps
 ``gᵀ·R·E·Rᵀ·f`` constant for every attitude ``R``), and the constant itself is the inclination.
 
-Method: every right-angle orientation is tried as a start (the firmwares' discrete mountings), the
-best is refined by nonlinear least squares (scipy, robust loss against readings taken while the
-unit accelerated) over a rotation vector and the inclination.  The readings are paired by time: the
-accelerometer is interpolated to each magnetometer reading's time stamp, never taken from the message
-that happened to carry the reading (reference §16: pairing as sent biased a mounting by 1.8°).  A
-delay between the two clocks is *not* fitted: at a steady turning rate a delay is exactly a fixed
-turn of the sensor, so a fitted lag would swallow the very misalignment being measured — backends
-stamp each reading with the time it was taken.
+Method: the magnetometer's time skew against the accelerometer is found first
+(:mod:`magline.core.mounting.skew`: neither firmware stamps a reading with the instant it was taken,
+and a skew at 60°/s is a degree of apparent misalignment); every right-angle orientation is tried as a
+start at that skew (the firmwares' discrete mountings), and the best is refined by nonlinear least
+squares (scipy, robust loss against readings taken while the unit accelerated) over a rotation vector,
+the inclination and the skew together, so the mounting's σ includes what the skew leaves uncertain.
+A skew is not a turned sensor only while the unit turns about more than one axis: where the tumble
+cannot tell them apart the σ says so and the mounting is not proven.
 """
 
 from __future__ import annotations
@@ -26,9 +26,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from magline.core.mounting.orientations import RIGHT_ANGLE, nearest_right_angle
+from magline.core.mounting.skew import (
+    MIN_PAIRS,
+    SKEW_SEARCH_MS,
+    SKEW_STEP_MS,
+    GravityTrack,
+    coarse_skew_ms,
+    unit_rows,
+)
 
-STILL_TOLERANCE = 0.08  # |a| within 8 % of gravity: readings taken while the unit accelerated are left out
-MIN_PAIRS = 30
 ROBUST_SCALE = 0.01  # soft-L1 scale of the cosine residual (about 0.6° near 90°)
 MAX_SIGMA_DEG = 3.0  # a mounting known worse than this is not proven (too few distinct attitudes)
 
@@ -64,6 +70,8 @@ class MountingEstimate:
     inclination_sigma_deg: float
     angle_rms_deg: float  # RMS spread of the gravity-to-field angle after the fit
     pairs: int  # magnetometer readings paired with a still accelerometer reading
+    skew_ms: float = 0.0  # the reading belongs this much after its stamp, on the accelerometer's clock
+    skew_sigma_ms: float = 0.0
 
     @property
     def right_angle(self) -> tuple[int, float]:
@@ -79,39 +87,8 @@ class MountingEstimate:
         return {"data_to_body": np.round(self.data_to_body, 6).tolist(), "sigma_deg": self.sigma_deg,
                 "inclination_deg": self.inclination_deg, "inclination_sigma_deg": self.inclination_sigma_deg,
                 "angle_rms_deg": self.angle_rms_deg, "pairs": self.pairs,
+                "skew_ms": round(self.skew_ms, 2), "skew_sigma_ms": round(self.skew_sigma_ms, 2),
                 "nearest_orientation": value, "from_nearest_deg": residual}
-
-
-def _unit(v: NDArray) -> NDArray:
-    return v / np.linalg.norm(v, axis=1, keepdims=True)
-
-
-def _sorted_imu(imu: ImuSeries) -> tuple[NDArray, NDArray]:
-    t = np.asarray(imu.t_ms, float)
-    order = np.argsort(t)
-    return t[order], np.asarray(imu.accel_mss, float)[order]
-
-
-def _still_inside(t_mag: NDArray, t: NDArray, acc: NDArray, imu: ImuSeries) -> NDArray:
-    """The magnetometer readings with an accelerometer reading around them that sees gravity alone."""
-    when = np.asarray(t_mag, float)
-    inside = (when >= t[0]) & (when <= t[-1])
-    a = np.column_stack([np.interp(when, t, acc[:, k]) for k in range(3)])
-    g = np.median(np.linalg.norm(acc, axis=1))
-    still = inside & (np.abs(np.linalg.norm(a, axis=1) - g) < STILL_TOLERANCE * g)
-    if imu.gyro_rads is not None and len(imu.gyro_rads) == len(t):
-        rate = np.linalg.norm(np.asarray(imu.gyro_rads, float)[np.argsort(np.asarray(imu.t_ms, float))], axis=1)
-        still &= np.interp(when, t, rate) < np.radians(120.0)
-    return still
-
-
-def _paired(mag: NDArray, t_mag: NDArray, imu: ImuSeries) -> tuple[NDArray, NDArray]:
-    """Unit field and unit specific-force vectors at the same instants (still readings only)."""
-    t, acc = _sorted_imu(imu)
-    keep = _still_inside(t_mag, t, acc, imu)
-    when = np.asarray(t_mag, float)[keep]
-    a = np.column_stack([np.interp(when, t, acc[:, k]) for k in range(3)])
-    return _unit(np.asarray(mag, float)[keep]), _unit(a)
 
 
 def _spread(m: NDArray, a: NDArray, r: NDArray) -> float:
@@ -162,31 +139,53 @@ def estimate_mounting(mag_cal: NDArray, t_mag_ms: NDArray, imu: ImuSeries | None
     if t_mag_ms is None or len(t_mag_ms) != len(mag_cal):
         raise MountingUnobservable("the magnetometer readings carry no time stamps to pair them with gravity")
 
-    m, a = _paired(mag_cal, t_mag_ms, imu)
-    if len(m) < MIN_PAIRS:
-        raise MountingUnobservable(f"only {len(m)} magnetometer readings were taken while the unit was still "
-                                   f"enough to see gravity ({MIN_PAIRS} needed)")
-    start = min(RIGHT_ANGLE.values(), key=lambda r: _spread(m, a, r))
+    track = GravityTrack.of(imu.t_ms, imu.accel_mss, imu.gyro_rads)
+    readings = unit_rows(np.asarray(mag_cal, float))
+    stamps = np.asarray(t_mag_ms, float)
+    coarse = coarse_skew_ms(readings, stamps, track)
+    accel, usable = track.at(stamps + (coarse or 0.0))
+    if coarse is None or usable.sum() < MIN_PAIRS:
+        raise MountingUnobservable(f"only {int(usable.sum())} magnetometer readings were taken while the unit was "
+                                   f"still enough to see gravity ({MIN_PAIRS} needed)")
+    m, t = readings[usable], stamps[usable]
+    start = min(RIGHT_ANGLE.values(), key=lambda r: _spread(m, unit_rows(accel[usable]), r))
+
+    def gravity(skew: float) -> NDArray:
+        return unit_rows(track.at(t + skew)[0])
 
     def residuals(p: NDArray) -> NDArray:
         r = Rotation.from_rotvec(p[:3]).as_matrix() @ start
-        return np.einsum("ij,ij->i", a, m @ r.T) + np.sin(p[3])
+        return np.einsum("ij,ij->i", gravity(p[4]), m @ r.T) + np.sin(p[3])
 
-    incl0 = -np.arcsin(np.clip(np.mean(np.einsum("ij,ij->i", a, m @ start.T)), -1, 1))
-    fit = least_squares(residuals, np.array([0.0, 0.0, 0.0, incl0]), loss="soft_l1", f_scale=ROBUST_SCALE)
+    incl0 = -np.arcsin(np.clip(np.mean(np.einsum("ij,ij->i", gravity(coarse), m @ start.T)), -1, 1))
+    reach = SKEW_SEARCH_MS + SKEW_STEP_MS
+    fit = least_squares(residuals, np.array([0.0, 0.0, 0.0, incl0, coarse]), loss="soft_l1", f_scale=ROBUST_SCALE,
+                        x_scale=np.array([0.01, 0.01, 0.01, 0.01, 1.0]),
+                        bounds=([-np.inf] * 4 + [-reach], [np.inf] * 4 + [reach]))
     rotation = Rotation.from_rotvec(fit.x[:3]).as_matrix() @ start
-    inclination = float(fit.x[3])
+    inclination, skew = float(fit.x[3]), float(fit.x[4])
+    variance = residual_variance(fit.fun, len(fit.x))
     try:
-        cov = residual_variance(fit.fun, len(fit.x)) * np.linalg.inv(fit.jac.T @ fit.jac)
+        cov = variance * np.linalg.inv(fit.jac.T @ fit.jac)
+        held = variance * np.linalg.inv(fit.jac[:, :4].T @ fit.jac[:, :4])  # the skew taken as known
     except np.linalg.LinAlgError:
         raise MountingUnobservable("the attitudes seen do not determine the mounting") from None
-    sigma_rot = float(np.degrees(np.sqrt(max(np.linalg.eigvalsh(cov[:3, :3]).max(), 0.0))))
+    sigma_rot = _largest_sigma_deg(cov[:3, :3])
     sigma_incl = float(np.degrees(np.sqrt(max(cov[3, 3], 0.0))))
     if not np.isfinite(sigma_rot) or sigma_rot > MAX_SIGMA_DEG:
+        if _largest_sigma_deg(held[:3, :3]) <= MAX_SIGMA_DEG:
+            raise MountingUnobservable(
+                f"the tumble cannot tell the magnetometer's time skew from a turned sensor (mounting ±"
+                f"{sigma_rot:.1f}° 1σ, ±{MAX_SIGMA_DEG:g}° needed): turn the unit about more than one axis")
         raise MountingUnobservable(f"the attitudes seen determine the mounting only to ±{sigma_rot:.1f}° "
                                    f"(1σ; ±{MAX_SIGMA_DEG:g}° needed): tumble through more orientations")
-    angles = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", a, m @ rotation.T), -1, 1)))
+    angles = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", gravity(skew), m @ rotation.T), -1, 1)))
     return MountingEstimate(data_to_body=rotation, sigma_deg=sigma_rot, inclination_deg=float(np.degrees(inclination)),
                             inclination_sigma_deg=sigma_incl,
                             angle_rms_deg=float(np.sqrt(np.mean((angles - np.mean(angles)) ** 2))),
-                            pairs=len(m))
+                            pairs=len(m), skew_ms=skew, skew_sigma_ms=float(np.sqrt(max(cov[4, 4], 0.0))))
+
+
+def _largest_sigma_deg(cov: NDArray) -> float:
+    """1σ of a rotation's least certain axis (degrees) from its rotation-vector covariance."""
+    return float(np.degrees(np.sqrt(max(np.linalg.eigvalsh(cov).max(), 0.0))))

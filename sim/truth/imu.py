@@ -1,6 +1,6 @@
 """A tumbling unit as its magnetometer *and* its accelerometer see it, with known truth.
 
-Why in core: the mounting check's tests and benchmark must draw the same tumbles, so that "the
+Why one place: the mounting check's tests and benchmark must draw the same tumbles, so that "the
 mounting is recovered to 0.3°" means one thing.  The attitude is the simulators' spiral
 (:func:`magline.sim.magnetometers.attitude` follows the same path) at a careful
 operator's rate; the accelerometer reads gravity plus its own noise and a hand's slow accelerations.
@@ -12,6 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from magline.sim.truth.attitudes import hand_attitudes, spiral_attitude
 from magline.sim.truth.sensor import GRAVITY_MSS, earth_field_ned
 
 HAND_MSS = 0.1  # RMS of the small, slow accelerations of a hand holding the unit (smoothed over 0.5 s)
@@ -40,21 +41,10 @@ def tumble_with_imu(mounted: NDArray, rng: np.random.Generator, *, seconds: floa
 
 
 def _poses(t: NDArray, steady: bool, field: NDArray) -> Rotation:
-    """Body → NED attitudes along the simulators' spiral (the field sweeps the sphere pole to pole while
-    the unit spins), each the smallest turn that shows the field in that body direction."""
-    from magline.sim.magnetometers import SPIN_RAD_S, SWEEP_S
-
+    """Body → NED attitudes along the simulators' spiral (:mod:`magline.sim.truth.attitudes`) at
+    ``RATE``; unsteady: a hand that speeds up and slows down."""
     t = RATE * (t if steady else t + 1.5 * np.sin(0.8 * t))
-    phase = (t / SWEEP_S) % 2.0
-    u = np.where(phase <= 1.0, phase, 2.0 - phase)
-    z = 1.0 - 2.0 * u
-    r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
-    seen = np.column_stack([r * np.cos(SPIN_RAD_S * t), r * np.sin(SPIN_RAD_S * t), z])
-    north = field / np.linalg.norm(field)
-    axis = np.cross(north, seen)
-    sin = np.linalg.norm(axis, axis=1, keepdims=True)
-    angle = np.arctan2(sin[:, 0], seen @ north)
-    return Rotation.from_rotvec(axis / np.maximum(sin, 1e-12) * angle[:, None]).inv()  # NED → body, inverted
+    return spiral_attitude(t, field)
 
 
 def simulator_fields(motion: str, t_s: NDArray, speed: float, field_ned: NDArray,
@@ -86,3 +76,33 @@ def compass_pair(rng: np.random.Generator, *, motion: str, speed: float, lag_s: 
     accel = simulator_fields(motion, t_imu, speed, field, np.array([0.0, 0.0, -GRAVITY_MSS]))
     return (a + rng.normal(0.0, noise_ut, a.shape), t_a * 1000.0, b + rng.normal(0.0, noise_ut, b.shape),
             t_b * 1000.0, (t_imu * 1000.0, accel))
+
+
+def skewed_tumble(mounted: NDArray, rng: np.random.Generator, *, rate_dps: float, skew_s: float,
+                  seconds: float = 40.0, mag_hz: float = 10.0, message_hz: float = 50.0, noise_ut: float = 0.3,
+                  accel_noise_mss: float = 0.02, field_ut: float = 48.0,
+                  inclination_deg: float = 62.0) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray]:
+    """An operator's free tumble at a mean ``rate_dps`` as a firmware streams it
+    (:func:`~magline.sim.truth.attitudes.hand_attitudes`): ``(mag_ut, t_mag_ms, accel_mss, t_acc_ms,
+    offset_ms)`` — the last, per reading, how much later than its stamp it was really taken.
+
+    The accelerometer is read at every message (``message_hz``) and stamped with the message's time;
+    the magnetometer is read at ``mag_hz`` and each reading is stamped with the first message after
+    ``skew_s`` before it was taken — so pairing a reading with the accelerometer at its stamp plus
+    ``skew_s`` is right to within one message period (positive: the reading belongs later than its
+    stamp, as ArduCopter's compass; negative: earlier, as PX4's sensor_mag in SCALED_IMU)."""
+    field = earth_field_ned(field_ut, inclination_deg)
+    t_grid, attitudes = hand_attitudes(rng, seconds, rate_dps)
+    from scipy.spatial.transform import Slerp
+
+    along = Slerp(t_grid, attitudes)
+    t_msg = np.arange(0.2, seconds, 1.0 / message_hz)
+    accel = along(t_msg).inv().apply([0.0, 0.0, -GRAVITY_MSS]) + rng.normal(0.0, accel_noise_mss, (len(t_msg), 3))
+    taken = np.arange(0.3, seconds - 0.3, 1.0 / mag_hz) + rng.uniform(0.0, 1.0 / mag_hz)
+    body = along(taken).inv().apply(field)
+    mag = body @ np.asarray(mounted) + rng.normal(0.0, noise_ut, body.shape)
+    due = taken - skew_s
+    first = np.searchsorted(t_msg, due)
+    inside = (first > 0) & (first < len(t_msg))
+    stamps = t_msg[first[inside]]
+    return mag[inside], stamps * 1000.0, accel, t_msg * 1000.0, (taken[inside] - stamps) * 1000.0

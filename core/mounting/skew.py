@@ -1,0 +1,122 @@
+"""When was a magnetometer reading taken, on the accelerometer's clock?
+
+Why this is needed: neither firmware streams a magnetometer reading with the instant it was taken.
+PX4's SCALED_IMU carries the IMU's time with the latest ``sensor_mag``, which is 28–36 ms older
+(PX4 v1.16 SITL against an analytic truth); on ArduCopter SITL the compass readings fit best placed
+about 40 ms *after* the message they first appear in.  Paired at their stamps, a good compass tumbled
+at 60°/s read 2.2–3.3° of mounting error and a fast PX4 tumble 16–20° (issue 50).
+
+How: the skew is the shift of the magnetometer's stamps that makes the angle between gravity and the
+calibrated field constant over the tumble.  A shift is *not* the same as a turned sensor as long as
+the unit turns about more than one axis (a hand, a three-axis gimbal): a shift turns each reading
+about the axis the unit is turning about at that instant.  This module gives the accelerometer at any
+instant (a smoothing spline through its readings: a straight line between readings 30° apart cuts
+the corner) and a coarse search for the shift; :mod:`magline.core.mounting.estimate` refines it together
+with the mounting and states both σ.
+
+The coarse search needs no mounting: ``gᵀ·R·m = −sin(inclination)`` is linear in the nine entries of
+``R`` and the constant, so for each shift the smallest singular value of the readings' matrix
+``[g⊗m, −1]`` says how well *some* matrix makes the angle constant.  With attitudes spread over the
+sphere only the right rotation (up to scale) does.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+SKEW_SEARCH_MS = 150.0  # the largest skew looked for, either sign (the firmwares measured: −36 … +40 ms)
+SKEW_STEP_MS = 3.0  # the coarse search's step (the valley is tens of ms wide even at 1,600°/s)
+COARSE_READINGS = 300
+MAX_GAP_PERIODS = 3.0  # no accelerometer between readings further apart than this: nothing paired in the gap
+STILL_TOLERANCE = 0.08  # |a| within 8 % of gravity: readings taken while the unit accelerated are left out
+MIN_PAIRS = 30
+# The accelerometer's smoothing spline's stiffness, times the stream's period cubed.  Why smooth: an
+# interpolant through noisy readings is noisier at a reading than between two (where it averages
+# them), so the fit preferred stamps half a period off the readings and pulled the skew there by up to
+# half a period; with this stiffness the noise is the same everywhere between readings (±2 %) and a
+# rotation of 30° per reading keeps its direction (a circle's is exact) and 99 % of its length.
+SMOOTHING = 0.1
+
+
+def unit_rows(v: NDArray) -> NDArray:
+    return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+@dataclass
+class GravityTrack:
+    """The accelerometer at any instant of its stream, and whether it then saw gravity alone."""
+
+    t_ms: NDArray  # distinct stamps, sorted
+    accel: NDArray  # their readings (readings sharing a stamp averaged)
+    gyro_rads: NDArray | None  # the body's rate at the same stamps, where the stream has it
+    gravity: float  # |g| as the accelerometer reads it (the median magnitude)
+    period_ms: float  # the stream's median period
+    _spline: object = None
+
+    @classmethod
+    def of(cls, t_ms: NDArray, accel: NDArray, gyro_rads: NDArray | None = None) -> GravityTrack:
+        stamps, where = np.unique(np.asarray(t_ms, float), return_inverse=True)
+        count = np.bincount(where)[:, None]
+        mean = np.zeros((len(stamps), 3))
+        np.add.at(mean, where, np.asarray(accel, float))
+        gyro = None
+        if gyro_rads is not None and len(gyro_rads) == len(where):
+            gyro = np.zeros((len(stamps), 3))
+            np.add.at(gyro, where, np.asarray(gyro_rads, float))
+            gyro /= count
+        mean /= count
+        period = float(np.median(np.diff(stamps))) if len(stamps) > 1 else float("inf")
+        return cls(stamps, mean, gyro, float(np.median(np.linalg.norm(mean, axis=1))), period)
+
+    def at(self, when_ms: NDArray) -> tuple[NDArray, NDArray]:
+        """The accelerometer at ``when_ms`` and which of those instants are usable: inside the stream,
+        not in a gap, and seeing gravity alone (the unit not accelerated, not turning beyond 120°/s
+        where the gyro says so)."""
+        from scipy.interpolate import make_smoothing_spline  # on use: scipy costs every command start
+
+        when = np.asarray(when_ms, float)
+        t = self.t_ms
+        if len(t) < 4:
+            return np.zeros((len(when), 3)), np.zeros(len(when), bool)
+        usable = (when >= t[0]) & (when <= t[-1])
+        right = np.clip(np.searchsorted(t, when), 1, len(t) - 1)
+        usable &= (t[right] - t[right - 1]) <= MAX_GAP_PERIODS * self.period_ms
+        if self._spline is None:
+            stiffness = SMOOTHING * self.period_ms**3
+            self._spline = [make_smoothing_spline(t, self.accel[:, k], lam=stiffness) for k in range(3)]
+        values = np.column_stack([spline(np.clip(when, t[0], t[-1])) for spline in self._spline])
+        usable &= np.abs(np.linalg.norm(values, axis=1) - self.gravity) < STILL_TOLERANCE * self.gravity
+        if self.gyro_rads is not None:
+            rate = np.linalg.norm(self.gyro_rads, axis=1)
+            usable &= np.interp(when, t, rate) < np.radians(120.0)
+        return values, usable
+
+
+def constancy_cost(mag_unit: NDArray, accel_unit: NDArray) -> float:
+    """How far the best linear map keeps ``gᵀ·A·m`` constant: the smallest singular value² of the
+    readings' matrix per reading (the smallest eigenvalue of its 10×10 Gram matrix, which costs a
+    fraction of the tall matrix's SVD)."""
+    rows = np.einsum("ij,ik->ijk", accel_unit, mag_unit).reshape(len(mag_unit), 9)
+    matrix = np.column_stack([rows, -np.ones(len(mag_unit))])
+    return float(max(np.linalg.eigvalsh(matrix.T @ matrix)[0], 0.0) / len(mag_unit))
+
+
+def coarse_skew_ms(mag_unit: NDArray, t_mag_ms: NDArray, track: GravityTrack) -> float | None:
+    """The shift of the magnetometer's stamps (ms, within ±``SKEW_SEARCH_MS``) that best keeps the
+    gravity–field angle constant; None when no shift leaves enough readings to pair.  At most
+    ``COARSE_READINGS`` readings, evenly spread over the tumble, take part: the search only has to
+    find the valley the refinement starts in."""
+    pick = np.unique(np.linspace(0, len(mag_unit) - 1, min(len(mag_unit), COARSE_READINGS)).astype(int))
+    mag_unit, t_mag_ms = mag_unit[pick], np.asarray(t_mag_ms, float)[pick]
+    best: tuple[float, float] | None = None
+    for shift in np.arange(-SKEW_SEARCH_MS, SKEW_SEARCH_MS + SKEW_STEP_MS / 2, SKEW_STEP_MS):
+        accel, usable = track.at(t_mag_ms + shift)
+        if usable.sum() < MIN_PAIRS:
+            continue
+        cost = constancy_cost(mag_unit[usable], unit_rows(accel[usable]))
+        if best is None or cost < best[0]:
+            best = (cost, float(shift))
+    return None if best is None else best[1]

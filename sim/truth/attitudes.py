@@ -1,0 +1,94 @@
+"""The attitudes the simulated fixtures and operators turn a unit through (body → NED).
+
+Why one module: the simulated flight controllers, the simulated gimbal, the synthetic tumbles of the
+tests and the benchmarks must turn the unit the same way, so that a figure measured on one holds for
+the others.
+
+Why the attitude is built as three turns and not as "the smallest turn that shows the field in that
+body direction": that smallest turn makes gravity a function of the field's direction alone (two
+degrees of freedom, where a hand or a three-axis gimbal has three) and flips the unit through 180° in
+an instant where the spiral passes opposite the field.  On such a path a delay between the
+magnetometer and the accelerometer is indistinguishable from a turned sensor, so no test could tell a
+mounting from a time skew (issue 50).  Here the field's direction in the body follows the same spiral
+(azimuth ``φ`` spinning, polar angle ``θ`` sweeping pole to pole), and the unit also rocks about the
+field line by ``ψ`` — which changes what the accelerometer sees and leaves the magnetometer's
+readings exactly as they were.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+SWEEP_S = 8.0  # a full pole-to-pole sweep of the tumble at speed 1
+SPIN_RAD_S = 2 * np.pi * 0.9  # the field's azimuth in the body: 0.9 turns a second at speed 1
+ROCK_RAD = np.radians(45.0)  # the rocking about the field line: amplitude …
+ROCK_PERIOD_S = 2.0  # … and period at speed 1
+GIMBAL_STEPS = 8  # a gimbal's pitch steps per sweep
+DEFAULT_FIELD_DIR = np.array([0.47, 0.0, 0.88])
+
+
+def spiral_angles(t: float | NDArray, stepped: bool = False) -> tuple[NDArray, NDArray]:
+    """The field's azimuth ``φ`` and polar angle ``θ`` in the body at motion time ``t``: a spherical
+    spiral sweeping pole to pole and back every ``2·SWEEP_S``; ``stepped``: the polar angle in
+    ``GIMBAL_STEPS`` steps (a gimbal's pitch), the azimuth continuous."""
+    t = np.asarray(t, float)
+    phase = (t / SWEEP_S) % 2.0
+    u = np.where(phase <= 1.0, phase, 2.0 - phase)  # 0..1..0
+    if stepped:
+        u = (np.floor(u * GIMBAL_STEPS) + 0.5) / GIMBAL_STEPS
+    return SPIN_RAD_S * t, np.arccos(np.clip(1.0 - 2.0 * u, -1.0, 1.0))
+
+
+def field_frame(field_dir: NDArray | None) -> Rotation:
+    """A fixed turn taking the NED field direction onto +Z (the spiral's pole)."""
+    f = DEFAULT_FIELD_DIR if field_dir is None else np.asarray(field_dir, float)
+    f = f / np.linalg.norm(f)
+    turn, _ = Rotation.align_vectors([[0.0, 0.0, 1.0]], [f])
+    return turn
+
+
+def spiral_attitude(t: float | NDArray, field_dir: NDArray | None = None, *, stepped: bool = False,
+                    rock: bool = True) -> Rotation:
+    """Body → NED at motion time ``t`` (seconds at speed 1; scalar or array): the field seen in the
+    body follows the spiral of :func:`spiral_angles`, and the unit rocks ``±ROCK_RAD`` about the field
+    line (``rock=False``: it does not, for a two-axis fixture)."""
+    scalar = np.ndim(t) == 0
+    t = np.atleast_1d(np.asarray(t, float))
+    phi, theta = spiral_angles(t, stepped)
+    psi = ROCK_RAD * np.sin(2.0 * np.pi * t / ROCK_PERIOD_S) if rock else np.zeros_like(phi)
+    z, y = np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0])
+    ned_to_body = (Rotation.from_rotvec(np.outer(phi, z)) * Rotation.from_rotvec(np.outer(theta, y))
+                   * Rotation.from_rotvec(np.outer(psi, z)) * field_frame(field_dir))
+    if scalar:
+        ned_to_body = ned_to_body[0]
+    return ned_to_body.inv()
+
+
+def spiral_direction(t: float | NDArray, stepped: bool = False) -> NDArray:
+    """The field's unit direction in the body at motion time ``t`` (what the magnetometer sees)."""
+    phi, theta = spiral_angles(t, stepped)
+    return np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], axis=-1)
+
+
+def hand_attitudes(rng: np.random.Generator, seconds: float, rate_dps: float,
+                   step_s: float = 0.002) -> tuple[NDArray, Rotation]:
+    """An operator's free tumble on a grid of ``step_s``: ``(t_s, body → NED)``.
+
+    The body's angular velocity is a smooth random process (a few slow sines per axis, 0.03–0.4 Hz)
+    scaled to a mean rate of ``rate_dps``: the turning axis wanders through the body as a hand's does,
+    which a time skew between two sensors cannot imitate."""
+    t = np.arange(0.0, seconds + 0.5, step_s)
+    rate = np.zeros((len(t), 3))
+    for axis in range(3):
+        for _ in range(4):
+            rate[:, axis] += rng.normal() * np.sin(2 * np.pi * rng.uniform(0.03, 0.4) * t + rng.uniform(0, 2 * np.pi))
+    rate *= np.radians(rate_dps) / np.mean(np.linalg.norm(rate, axis=1))
+    steps = Rotation.from_rotvec(rate[:-1] * step_s).as_quat()
+    current = Rotation.random(random_state=rng)
+    quats = [current.as_quat()]
+    for q in steps:
+        current = current * Rotation.from_quat(q)
+        quats.append(current.as_quat())
+    return t, Rotation.from_quat(np.array(quats))
