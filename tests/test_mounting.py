@@ -29,6 +29,12 @@ from magline.core.results.tables import attempt_streams
 from magline.sim import SimFaults, create_sim
 from magline.sim.truth.imu import skewed_tumble, tumble_with_imu
 
+# A deviation a right estimate exceeds with a probability below 1e-5, in units of its own stated σ: the
+# angle of a rotation whose three axes each have 1σ ≤ σ is beyond 5σ with probability 1.5e-5 (χ, 3
+# degrees of freedom), a single normal figure with 6e-7.  Why not 3σ: a three-compass unit has three
+# such angles, and 3σ is crossed by 2.9 % of right ones (a CI run FAILed a good compass at 2.3σ of
+# a bound of 1° set when the simulators paired every reading exactly).
+Z_NEVER = 5.0
 AP_OPTIONS = {"connect_timeout_s": 5.0, "boot_timeout_s": 10.0, "prearm_wait_s": 0.3}
 PX4_OPTIONS = {"connect_timeout_s": 5.0, "boot_timeout_s": 10.0, "save_settle_s": 0.1}
 
@@ -185,7 +191,8 @@ def test_a_good_three_compass_ardupilot_unit_passes_with_every_compass_calibrate
             assert sim.configured(("", "2", "3").index(suffix))
         for prefix in ("", "mag2.", "mag3."):
             assert measured(record, prefix + "orientation").verdict is Verdict.PASS
-            assert measured(record, prefix + "mounting_error_deg").value < 1.0
+            sigma = measured(record, prefix + "mounting_sigma_deg").value
+            assert measured(record, prefix + "mounting_error_deg").value < Z_NEVER * sigma
             assert abs(measured(record, prefix + "inclination_error_deg").value) < 1.0
         for pair in ("mag1-mag2.", "mag1-mag3.", "mag2-mag3."):
             assert measured(record, pair + "heading_agreement_median_deg").value < 1.0
@@ -310,7 +317,7 @@ def test_two_compasses_that_disagree_by_five_degrees_fail(tmp_path):
         assert measured(record, "mag1-mag2.heading_agreement_median_deg").verdict is Verdict.FAIL
         # within 3σ of the truth: the σ is the estimate's own, its skew against the accelerometer included
         sigma = measured(record, "mag2.mounting_sigma_deg").value
-        assert measured(record, "mag2.mounting_error_deg").value == pytest.approx(5.0, abs=3.0 * sigma)
+        assert measured(record, "mag2.mounting_error_deg").value == pytest.approx(5.0, abs=Z_NEVER * sigma)
         assert measured(record, "mag1-mag3.heading_agreement_max_deg").verdict is Verdict.PASS
 
 
@@ -451,10 +458,10 @@ def test_misalignment_write_holds_an_external_px4_compass_misalignment_as_custom
         written = [stored[f"CAL_MAG{slot}_{a}"] for a in ("ROLL", "PITCH", "YAW")]
         held = Rotation.from_euler("ZYX", written[::-1], degrees=True)
         sigma = measured(record, "mounting_sigma_deg").value
-        assert (held.inv() * mast.rotation).magnitude() < np.radians(3.0 * sigma), (written, [roll, pitch, yaw])
+        assert (held.inv() * mast.rotation).magnitude() < np.radians(Z_NEVER * sigma), (written, [roll, pitch, yaw])
         assert record.params_read_back[f"CAL_MAG{slot}_YAW"] == pytest.approx(written[2])  # proven after the cycle
         error = measured(record, "mounting_error_deg")
-        assert error.value == pytest.approx(2.69, abs=3.0 * sigma) and "written as a custom rotation" in error.note
+        assert error.value == pytest.approx(2.69, abs=Z_NEVER * sigma) and "written as a custom rotation" in error.note
         # the pair is judged as the firmware will hold the mast: its 2.7° no longer parts the headings
         assert measured(record, "mag1-mag2.heading_agreement_median_deg").value < 0.6
         internal = measured(record, "mag2.mounting_error_deg")
@@ -472,7 +479,7 @@ def test_misalignment_write_holds_an_external_px4_compass_misalignment_as_custom
         (tmp_path / "b").mkdir()
         again = run_unit(write_station("px4-sim.yaml", tmp_path / "b", f"udpout://{host}:{port}", PX4_OPTIONS))
         assert again.verdict is Outcome.PASS, again.cause
-        assert measured(again, "mounting_error_deg").value < 3.0 * measured(again, "mounting_sigma_deg").value
+        assert measured(again, "mounting_error_deg").value < Z_NEVER * measured(again, "mounting_sigma_deg").value
         assert measured(again, "orientation").value == 0
 
 
@@ -483,7 +490,7 @@ def test_each_compass_is_paired_at_the_instant_it_was_read_whatever_the_firmware
     stream both (compressed with the motion's speed, so at speed 5 a 6–8 ms skew turns the unit by the
     ≈ 10° a real skew does), and paired at their stamps a good compass read ≈ 10° of mounting error.  The
     station finds each compass's skew with its sign, records it, pairs the compasses with it, and the
-    good unit passes with its mounting within 3σ of true."""
+    good unit passes with its mounting within its σ of true (``Z_NEVER``)."""
     workdir = tmp_path / "fc"
     workdir.mkdir()
     listen = "udp:127.0.0.1:0" if flavour == "px4" else "tcp:127.0.0.1:0"
@@ -498,9 +505,9 @@ def test_each_compass_is_paired_at_the_instant_it_was_read_whatever_the_firmware
     for prefix in ("", "mag2."):
         skew = measured(record, prefix + "time_skew_ms").value
         sigma = measured(record, prefix + "time_skew_sigma_ms").value
-        assert np.sign(skew) == np.sign(skew_ms) and abs(skew - skew_ms) < 3.0 * sigma, (skew, sigma, skew_ms)
+        assert np.sign(skew) == np.sign(skew_ms) and abs(skew - skew_ms) < Z_NEVER * sigma, (skew, sigma, skew_ms)
         mounting = measured(record, prefix + "mounting_error_deg").value
-        assert mounting < 3.0 * measured(record, prefix + "mounting_sigma_deg").value
+        assert mounting < Z_NEVER * measured(record, prefix + "mounting_sigma_deg").value
     assert measured(record, "mag1-mag2.heading_agreement_median_deg").value < 0.5
     assert record.unit_info["mounting"]["mag1"]["skew_ms"] == pytest.approx(measured(record, "time_skew_ms").value,
                                                                                abs=0.01)

@@ -73,7 +73,7 @@ def spiral_direction(t: float | NDArray, stepped: bool = False) -> NDArray:
 
 
 def hand_attitudes(rng: np.random.Generator, seconds: float, rate_dps: float,
-                   step_s: float = 0.002) -> tuple[NDArray, Rotation]:
+                   step_s: float = 0.005) -> tuple[NDArray, Rotation]:
     """An operator's free tumble on a grid of ``step_s``: ``(t_s, body → NED)``.
 
     The body's angular velocity is a smooth random process (a few slow sines per axis, 0.03–0.4 Hz)
@@ -85,10 +85,11 @@ def hand_attitudes(rng: np.random.Generator, seconds: float, rate_dps: float,
         for _ in range(4):
             rate[:, axis] += rng.normal() * np.sin(2 * np.pi * rng.uniform(0.03, 0.4) * t + rng.uniform(0, 2 * np.pi))
     rate *= np.radians(rate_dps) / np.mean(np.linalg.norm(rate, axis=1))
-    steps = Rotation.from_rotvec(rate[:-1] * step_s).as_quat()
-    current = Rotation.random(random_state=rng)
-    quats = [current.as_quat()]
-    for q in steps:
-        current = current * Rotation.from_quat(q)
-        quats.append(current.as_quat())
-    return t, Rotation.from_quat(np.array(quats))
+    steps = Rotation.from_rotvec(rate[:-1] * step_s).as_quat()  # x, y, z, w
+    quats = np.empty((len(t), 4))
+    quats[0] = Rotation.random(random_state=rng).as_quat()
+    for k, (x2, y2, z2, w2) in enumerate(steps):  # q ← q · step (the body turns by its own rate)
+        x1, y1, z1, w1 = quats[k]
+        quats[k + 1] = (w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2, w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+                        w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2, w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2)
+    return t, Rotation.from_quat(quats)
