@@ -448,7 +448,10 @@ def test_misalignment_write_holds_an_external_px4_compass_misalignment_as_custom
         assert mast.external and not board.external
         mast.mount(0, (1.5, -1.0, 2.0))
         host, port = sim.address.split(":")[1:]
-        changes = {"products": {"PX4-X500-100": {"misalignment": "write"}}}
+        # a product that writes its misalignment accepts more of it mechanically: the 2.7° mast against a 5°
+        # limit (against 3° it stood within the estimate's σ of the limit, a coin toss once the skew is estimated)
+        changes = {"products": {"PX4-X500-100": {"misalignment": "write",
+                                                 "limits": {"mounting_error_deg": {"le": 5.0}}}}}
         record = run_unit(write_station("px4-sim.yaml", tmp_path, f"udpout://{host}:{port}", PX4_OPTIONS, changes))
         assert record.verdict is Outcome.PASS, record.cause
         slot = sim.slot_of(mast.device_id)
