@@ -448,10 +448,13 @@ def test_misalignment_write_holds_an_external_px4_compass_misalignment_as_custom
         assert mast.external and not board.external
         mast.mount(0, (1.5, -1.0, 2.0))
         host, port = sim.address.split(":")[1:]
-        # a product that writes its misalignment accepts more of it mechanically: the 2.7° mast against a 5°
-        # limit (against 3° it stood within the estimate's σ of the limit, a coin toss once the skew is estimated)
+        # a product that writes its misalignment accepts more of it mechanically (the 2.7° mast against 5°:
+        # against 3° it stood within the estimate's σ of the limit once the skew is estimated), and its pair
+        # limit leaves room for the written estimate's own error — σ ≈ 0.4° with PX4's 8 ms timing jitter on
+        # this tumble, up to twice that in heading at 62° inclination (a 1° limit FAILed a good pair at 1.08°)
         changes = {"products": {"PX4-X500-100": {"misalignment": "write",
-                                                 "limits": {"mounting_error_deg": {"le": 5.0}}}}}
+                                                 "limits": {"mounting_error_deg": {"le": 5.0},
+                                                            "heading_agreement_median_deg": {"le": 2.0}}}}}
         record = run_unit(write_station("px4-sim.yaml", tmp_path, f"udpout://{host}:{port}", PX4_OPTIONS, changes))
         assert record.verdict is Outcome.PASS, record.cause
         slot = sim.slot_of(mast.device_id)
@@ -465,8 +468,10 @@ def test_misalignment_write_holds_an_external_px4_compass_misalignment_as_custom
         assert record.params_read_back[f"CAL_MAG{slot}_YAW"] == pytest.approx(written[2])  # proven after the cycle
         error = measured(record, "mounting_error_deg")
         assert error.value == pytest.approx(2.69, abs=Z_NEVER * sigma) and "written as a custom rotation" in error.note
-        # the pair is judged as the firmware will hold the mast: its 2.7° no longer parts the headings
-        assert measured(record, "mag1-mag2.heading_agreement_median_deg").value < 0.6
+        # the pair is judged as the firmware will hold the mast: what parts the headings is the written
+        # estimate's own error, not the 2.7°
+        agreement = measured(record, "mag1-mag2.heading_agreement_median_deg").value
+        assert agreement < Z_NEVER * sigma * (1.0 + np.tan(np.radians(62.0))), (agreement, sigma)
         internal = measured(record, "mag2.mounting_error_deg")
         assert "not written" in internal.note and "SENS_BOARD_ROT" in internal.note
         board_slot = sim.slot_of(board.device_id)

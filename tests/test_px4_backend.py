@@ -254,7 +254,8 @@ def test_a_wrong_device_id_is_caught_by_the_firmwares_own_calibrated_output(tmp_
         record = run_unit(station(tmp_path, sim, {"shell_timeout_s": 0.5}, {"magnetometer": 12345}), "SN-WRONG")
         assert record.verdict is Outcome.FAIL
         assert [p.name for p in record.phases if p.outcome is Outcome.FAIL] == ["verify"]
-        assert "the firmware's calibrated field reads" in record.cause and "not applied to this sensor" in record.cause
+        assert "is not magline's calibration of the same raw readings" in record.cause, record.cause
+        assert "the calibration not applied" in record.cause
         assert record.params_read_back == pytest.approx(record.params_written)  # the read-back alone is fooled
 
 
@@ -263,3 +264,53 @@ def test_the_calibrated_output_reads_the_reference_after_a_good_calibration(tmp_
         record = run_unit(station(tmp_path, sim))
         assert record.verdict is Outcome.PASS, record.cause
         assert record.persistence["figures"]["calibrated_field_ut"] == pytest.approx(48.0, rel=0.01)
+
+
+def test_after_the_power_cycle_the_firmware_is_proven_to_apply_the_calibration_where_the_unit_rests(tmp_path):
+    """Issue 50: after the power cycle the simulated unit lies still where its tumble showed the field
+    least.  The station reads the firmware's calibrated output beside the raw readings it was made
+    from and finds magline's calibration applied to them (to noise and quantisation), and holds the
+    magnitude to the reference widened by the fit's own σ in that direction; both are recorded."""
+    with start_sim(tmp_path) as sim:
+        record = run_unit(station(tmp_path, sim))
+        resting = sim.resting
+    assert resting is not None  # the verify phase read a unit lying still after the power cycle
+    assert record.verdict is Outcome.PASS, record.cause
+    figures = record.persistence["figures"]
+    assert abs(figures["applied_difference_ut"]) < 0.3
+    assert 0.0 < figures["calibrated_field_sigma_ut"] < 1.0
+    assert figures["calibrated_field_ut"] == pytest.approx(48.0, rel=0.03)
+
+
+def test_a_simulated_unit_rests_where_its_tumble_showed_the_field_least():
+    from magline.sim.vehicle import least_seen_attitude
+
+    rng = np.random.default_rng(4)
+    seen = rng.normal(size=(3000, 3))
+    seen[:, 2] = np.abs(seen[:, 2])  # a tumble that only ever showed the upper half
+    seen /= np.linalg.norm(seen, axis=1, keepdims=True)
+    field = np.array([20.0, 0.0, 40.0])
+    body = least_seen_attitude(seen, field).inv().apply(field) / np.linalg.norm(field)
+    assert body[2] < -0.95
+
+
+@pytest.mark.parametrize(("fault", "factor"), [("wrong sign", -1.0), ("wrong unit (µT written as G)", 100.0),
+                                                ("not applied (nothing written)", 0.0)])
+def test_a_calibration_the_firmware_does_not_apply_as_fitted_fails_the_proof(tmp_path, monkeypatch, fault, factor):
+    """A conversion mistake at the plugin boundary stores consistently (the read-back matches what was
+    written) and is stored and applied just as well: the firmware's calibrated output, compared with
+    magline's calibration of the same raw readings, fails the unit whatever the fit's quality."""
+    from magline.plugins.px4 import dut as px4_dut
+
+    def mistaken(fit, slot, device_id, prio, with_odiag):
+        params = fit_to_params(fit, slot, device_id, prio, with_odiag)
+        for axis in "XYZ":
+            params[f"CAL_MAG{slot}_{axis}OFF"] *= factor
+        return params
+
+    monkeypatch.setattr(px4_dut, "fit_to_params", mistaken)
+    with start_sim(tmp_path) as sim:
+        record = run_unit(station(tmp_path, sim), "SN-" + fault.split()[1].upper())
+    assert record.verdict is Outcome.FAIL, fault
+    assert [p.name for p in record.phases if p.outcome is Outcome.FAIL] == ["verify"]
+    assert "is not magline's calibration of the same raw readings" in record.cause, record.cause

@@ -28,6 +28,7 @@ from magline.core.fit.objective import (
     residuals_and_jacobian,
     sampson_weights,
 )
+from magline.core.fit.radial import RadialUncertainty
 from magline.core.fit.result import FitOptions, FitRefused, FitResult
 from magline.core.fit.screening import planarity, screen_samples
 from magline.core.fit.solver import SETTLED_STEP, gauss_newton, levenberg_marquardt
@@ -642,4 +643,6 @@ def _assemble(layout, p, cov, gram, x, tau, centre, scale, keep, inliers, reject
         coverage=coverage, coverage_bins=opts.coverage_bins,
         planarity=flat, condition_number=cond, direction_sigma_deg=dir_sigma, drift=drift_info,
         noise_ut=noise, model_misfit=misfit,
+        radial=RadialUncertainty(layout, np.array(p, float), np.array(cov[:3 + layout.n_soft, :3 + layout.n_soft]),
+                                 np.asarray(centre, float), float(scale), field_out),
     )

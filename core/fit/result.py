@@ -13,6 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from magline.core.fit.model import SoftIronModel
+from magline.core.fit.radial import RadialUncertainty
 
 
 class FitRefused(ValueError):
@@ -81,6 +82,8 @@ class FitResult:
     # set when a diagonal / sphere model cannot represent the unit's soft iron (see geometric.py)
     model_misfit: dict[str, Any] | None = None
     extra: dict[str, Any] = field(default_factory=dict)
+    # the radial σ in any direction (geometric fits; None for a coil's affine fit)
+    radial: RadialUncertainty | None = field(default=None, repr=False, compare=False)
 
     @property
     def samples_used(self) -> int:
@@ -113,6 +116,11 @@ class FitResult:
         if drift.get("unresolved"):
             return "the offset drifted, and the drift could be neither set aside nor modelled"
         return ""
+
+    def radial_sigma_ut(self, raw_ut: NDArray) -> NDArray | None:
+        """1σ of the calibrated magnitude this fit gives each raw reading (µT); None when the fit
+        carries no covariance to say it."""
+        return None if self.radial is None else self.radial.sigma_ut(raw_ut)
 
     def apply(self, m_ut: NDArray) -> NDArray:
         """Calibrate raw samples (µT) with this fit (drift-free end state)."""

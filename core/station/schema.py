@@ -258,7 +258,7 @@ class VerifySettings(_Strict):
 # (benchmarks/review_flags.py, 200 good units reviewed) these four drew 29 of the review's 54 flags,
 # every one for an uncertainty larger than the cluster and still inside its limit, which validate judges.
 NOT_PROCESS_FIGURES = ("attempts", "hard_iron_sigma_ut", "direction_sigma_deg", "mounting_sigma_deg",
-                       "drift_detectable_ut")
+                       "drift_detectable_ut", "time_skew_sigma_ms")
 
 
 class ReviewSettings(_Strict):

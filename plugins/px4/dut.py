@@ -38,7 +38,7 @@ from magline.core.dut import (
 from magline.core.faults import StationFault
 from magline.core.fit import FitResult
 from magline.core.links.listening import get_listening
-from magline.core.links.readings import INT16_MG_RANGE_UT, SensorStreams
+from magline.core.links.readings import INT16_MG_RANGE_UT, SensorStreams, untruncate_mg
 from magline.core.station.schema import Product
 from magline.plugins.px4.calibration import (
     PRIO_EXTERNAL,
@@ -357,25 +357,45 @@ class Px4Dut:
     def calibrated_field_ut(self, count: int, sensor: int | None = None) -> np.ndarray | None:
         """HIGHRES_IMU's magnetic field (Gauss, calibrated by the firmware), when this sensor is the
         unit's only magnetometer: with several, it carries whichever PX4's voter selected."""
+        both = self.raw_and_calibrated_ut(count)
+        return None if both is None else both[1]
+
+    def raw_and_calibrated_ut(self, count: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """``count`` of the firmware's calibrated readings (HIGHRES_IMU, Gauss) each with the raw reading
+        it was made from (the latest SCALED_IMU at or before its time, mG, truncation undone), both in
+        µT — what proves the calibration the firmware *applies* (issue 50).  None where HIGHRES_IMU
+        cannot be attributed to this sensor (several magnetometers: it carries the voter's choice) or
+        the firmware does not send it."""
         if len(self.ident.sensors) > 1 or (not self.shell_answers and self._streaming_count > 1):
             return None
-        kind, msg_id = HIGHRES_IMU
-        inbox, handle = self.link.subscribe(kind)
-        rows = []
+        (kind, msg_id), (raw_kind, raw_id) = HIGHRES_IMU, STREAMS[self.sensors[self.device_id]["instance"]]
+        inbox, handles = self.link.subscribe_all([kind, raw_kind])
+        pairs: list[tuple[tuple[float, float, float], tuple[float, float, float]]] = []
+        raw_seen: list[tuple[float, tuple[float, float, float]]] = []
         try:
-            self.link.require_accepted(MAV_CMD_SET_MESSAGE_INTERVAL, f"{kind} stream request", msg_id, 1e6 / 50)
-            while len(rows) < count:
+            for wanted, rate_id in ((kind, msg_id), (raw_kind, raw_id)):
+                self.link.require_accepted(MAV_CMD_SET_MESSAGE_INTERVAL, f"{wanted} stream request", rate_id, 1e6 / 50)
+            while len(pairs) < count:
                 try:
-                    msg = get_listening(inbox, self.opts.stream_timeout_s)
+                    got, msg = get_listening(inbox, self.opts.stream_timeout_s)
                 except queue.Empty:
-                    self.link.require_alive(f"waiting for {kind}")
-                    return None  # the firmware does not send it: nothing to prove with
-                rows.append((msg["xmag"], msg["ymag"], msg["zmag"]))
+                    self.link.require_alive(f"waiting for {kind} and {raw_kind}")
+                    return None  # the firmware does not send them: nothing to prove with
+                if got == raw_kind:
+                    raw_seen.append((float(msg["time_boot_ms"]), (msg["xmag"], msg["ymag"], msg["zmag"])))
+                    continue
+                at = float(msg["time_usec"]) / 1000.0
+                made_from = [row for t, row in raw_seen if t <= at]
+                if made_from:
+                    pairs.append((made_from[-1], (msg["xmag"], msg["ymag"], msg["zmag"])))
         finally:
-            with contextlib.suppress(DutError):
-                self.link.command(MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, -1)
-            self.link.unsubscribe(handle)
-        return np.array(rows, float) * UT_PER_GAUSS
+            for rate_id in (msg_id, raw_id):
+                with contextlib.suppress(DutError):
+                    self.link.command(MAV_CMD_SET_MESSAGE_INTERVAL, rate_id, -1)
+            for handle in handles:
+                self.link.unsubscribe(handle)
+        raw = untruncate_mg(np.array([r for r, _ in pairs], float)) / MG_PER_UT
+        return raw, np.array([c for _, c in pairs], float) * UT_PER_GAUSS
 
     def persistence_problems(self) -> list[str]:
         """The firmware uses the *first* slot whose ID matches; it must be the one written."""
