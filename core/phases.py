@@ -391,11 +391,12 @@ def _calibrated_output_problems(run: RunContext, dut: object, figures: dict) -> 
     applied to the same raw readings, within what noise and the int16 quantisation leave — a wrong
     sign, unit, slot, or a calibration not applied is far outside that, whatever the fit's quality.
     Second, that the sensor is where the tumble left it: the magnitude against the reference, within
-    the station's ``field_tolerance_pct`` widened by the fit's own radial σ in the direction read —
+    the station's ``field_tolerance_pct`` widened by the fit's own radial σ in the direction read (where
+    no raw stream is read, the raw readings behind the output are magline's calibration undone) —
     a unit resting where the tumble saw little is known less well there, and a good one FAILed at
     −3.1 % in such a direction; a warm-up that moved the offset still reads off.  Elsewhere
     (``calibrated_field_ut(count)`` / ``calibrated_fields_ut(count, device_ids)``) the magnitude is held
-    to the tolerance alone.  Field sources whose reference is the field the unit sits in say
+    to that widened tolerance alone.  Field sources whose reference is the field the unit sits in say
     ``reference_is_ambient = True`` (a coil's generated field is gone after its schedule)."""
     read = getattr(dut, "calibrated_field_ut", None)
     reference = run.reference_field_ut
@@ -424,11 +425,15 @@ def _calibrated_output_problems(run: RunContext, dut: object, figures: dict) -> 
         measured = float(np.median(magnitudes))
         figures[f"{prefix}calibrated_field_ut"] = measured
         widening = 0.0
-        if raw is not None and fit is not None:
-            applied = _applied_problem(fit, raw, magnitudes, figures, prefix)
-            if applied:
-                problems.append(whose + applied)
-                continue
+        if fit is not None:
+            if raw is not None:
+                applied = _applied_problem(fit, raw, magnitudes, figures, prefix)
+                if applied:
+                    problems.append(whose + applied)
+                    continue
+            else:  # the raw readings behind the output, as magline's calibration would have made it
+                raw = np.linalg.solve(fit.soft_iron, (np.atleast_2d(readings) @ applied_frame(sensor)).T).T \
+                    + fit.hard_iron_ut
             sigma = fit.radial_sigma_ut(raw)
             if sigma is not None:
                 widening = PROOF_Z * float(np.median(sigma))
@@ -445,6 +450,17 @@ def _calibrated_output_problems(run: RunContext, dut: object, figures: dict) -> 
                             "not applied to this sensor as written, or the sensor's offset moved since its tumble "
                             "(still warming up?)")
     return problems
+
+
+def applied_frame(sensor: object) -> np.ndarray:
+    """The rotation between a sensor's fit frame and the frame its firmware's calibrated output is in
+    (``v_output = R · v_fit``): none where the streamed readings had the orientation applied already
+    (ArduPilot: its fit is in that frame), else the sensor's orientation or custom rotation."""
+    if sensor is None or getattr(sensor, "readings_rotated", False):
+        return np.eye(3)
+    if getattr(sensor, "rotation", None) is not None:
+        return np.asarray(sensor.rotation, float)
+    return orientation_matrix(getattr(sensor, "orientation", 0))
 
 
 def _applied_problem(fit: FitResult, raw_ut: np.ndarray, firmware_ut: np.ndarray, figures: dict,
