@@ -139,7 +139,8 @@ class SimulatedAutopilot(ABC):
         self._streams: dict[int, list[float]] = {}
         self._motion_index = -1
         self._seen_dirs: list[NDArray] = []  # the field's body directions the tumble showed since the last boot
-        self._rest: tuple[Rotation, float] | None = None  # (attitude, until) after a power cycle
+        # after a power cycle: (attitude, the motion index at which the next tumble ends the rest)
+        self._rest: tuple[Rotation, int] | None = None
         self._mag_stream_started: float | None = None
         self._t0 = time.monotonic()
         self._booted_at = self._t0
@@ -307,8 +308,9 @@ class SimulatedAutopilot(ABC):
         self.boots += 1
         self._booted_at = now
         self._next_heartbeat = now
-        if not first and self._seen_dirs and self.rest_after_cycle_s > 0:
-            self._rest = (least_seen_attitude(np.array(self._seen_dirs), self.field_ned), now + self.rest_after_cycle_s)
+        if not first and self._seen_dirs and self.rest_after_cycle:
+            # the station's first stream after the boot reads the proof; the second starts a new tumble
+            self._rest = (least_seen_attitude(np.array(self._seen_dirs), self.field_ned), self._motion_index + 2)
         self._seen_dirs = []
 
     # ------------------------------------------------------------------ storage
@@ -442,18 +444,21 @@ class SimulatedAutopilot(ABC):
     def current_motion(self) -> str:
         return self.motions[min(max(self._motion_index, 0), len(self.motions) - 1)]
 
-    # After a power cycle the unit lies still for a while where the tumble showed the field least
-    # (issue 50): the verify phase reads the firmware's calibrated output in an attitude the fit saw
-    # little of, as on a line where the operator sets the unit down whichever way it came to rest.
-    rest_after_cycle_s = 3.0
+    # After a power cycle the unit lies still where the tumble showed the field least (issue 50): the
+    # verify phase reads the firmware's calibrated output in an attitude the fit saw little of, as on a
+    # line where the unit is set down whichever way it came to rest.  It is picked up again when the
+    # station starts its next tumble (its second stream after the boot; the first is the proof's read)
+    # — not after a time, which a slow machine's verify outlasted and a fast re-test started inside,
+    # tumbling from a still attitude that jumped to the spiral.
+    rest_after_cycle = True
 
     @property
-    def resting(self) -> tuple[Rotation, float] | None:
-        """The attitude the unit rests in after the last power cycle and until when (monotonic s)."""
-        return self._rest
+    def resting(self) -> Rotation | None:
+        """The attitude the unit rests in after the last power cycle, while it rests."""
+        return self._rest[0] if self._rest is not None and self._motion_index < self._rest[1] else None
 
     def attitude_at(self, now: float) -> Rotation:
-        if self._rest is not None and now < self._rest[1] and self.field_provider is None:
+        if self._rest is not None and self._motion_index < self._rest[1] and self.field_provider is None:
             return self._rest[0]
         motion = self.current_motion()
         if motion == "shared" and self.follower is not None:
