@@ -114,6 +114,8 @@ def _mounting_determined(run: RunContext, margin: float):
     sensor's mounting σ is within the margin of what the check needs (its ``mounting_sigma_deg``
     limit, at most the estimator's own bound).  A stream without an accelerometer never will be:
     then the stop does not wait, and the validate phase says the mounting cannot be proven."""
+    skews: dict[str, float] = {}  # each sensor's skew found on an earlier snapshot: the next starts there
+
     def confirm(fits: dict[str, FitResult], snapshot: dict[str, RawSamples], imu: ImuSeries | None):
         if imu is None or not len(imu) or not np.any(np.linalg.norm(imu.accel_mss, axis=1) > 1.0):
             return {}
@@ -123,9 +125,11 @@ def _mounting_determined(run: RunContext, margin: float):
                 return {}
             samples = snapshot[prefix]
             try:
-                estimate = estimate_mounting(calibrated(fit, samples.mag_ut), samples.t_ms, imu)
+                estimate = estimate_mounting(calibrated(fit, samples.mag_ut), samples.t_ms, imu,
+                                             skew_hint_ms=skews.get(prefix))
             except MountingUnobservable:
                 return None
+            skews[prefix] = estimate.skew_ms
             if estimate.sigma_deg > _mounting_sigma_target(run, prefix, margin) or \
                     estimate.inclination_sigma_deg > _limit_over(run, prefix + "inclination_error_deg", ONE_AXIS_Z):
                 return None

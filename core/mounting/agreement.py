@@ -50,11 +50,6 @@ class HeadingAgreement:
     relation: NDArray | None = None  # ``M``: sensor B's field as a linear map of sensor A's
 
 
-def _interp_rows(t_new: NDArray, t: NDArray, values: NDArray) -> NDArray:
-    order = np.argsort(t)
-    return np.column_stack([np.interp(t_new, np.asarray(t)[order], np.asarray(values)[order, k]) for k in range(3)])
-
-
 def slerp_rows(t_new: NDArray, t: NDArray, values: NDArray) -> NDArray:
     """Vectors at ``t_new`` from readings at ``t``: direction along the great circle between the two
     readings around each time, length linearly in between; the ends are held.
@@ -119,11 +114,14 @@ def heading_agreement(body_a: NDArray, t_a_ms: NDArray, body_b: NDArray, t_b_ms:
     inside = (t_a >= lo) & (t_a <= hi)
     if inside.sum() < 10:
         return None
+    up, usable = imu.gravity_track().at(t_a)
+    inside &= usable  # gravity known there: not in a gap of the stream, the unit not accelerated
+    if inside.sum() < 10:
+        return None
     t = t_a[inside]
     a = np.asarray(body_a, float)[inside]
     b = slerp_rows(t, t_b_ms, body_b)
-    up = _interp_rows(t, imu.t_ms, imu.accel_mss)
-    up = up / np.linalg.norm(up, axis=1, keepdims=True)
+    up = up[inside] / np.linalg.norm(up[inside], axis=1, keepdims=True)
     relation, used = fit_relation(a, b)
     vertical = np.einsum("ij,ij->i", a, up)
     horizontal = np.sqrt(np.maximum(np.einsum("ij,ij->i", a, a) - vertical**2, 0.0)) / np.linalg.norm(a, axis=1)

@@ -59,6 +59,14 @@ class ImuSeries:
     def __len__(self) -> int:
         return len(self.t_ms)
 
+    def gravity_track(self) -> GravityTrack:
+        """The accelerometer at any instant (built once per series: every sensor of a unit, and the
+        heading agreement, pair with the same one)."""
+        track = self.__dict__.get("_track")
+        if track is None:
+            track = self.__dict__["_track"] = GravityTrack.of(self.t_ms, self.accel_mss, self.gyro_rads)
+        return track
+
 
 @dataclass
 class MountingEstimate:
@@ -125,10 +133,12 @@ def residual_variance(resid: NDArray, params: int) -> float:
     return scale**2 * len(resid) / dof * factor
 
 
-def estimate_mounting(mag_cal: NDArray, t_mag_ms: NDArray, imu: ImuSeries | None) -> MountingEstimate:
+def estimate_mounting(mag_cal: NDArray, t_mag_ms: NDArray, imu: ImuSeries | None, *,
+                      skew_hint_ms: float | None = None) -> MountingEstimate:
     """The rotation from the calibrated magnetometer's axes (``mag_cal``, rows, any unit) to the body,
     with the field's inclination; raises :class:`MountingUnobservable` with the reason when the
-    readings cannot prove it."""
+    readings cannot prove it.  ``skew_hint_ms``: a skew found on the same stream before (a tumble's
+    earlier snapshot), where the refinement starts instead of the coarse search."""
     from scipy.optimize import least_squares  # on use: scipy costs every command start
     from scipy.spatial.transform import Rotation
 
@@ -139,10 +149,10 @@ def estimate_mounting(mag_cal: NDArray, t_mag_ms: NDArray, imu: ImuSeries | None
     if t_mag_ms is None or len(t_mag_ms) != len(mag_cal):
         raise MountingUnobservable("the magnetometer readings carry no time stamps to pair them with gravity")
 
-    track = GravityTrack.of(imu.t_ms, imu.accel_mss, imu.gyro_rads)
+    track = imu.gravity_track()
     readings = unit_rows(np.asarray(mag_cal, float))
     stamps = np.asarray(t_mag_ms, float)
-    coarse = coarse_skew_ms(readings, stamps, track)
+    coarse = coarse_skew_ms(readings, stamps, track) if skew_hint_ms is None else float(skew_hint_ms)
     accel, usable = track.at(stamps + (coarse or 0.0))
     if coarse is None or usable.sum() < MIN_PAIRS:
         raise MountingUnobservable(f"only {int(usable.sum())} magnetometer readings were taken while the unit was "
