@@ -22,6 +22,7 @@ from magline.core.fit.coverage import bin_index, covered_bins, sphere_centre
 from magline.core.fit.samples_csv import RawSamples
 from magline.core.measurements import Array, Json, Measurement, Numeric
 from magline.core.mounting import ImuSeries, orientation_matrix
+from magline.core.mounting.checks import configured_rotation
 from magline.core.plugins import hookimpl
 from magline.core.record import PersistReport, VerifyReport
 from magline.core.sequencer.context import Acquisition, AcquisitionAborted, RunContext
@@ -432,8 +433,8 @@ def _calibrated_output_problems(run: RunContext, dut: object, figures: dict) -> 
                     problems.append(whose + applied)
                     continue
             else:  # the raw readings behind the output, as magline's calibration would have made it
-                raw = np.linalg.solve(fit.soft_iron, (np.atleast_2d(readings) @ applied_frame(sensor)).T).T \
-                    + fit.hard_iron_ut
+                frame = np.eye(3) if sensor is None or sensor.readings_rotated else configured_rotation(sensor)
+                raw = np.linalg.solve(fit.soft_iron, (np.atleast_2d(readings) @ frame).T).T + fit.hard_iron_ut
             sigma = fit.radial_sigma_ut(raw)
             if sigma is not None:
                 widening = PROOF_Z * float(np.median(sigma))
@@ -450,17 +451,6 @@ def _calibrated_output_problems(run: RunContext, dut: object, figures: dict) -> 
                             "not applied to this sensor as written, or the sensor's offset moved since its tumble "
                             "(still warming up?)")
     return problems
-
-
-def applied_frame(sensor: object) -> np.ndarray:
-    """The rotation between a sensor's fit frame and the frame its firmware's calibrated output is in
-    (``v_output = R · v_fit``): none where the streamed readings had the orientation applied already
-    (ArduPilot: its fit is in that frame), else the sensor's orientation or custom rotation."""
-    if sensor is None or getattr(sensor, "readings_rotated", False):
-        return np.eye(3)
-    if getattr(sensor, "rotation", None) is not None:
-        return np.asarray(sensor.rotation, float)
-    return orientation_matrix(getattr(sensor, "orientation", 0))
 
 
 def _applied_problem(fit: FitResult, raw_ut: np.ndarray, firmware_ut: np.ndarray, figures: dict,

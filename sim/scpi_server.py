@@ -13,6 +13,7 @@ import socket
 import threading
 from collections import deque
 
+from magline.core.links.mavlink_tap import received
 from magline.sim.transport import parse_listen
 
 NO_ERROR = '0,"No error"'
@@ -77,16 +78,7 @@ class ScpiServer:
     def _session(self, client: socket.socket) -> None:
         buffer = b""
         with client:
-            client.settimeout(0.2)
-            while not self._stop.is_set():
-                try:
-                    data = client.recv(4096)
-                except TimeoutError:
-                    continue
-                except OSError:
-                    return
-                if not data:
-                    return
+            for data in received(client, self._stop):
                 buffer += data
                 while b"\n" in buffer:
                     line, _, buffer = buffer.partition(b"\n")
