@@ -22,10 +22,10 @@ from magline.core.fit.coverage import bin_index, covered_bins, sphere_centre
 from magline.core.fit.samples_csv import RawSamples
 from magline.core.measurements import Array, Json, Measurement, Numeric
 from magline.core.mounting import ImuSeries, orientation_matrix
-from magline.core.mounting.checks import configured_rotation
 from magline.core.plugins import hookimpl
 from magline.core.record import PersistReport, VerifyReport
 from magline.core.sequencer.context import Acquisition, AcquisitionAborted, RunContext
+from magline.core.verify.calibrated_output import calibrated_output_problems
 
 # The running fit is handed the tumble at checkpoints of the primary's count, every 2.5 % more
 # readings (at least 3): at 10 Hz about every half second, at 200 Hz every tenth.  Counts, not
@@ -372,105 +372,6 @@ def _roll_back(run: RunContext, before: dict[str, ParamValue]) -> str:
     return "previous values restored"
 
 
-CALIBRATED_READINGS = 20
-# How far a right result may be from what it is held to, in units of its own σ: 4.5σ is crossed by a
-# normal figure with probability 7e-6 — a good unit is not failed by the check's own noise.
-PROOF_Z = 4.5
-# The largest error undoing the firmwares' int16 milligauss truncation leaves in a magnitude: half a
-# milligauss on each axis (0.05 µT), √3 of it on a vector.
-QUANTUM_UT = 0.05 * 3**0.5
-
-
-def _calibrated_output_problems(run: RunContext, dut: object, figures: dict) -> list[str]:
-    """The proof on the firmware's own terms: after the power cycle, the unit's *calibrated* output.
-    A read-back only proves that what was written is stored; a calibration written to a slot the
-    firmware does not apply to this sensor, or with a wrong sign or unit, is stored just as well.
-
-    Where the backend reads the firmware's raw and calibrated output side by side
-    (``raw_and_calibrated_ut(count)``, PX4), two things are proven (issue 50).  First, that the
-    firmware applies magline's calibration: its calibrated magnitudes equal magline's calibration
-    applied to the same raw readings, within what noise and the int16 quantisation leave — a wrong
-    sign, unit, slot, or a calibration not applied is far outside that, whatever the fit's quality.
-    Second, that the sensor is where the tumble left it: the magnitude against the reference, within
-    the station's ``field_tolerance_pct`` widened by the fit's own radial σ in the direction read (where
-    no raw stream is read, the raw readings behind the output are magline's calibration undone) —
-    a unit resting where the tumble saw little is known less well there, and a good one FAILed at
-    −3.1 % in such a direction; a warm-up that moved the offset still reads off.  Elsewhere
-    (``calibrated_field_ut(count)`` / ``calibrated_fields_ut(count, device_ids)``) the magnitude is held
-    to that widened tolerance alone.  Field sources whose reference is the field the unit sits in say
-    ``reference_is_ambient = True`` (a coil's generated field is gone after its schedule)."""
-    read = getattr(dut, "calibrated_field_ut", None)
-    reference = run.reference_field_ut
-    if read is None or not reference or not getattr(run.field_source, "reference_is_ambient", False):
-        return []
-    several = len(run.magnetometers) > 1
-    paired = getattr(dut, "raw_and_calibrated_ut", None) if not several else None
-    problems = []
-    at_once = getattr(dut, "calibrated_fields_ut", None) if several else None
-    read_all = at_once(CALIBRATED_READINGS, [m.device_id for m in run.magnetometers]) if at_once else {}
-    for sensor in run.magnetometers if several else run.magnetometers[:1] or [None]:
-        raw = None
-        if paired is not None:
-            both = paired(CALIBRATED_READINGS)
-            raw, readings = (None, None) if both is None else both
-        elif at_once:
-            readings = read_all.get(sensor.device_id)
-        else:
-            readings = read(CALIBRATED_READINGS, sensor=sensor.device_id) if several else read(CALIBRATED_READINGS)
-        if readings is None or len(readings) == 0:
-            continue
-        whose = f"{run.sensor_label(sensor.device_id)}: " if several else ""
-        prefix = run.sensor_prefix(sensor.device_id).replace(".", "_") if sensor is not None else ""
-        fit = run.fits.get(sensor.device_id) if sensor is not None else None
-        magnitudes = np.linalg.norm(np.atleast_2d(readings), axis=1)
-        measured = float(np.median(magnitudes))
-        figures[f"{prefix}calibrated_field_ut"] = measured
-        widening = 0.0
-        if fit is not None:
-            if raw is not None:
-                applied = _applied_problem(fit, raw, magnitudes, figures, prefix)
-                if applied:
-                    problems.append(whose + applied)
-                    continue
-            else:  # the raw readings behind the output, as magline's calibration would have made it
-                frame = np.eye(3) if sensor is None or sensor.readings_rotated else configured_rotation(sensor)
-                raw = np.linalg.solve(fit.soft_iron, (np.atleast_2d(readings) @ frame).T).T + fit.hard_iron_ut
-            sigma = fit.radial_sigma_ut(raw)
-            if sigma is not None:
-                widening = PROOF_Z * float(np.median(sigma))
-                figures[f"{prefix}calibrated_field_sigma_ut"] = float(np.median(sigma))
-        off_pct = (measured / reference - 1.0) * 100.0
-        tolerance_ut = run.station.verify.field_tolerance_pct / 100.0 * reference + widening
-        if abs(measured - reference) > tolerance_ut:
-            allowed = f"±{tolerance_ut / reference * 100.0:.1f} %"
-            if widening:
-                allowed += (f": ±{run.station.verify.field_tolerance_pct:g} % widened by {PROOF_Z:g}σ of the fit in "
-                            "the direction read")
-            problems.append(f"{whose}the firmware's calibrated field reads {measured:.1f} µT against the reference "
-                            f"{reference:.1f} µT ({off_pct:+.1f} %, tolerance {allowed}): the calibration is "
-                            "not applied to this sensor as written, or the sensor's offset moved since its tumble "
-                            "(still warming up?)")
-    return problems
-
-
-def _applied_problem(fit: FitResult, raw_ut: np.ndarray, firmware_ut: np.ndarray, figures: dict,
-                     prefix: str) -> str:
-    """Why the firmware's calibrated magnitudes are not magline's calibration of the same raw readings
-    ("" when they are, within the noise of their difference and the quantisation)."""
-    expected = np.linalg.norm(fit.apply(raw_ut), axis=1)
-    difference = firmware_ut - expected
-    mean = float(np.mean(difference))
-    spread = float(np.std(difference, ddof=1)) / np.sqrt(len(difference)) if len(difference) > 1 else 0.0
-    tolerance = PROOF_Z * spread + QUANTUM_UT
-    figures[f"{prefix}applied_difference_ut"] = mean
-    if abs(mean) <= tolerance:
-        return ""
-    return (f"the firmware's calibrated output is not magline's calibration of the same raw readings: it reads "
-            f"{float(np.median(firmware_ut)):.2f} µT where the calibration written gives "
-            f"{float(np.median(expected)):.2f} µT ({mean:+.2f} µT, tolerance ±{tolerance:.2f} µT from noise and "
-            "quantisation) — a wrong sign, unit or slot, or the calibration not applied")
-
-
 @hookimpl(trylast=True)
 def magline_verify_persistence(run: RunContext, persisted: PersistReport) -> VerifyReport:
     dut = run.require_dut()
@@ -490,6 +391,6 @@ def magline_verify_persistence(run: RunContext, persisted: PersistReport) -> Ver
                   if k not in read_back or not _same(v, read_back[k])]
     if present:
         mismatches += [f"autopilot reports: {text}" for text in dut.persistence_problems()]
-        mismatches += _calibrated_output_problems(run, dut, figures)
+        mismatches += calibrated_output_problems(run, dut, figures)
     return VerifyReport(read_back=read_back, mismatches=mismatches, sensor_present=present,
                         method=method, figures={k: float(v) for k, v in figures.items()}, missing=missing)

@@ -34,6 +34,23 @@ class SimFaults:
     # "UT:TAU_S": every compass's offset is UT µT from its settled value while the board is cold and
     # settles with time constant TAU_S as it warms; a reboot keeps it warm (sim/thermal.py)
     mag_warmup: str = ""
+    # every compass's offset moves this many µT (along the warm-up's direction) at each cut of the board's
+    # supply and stays there: a unit whose offset at the post-power-cycle check is not the one it was
+    # calibrated with (a cold board after the cut, a sensor back from power-on in another state).  A
+    # step, not a thermal decay, so the check it must fail does not depend on how quickly a machine
+    # reaches it; a MAVLink reboot (no cut) leaves it.
+    mag_offset_after_cut: float = 0.0
+    # how the firmware applies a stored calibration where it does not as the real one does (PX4 only):
+    # "sign" adds the offsets (a release that reads them the other way), "unit" reads them in
+    # milligauss, "slot" applies the next slot's calibration to each compass, "none" stores the
+    # calibration and never applies it.  The read-back of every parameter still matches.
+    cal_applied: str = ""
+
+    CAL_APPLIED = ("sign", "unit", "slot", "none")
+
+    def __post_init__(self) -> None:
+        if self.cal_applied and self.cal_applied not in self.CAL_APPLIED:
+            raise ValueError(f"cal_applied must be one of {', '.join(self.CAL_APPLIED)}, not {self.cal_applied!r}")
 
     @classmethod
     def parse(cls, items: list[str]) -> SimFaults:
@@ -56,6 +73,7 @@ class SimFaults:
                 setattr(faults, name, int(value))
             else:
                 setattr(faults, name, float(value))
+        faults.__post_init__()
         return faults
 
     def warmup(self) -> tuple[float, float] | None:

@@ -172,9 +172,13 @@ class Px4Sim(SimulatedAutopilot):
 
     def corrected_ut(self, sensor: SimMagnetometer, raw_ut: NDArray) -> NDArray:
         n = self.slot_of(sensor.device_id)
-        if n is None:
-            return raw_ut  # no matching slot: calibration reset, raw data used
+        applied = self.faults.cal_applied
+        if n is None or applied == "none":
+            return raw_ut  # no matching slot: calibration reset, raw data used (fault: never applied)
+        if applied == "slot":
+            n = (n + 1) % SLOTS  # fault: the next slot's calibration
         off_g, s = self.calibration(n)
+        off_g = {"sign": -off_g, "unit": off_g / 1000.0}.get(applied, off_g)  # faults: read another way
         return self.rotation(n, sensor) @ s @ (raw_ut / 100.0 - off_g) * 100.0
 
     def rotation(self, n: int, sensor: SimMagnetometer) -> NDArray:

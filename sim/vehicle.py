@@ -146,6 +146,8 @@ class SimulatedAutopilot(ABC):
         self._booted_at = self._t0
         warmup = self.faults.warmup()
         self.warmth = BoardWarmth(warmup[1], self._t0) if warmup else None  # fault ``mag_warmup`` only
+        self._read_since_supply = False  # the compasses were read since the supply last changed
+        self.supply_cuts = 0  # how often the supply of a board in use was cut (fault ``mag_offset_after_cut``)
         self._up_at = 0.0
         self._down_at = 0.0
         self._next_heartbeat = 0.0
@@ -277,9 +279,13 @@ class SimulatedAutopilot(ABC):
             self._supply(True, time.monotonic())
 
     def _supply(self, on: bool, now: float) -> None:
-        """The board's supply went on or off: it warms or cools (a MAVLink reboot does neither)."""
+        """The board's supply went on or off: it warms or cools (a MAVLink reboot does neither), and a
+        cut moves the offset of fault ``mag_offset_after_cut``."""
         if self.warmth is not None:
             self.warmth.powered(on, now)
+        if not on and self._read_since_supply:
+            self.supply_cuts += 1  # a cut of a board whose compasses were read (not the supply's first "off")
+        self._read_since_supply = False
 
     def request_reboot(self, delay_s: float) -> None:
         with self.lock:
@@ -509,7 +515,9 @@ class SimulatedAutopilot(ABC):
             field = self.body_field_ut(taken)
             if len(self._seen_dirs) < 20000:
                 self._seen_dirs.append(field / np.linalg.norm(field))
-            reading = sensor.read_ut(field, self.rng) + self.warmup_offset_ut(now)
+            self._read_since_supply = True
+            reading = (sensor.read_ut(field, self.rng) + self.warmup_offset_ut(now)
+                       + self.WARMUP_DIRECTION * self.faults.mag_offset_after_cut * self.supply_cuts)
             due = due + period if now - due < period else now + period
             self._held[sensor.device_id] = (due, reading)
         return reading

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from magline.core.verify.calibrated_output import NOT_MAGLINES
+
 
 @dataclass(frozen=True)
 class FaultCase:
@@ -23,6 +25,7 @@ class FaultCase:
     drift_caught: bool = False
     acquisition: dict = field(default_factory=dict)  # the station's ``acquisition`` changed for this row
     waits_warm_up: bool = False  # the station must have waited for the unit to warm up before its tumble
+    supply: bool = False  # powered through the simulated bench supply: the verify phase cuts the power
 
     def missed(self, record) -> str | None:
         """What the record lacks that this fault must leave in it, or None."""
@@ -66,4 +69,18 @@ ARDUPILOT_FAULTS = (
     FaultCase("compasses-disagree", ("mag_yaw_error=2:5",), "fail", "heading_agreement", mags=3),
     WARM_UP,
     WARM_UP_WAITED,
+)
+
+
+# The post-power-cycle proof (issue 50) on the simulated PX4: each firmware below stores every value
+# written and reads it back as written, yet applies it otherwise; the station compares the firmware's
+# calibrated output with its own calibration of the same raw readings.  A wrong slot needs a second
+# compass (the primary gets the second slot's calibration).  An offset that moved at the power cut (a
+# board colder than at its calibration) is applied faithfully and must still FAIL on the magnitude.
+PX4_FAULTS = (
+    FaultCase("applied-sign", ("cal_applied=sign",), "fail", NOT_MAGLINES),
+    FaultCase("applied-unit", ("cal_applied=unit",), "fail", NOT_MAGLINES),
+    FaultCase("applied-slot", ("cal_applied=slot",), "fail", NOT_MAGLINES, mags=2),
+    FaultCase("not-applied", ("cal_applied=none",), "fail", NOT_MAGLINES),
+    FaultCase("offset-moved-at-cut", ("mag_offset_after_cut=120",), "fail", "the reference", supply=True),
 )

@@ -7,6 +7,7 @@ vehicle that closes its TCP link mid-acquisition.  Every timeout is a deadline.
 
 from __future__ import annotations
 
+import contextlib
 import time
 
 import pytest
@@ -18,7 +19,8 @@ from magline.core.record import Outcome
 from magline.core.sequencer import Sequencer
 from magline.core.station import load_station
 from magline.sim import SimFaults, create_sim
-from magline.testing.faults import ARDUPILOT_FAULTS, WARM_UP
+from magline.sim.supply import SupplySim
+from magline.testing.faults import ARDUPILOT_FAULTS, PX4_FAULTS, WARM_UP
 
 AP = {"connect_timeout_s": 1.0, "boot_timeout_s": 3.0, "prearm_wait_s": 0.3}
 PX4 = {"connect_timeout_s": 1.0, "boot_timeout_s": 3.0}
@@ -51,6 +53,34 @@ def test_no_vehicle_is_an_error_within_the_connect_deadline(tmp_path, backend, t
     assert "within 1 s" in record.cause and "answered" in record.cause
     assert elapsed < options["connect_timeout_s"] + DEADLINE_SLACK_S
     assert "Error:" not in record.cause  # no Python class names for the operator
+
+
+@pytest.mark.parametrize("case", PX4_FAULTS, ids=[c.name for c in PX4_FAULTS])
+def test_each_px4_firmware_fault_fails_the_post_power_cycle_proof(tmp_path, case):
+    """Issue 50: the firmware stores and reads back every value as written but applies it otherwise
+    (or the offset moved at the power cut): the unit FAILs at verify, never before and never an ERROR."""
+    workdir = tmp_path / "fc"
+    workdir.mkdir()
+    with contextlib.ExitStack() as stack:
+        sim = stack.enter_context(create_sim("px4", "udp:127.0.0.1:0", mag_rate_hz=FAST_SENSOR_HZ, workdir=workdir,
+                                             mag_count=case.mags, seed=11, boot_time_s=0.3, speed=5.0,
+                                             faults=SimFaults.parse(list(case.faults))).start())
+        product = {}
+        if case.supply:
+            supply = stack.enter_context(SupplySim("tcp:127.0.0.1:0", board=sim))
+            product["power"] = {"method": "scpi-supply", "options": {"resource": supply.visa_resource,
+                                                                     "off_time_s": 0.3, "settle_s": 0.1}}
+        _, host, port = sim.address.split(":")
+        # the supply powers the board on when the unit starts: it boots before it answers
+        options = {**PX4, **PASSING, **({"connect_timeout_s": 5.0} if case.supply else {})}
+        station = write_station("px4-sim.yaml", tmp_path, f"udpout://{host}:{port}", options,
+                                {"products": {"PX4-X500-100": product}, "acquisition": case.acquisition})
+        record = run_unit(station, "SN-F")
+    assert record.verdict is Outcome.FAIL, record.cause
+    assert [p.name for p in record.phases if p.outcome is Outcome.FAIL] == ["verify"], record.cause
+    assert case.words in record.cause, record.cause
+    if case.supply:
+        assert record.persistence["method"] == "scpi-supply"
 
 
 def ap_sim(tmp_path, faults=None, **kw):

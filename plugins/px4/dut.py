@@ -357,45 +357,55 @@ class Px4Dut:
     def calibrated_field_ut(self, count: int, sensor: int | None = None) -> np.ndarray | None:
         """HIGHRES_IMU's magnetic field (Gauss, calibrated by the firmware), when this sensor is the
         unit's only magnetometer: with several, it carries whichever PX4's voter selected."""
+        if len(self.chosen) > 1:
+            return None
         both = self.raw_and_calibrated_ut(count)
         return None if both is None else both[1]
 
-    def raw_and_calibrated_ut(self, count: int) -> tuple[np.ndarray, np.ndarray] | None:
-        """``count`` of the firmware's calibrated readings (HIGHRES_IMU, Gauss) each with the raw reading
-        it was made from (the latest SCALED_IMU at or before its time, mG, truncation undone), both in
-        µT — what proves the calibration the firmware *applies* (issue 50).  None where HIGHRES_IMU
-        cannot be attributed to this sensor (several magnetometers: it carries the voter's choice) or
-        the firmware does not send it."""
-        if len(self.ident.sensors) > 1 or (not self.shell_answers and self._streaming_count > 1):
+    def raw_and_calibrated_ut(self, count: int) -> tuple[dict[int, np.ndarray], np.ndarray] | None:
+        """``count`` of the firmware's calibrated readings (HIGHRES_IMU, Gauss), each beside the raw
+        reading of every calibrated sensor it may have been made from (the latest SCALED_IMU/2/3 of that
+        sensor at or before its time, mG, truncation undone), all in µT: ``({device id: raw}, calibrated)``
+        — what proves the calibration the firmware *applies* (issue 50).  HIGHRES_IMU carries the
+        sensor PX4's voter selected, which MAVLink does not name, so the station finds which one it is.
+        None where HIGHRES_IMU may carry a sensor this run did not calibrate (the unit has more than it
+        calibrates, or several stream and no shell names them) or the firmware does not send it."""
+        if set(self.ident.sensors) - set(self.chosen) or (not self.shell_answers and self._streaming_count > 1):
             return None
-        (kind, msg_id), (raw_kind, raw_id) = HIGHRES_IMU, STREAMS[self.sensors[self.device_id]["instance"]]
-        inbox, handles = self.link.subscribe_all([kind, raw_kind])
-        pairs: list[tuple[tuple[float, float, float], tuple[float, float, float]]] = []
-        raw_seen: list[tuple[float, tuple[float, float, float]]] = []
+        instances = {device_id: self.sensors[device_id]["instance"] for device_id in self.chosen}
+        if any(i >= len(STREAMS) for i in instances.values()):
+            return None
+        raw_kinds = {STREAMS[i][0]: device_id for device_id, i in instances.items()}
+        kind, msg_id = HIGHRES_IMU
+        rate_ids = [msg_id] + [STREAMS[i][1] for i in instances.values()]
+        inbox, handles = self.link.subscribe_all([kind, *raw_kinds])
+        latest: dict[int, list[tuple[float, tuple[float, float, float]]]] = {d: [] for d in instances}
+        pairs: list[tuple[dict[int, tuple[float, float, float]], tuple[float, float, float]]] = []
         try:
-            for wanted, rate_id in ((kind, msg_id), (raw_kind, raw_id)):
+            for wanted, rate_id in zip([kind, *raw_kinds], rate_ids, strict=True):
                 self.link.require_accepted(MAV_CMD_SET_MESSAGE_INTERVAL, f"{wanted} stream request", rate_id, 1e6 / 50)
             while len(pairs) < count:
                 try:
                     got, msg = get_listening(inbox, self.opts.stream_timeout_s)
                 except queue.Empty:
-                    self.link.require_alive(f"waiting for {kind} and {raw_kind}")
+                    self.link.require_alive(f"waiting for {kind} and {', '.join(raw_kinds)}")
                     return None  # the firmware does not send them: nothing to prove with
-                if got == raw_kind:
-                    raw_seen.append((float(msg["time_boot_ms"]), (msg["xmag"], msg["ymag"], msg["zmag"])))
+                if got in raw_kinds:
+                    latest[raw_kinds[got]].append((float(msg["time_boot_ms"]), (msg["xmag"], msg["ymag"], msg["zmag"])))
                     continue
                 at = float(msg["time_usec"]) / 1000.0
-                made_from = [row for t, row in raw_seen if t <= at]
-                if made_from:
-                    pairs.append((made_from[-1], (msg["xmag"], msg["ymag"], msg["zmag"])))
+                made_from = {d: [row for t, row in seen if t <= at] for d, seen in latest.items()}
+                if all(made_from.values()):
+                    behind = {d: rows[-1] for d, rows in made_from.items()}
+                    pairs.append((behind, (msg["xmag"], msg["ymag"], msg["zmag"])))
         finally:
-            for rate_id in (msg_id, raw_id):
+            for rate_id in rate_ids:
                 with contextlib.suppress(DutError):
                     self.link.command(MAV_CMD_SET_MESSAGE_INTERVAL, rate_id, -1)
             for handle in handles:
                 self.link.unsubscribe(handle)
-        raw = untruncate_mg(np.array([r for r, _ in pairs], float)) / MG_PER_UT
-        return raw, np.array([c for _, c in pairs], float) * UT_PER_GAUSS
+        raws = {d: untruncate_mg(np.array([raw[d] for raw, _ in pairs], float)) / MG_PER_UT for d in instances}
+        return raws, np.array([c for _, c in pairs], float) * UT_PER_GAUSS
 
     def persistence_problems(self) -> list[str]:
         """The firmware uses the *first* slot whose ID matches; it must be the one written."""

@@ -1,0 +1,152 @@
+"""The proof on the firmware's own terms: after the power cycle, the unit's *calibrated* output.
+
+Why: a read-back only proves that what was written is stored; a calibration written to a slot the
+firmware does not apply to this sensor, or with a wrong sign or unit, is stored just as well.
+
+Where the backend reads the firmware's raw and calibrated output side by side
+(``raw_and_calibrated_ut(count)``, PX4), two things are proven (issue 50).  First, that the firmware
+applies magline's calibration: its calibrated magnitudes equal magline's calibration applied to the
+same raw readings, within what noise and the int16 quantisation leave — a wrong sign, unit, slot, or a
+calibration not applied is far outside that, whatever the fit's quality.  With several compasses the
+firmware's output is the one its voter selected, which MAVLink does not name: it must be magline's
+calibration of one of them.  Second, that the sensor is where the tumble left it: the magnitude
+against the reference, within the station's ``field_tolerance_pct`` widened by the fit's own radial σ
+in the direction read (where no raw stream is read, the raw readings behind the output are magline's
+calibration undone) — a unit resting where the tumble saw little is known less well there, and a good
+one FAILed at −3.1 % in such a direction; an offset that moved since the tumble still reads off.
+Elsewhere (``calibrated_field_ut(count)`` / ``calibrated_fields_ut(count, device_ids)``) the magnitude is
+held to that widened tolerance alone.  Field sources whose reference is the field the unit sits in say
+``reference_is_ambient = True`` (a coil's generated field is gone after its schedule).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from magline.core.fit import FitResult
+from magline.core.mounting.checks import configured_rotation
+from magline.core.sequencer.context import RunContext
+
+CALIBRATED_READINGS = 20
+# How far a right result may be from what it is held to, in units of its own σ: 4.5σ is crossed by a
+# normal figure with probability 7e-6 — a good unit is not failed by the check's own noise.
+PROOF_Z = 4.5
+# The largest error undoing the firmwares' int16 milligauss truncation leaves in a magnitude: half a
+# milligauss on each axis (0.05 µT), √3 of it on a vector.
+QUANTUM_UT = 0.05 * 3**0.5
+NOT_MAGLINES = "is not magline's calibration of the same raw readings"
+
+
+@dataclass(frozen=True)
+class Applied:
+    """The firmware's calibrated magnitudes against magline's calibration of the same raw readings."""
+
+    mean_ut: float  # mean of firmware − magline's
+    tolerance_ut: float  # from the noise of the difference and the quantisation
+    firmware_ut: float  # medians, for the words
+    expected_ut: float
+
+    @property
+    def holds(self) -> bool:
+        return abs(self.mean_ut) <= self.tolerance_ut
+
+
+def applied(fit: FitResult, raw_ut: np.ndarray, firmware_ut: np.ndarray) -> Applied:
+    """Compare the firmware's calibrated magnitudes with magline's calibration of ``raw_ut``."""
+    expected = np.linalg.norm(fit.apply(raw_ut), axis=1)
+    difference = firmware_ut - expected
+    spread = float(np.std(difference, ddof=1)) / np.sqrt(len(difference)) if len(difference) > 1 else 0.0
+    return Applied(float(np.mean(difference)), PROOF_Z * spread + QUANTUM_UT, float(np.median(firmware_ut)),
+                   float(np.median(expected)))
+
+
+def calibrated_output_problems(run: RunContext, dut: object, figures: dict) -> list[str]:
+    """Why the unit's calibrated output after the power cycle is not magline's calibration applied
+    where the tumble left the sensor (empty when it is, or when nothing can be read); the figures
+    read go into ``figures``."""
+    read = getattr(dut, "calibrated_field_ut", None)
+    reference = run.reference_field_ut
+    if read is None or not reference or not getattr(run.field_source, "reference_is_ambient", False):
+        return []
+    paired = getattr(dut, "raw_and_calibrated_ut", None)
+    both = paired(CALIBRATED_READINGS) if paired is not None else None
+    if both is not None:
+        return _paired_proof(run, *both, figures)
+    return _magnitude_proof(run, dut, read, figures)
+
+
+def _paired_proof(run: RunContext, raws: dict[int, np.ndarray], calibrated: np.ndarray, figures: dict) -> list[str]:
+    """The firmware's calibrated output beside the raw readings of every compass it may come from:
+    it must be magline's calibration of one of them, and that one's magnitude meets the reference."""
+    several = len(run.magnetometers) > 1
+    magnitudes = np.linalg.norm(np.atleast_2d(calibrated), axis=1)
+    found = {d: applied(run.fits[d], raw, magnitudes) for d, raw in raws.items() if d in run.fits}
+    if not found:
+        return []
+    matched = [d for d, a in found.items() if a.holds]
+    device_id = matched[0] if matched else min(found, key=lambda d: abs(found[d].mean_ut) / found[d].tolerance_ut)
+    prefix = run.sensor_prefix(device_id).replace(".", "_") if several else ""
+    result = found[device_id]
+    figures[f"{prefix}applied_difference_ut"] = result.mean_ut
+    if not matched:
+        whose = (f" of any of its compasses (closest: {run.sensor_label(device_id)})" if several else "")
+        return [f"the firmware's calibrated output {NOT_MAGLINES}{whose}: it reads {result.firmware_ut:.2f} µT where "
+                f"the calibration written gives {result.expected_ut:.2f} µT ({result.mean_ut:+.2f} µT, tolerance "
+                f"±{result.tolerance_ut:.2f} µT from noise and quantisation) — a wrong sign, unit or slot, or the "
+                "calibration not applied"]
+    whose = f"{run.sensor_label(device_id)} (the compass the firmware selects): " if several else ""
+    problem = _magnitude_problem(run, run.fits[device_id], raws[device_id], float(np.median(magnitudes)),
+                                 prefix, figures)
+    return [whose + problem] if problem else []
+
+
+def _magnitude_proof(run: RunContext, dut: object, read, figures: dict) -> list[str]:
+    """Without raw readings beside the calibrated ones: each compass's calibrated magnitude against the
+    reference, the raw behind it taken as magline's calibration undone."""
+    several = len(run.magnetometers) > 1
+    at_once = getattr(dut, "calibrated_fields_ut", None) if several else None
+    read_all = at_once(CALIBRATED_READINGS, [m.device_id for m in run.magnetometers]) if at_once else {}
+    problems = []
+    for sensor in run.magnetometers if several else run.magnetometers[:1] or [None]:
+        if at_once:
+            readings = read_all.get(sensor.device_id)
+        else:
+            readings = read(CALIBRATED_READINGS, sensor=sensor.device_id) if several else read(CALIBRATED_READINGS)
+        if readings is None or len(readings) == 0:
+            continue
+        whose = f"{run.sensor_label(sensor.device_id)}: " if several else ""
+        prefix = run.sensor_prefix(sensor.device_id).replace(".", "_") if sensor is not None else ""
+        fit = run.fits.get(sensor.device_id) if sensor is not None else None
+        measured = float(np.median(np.linalg.norm(np.atleast_2d(readings), axis=1)))
+        raw = None
+        if fit is not None:
+            frame = np.eye(3) if sensor is None or sensor.readings_rotated else configured_rotation(sensor)
+            raw = np.linalg.solve(fit.soft_iron, (np.atleast_2d(readings) @ frame).T).T + fit.hard_iron_ut
+        problem = _magnitude_problem(run, fit, raw, measured, prefix, figures)
+        if problem:
+            problems.append(whose + problem)
+    return problems
+
+
+def _magnitude_problem(run: RunContext, fit: FitResult | None, raw: np.ndarray | None, measured: float,
+                       prefix: str, figures: dict) -> str:
+    """The calibrated magnitude ``measured`` against the reference, within ``field_tolerance_pct``
+    widened by ``PROOF_Z`` × the fit's radial σ at the raw readings behind it ("" when it holds)."""
+    reference = run.reference_field_ut
+    figures[f"{prefix}calibrated_field_ut"] = measured
+    widening = 0.0
+    if fit is not None and raw is not None and (sigma := fit.radial_sigma_ut(raw)) is not None:
+        widening = PROOF_Z * float(np.median(sigma))
+        figures[f"{prefix}calibrated_field_sigma_ut"] = float(np.median(sigma))
+    pct = run.station.verify.field_tolerance_pct
+    tolerance_ut = pct / 100.0 * reference + widening
+    if abs(measured - reference) <= tolerance_ut:
+        return ""
+    allowed = f"±{tolerance_ut / reference * 100.0:.1f} %"
+    if widening:
+        allowed += f": ±{pct:g} % widened by {PROOF_Z:g}σ of the fit in the direction read"
+    return (f"the firmware's calibrated field reads {measured:.1f} µT against the reference {reference:.1f} µT "
+            f"({(measured / reference - 1.0) * 100.0:+.1f} %, tolerance {allowed}): the calibration is not applied "
+            "to this sensor as written, or the sensor's offset moved since its tumble (still warming up?)")
