@@ -11,7 +11,7 @@ Order of a unit's run (one direction of data: station file → sequencer → pha
 Hooks marked ``firstresult`` have one answer: the first plugin returning non-``None`` wins, so a
 third-party plugin registered later (LIFO) can replace the core's default implementation.
 A plugin is a plain module with functions named like these specs and decorated with
-:data:`magline.core.plugins.hookimpl`, listed under the ``magline`` entry-point group::
+:data:`magline.plugin.hookimpl`, listed under the ``magline`` entry-point group::
 
     [project.entry-points.magline]
     my_dut = "my_package.my_dut_plugin"
@@ -56,7 +56,7 @@ def magline_register_dut_backends(register: Register) -> None:
     :param register: call ``register(name, factory, options=Model)`` once per backend;
         ``factory(product, options)`` receives the station file's product entry (for a slot: with
         the slot's connection and options) and ``products.<part>.options`` validated against
-        ``Model`` (the raw mapping without one), and returns a :class:`~magline.core.dut.DutBackend`.
+        ``Model`` (the raw mapping without one), and returns a :class:`~magline.plugin.DutBackend`.
         The name is what a station file writes under ``products.<part>.backend``; with ``Model``,
         ``magline check`` (and every command that loads the station) reports bad options with file,
         key and line before any unit is connected.
@@ -69,8 +69,8 @@ def magline_register_field_sources(register: Register) -> None:
 
     :param register: call ``register(name, factory, options=Model)``; ``factory(station, options)``
         receives the whole station and ``field_source.options`` validated against ``Model``, and
-        returns a :class:`~magline.core.field.FieldSource`: ``reference_field_ut()`` (called as
-        each unit connects; raise :class:`~magline.core.field.FieldSourceError` to stop the batch
+        returns a :class:`~magline.plugin.FieldSource`: ``reference_field_ut()`` (called as
+        each unit connects; raise :class:`~magline.plugin.FieldSourceError` to stop the batch
         when the cell's field cannot be trusted), ``finish_unit()`` (after every unit,
         also after errors) and ``close()``; ``reference_is_ambient = True`` when the unit sits in that
         field after its power cycle too (the verify phase then checks the firmware's calibrated
@@ -88,7 +88,7 @@ def magline_register_result_sinks(register: Register) -> None:
         station_dir, entry, options)`` receives the station, its folder, its ``results`` entry
         (:class:`~magline.core.station.schema.Results`) and that entry's ``options`` validated
         against ``Model`` (the raw mapping when no model was registered), and returns a
-        :class:`~magline.core.results.contract.ResultSink` (``begin``, ``save_attempt``, ``finish``,
+        :class:`~magline.plugin.ResultSink` (``begin``, ``save_attempt``, ``finish``,
         ``history``, ``close``; run ids and the ``history`` shape are defined there).  The name is
         what a ``results`` entry writes under ``sink``; a station may list several stores.
     """
@@ -101,7 +101,7 @@ def magline_register_power_controls(register: Register) -> None:
     :param register: call ``register(name, factory, options=Model)``; ``factory(power_config,
         station_dir, options)`` receives the product's ``power`` entry, the station's folder and
         ``power.options`` validated against ``Model``, and returns a
-        :class:`~magline.core.power.PowerControl`.  The name is what a station file writes under
+        :class:`~magline.plugin.PowerControl`.  The name is what a station file writes under
         ``products.<part>.power.method``; the core registers ``mavlink-reboot``.  As for backends,
         ``options=Model`` lets ``magline check`` validate ``products.<part>.power.options``.
     """
@@ -113,7 +113,7 @@ def magline_register_motions(register: Register) -> None:
 
     :param register: call ``register(name, factory, options=Model)``; ``factory(station,
         station_dir, options)`` (``motion.options`` validated against ``Model``) returns a
-        :class:`~magline.core.motion.Motion`: ``start(round, slots)`` begins the pattern and
+        :class:`~magline.plugin.Motion`: ``start(round, slots)`` begins the pattern and
         returns once the fixture moves, ``stop()`` ends it, ``close()`` at the end of the batch.
         The name is the station file's ``motion.type``; the core registers ``operator`` (a person
         tumbles the unit, prompted by the acquire phase).  On a station with slots one motion
@@ -158,8 +158,8 @@ def magline_fit(run: RunContext, samples: RawSamples, options: FitOptions) -> Fi
     :param samples: raw samples (µT), with time and temperature where the DUT gives them.
     :param options: model (full/diagonal/sphere as the DUT can hold), reference field, range,
         the station's ``fit`` settings.
-    :return: a :class:`~magline.core.fit.FitResult`; raise
-        :class:`~magline.core.fit.FitRefused` when the data cannot determine the calibration:
+    :return: a :class:`~magline.plugin.FitResult`; raise
+        :class:`~magline.plugin.FitRefused` when the data cannot determine the calibration:
         the sequencer then retries the acquisition with the refusal's advice as the prompt.
     """
 
@@ -187,7 +187,7 @@ def magline_validate_unit(run: RunContext, fits: dict[int, FitResult]) -> list[M
     :return: measurements judged against the station's limits (a pair's names carry both sensors'
         prefixes, ``mag1-mag2.``).  A plugin may also leave decisions for the persist phase in
         ``run.state`` (the core leaves the orientations to write in ``run.state["orientation_fixes"]``).
-        Raise :class:`~magline.core.faults.StationFault` when the station cannot judge (no
+        Raise :class:`~magline.plugin.StationFault` when the station cannot judge (no
         accelerometer to prove a mounting): the unit is an ERROR.
     """
 
@@ -200,7 +200,7 @@ def magline_persist(run: RunContext, fit: FitResult) -> PersistReport | None:
     backend's mapping of every fitted magnetometer (``run.fits``; ``fit`` is the primary's) and the
     orientations the mounting check asked to fix, checks every echo value and commits.
 
-    :return: parameters before and written; raise :class:`~magline.core.dut.DutError` on refusal.
+    :return: parameters before and written; raise :class:`~magline.plugin.DutError` on refusal.
     """
 
 
@@ -233,7 +233,7 @@ def magline_acquisition_progress(run: RunContext, attempt: int, samples: int, co
     """Live acquisition figures, called as samples arrive (coverage is a fraction 0..1).
 
     :param bins: the direction bins behind ``coverage`` (indices into
-        :func:`magline.core.fit.coverage.fibonacci_sphere` of ``n_bins``), for a view that lights
+        :func:`magline.plugin.fibonacci_sphere` of ``n_bins``), for a view that lights
         them up; a coil's schedule gives the field directions it applied (its schedule is made of
         those points); None when the acquisition has no directions to show.
     :param n_bins: how many bins the sphere has (the station's ``acquisition.coverage_bins``; a

@@ -5,7 +5,7 @@ What a DUT, field-source, motion or results-sink author needs without reading ma
 * stations: :func:`station_file` (a station from a shipped example and a dict of changes, in a
   folder of yours), :func:`run_unit` (one unit through every phase, no waiting between attempts),
   :func:`check_station` (exactly the problems ``magline check`` prints);
-* builders: :func:`make_fit` (a :class:`~magline.core.fit.FitResult` from ``h``, ``S`` and the
+* builders: :func:`make_fit` (a :class:`~magline.plugin.FitResult` from ``h``, ``S`` and the
   field, for testing a parameter conversion) and :func:`make_record`;
 * known truth: :class:`SensorTruth`, :func:`random_truth`, :func:`earth_field_ned`,
   :func:`motion_directions` (the sensor model and operator motions magline's own accuracy

@@ -46,7 +46,7 @@ def _unit(sink: Any, serial: str, verdict: Outcome, begin: bool = True) -> RunRe
 
 def _check_shape(run: dict, serial: str) -> None:
     for key in HistoryRun.__annotations__:
-        assert key in run, f"history() rows need the key {key!r} (see magline.core.results.contract.HistoryRun)"
+        assert key in run, f"history() rows need the key {key!r} (see magline.plugin.HistoryRun)"
     assert run["serial"] == serial and isinstance(run["id"], int) and isinstance(run["verdict"], str)
     assert isinstance(run["attempts"], list) and isinstance(run["failed"], list)
     for attempt in run["attempts"]:
@@ -60,7 +60,7 @@ def check_result_sink(open_sink: Callable[[Path], Any], folder: str | Path) -> N
     folder = Path(folder)
     sink = open_sink(folder)
     assert isinstance(sink, ResultSink), ("the sink lacks part of the contract: begin, save_attempt, finish, "
-                                          "history, close (magline.core.results.contract.ResultSink)")
+                                          "history, close (magline.plugin.ResultSink)")
     try:
         first = _unit(sink, "CONF-1", Outcome.PASS)
         second = _unit(sink, "CONF-2", Outcome.FAIL)
@@ -171,7 +171,7 @@ def check_dut_backend(open_dut: Callable[[], Any], field_ut: float, *, samples: 
                       prepare_params: tuple[str, ...] | list[str] = (), hard_iron_ut: Any = None,
                       power_cycle: Callable[[Any], dict] | None = None, tolerance_pct: float = 3.0,
                       unsaved_writes: str = "lost", accelerometer: bool = True) -> dict:
-    """Run the DUT-backend contract (:class:`magline.core.dut.DutBackend`) against ``open_dut()``, a
+    """Run the DUT-backend contract (:class:`magline.plugin.DutBackend`) against ``open_dut()``, a
     backend connected to a device (or its simulator) that is being tumbled in a field of
     ``field_ut`` µT.  Checks, in order, each failing with the rule it breaks:
 
@@ -313,7 +313,7 @@ def check_dut_backend(open_dut: Callable[[], Any], field_ut: float, *, samples: 
 
 def check_field_source(open_source: Callable[[], Any], expected_ut: float | None = None,
                        tolerance_ut: float = 0.05) -> float:
-    """Run the field-source contract (:class:`magline.core.field.FieldSource`): a finite reference
+    """Run the field-source contract (:class:`magline.plugin.FieldSource`): a finite reference
     in µT (the Earth's 20–70 µT, a coil's up to 500), the same for consecutive units (within
     ``tolerance_ut``, and equal to ``expected_ut`` when given), ``finish_unit()`` safe after every unit
     and twice in a row, ``reference_is_ambient`` a bool when declared, ``close()``.  Returns the reference."""
@@ -340,7 +340,7 @@ def check_field_source(open_source: Callable[[], Any], expected_ut: float | None
 
 
 def check_power_control(open_power: Callable[[], Any], open_dut: Callable[[], Any]) -> dict:
-    """Run the power-control contract (:class:`magline.core.power.PowerControl`) with a DUT:
+    """Run the power-control contract (:class:`magline.plugin.PowerControl`) with a DUT:
     ``power_up()`` makes the unit reachable, ``cycle(dut)`` returns figures (numbers, and the
     ``method`` that proved the cycle) with the unit back on a new boot and answering,
     ``finish()`` twice is safe, ``close()``.  Returns the cycle's figures."""

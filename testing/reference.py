@@ -18,8 +18,10 @@ Generated from the code by `python -m magline.testing.reference > docs/plugins.m
 when this file is not current.  Start with the README's "Writing a plugin"; this page is the
 exact contract.
 
-A plugin is a module with `@hookimpl` functions (`from magline.core.plugins import hookimpl`),
-listed under the `magline` entry-point group of its distribution.  Registration hooks take
+A plugin is a module with `@hookimpl` functions, listed under the `magline` entry-point group of
+its distribution.  Everything of magline a plugin uses comes from one import, its public face:
+`from magline.plugin import hookimpl, DutBackend, DutError, …` (the names are listed at the end of
+this page; a plugin that imports nothing else keeps working as magline's internals move).  Registration hooks take
 `register(name, factory, options=Model)`: with a pydantic `Model`, `magline check` validates the
 station file's `options` for that name (file, key and line) and the factory receives the validated
 model (result sinks; DUT backends and power controls receive their station entry).
@@ -37,10 +39,11 @@ def _doc(obj: Any) -> str:
 def hooks_section() -> list[str]:
     from magline.core import hookspecs
 
-    out = ["## Hooks", "", _doc(hookspecs), ""]
-    for name, fn in inspect.getmembers(hookspecs, inspect.isfunction):
-        if not name.startswith("magline_"):
-            continue
+    out = ["## Hooks", "", _doc(hookspecs), "", "In the order of a station's life: registration at start-up, then a "
+           "unit's phases, then what listens to them.", ""]
+    specs = [fn for name, fn in inspect.getmembers(hookspecs, inspect.isfunction) if name.startswith("magline_")]
+    for fn in sorted(specs, key=lambda f: f.__code__.co_firstlineno):  # hookspecs.py is written in that order
+        name = fn.__name__
         opts = getattr(fn, "magline_spec", {}) or {}
         flag = " — `firstresult`: the first non-None answer wins" if opts.get("firstresult") else ""
         out += [f"### `{name}`{flag}", "", "```python", _signature(fn), "```", "", _doc(fn), ""]
@@ -48,7 +51,7 @@ def hooks_section() -> list[str]:
 
 
 def protocol_section(title: str, cls: Any) -> list[str]:
-    out = [f"## {title}: `{cls.__module__}.{cls.__qualname__}`", "", _doc(cls), ""]
+    out = [f"## {title}: `magline.plugin.{cls.__qualname__}`", "", _doc(cls), ""]
     module = inspect.getmodule(cls)
     if module is not None and module.__doc__ and cls.__doc__ is None:
         out[-2] = inspect.cleandoc(module.__doc__)
@@ -57,6 +60,27 @@ def protocol_section(title: str, cls: Any) -> list[str]:
             continue
         out += [f"### `{name}`", "", "```python", _signature(member), "```", "", _doc(member), ""]
     return out
+
+
+def _own_summary(name: str, obj: Any) -> str:
+    """The first paragraph of the object's own docstring (not one inherited from a base class, a
+    dataclass's generated signature or a typing construct's)."""
+    own = obj.__dict__.get("__doc__") if isinstance(obj, type) else getattr(obj, "__doc__", None)
+    if not callable(obj) or not own or own.startswith(f"{name}("):
+        return ""
+    return inspect.cleandoc(own).split("\n\n")[0].replace("\n", " ")
+
+
+def face_section() -> list[str]:
+    """Every name of the public face, with the first line of what it is."""
+    import magline.plugin as face
+
+    out = ["## The public face: `magline.plugin`", "", _doc(face), ""]
+    for name in face.__all__:
+        obj = getattr(face, name)
+        first = _own_summary(name, obj)
+        out.append(f"- `{name}`" + (f": {first}" if first else ""))
+    return [*out, ""]
 
 
 def testing_section() -> list[str]:
@@ -76,16 +100,12 @@ def testing_section() -> list[str]:
 
 
 def generate() -> str:
-    from magline.core.dut import DutBackend
-    from magline.core.field import FieldSource
-    from magline.core.motion import Motion
-    from magline.core.power import PowerControl
-    from magline.core.results.contract import ResultSink
+    from magline.plugin import DutBackend, FieldSource, Motion, PowerControl, ResultSink
 
     lines = [HEADER, *hooks_section(), *protocol_section("DUT backend", DutBackend),
              *protocol_section("Result sink", ResultSink), *protocol_section("Field source", FieldSource),
              *protocol_section("Power control", PowerControl), *protocol_section("Motion", Motion),
-             *testing_section()]
+             *testing_section(), *face_section()]
     return "\n".join(lines).rstrip() + "\n"
 
 

@@ -112,3 +112,38 @@ CORE_TOP = {"__init__", "cli", "dut", "faults", "hookspecs", "measurements", "ph
 
 def test_cores_top_holds_only_the_modules_decided():
     assert {p.stem for p in (REPO / "core").glob("*.py")} == CORE_TOP
+
+
+def test_plugins_import_only_the_public_face_and_their_own_package():
+    """Issue 44: a plugin uses ``magline.plugin`` and its own files, never core's internals nor another
+    plugin; the mock DUT is an in-process simulator and also uses the simulators' truth (``magline.sim``)."""
+    offending = {}
+    for f, names in imports_of("plugins").items():
+        own = "magline.plugins." + f.split("/")[1]
+        allowed = ("magline.plugin", own, *(("magline.sim",) if own == "magline.plugins.mock" else ()))
+        wrong = sorted(n for n in names if not any(n == a or n.startswith(a + ".") for a in allowed))
+        if wrong:
+            offending[f] = wrong
+    assert offending == {}
+
+
+def test_the_example_plugin_and_the_reference_use_only_the_public_face():
+    """The example's simulator is test support: it may use the testing kit's face, ``magline.testing``."""
+    example = REPO / "examples" / "acme-magline" / "src"
+    for path in example.rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("magline"):
+                assert node.module in ("magline.plugin", "magline.testing"), \
+                    f"{path.relative_to(REPO)} imports {node.module}"
+    reference = (REPO / "docs" / "plugins.md").read_text(encoding="utf-8")
+    assert "from magline.plugin import hookimpl" in reference and "magline.core.plugins" not in reference
+
+
+def test_the_public_face_lists_exactly_what_it_offers():
+    import magline.plugin as face
+
+    public = {n for n in vars(face) if not n.startswith("_")}
+    assert set(face.__all__) == public - {"annotations"}
+    assert len(face.__all__) == len(set(face.__all__))
+    # a plugin's every contract is there: a factory returns one of these
+    assert {"hookimpl", "DutBackend", "FieldSource", "Motion", "PowerControl", "ResultSink"} <= public

@@ -17,7 +17,8 @@ def test_wheel_contains_only_the_magline_namespace(tmp_path):
     names = zipfile.ZipFile(wheel).namelist()
     tops = {n.split("/")[0] for n in names}
     assert tops <= {"magline", next(n.split("/")[0] for n in names if ".dist-info/" in n)}
-    for required in ("magline/core/hookspecs.py", "magline/plugins/mock/dut.py", "magline/stations/demo.yaml",
+    for required in ("magline/core/hookspecs.py", "magline/plugin/__init__.py", "magline/plugins/mock/dut.py",
+                     "magline/stations/demo.yaml",
                      "magline/sim/vehicle.py", "magline/sim/truth/imu.py", "magline/sim/commands.py",
                      "magline/core/fit/geometric.py", "magline/core/results/migrations/env.py",
                      "magline/core/results/migrations/versions/0002_run_uuid.py"):

@@ -12,7 +12,7 @@ from typing import Protocol
 
 class Motion(Protocol):
     """A fixture motion.  ``start`` returns once the fixture moves (raise a
-    :class:`~magline.core.faults.StationFault` when it cannot: the slots of the round are then not
+    :class:`~magline.plugin.StationFault` when it cannot: the slots of the round are then not
     judged); ``stop`` is called once per started round, also after errors."""
 
     type: str

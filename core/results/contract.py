@@ -8,7 +8,7 @@ Lifecycle of one unit: ``begin(record)`` (before the first attempt; sets ``recor
 ``save_attempt(record, attempt)`` for every acquisition attempt, the moment it ends, before any
 fitting (raw data safe first) → ``finish(record)`` once, with the verdict and everything measured.
 ``close()`` once at the end of the batch.  A sink that cannot store raises
-:class:`~magline.core.faults.StationFault` naming itself: the unit is then an ERROR (a judgement
+:class:`~magline.plugin.StationFault` naming itself: the unit is then an ERROR (a judgement
 nobody can trace does not count).
 
 Run ids: ``begin`` sets ``record.run_id`` to an int unique within the store and increasing with

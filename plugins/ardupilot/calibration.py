@@ -13,8 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from magline.core.dut import DutError
-from magline.core.fit import FitResult
+from magline.plugin import DutError, FitResult
 
 SETS = ("", "2", "3")  # parameter suffix of compass set 1, 2, 3
 AXES = ("X", "Y", "Z")

@@ -18,22 +18,25 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from magline.core.dut import (
+from magline.plugin import (
+    INT16_MG_RANGE_UT,
     DutError,
+    FitResult,
     LinkError,
     Magnetometer,
     NotRestored,
     ParamValue,
+    Product,
+    RepeatFilter,
     SampleChunk,
+    SensorStreams,
+    StationFault,
     UnansweredRequest,
     UnitInfo,
     await_new_boot,
     require_same_vehicle,
+    untruncate_mg,
 )
-from magline.core.faults import StationFault
-from magline.core.fit import FitResult
-from magline.core.links.readings import INT16_MG_RANGE_UT, RepeatFilter, SensorStreams, untruncate_mg
-from magline.core.station.schema import Product
 from magline.plugins.ardupilot.calibration import (
     SETS,
     HeldCalibration,

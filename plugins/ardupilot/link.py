@@ -22,8 +22,7 @@ import socket
 
 from pymavlink import mavutil
 
-from magline.core.dut import DutError, LinkError, UnansweredRequest, float32_equal, prove_unechoed_write
-from magline.core.links.listening import SLICE_S, stall_s
+from magline.plugin import SLICE_S, DutError, LinkError, UnansweredRequest, float32_equal, prove_unechoed_write, stall_s
 
 ML = mavutil.mavlink
 GCS_SYSTEM, GCS_COMPONENT = 255, 190

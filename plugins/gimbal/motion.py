@@ -17,8 +17,7 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from magline.core.links.scpi import InstrumentError, ScpiInstrument
-from magline.core.station.schema import Station
+from magline.plugin import InstrumentError, ScpiInstrument, Station
 
 
 class GimbalOptions(BaseModel):

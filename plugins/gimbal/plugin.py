@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from magline.core.plugins import hookimpl
+from magline.plugin import hookimpl
 from magline.plugins.gimbal.motion import GimbalOptions, create_gimbal_motion
 
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from magline.core.links.scpi import InstrumentError, ScpiInstrument
+from magline.plugin import InstrumentError, ScpiInstrument
 from magline.plugins.helmholtz.options import HelmholtzOptions
 
 

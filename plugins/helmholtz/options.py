@@ -6,7 +6,7 @@ from typing import Annotated
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from magline.core.field.reference import ReferenceOptions
+from magline.plugin import ReferenceOptions
 
 
 class HelmholtzOptions(BaseModel):

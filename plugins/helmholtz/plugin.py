@@ -13,16 +13,20 @@ from dataclasses import replace
 
 import numpy as np
 
-from magline.core.acquisition.tumble_stop import stop_rule
-from magline.core.dut import DutError
-from magline.core.fit import FitOptions, FitResult
-from magline.core.fit.affine import fit_affine
-from magline.core.fit.result import FitRefused
-from magline.core.fit.running import StopRule
-from magline.core.fit.samples_csv import RawSamples
-from magline.core.measurements import Numeric
-from magline.core.plugins import hookimpl
-from magline.core.sequencer.context import Acquisition, RunContext
+from magline.plugin import (
+    Acquisition,
+    DutError,
+    FitOptions,
+    FitRefused,
+    FitResult,
+    Numeric,
+    RawSamples,
+    RunContext,
+    StopRule,
+    fit_affine,
+    hookimpl,
+    stop_rule,
+)
 from magline.plugins.helmholtz.options import HelmholtzOptions
 from magline.plugins.helmholtz.source import (
     HelmholtzField,
@@ -45,7 +49,7 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition | None:
     With ``acquisition.stop: determined`` the unit leaves the schedule once the readings so far
     determine its calibration: the share of the schedule's directions applied at least the station's
     ``coverage_target``, at least ``min_samples`` readings, and the affine fit's predicted σ inside the
-    station's limits with the margin (the tumble's rule, :func:`magline.core.acquisition.tumble_stop.stop_rule`).
+    station's limits with the margin (the tumble's rule, :func:`magline.plugin.stop_rule`).
     The schedule's order makes every beginning of it well spread; on a slot station the others go on
     without the unit, and the coil is switched off when the last one has left."""
     source = run.field_source

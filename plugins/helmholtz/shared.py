@@ -13,7 +13,7 @@ from collections.abc import Callable
 
 from numpy.typing import NDArray
 
-from magline.core.sequencer.rounds import wait_or_abort
+from magline.plugin import wait_or_abort
 from magline.plugins.helmholtz.coil import CoilDriver
 
 

@@ -16,9 +16,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from magline.core.field import FieldSourceError
-from magline.core.field.reference import Fluxgate
-from magline.core.fit.coverage import fibonacci_sphere
+from magline.plugin import FieldSourceError, Fluxgate, fibonacci_sphere
 from magline.plugins.helmholtz.coil import CoilDriver
 from magline.plugins.helmholtz.options import HelmholtzOptions
 from magline.plugins.helmholtz.shared import SharedSchedule

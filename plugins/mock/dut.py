@@ -10,9 +10,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from magline.core.dut import LinkError, NotRestored, ParamValue, SampleChunk, UnitInfo
-from magline.core.fit import FitResult
-from magline.core.mounting import ImuSeries
+from magline.plugin import FitResult, ImuSeries, LinkError, NotRestored, ParamValue, SampleChunk, UnitInfo
 from magline.plugins.mock.options import MockOptions
 from magline.sim.storage import NvStorage
 from magline.sim.truth import GRAVITY_MSS, SensorTruth, earth_field_ned, gravity_body, motion_directions

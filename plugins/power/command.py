@@ -11,9 +11,7 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from magline.core.dut import DutBackend
-from magline.core.power import PowerError
-from magline.core.station.schema import PowerConfig
+from magline.plugin import DutBackend, PowerConfig, PowerError
 
 
 class CommandOptions(BaseModel):

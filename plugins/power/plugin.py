@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from magline.core.plugins import hookimpl
+from magline.plugin import hookimpl
 from magline.plugins.power.command import CommandOptions, create_command_power
 from magline.plugins.power.scpi_supply import ScpiSupplyOptions, create_scpi_supply
 

@@ -15,10 +15,7 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from magline.core.dut import DutBackend, DutError
-from magline.core.links.scpi import InstrumentError, ScpiInstrument
-from magline.core.power import PowerError
-from magline.core.station.schema import PowerConfig
+from magline.plugin import DutBackend, DutError, InstrumentError, PowerConfig, PowerError, ScpiInstrument
 
 
 class ScpiSupplyOptions(BaseModel):

@@ -10,8 +10,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from magline.core.dut import DutError, ParamValue
-from magline.core.fit import FitResult
+from magline.plugin import DutError, FitResult, ParamValue
 
 SLOTS = 4
 AXES = ("X", "Y", "Z")

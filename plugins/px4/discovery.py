@@ -19,8 +19,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from magline.core.dut import DutError
-from magline.core.faults import StationFault
+from magline.plugin import DutError, StationFault
 
 
 @dataclass(frozen=True)

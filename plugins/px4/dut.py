@@ -25,21 +25,23 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from magline.core.dut import (
+from magline.plugin import (
+    INT16_MG_RANGE_UT,
     DutError,
+    FitResult,
     Magnetometer,
     NotRestored,
     ParamValue,
+    Product,
     SampleChunk,
+    SensorStreams,
+    StationFault,
     UnitInfo,
     await_new_boot,
+    get_listening,
     require_same_vehicle,
+    untruncate_mg,
 )
-from magline.core.faults import StationFault
-from magline.core.fit import FitResult
-from magline.core.links.listening import get_listening
-from magline.core.links.readings import INT16_MG_RANGE_UT, SensorStreams, untruncate_mg
-from magline.core.station.schema import Product
 from magline.plugins.px4.calibration import (
     PRIO_EXTERNAL,
     PRIO_INTERNAL,

@@ -27,9 +27,7 @@ from mavsdk.plugins.param.param import Param, ParamError
 from mavsdk.plugins.shell.shell import Device, Shell
 from pymavlink.dialects.v20 import common as mavlink
 
-from magline.core.dut import DutError, LinkError, UnansweredRequest, prove_unechoed_write
-from magline.core.faults import StationFault
-from magline.core.links.listening import get_listening
+from magline.plugin import DutError, LinkError, StationFault, UnansweredRequest, get_listening, prove_unechoed_write
 
 log = logging.getLogger("magline.px4.mavsdk")
 # MAVSDK's results that mean the command was not answered, as opposed to answered with a no

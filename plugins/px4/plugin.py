@@ -4,8 +4,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from magline.core.plugins import hookimpl
-from magline.core.station.schema import Product
+from magline.plugin import Product, hookimpl
 from magline.plugins.px4.options import Px4Options
 
 if TYPE_CHECKING:

@@ -14,8 +14,7 @@ from collections.abc import Iterator
 from typing import Annotated
 
 import numpy as np
-from magline.core.dut import DutError, LinkError, NotRestored, SampleChunk, UnitInfo, await_new_boot
-from magline.core.mounting import ImuSeries
+from magline.plugin import DutError, ImuSeries, LinkError, NotRestored, SampleChunk, UnitInfo, await_new_boot
 from pydantic import BaseModel, ConfigDict, Field
 
 from acme_magline.protocol import MATRIX, UT_PER_MG

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from magline.core.plugins import hookimpl
+from magline.plugin import hookimpl
 
 from acme_magline.dut import AcmeDut, AcmeOptions
 from acme_magline.sink import JsonLinesOptions, JsonLinesSink

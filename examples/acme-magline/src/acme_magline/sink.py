@@ -1,6 +1,6 @@
 """A JSON-lines results sink: the plant's feed, one line per attempt and per finished run.
 
-Meets ``magline.core.results.contract.ResultSink``: run ids increase across restarts (read from the
+Meets ``magline.plugin.ResultSink``: run ids increase across restarts (read from the
 file), attempts are written the moment they end, ``history`` rebuilds a unit's runs from the file.
 """
 
@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from magline.core.measurements import Numeric, Verdict
+from magline.plugin import Numeric, Verdict
 from pydantic import BaseModel, ConfigDict
 
 

@@ -1,0 +1,130 @@
+"""magline's public face for plugin authors: everything a DUT backend, field source, motion, power
+control or results sink may use, in one import (``from magline.plugin import hookimpl, DutError, …``).
+
+Why one face: ``magline.core`` is the executive's own code and moves as it grows; a plugin that
+imports from here keeps working when it does.  The built-in plugins, the example plugin
+(``examples/acme-magline``) and ``docs/plugins.md`` use nothing else of magline (a test guards it);
+what a plugin's *tests* need is :mod:`magline.testing`.
+
+What is here, by role:
+
+* registration: :data:`hookimpl` (the hooks and their order: ``docs/plugins.md``) and the contracts
+  a registered factory returns: :class:`DutBackend`, :class:`FieldSource`, :class:`Motion`,
+  :class:`PowerControl`, :class:`ResultSink`;
+* the DUT contract: :class:`DutBackend`, :class:`UnitInfo`, :class:`Magnetometer`, :class:`SampleChunk`,
+  :data:`ParamValue`, its errors (:class:`DutError`, :class:`LinkError`, :class:`UnansweredRequest`,
+  :class:`NotRestored`, :class:`StationFault`, :class:`PowerError`, :class:`FieldSourceError`) and the
+  helpers every MAVLink-like backend needs (:func:`await_new_boot`, :func:`require_same_vehicle`,
+  :func:`prove_unechoed_write`, :func:`float32_equal`);
+* links to hardware: :func:`get_listening`, :func:`stall_s`, :data:`SLICE_S` (reading a queue while
+  the link may die), :class:`RepeatFilter`, :class:`SensorStreams`, :func:`untruncate_mg`,
+  :data:`INT16_MG_RANGE_UT` (MAVLink's int16 milligauss), :class:`ScpiInstrument`, :class:`InstrumentError`;
+* the run: :class:`RunContext`, :class:`Acquisition`, :class:`ImuSeries`, :class:`RawSamples`,
+  :func:`wait_or_abort`, the station's :class:`Station`, :class:`Product`, :class:`PowerConfig`;
+* fitting and stopping (field sources that run their own schedule): :class:`FitOptions`,
+  :class:`FitResult`, :class:`FitRefused`, :func:`fit_affine`, :func:`fibonacci_sphere`,
+  :class:`StopRule`, :func:`stop_rule`, :class:`Fluxgate`, :class:`ReferenceOptions`;
+* results: what a sink stores and how it is judged — :class:`RunRecord`, :class:`AttemptRecord`,
+  :class:`PhaseResult`, :class:`Outcome`, :class:`Measurement`, :class:`Numeric`, :class:`Verdict`, and
+  the sink's contract :class:`ResultSink` with the history it answers (:class:`HistoryRun`,
+  :class:`HistoryAttempt`, :class:`HistoryFailure`).
+"""
+
+from magline.core.acquisition.tumble_stop import stop_rule
+from magline.core.dut import (
+    DutBackend,
+    DutError,
+    LinkError,
+    Magnetometer,
+    NotRestored,
+    ParamValue,
+    SampleChunk,
+    UnansweredRequest,
+    UnitInfo,
+    await_new_boot,
+    float32_equal,
+    prove_unechoed_write,
+    require_same_vehicle,
+)
+from magline.core.faults import StationFault
+from magline.core.field import FieldSource, FieldSourceError
+from magline.core.field.reference import Fluxgate, ReferenceOptions
+from magline.core.fit import FitOptions, FitResult
+from magline.core.fit.affine import fit_affine
+from magline.core.fit.coverage import fibonacci_sphere
+from magline.core.fit.result import FitRefused
+from magline.core.fit.running import StopRule
+from magline.core.fit.samples_csv import RawSamples
+from magline.core.links.listening import SLICE_S, get_listening, stall_s
+from magline.core.links.readings import INT16_MG_RANGE_UT, RepeatFilter, SensorStreams, untruncate_mg
+from magline.core.links.scpi import InstrumentError, ScpiInstrument
+from magline.core.measurements import Measurement, Numeric, Verdict
+from magline.core.motion import Motion
+from magline.core.mounting import ImuSeries
+from magline.core.plugins import hookimpl
+from magline.core.power import PowerControl, PowerError
+from magline.core.record import AttemptRecord, Outcome, PhaseResult, RunRecord
+from magline.core.results.contract import HistoryAttempt, HistoryFailure, HistoryRun, ResultSink
+from magline.core.sequencer.context import Acquisition, RunContext
+from magline.core.sequencer.rounds import wait_or_abort
+from magline.core.station.schema import PowerConfig, Product, Station
+
+__all__ = [
+    "INT16_MG_RANGE_UT",
+    "SLICE_S",
+    "Acquisition",
+    "AttemptRecord",
+    "DutBackend",
+    "DutError",
+    "FieldSource",
+    "FieldSourceError",
+    "FitOptions",
+    "FitRefused",
+    "FitResult",
+    "Fluxgate",
+    "HistoryAttempt",
+    "HistoryFailure",
+    "HistoryRun",
+    "ImuSeries",
+    "InstrumentError",
+    "LinkError",
+    "Magnetometer",
+    "Measurement",
+    "Motion",
+    "NotRestored",
+    "Numeric",
+    "Outcome",
+    "ParamValue",
+    "PhaseResult",
+    "PowerConfig",
+    "PowerControl",
+    "PowerError",
+    "Product",
+    "RawSamples",
+    "ReferenceOptions",
+    "RepeatFilter",
+    "ResultSink",
+    "RunContext",
+    "RunRecord",
+    "SampleChunk",
+    "ScpiInstrument",
+    "SensorStreams",
+    "Station",
+    "StationFault",
+    "StopRule",
+    "UnansweredRequest",
+    "UnitInfo",
+    "Verdict",
+    "await_new_boot",
+    "fibonacci_sphere",
+    "fit_affine",
+    "float32_equal",
+    "get_listening",
+    "hookimpl",
+    "prove_unechoed_write",
+    "require_same_vehicle",
+    "stall_s",
+    "stop_rule",
+    "untruncate_mg",
+    "wait_or_abort",
+]
