@@ -214,26 +214,8 @@ class DutBackend(Protocol):
     def selected_sensor_present(self) -> bool:
         """After a power cycle: is the calibrated sensor still there with the same id?"""
 
-    # Optional, for units with several magnetometers:
-    # ``use_magnetometers(device_ids)`` — after ``connect``: stream and calibrate these (primary first);
-    # ``orientation_params(device_id, value) -> dict`` — the parameters that make the firmware take the
-    #   sensor as mounted in orientation ``value`` (names from ``Magnetometer.fix_params``);
-    # ``sensors_present() -> list[int]`` — after a power cycle: the device ids the unit has now.
-    # ``rotation_params(device_id, rotation) -> dict`` — the parameters that make the firmware turn the
-    #   sensor's axes into the body by ``rotation`` (3×3, any angle: PX4's custom Euler angles), for a
-    #   product with ``misalignment: write``; raises DutError saying why when this sensor cannot hold one.
-
-    # Optional: ``uptime_s() -> float | None`` — seconds since the autopilot booted (MAVLink SYSTEM_TIME's
-    # ``time_boot_ms``), None when it does not answer; ``acquisition.warm_up_s`` waits on it (without it:
-    # the whole time, counted from the moment asked).
-
-    # Optional: ``calibrated_field_ut(count) -> NDArray | None`` — after the power cycle, ``count``
-    # readings (µT, rows) of the firmware's own *calibrated* output for this sensor (ArduPilot's
-    # corrected stream, PX4's HIGHRES_IMU); None when it cannot be attributed to this sensor.  The
-    # verify phase requires their magnitude to match the reference field.
-    # Optional with it: ``calibrated_fields_ut(count, device_ids) -> dict[int, NDArray | None]`` — the
-    # same for several sensors read side by side (ArduPilot's compasses stream at 10 Hz each: one
-    # after the other, a three-compass unit waits three times as long); used for a unit of several.
+    # Optional capabilities: the Protocols below (``isinstance(dut, ReportsUptime)`` …); a backend has a
+    # capability by having the method, nothing to declare.
 
     def persistence_problems(self) -> list[str]:
         """After a power cycle: what the autopilot itself says is wrong with the calibration
@@ -245,6 +227,85 @@ class DutBackend(Protocol):
 
     def close(self) -> None:
         """Release the link."""
+
+
+# ---------------------------------------------------------------------------------------------- optional
+# What some backends can do and others cannot.  Why Protocols and not methods on DutBackend: a backend
+# without the capability must not pretend to have it (a default that returns "nothing" would read as
+# "checked, nothing wrong"); the core asks ``isinstance(dut, Capability)`` and says what it skipped.
+
+
+@runtime_checkable
+class CalibratesSeveral(Protocol):
+    """A unit with several magnetometers: after ``connect``, stream and calibrate these (primary first)."""
+
+    def use_magnetometers(self, device_ids: list[int]) -> None: ...
+
+
+@runtime_checkable
+class ReportsSensorsPresent(Protocol):
+    """After a power cycle: the device ids the unit has now (a unit of several is checked sensor by sensor)."""
+
+    def sensors_present(self) -> list[int]: ...
+
+
+@runtime_checkable
+class WritesOrientation(Protocol):
+    """The parameters that make the firmware take the sensor as mounted in firmware orientation ``value``
+    (names from ``Magnetometer.fix_params``): the mounting check's advice names them."""
+
+    def orientation_params(self, device_id: int, value: int) -> dict[str, ParamValue]: ...
+
+
+@runtime_checkable
+class WritesRotation(Protocol):
+    """The parameters that make the firmware turn the sensor's axes into the body by ``rotation`` (3×3,
+    any angle: PX4's custom Euler angles), for a product with ``misalignment: write``; raises
+    :class:`DutError` saying why when this sensor cannot hold one."""
+
+    def rotation_params(self, device_id: int, rotation: NDArray) -> dict[str, ParamValue]: ...
+
+
+@runtime_checkable
+class ReportsUptime(Protocol):
+    """Seconds since the autopilot booted (MAVLink SYSTEM_TIME's ``time_boot_ms``), None when it does not
+    answer; ``acquisition.warm_up_s`` waits on it (without it: the whole time, counted from the moment asked)."""
+
+    def uptime_s(self) -> float | None: ...
+
+
+@runtime_checkable
+class HasBootTimeout(Protocol):
+    """How long the unit may take to boot after a power cycle (the operator's countdown shows it)."""
+
+    boot_timeout_s: float
+
+
+@runtime_checkable
+class ReadsCalibratedField(Protocol):
+    """After the power cycle, ``count`` readings (µT, rows) of the firmware's own *calibrated* output for
+    this sensor (``sensor``: its device id, for a unit of several) — ArduPilot's corrected stream, PX4's
+    HIGHRES_IMU; None when it cannot be attributed to this sensor.  The verify phase holds their
+    magnitude to the reference."""
+
+    def calibrated_field_ut(self, count: int, sensor: int | None = None) -> NDArray | None: ...
+
+
+@runtime_checkable
+class ReadsCalibratedFields(Protocol):
+    """The same for several sensors read side by side (ArduPilot's compasses stream at 10 Hz each: one
+    after the other, a three-compass unit waits three times as long)."""
+
+    def calibrated_fields_ut(self, count: int, device_ids: list[int]) -> dict[int, NDArray | None]: ...
+
+
+@runtime_checkable
+class ReadsRawAndCalibrated(Protocol):
+    """The firmware's calibrated readings each beside the raw reading of every calibrated sensor it may
+    have been made from, all µT: ``({device id: raw rows}, calibrated rows)``, None where it cannot tell
+    — what proves the firmware *applies* magline's calibration (issue 50)."""
+
+    def raw_and_calibrated_ut(self, count: int) -> tuple[dict[int, NDArray], NDArray] | None: ...
 
 
 DutFactory = Callable[["Product", Any], DutBackend]  # (the product entry, its validated options)

@@ -15,7 +15,7 @@ from dataclasses import replace
 import numpy as np
 
 from magline.core.acquisition.tumble_stop import Stall, running_fit
-from magline.core.dut import DutError, LinkError, ParamValue, SampleChunk
+from magline.core.dut import DutError, HasBootTimeout, LinkError, ParamValue, ReportsSensorsPresent, SampleChunk
 from magline.core.faults import StationFault, UnitAborted
 from magline.core.fit import CoverageTracker, FitOptions, FitResult, coverage_of, fit_calibration
 from magline.core.fit.coverage import bin_index, covered_bins, sphere_centre
@@ -376,11 +376,12 @@ def _roll_back(run: RunContext, before: dict[str, ParamValue]) -> str:
 def magline_verify_persistence(run: RunContext, persisted: PersistReport) -> VerifyReport:
     dut = run.require_dut()
     power = run.require_power()
-    with run.waiting("power cycle: waiting for the unit to boot", getattr(dut, "boot_timeout_s", None)):
+    boot_timeout_s = dut.boot_timeout_s if isinstance(dut, HasBootTimeout) else None
+    with run.waiting("power cycle: waiting for the unit to boot", boot_timeout_s):
         figures = dict(power.cycle(dut))
     method = str(figures.pop("method", power.method))
     missing: list[str] = []
-    if len(run.magnetometers) > 1 and hasattr(dut, "sensors_present"):
+    if len(run.magnetometers) > 1 and isinstance(dut, ReportsSensorsPresent):
         now = set(dut.sensors_present())
         missing = [run.sensor_label(m.device_id) for m in run.magnetometers if m.device_id not in now]
         present = not missing

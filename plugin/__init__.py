@@ -16,6 +16,10 @@ What is here, by role:
   :class:`NotRestored`, :class:`StationFault`, :class:`PowerError`, :class:`FieldSourceError`) and the
   helpers every MAVLink-like backend needs (:func:`await_new_boot`, :func:`require_same_vehicle`,
   :func:`prove_unechoed_write`, :func:`float32_equal`);
+* optional capabilities a backend has by having the method (the core asks ``isinstance(dut, …)``):
+  :class:`CalibratesSeveral`, :class:`ReportsSensorsPresent`, :class:`WritesOrientation`,
+  :class:`WritesRotation`, :class:`ReportsUptime`, :class:`HasBootTimeout`, :class:`ReadsCalibratedField`,
+  :class:`ReadsCalibratedFields`, :class:`ReadsRawAndCalibrated`;
 * links to hardware: :func:`get_listening`, :func:`stall_s`, :data:`SLICE_S` (reading a queue while
   the link may die), :class:`RepeatFilter`, :class:`SensorStreams`, :func:`untruncate_mg`,
   :data:`INT16_MG_RANGE_UT` (MAVLink's int16 milligauss), :class:`ScpiInstrument`, :class:`InstrumentError`;
@@ -32,15 +36,24 @@ What is here, by role:
 
 from magline.core.acquisition.tumble_stop import stop_rule
 from magline.core.dut import (
+    CalibratesSeveral,
     DutBackend,
     DutError,
+    HasBootTimeout,
     LinkError,
     Magnetometer,
     NotRestored,
     ParamValue,
+    ReadsCalibratedField,
+    ReadsCalibratedFields,
+    ReadsRawAndCalibrated,
+    ReportsSensorsPresent,
+    ReportsUptime,
     SampleChunk,
     UnansweredRequest,
     UnitInfo,
+    WritesOrientation,
+    WritesRotation,
     await_new_boot,
     float32_equal,
     prove_unechoed_write,
@@ -74,6 +87,7 @@ __all__ = [
     "SLICE_S",
     "Acquisition",
     "AttemptRecord",
+    "CalibratesSeveral",
     "DutBackend",
     "DutError",
     "FieldSource",
@@ -82,6 +96,7 @@ __all__ = [
     "FitRefused",
     "FitResult",
     "Fluxgate",
+    "HasBootTimeout",
     "HistoryAttempt",
     "HistoryFailure",
     "HistoryRun",
@@ -101,8 +116,13 @@ __all__ = [
     "PowerError",
     "Product",
     "RawSamples",
+    "ReadsCalibratedField",
+    "ReadsCalibratedFields",
+    "ReadsRawAndCalibrated",
     "ReferenceOptions",
     "RepeatFilter",
+    "ReportsSensorsPresent",
+    "ReportsUptime",
     "ResultSink",
     "RunContext",
     "RunRecord",
@@ -115,6 +135,8 @@ __all__ = [
     "UnansweredRequest",
     "UnitInfo",
     "Verdict",
+    "WritesOrientation",
+    "WritesRotation",
     "await_new_boot",
     "fibonacci_sphere",
     "fit_affine",

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from magline.core.dut import ReadsCalibratedField, ReadsCalibratedFields, ReadsRawAndCalibrated, ReportsUptime
 from magline.core.fit.samples_csv import RawSamples
 from magline.core.record import AttemptRecord, Outcome, RunRecord
 from magline.core.results.contract import HistoryAttempt, HistoryRun, ResultSink
@@ -207,7 +208,7 @@ def check_dut_backend(open_dut: Callable[[], Any], field_ut: float, *, samples: 
         assert info.soft_iron_model in ("full", "diagonal"), "UnitInfo.soft_iron_model is 'full' or 'diagonal'"
         original = dut.read_params(list(prepare_params))
         assert set(original) == set(prepare_params), f"read_params({list(prepare_params)}) returned {original}"
-        uptime_of = getattr(dut, "uptime_s", None)  # optional: what acquisition.warm_up_s waits on
+        uptime_of = dut.uptime_s if isinstance(dut, ReportsUptime) else None  # what acquisition.warm_up_s waits on
         if uptime_of is not None:
             figures["uptime_s"] = up = uptime_of()
             assert up is None or (isinstance(up, (int, float)) and up >= 0), (
@@ -274,19 +275,17 @@ def check_dut_backend(open_dut: Callable[[], Any], field_ut: float, *, samples: 
         back = dut.read_params(list(params))
         wrong = [n for n, v in params.items() if not np.isclose(back.get(n, np.nan), v, rtol=1e-6, atol=1e-9)]
         assert not wrong, f"{wrong} not read back after commit() and a power cycle"
-        read = getattr(dut, "calibrated_field_ut", None)
-        assert callable(read), ("declare calibrated_field_ut(count): the firmware's calibrated output proves "
-                                "the conversion")
-        output = read(20)
+        assert isinstance(dut, ReadsCalibratedField), (
+            "declare calibrated_field_ut(count): the firmware's calibrated output proves the conversion")
+        output = dut.calibrated_field_ut(20)
         if output is not None:
             measured = float(np.median(np.linalg.norm(np.atleast_2d(output), axis=1)))
             figures["calibrated_field_ut"] = measured
             assert abs(measured / field_ut - 1) * 100 <= tolerance_pct, (
                 f"the firmware's calibrated output reads {measured:.2f} µT in a {field_ut:g} µT field: "
                 "calibration_params() has a wrong sign, unit or matrix convention")
-        read_several = getattr(dut, "calibrated_fields_ut", None)  # optional: several sensors side by side
-        if read_several is not None:
-            several = read_several(20, [info.selected_sensor])
+        if isinstance(dut, ReadsCalibratedFields):  # optional: several sensors side by side
+            several = dut.calibrated_fields_ut(20, [info.selected_sensor])
             assert set(several) == {info.selected_sensor}, (
                 f"calibrated_fields_ut(20, [{info.selected_sensor}]) returned sensors {sorted(several)}: one entry "
                 "per device id asked for")
@@ -296,6 +295,17 @@ def check_dut_backend(open_dut: Callable[[], Any], field_ut: float, *, samples: 
                 assert abs(beside / measured - 1) * 100 <= tolerance_pct, (
                     f"calibrated_fields_ut reads {beside:.2f} µT where calibrated_field_ut read {measured:.2f} µT: "
                     "they must read the same calibrated output")
+        if isinstance(dut, ReadsRawAndCalibrated) and (both := dut.raw_and_calibrated_ut(20)) is not None:
+            raws, calibrated = both
+            assert info.selected_sensor in raws, (
+                f"raw_and_calibrated_ut returned raw readings of {sorted(raws)}, not of the calibrated sensor "
+                f"{info.selected_sensor}")
+            made = np.linalg.norm(fit.apply(raws[info.selected_sensor]), axis=1)
+            apart = float(np.mean(np.linalg.norm(np.atleast_2d(calibrated), axis=1) - made))
+            figures["applied_difference_ut"] = apart
+            assert abs(apart) < 0.5, (
+                f"the calibrated readings are {apart:+.2f} µT from the fit applied to the raw readings returned "
+                "beside them: each raw row must be the reading its calibrated row was made from, both in µT")
 
         dut.restore()
         cycle(dut)

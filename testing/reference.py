@@ -62,6 +62,24 @@ def protocol_section(title: str, cls: Any) -> list[str]:
     return out
 
 
+def capabilities_section() -> list[str]:
+    """The optional DUT capabilities: a backend has one by having its member; the core asks
+    ``isinstance(dut, Capability)``."""
+    from magline.core import dut as contract
+
+    out = ["## Optional DUT capabilities", "", "A backend has a capability by having its method (nothing to declare); "
+           "the core asks `isinstance(dut, Capability)` and does without it otherwise.", ""]
+    caps = [obj for _, obj in inspect.getmembers(contract, inspect.isclass)
+            if getattr(obj, "_is_runtime_protocol", False) and obj.__module__ == contract.__name__
+            and obj.__name__ != "DutBackend"]
+    for cls in sorted(caps, key=lambda c: inspect.getsourcelines(c)[1]):
+        members = [(n, m) for n, m in cls.__dict__.items() if not n.startswith("_") and callable(m)]
+        fields = list(getattr(cls, "__annotations__", {}).items())
+        out += [f"### `magline.plugin.{cls.__name__}`", "", "```python"]
+        out += [_signature(m) for _, m in members] + [f"{n}: {t}" for n, t in fields] + ["```", "", _doc(cls), ""]
+    return out
+
+
 def _own_summary(name: str, obj: Any) -> str:
     """The first paragraph of the object's own docstring (not one inherited from a base class, a
     dataclass's generated signature or a typing construct's)."""
@@ -102,7 +120,7 @@ def testing_section() -> list[str]:
 def generate() -> str:
     from magline.plugin import DutBackend, FieldSource, Motion, PowerControl, ResultSink
 
-    lines = [HEADER, *hooks_section(), *protocol_section("DUT backend", DutBackend),
+    lines = [HEADER, *hooks_section(), *protocol_section("DUT backend", DutBackend), *capabilities_section(),
              *protocol_section("Result sink", ResultSink), *protocol_section("Field source", FieldSource),
              *protocol_section("Power control", PowerControl), *protocol_section("Motion", Motion),
              *testing_section(), *face_section()]

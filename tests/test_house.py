@@ -147,3 +147,36 @@ def test_the_public_face_lists_exactly_what_it_offers():
     assert len(face.__all__) == len(set(face.__all__))
     # a plugin's every contract is there: a factory returns one of these
     assert {"hookimpl", "DutBackend", "FieldSource", "Motion", "PowerControl", "ResultSink"} <= public
+
+
+def test_core_asks_a_backend_for_a_capability_by_its_protocol_not_by_a_name():
+    """Issue 44: optional DUT methods are Protocols in ``core/dut.py``; no ``getattr(dut, "…")`` probes."""
+    import re
+
+    probe = re.compile(r"\b(getattr|hasattr)\((run\.)?dut\b")
+    found = [f"{p.relative_to(REPO)}:{n}" for p in (REPO / "core").rglob("*.py")
+             for n, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1) if probe.search(line)]
+    assert found == []
+
+
+def test_each_built_in_backend_has_the_capabilities_its_firmware_offers():
+    """What each backend can do, as the core sees it: a method renamed in a backend drops the capability
+    silently (the core does without it), so the list is held here."""
+    from magline import plugin as face
+    from magline.plugins.ardupilot.dut import ArduPilotDut
+    from magline.plugins.mock.dut import MockDut
+    from magline.plugins.px4.dut import Px4Dut
+
+    capabilities = [face.CalibratesSeveral, face.ReportsSensorsPresent, face.WritesOrientation, face.WritesRotation,
+                    face.ReportsUptime, face.ReadsCalibratedField, face.ReadsCalibratedFields,
+                    face.ReadsRawAndCalibrated]
+
+    def has(cls) -> set[str]:
+        return {c.__name__ for c in capabilities if issubclass(cls, c)} | (
+            {"HasBootTimeout"} if isinstance(getattr(cls, "boot_timeout_s", None), property) else set())
+
+    several = {"CalibratesSeveral", "ReportsSensorsPresent", "WritesOrientation", "ReportsUptime",
+               "ReadsCalibratedField", "HasBootTimeout"}
+    assert has(Px4Dut) == several | {"WritesRotation", "ReadsRawAndCalibrated"}
+    assert has(ArduPilotDut) == several | {"ReadsCalibratedFields"}
+    assert has(MockDut) == {"ReportsUptime", "ReadsCalibratedField"}

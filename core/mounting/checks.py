@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from magline.core.dut import DutError, ParamValue
+from magline.core.dut import DutError, ParamValue, WritesOrientation, WritesRotation
 from magline.core.faults import StationFault
 from magline.core.measurements import Json, Measurement, Numeric, Verdict
 from magline.core.mounting.agreement import heading_agreement
@@ -68,10 +68,9 @@ def configured_rotation(sensor: Magnetometer) -> NDArray:
 
 
 def fix_text(run: RunContext, sensor: Magnetometer, value: int) -> str:
-    fix = getattr(run.dut, "orientation_params", None)
-    if fix is None or not sensor.fix_params:
+    if not isinstance(run.dut, WritesOrientation) or not sensor.fix_params:
         return "no parameter of this firmware can hold it: remount the sensor"
-    params = fix(sensor.device_id, value)
+    params = run.dut.orientation_params(sensor.device_id, value)
     return "set " + ", ".join(f"{k} = {v}" for k, v in params.items())
 
 
@@ -190,11 +189,10 @@ def _hold_misalignment(run: RunContext, sensor: Magnetometer, mounted: NDArray, 
     """``misalignment: write``: the backend's parameters for the measured rotation, or why it has none
     (logged and kept in the note: the discrete orientation stays what the firmware applies)."""
     label = run.sensor_label(sensor.device_id)
-    hold = getattr(run.dut, "rotation_params", None)
     try:
-        if hold is None:
+        if not isinstance(run.dut, WritesRotation):
             raise DutError("this backend cannot write a custom rotation")
-        params = dict(hold(sensor.device_id, mounted))
+        params = dict(run.dut.rotation_params(sensor.device_id, mounted))
     except DutError as exc:
         note = f"{label}: misalignment of {error_deg:.2f}° not written: {exc}"
         run.log(note)

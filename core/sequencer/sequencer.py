@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from magline.core import __version__
-from magline.core.dut import DutError, LinkError, Magnetometer, NotRestored
+from magline.core.dut import CalibratesSeveral, DutError, LinkError, Magnetometer, NotRestored, ReportsUptime
 from magline.core.faults import StationFault, UnitAborted
 from magline.core.field import FieldSourceError
 from magline.core.fit import FitRefused, FitResult
@@ -289,7 +289,7 @@ class Sequencer:
         run.record.unit_info["magnetometers"] = [
             {"prefix": run.sensor_prefix(m.device_id).rstrip("."), "device_id": m.device_id, "label": m.label,
              "external": m.external, "orientation": m.orientation} for m in run.magnetometers]
-        if run.unit.magnetometers and hasattr(run.dut, "use_magnetometers"):
+        if run.unit.magnetometers and isinstance(run.dut, CalibratesSeveral):
             run.dut.use_magnetometers([m.device_id for m in run.magnetometers])
         names = ", ".join(run.sensor_label(m.device_id) for m in run.magnetometers)
         run.log(f"{run.unit.autopilot} {run.unit.firmware}, magnetometer{'s' if len(run.magnetometers) > 1 else ''} "
@@ -318,7 +318,7 @@ class Sequencer:
         need = self.station.acquisition.warm_up_s
         if need <= 0:
             return
-        reader = getattr(run.dut, "uptime_s", None)
+        reader = run.dut.uptime_s if isinstance(run.dut, ReportsUptime) else None
 
         def uptime() -> float | None:
             if reader is None:

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from magline.core.dut import ReadsCalibratedField, ReadsCalibratedFields, ReadsRawAndCalibrated
 from magline.core.fit import FitResult
 from magline.core.mounting.checks import configured_rotation
 from magline.core.sequencer.context import RunContext
@@ -66,15 +67,14 @@ def calibrated_output_problems(run: RunContext, dut: object, figures: dict) -> l
     """Why the unit's calibrated output after the power cycle is not magline's calibration applied
     where the tumble left the sensor (empty when it is, or when nothing can be read); the figures
     read go into ``figures``."""
-    read = getattr(dut, "calibrated_field_ut", None)
     reference = run.reference_field_ut
-    if read is None or not reference or not getattr(run.field_source, "reference_is_ambient", False):
+    if not isinstance(dut, ReadsCalibratedField) or not reference or not getattr(run.field_source,
+                                                                                  "reference_is_ambient", False):
         return []
-    paired = getattr(dut, "raw_and_calibrated_ut", None)
-    both = paired(CALIBRATED_READINGS) if paired is not None else None
+    both = dut.raw_and_calibrated_ut(CALIBRATED_READINGS) if isinstance(dut, ReadsRawAndCalibrated) else None
     if both is not None:
         return _paired_proof(run, *both, figures)
-    return _magnitude_proof(run, dut, read, figures)
+    return _magnitude_proof(run, dut, figures)
 
 
 def _paired_proof(run: RunContext, raws: dict[int, np.ndarray], calibrated: np.ndarray, figures: dict) -> list[str]:
@@ -102,18 +102,20 @@ def _paired_proof(run: RunContext, raws: dict[int, np.ndarray], calibrated: np.n
     return [whose + problem] if problem else []
 
 
-def _magnitude_proof(run: RunContext, dut: object, read, figures: dict) -> list[str]:
+def _magnitude_proof(run: RunContext, dut: ReadsCalibratedField, figures: dict) -> list[str]:
     """Without raw readings beside the calibrated ones: each compass's calibrated magnitude against the
     reference, the raw behind it taken as magline's calibration undone."""
     several = len(run.magnetometers) > 1
-    at_once = getattr(dut, "calibrated_fields_ut", None) if several else None
-    read_all = at_once(CALIBRATED_READINGS, [m.device_id for m in run.magnetometers]) if at_once else {}
+    at_once = several and isinstance(dut, ReadsCalibratedFields)
+    read_all = dut.calibrated_fields_ut(CALIBRATED_READINGS, [m.device_id for m in run.magnetometers]) \
+        if at_once else {}
     problems = []
     for sensor in run.magnetometers if several else run.magnetometers[:1] or [None]:
         if at_once:
             readings = read_all.get(sensor.device_id)
         else:
-            readings = read(CALIBRATED_READINGS, sensor=sensor.device_id) if several else read(CALIBRATED_READINGS)
+            readings = (dut.calibrated_field_ut(CALIBRATED_READINGS, sensor=sensor.device_id) if several
+                        else dut.calibrated_field_ut(CALIBRATED_READINGS))
         if readings is None or len(readings) == 0:
             continue
         whose = f"{run.sensor_label(sensor.device_id)}: " if several else ""
