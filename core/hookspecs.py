@@ -29,7 +29,7 @@ from pydantic import BaseModel
 if TYPE_CHECKING:
     from magline.core.fit import FitOptions, FitResult
     from magline.core.fit.samples_csv import RawSamples
-    from magline.core.measurements import Measurement
+    from magline.core.measurements import Measurement, Numeric
     from magline.core.record import PersistReport, PhaseResult, RunRecord, VerifyReport
     from magline.core.sequencer.context import Acquisition, RunContext
 
@@ -185,8 +185,9 @@ def magline_validate_unit(run: RunContext, fits: dict[int, FitResult]) -> list[M
         primary first (``run.magnetometers`` says which sensor each is; ``run.attempts[-1]`` holds
         their readings and the accelerometer's).
     :return: measurements judged against the station's limits (a pair's names carry both sensors'
-        prefixes, ``mag1-mag2.``).  A plugin may also leave decisions for the persist phase in
-        ``run.state`` (the core leaves the orientations to write in ``run.state["orientation_fixes"]``).
+        prefixes, ``mag1-mag2.``).  The core's mounting check leaves its decisions for the persist
+        phase in ``run.orientation_fixes`` and ``run.rotation_writes``; a plugin keeps its own in
+        ``run.state``.
         Raise :class:`~magline.plugin.StationFault` when the station cannot judge (no
         accelerometer to prove a mounting): the unit is an ERROR.
     """
@@ -307,6 +308,18 @@ def magline_motion_stopped(round: int, slots: list[str], motion: str) -> None:
 @hookspec
 def magline_operator_prompt(run: RunContext, message: str) -> None:
     """Something the operator must do now (tumble, tumble again, scan)."""
+
+
+@hookspec
+def magline_unit_judged(run: RunContext, measurements: list[Numeric]) -> None:
+    """The validate phase found every measurement inside its limits (called before persist, never
+    for a FAIL).  A listener may compare the unit with the process — the core's in-run review marks
+    a measurement far from the recent units ``Verdict.REVIEW`` and writes ``run.record.review`` and
+    ``review_note`` — but must not fail the unit: a REVIEW is for engineering, the unit passes.
+
+    :param measurements: the unit's numeric measurements with their verdicts (all PASS or REVIEW).
+        ``run.results`` is the station's results store (``series`` for the process's history).
+    """
 
 
 @hookspec

@@ -304,7 +304,7 @@ def calibration_to_write(run: RunContext, fit: FitResult) -> dict[str, ParamValu
     dut = run.require_dut()
     if not run.unit or not run.unit.magnetometers:
         return dict(dut.calibration_params(fit))
-    fixes: dict[int, int] = run.state.get("orientation_fixes", {})
+    fixes = run.orientation_fixes
     params: dict[str, ParamValue] = {}
     for sensor in run.magnetometers:
         this = fit if sensor is run.magnetometers[0] else run.fits[sensor.device_id]
@@ -314,7 +314,7 @@ def calibration_to_write(run: RunContext, fit: FitResult) -> dict[str, ParamValu
         params |= dut.calibration_params(this, sensor=sensor.device_id)
         if sensor.device_id in fixes:
             params |= dut.orientation_params(sensor.device_id, fixes[sensor.device_id])
-        params |= run.state.get("rotation_writes", {}).get(sensor.device_id, {})  # misalignment: write
+        params |= run.rotation_writes.get(sensor.device_id, {})  # misalignment: write
     return params
 
 

@@ -180,3 +180,16 @@ def test_each_built_in_backend_has_the_capabilities_its_firmware_offers():
     assert has(Px4Dut) == several | {"WritesRotation", "ReadsRawAndCalibrated"}
     assert has(ArduPilotDut) == several | {"ReadsCalibratedFields"}
     assert has(MockDut) == {"ReportsUptime", "ReadsCalibratedField"}
+
+
+def test_the_sequencer_imports_no_output_room():
+    """Issue 44: reports, the process review and what the operator sees listen to the run's hooks
+    (``magline_unit_judged``, ``magline_unit_finished`` …); the sequencer runs the procedure and
+    writes the record through the results-sink contract it opens from the registry."""
+    outputs = ("magline.core.reports", "magline.core.quality", "magline.core.operator_ui")
+    offending = {f: sorted(n for n in names if n.startswith(outputs))
+                 for f, names in imports_of("core/sequencer").items()}
+    assert {f: n for f, n in offending.items() if n} == {}
+    group = {ep.name: ep.value for ep in entry_points(group="magline")}
+    assert group["process_review"] == "magline.core.quality.in_run"
+    assert group["unit_reports"] == "magline.core.reports.unit_report"

@@ -163,3 +163,41 @@ def test_the_robust_sigma_is_scipys_normal_scaled_mad():
     past = np.random.default_rng(5).standard_t(3, size=301) * 4 + 100
     flags = review([numeric("hard_iron_x_ut", 1e4)], {"hard_iron_x_ut": past}, units=301, min_units=30, sigma=3.0)
     assert flags.flags[0].sigma == pytest.approx(median_abs_deviation(past, scale="normal"), rel=1e-12)
+
+
+def test_the_review_is_a_listener_of_magline_unit_judged_another_may_listen_and_it_can_be_disabled(
+        make_station, tmp_path, monkeypatch):
+    """Issue 44: the sequencer says when a unit is judged inside its limits (``magline_unit_judged``)
+    and imports no review; the core's review is a plugin like any listener, so a line can switch it off."""
+    from magline.core.plugins import hookimpl
+
+    heard: list[tuple[str, list[str], set[str]]] = []
+
+    class Listener:
+        @hookimpl
+        def magline_unit_judged(self, run, measurements):
+            heard.append((run.serial, [m.name for m in measurements], {str(m.verdict) for m in measurements}))
+
+    path = make_station({"acquisition": {"stop": "samples"}})
+    seq = Sequencer(load_station(path), load_plugins(extra=[Listener()]), path.parent, sleep=lambda s: None)
+    try:
+        record = seq.run_unit("HEARD-1")
+    finally:
+        seq.close()
+    assert record.verdict is Outcome.PASS, record.cause
+    ((serial, names, seen),) = heard
+    assert serial == "HEARD-1" and "hard_iron_x_ut" in names and seen <= {"pass", "review", "info"}  # no FAIL
+    assert record.review_note.startswith("no process review: ") and "needed" in record.review_note  # core listened
+    # a FAIL is never "judged inside its limits": the listener is not called
+    failing = make_station({"acquisition": {"stop": "samples"},
+                            "products": {"MOCK-100": {"limits": {"hard_iron_norm_ut": {"le": 0.001}}}}},
+                           name="failing.yaml")
+    heard.clear()
+    seq = Sequencer(load_station(failing), load_plugins(extra=[Listener()]), failing.parent, sleep=lambda s: None)
+    try:
+        assert seq.run_unit("HEARD-2").verdict is Outcome.FAIL
+    finally:
+        seq.close()
+    assert heard == []
+    monkeypatch.setenv("MAGLINE_DISABLE_PLUGINS", "process_review")
+    assert run(path, "UNHEARD-1").review_note == ""  # nobody reviewed

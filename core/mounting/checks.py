@@ -5,10 +5,10 @@ registered like any plugin through the ``mounting`` entry point).
 What is judged, per sensor (names prefixed ``mag2.`` … for sensors after the primary):
 - ``orientation``: the firmware orientation value the sensor is really mounted in; another value than
   the one configured FAILs, naming the parameter value that would fix it — or, with the product's
-  ``orientation: fix``, leaves it in ``run.state["orientation_fixes"]`` for the persist phase;
+  ``orientation: fix``, leaves it in ``run.orientation_fixes`` for the persist phase;
 - ``mounting_error_deg``: what is left between the sensor's axes and that orientation (or the custom
   rotation the firmware already holds); with the product's ``misalignment: write`` the whole measured
-  rotation is also left in ``run.state["rotation_writes"]`` where the backend can hold it
+  rotation is also left in ``run.rotation_writes`` where the backend can hold it
   (``rotation_params``: PX4's custom Euler angles), the note saying so or why not — the limit still
   judges the mechanical misalignment;
 - ``inclination_error_deg``: the field's inclination the unit saw against the field source's;
@@ -157,8 +157,8 @@ def magline_validate_unit(run: RunContext, fits: dict[int, FitResult]) -> list[M
         report[pair.rstrip(".")] = {"median_deg": agreement.median_deg, "max_deg": agreement.max_deg,
                                     "mean_deg": agreement.mean_deg, "pairs": agreement.pairs, "used": agreement.used,
                                     "relation": np.round(agreement.relation, 6).tolist()}
-    run.state["orientation_fixes"] = fixes
-    run.state["rotation_writes"] = {d: r.params for d, r in rotations.items()}
+    run.orientation_fixes = fixes
+    run.rotation_writes = {d: r.params for d, r in rotations.items()}
     run.record.unit_info["mounting"] = report
     out.append(Json(name="mounting", data=report))
     return out

@@ -24,7 +24,7 @@ if TYPE_CHECKING:
     from magline.core.mounting import ImuSeries
     from magline.core.plugins import Plugins
     from magline.core.power import PowerControl
-    from magline.core.record import PhaseResult, RunRecord
+    from magline.core.record import PersistReport, PhaseResult, RunRecord
     from magline.core.sequencer.abort import AbortSwitch
     from magline.core.sequencer.rounds import MotionRounds
     from magline.core.station.schema import Limit, Product, Station
@@ -95,7 +95,20 @@ class RunContext:
     fits: dict[int, FitResult] = field(default_factory=dict)  # by device id, from the accepted attempt
     # why the next acquisition attempt is needed, in the operator's terms (None: low coverage)
     retry_advice: str | None = None
-    state: dict[str, Any] = field(default_factory=dict)  # scratch space for plugins
+    # what the phases hand on to each other (typed, so a phase cannot miss a key another wrote):
+    fit: FitResult | None = None  # the primary's calibration, after the fit phase …
+    fit_s: float = 0.0  # … and how long fitting every sensor took
+    # the validate phase's mounting check, for the persist phase: firmware orientations to write (device
+    # id → orientation value, ``orientation: fix``) and custom rotations (device id → parameters,
+    # ``misalignment: write``)
+    orientation_fixes: dict[int, int] = field(default_factory=dict)
+    rotation_writes: dict[int, dict[str, float]] = field(default_factory=dict)
+    persisted: PersistReport | None = None  # what the persist phase wrote, for the verify phase
+    phase_started_at: float = 0.0  # time.monotonic() when the running phase began
+    # the station's results stores (the sink contract, ``ResultSink``): what listeners read back — the
+    # process's history for the in-run review, the stored record for a report
+    results: Any = None
+    state: dict[str, Any] = field(default_factory=dict)  # scratch space for plugins only
     abort: AbortSwitch | None = None
     slot: str | None = None  # the fixture position on a station with slots (None: a one-unit station)
     rounds: MotionRounds | None = None  # the motion this unit shares (see core/sequencer/rounds)
@@ -223,6 +236,11 @@ class RunContext:
         if self.unit is None:
             raise RuntimeError("the unit has not been identified")
         return self.unit
+
+    def require_fit(self) -> FitResult:
+        if self.fit is None:
+            raise RuntimeError("nothing is fitted yet")
+        return self.fit
 
     def require_dut(self) -> DutBackend:
         if self.dut is None:

@@ -28,9 +28,7 @@ from magline.core.field import FieldSourceError
 from magline.core.fit import FitRefused, FitResult
 from magline.core.measurements import Json, Verdict, limit_for, prefixed, verdicts
 from magline.core.plugins import Plugins
-from magline.core.quality.review import review
 from magline.core.record import AttemptRecord, Outcome, PersistReport, PhaseResult, RunRecord, now_iso
-from magline.core.results.reading import RunFilter
 from magline.core.results.sinks import open_results
 from magline.core.sequencer.abort import AbortSwitch
 from magline.core.sequencer.context import Acquisition, AcquisitionAborted, RunContext
@@ -126,7 +124,7 @@ class Sequencer:
                          product=product, serial=serial, operator=operator,
                          plugins=self.plugins, record=record, limits=station.effective_limits(part),
                          abort=abort or self.abort, slot=slot.id if slot is not None else None,
-                         rounds=rounds or self.rounds([slot_id]))
+                         rounds=rounds or self.rounds([slot_id]), results=self.sink)
         steps: list[tuple[str, Callable[[RunContext], Any]]] = [
             ("identify", self._identify), ("connect", self._connect), ("acquire", self._acquire),
             ("fit", self._fit), ("validate", self._validate), ("persist", self._persist),
@@ -177,9 +175,7 @@ class Sequencer:
                 record.cause = f"{record.cause} — {note}" if record.cause else note
                 if record.verdict in (Outcome.PASS, Outcome.FAIL):
                     record.verdict = Outcome.ERROR  # a judgement nobody can trace does not count
-            elif self.station.main_results.reports is not None:
-                self._write_report(run)
-            self.plugins.hook.magline_unit_finished(run=run, record=record)
+            self.plugins.hook.magline_unit_finished(run=run, record=record)  # reports, screens, … listen
         return record
 
     def _run_phase(self, run: RunContext, name: str, step: Callable[[RunContext], Any]) -> Outcome:
@@ -188,7 +184,7 @@ class Sequencer:
         run.record.phases.append(result)
         self.plugins.hook.magline_phase_started(run=run, phase=name)
         start = time.monotonic()
-        run.state["_phase_started"] = start
+        run.phase_started_at = start
         try:
             if name in SHIELDED_PHASES:
                 with run.abort.shielded():
@@ -392,8 +388,8 @@ class Sequencer:
                 run.log(f"attempt {attempt}: {warming}: measured again (acquisition.retry_on_warm_up)")
                 continue
             run.fits = fits
-            run.state["fit"] = fits[run.magnetometers[0].device_id]
-            run.state["fit_s"] = time.monotonic() - started
+            run.fit = fits[run.magnetometers[0].device_id]
+            run.fit_s = time.monotonic() - started
             return
         if refusal is not None:
             raise FitRefused(refusal.reason, f"{refusal.message} (after {len(run.attempts)} attempts)",
@@ -431,7 +427,7 @@ class Sequencer:
 
     def _fit(self, run: RunContext) -> None:
         """Record the fits that the accepted attempt produced (the acquire phase ran them)."""
-        fit: FitResult = run.state["fit"]
+        fit = run.require_fit()
         run.record.calibration = fit.to_dict()
         for sensor in run.magnetometers[1:]:
             other = run.fits[sensor.device_id]
@@ -441,7 +437,7 @@ class Sequencer:
             run.log(f"{run.sensor_label(sensor.device_id)}: offset {other.hard_iron_ut.round(2).tolist()} µT, "
                     f"residual rms {other.residual_rms_ut:.3f} µT")
         run.log(f"offset {fit.hard_iron_ut.round(2).tolist()} µT, field {fit.field_ut:.2f} µT, "
-                f"residual rms {fit.residual_rms_ut:.3f} µT (fitted in {run.state['fit_s'] * 1e3:.0f} ms, "
+                f"residual rms {fit.residual_rms_ut:.3f} µT (fitted in {run.fit_s * 1e3:.0f} ms, "
                 "during acquisition)")
         if fit.model_misfit:
             mis = fit.model_misfit
@@ -453,7 +449,7 @@ class Sequencer:
                     f"({fit.bias_correction['largest_sigmas']:.1f}σ): partial coverage")
 
     def _validate(self, run: RunContext) -> None:
-        fit = run.state["fit"]
+        fit = run.require_fit()
         for contribution in self.plugins.hook.magline_validate(run=run, fit=fit):
             run.record.measurements.extend(contribution)
         for sensor in run.magnetometers[1:]:
@@ -473,54 +469,18 @@ class Sequencer:
                 message += (" — the field magnitude the unit measures does not match the reference: "
                             "calibration has failed regardless of fit residual")
             raise PhaseFailed(message)
-        self._review(run)
-
-    def _review(self, run: RunContext) -> None:
-        """Compare the passing unit with the process's recent units (see core/quality/review): a
-        flag marks the measurement ``review`` and the record; it never fails the unit, and a store
-        that cannot answer only leaves a note."""
-        settings = self.station.review
-        if not settings.enabled:
-            run.record.review_note = "process review off in the station file"
-            return
-        series_of = getattr(self.sink, "series", None)
-        if series_of is None:
-            run.record.review_note = (f"no process review: the results sink {self.station.main_results.sink!r} "
-                                      "keeps no history")
-            run.log(run.record.review_note)
-            return
-        numeric = [m for m in verdicts(run.record.measurements) if m.name not in settings.exclude]
-        started = time.monotonic()
-        try:
-            past = series_of(RunFilter(part=run.record.part, line=run.record.line, verdict=str(Outcome.PASS)),
-                             last=settings.window, names=[m.name for m in numeric], with_limits=False)
-        except StationFault as exc:
-            run.record.review_note = f"no process review: {exc}"
-            run.log(run.record.review_note)
-            return
-        result = review(numeric, past.values, units=len(past), min_units=settings.min_units,
-                        sigma=settings.sigma, exclude=settings.exclude,
-                        what=f"{run.record.part} units on line {run.record.line}")
-        run.record.review_note = result.note
-        run.record.review = [f.to_dict() for f in result.flags]
-        flagged = {f.name for f in result.flags}
-        for m in numeric:
-            if m.name in flagged:
-                m.verdict = Verdict.REVIEW
-        run.log(f"process review ({(time.monotonic() - started) * 1e3:.0f} ms): {result.note}")
-        for f in result.flags:
-            run.log(f"REVIEW: {f.reason}")
+        self.plugins.hook.magline_unit_judged(run=run, measurements=verdicts(run.record.measurements))
 
     def _persist(self, run: RunContext) -> None:
-        report: PersistReport = self.plugins.hook.magline_persist(run=run, fit=run.state["fit"])
-        run.state["persisted"] = report
+        report: PersistReport = self.plugins.hook.magline_persist(run=run, fit=run.require_fit())
+        run.persisted = report
         run.record.params_before = dict(report.before)
         run.record.params_written = dict(report.written)
         run.record.params_echoed = dict(report.echoed)
         run.record.measurements.append(Json(name="params_written", data=dict(report.written)))
 
     def _verify(self, run: RunContext) -> None:
-        report = self.plugins.hook.magline_verify_persistence(run=run, persisted=run.state["persisted"])
+        report = self.plugins.hook.magline_verify_persistence(run=run, persisted=run.persisted)
         run.record.params_read_back = dict(report.read_back)
         run.record.persistence = {"method": report.method, "figures": report.figures,
                                   "sensor_present": report.sensor_present, "mismatches": report.mismatches}
@@ -533,24 +493,10 @@ class Sequencer:
     def _record(self, run: RunContext) -> None:
         run.record.finished = now_iso()
         phase = run.record.phases[-1]  # this phase: stored with its real outcome, timed up to the write
-        phase.outcome, phase.duration_s = Outcome.PASS, time.monotonic() - run.state["_phase_started"]
+        phase.outcome, phase.duration_s = Outcome.PASS, time.monotonic() - run.phase_started_at
         self.sink.finish(run.record)
         where = getattr(self.sink, "location", None)
         run.record.store = where(run.record) if callable(where) else ""
-
-    def _write_report(self, run: RunContext) -> None:
-        """The unit's HTML report from its stored record (``results.reports``).  A report that
-        cannot be written is said, never a reason to change the unit's verdict: the record is kept."""
-        from magline.core.reports.commands import write_report
-
-        folder = self.station_dir / self.station.main_results.reports
-        engine = getattr(self.sink, "record_engine", None)
-        try:
-            if engine is None:
-                raise StationFault(f"the results sink {self.station.main_results.sink!r} is not a SQL store")
-            run.record.report = str(write_report(engine, str(run.record.run_id), None, folder))
-        except (StationFault, OSError) as exc:
-            run.record.report_error = f"report not written: {exc}"
 
     def _cleanup(self, run: RunContext) -> None:
         """Always: put the DUT back as it was, release it, then leave the fixture in its final state."""
