@@ -1,4 +1,4 @@
-"""A simulated ArduPilot flight controller (behaviour per ``shared/reference`` §7–§10, §14).
+"""A simulated ArduPilot flight controller (behaviour per ``docs/firmware.md``, *ArduPilot*).
 
 What it reproduces, because each is a trap for a factory tool:
 - PARAM_SET is C-cast (``float(value)``), the type field is ignored, unknown names, NaN and
@@ -231,7 +231,7 @@ class ArduPilotSim(SimulatedAutopilot):
             return None
         raw_ut = self.held_reading_ut(sensor, now)
         mag = int16_mg(self.correct_mg(i, raw_ut * 10.0))
-        # SITL has two IMUs: SCALED_IMU3's accelerometer fields are all zero (shared/reference §16)
+        # SITL has two IMUs: SCALED_IMU3's accelerometer fields are all zero (docs/firmware.md, *SITL*)
         acc = self.accel_mg(now).astype(int) if msg_id != mavlink.MAVLINK_MSG_ID_SCALED_IMU3 else np.zeros(3, int)
         t_ms = self.time_boot_ms(now)
         if msg_id == mavlink.MAVLINK_MSG_ID_RAW_IMU:

@@ -1,4 +1,4 @@
-"""A simulated PX4 flight controller (behaviour per ``shared/reference`` §1–§5).
+"""A simulated PX4 flight controller (behaviour per ``docs/firmware.md``, *PX4*).
 
 What it reproduces, because each is a trap for a factory tool:
 - integer parameters are byte-wise encoded and PARAM_SET must carry the exact type; a wrong type
@@ -75,7 +75,7 @@ class Px4Sim(SimulatedAutopilot):
         self.preset_ids = preset_ids
         self.firmware_version = tuple(int(x) for x in firmware.split("."))[:3]  # type: ignore[assignment]
         # a build from an untagged tree (SITL, any developer's or custom build) says 0.0.0 in
-        # AUTOPILOT_VERSION whatever parameters it has (reference §17)
+        # AUTOPILOT_VERSION whatever parameters it has (docs/firmware.md, *Versions*)
         self.reported_version = (0, 0, 0) if untagged else self.firmware_version
         self.autocal_after_s = autocal_after_s
         self.autosave_interval_s = autosave_interval_s  # PX4: 2 s; a test may stretch it
@@ -213,7 +213,7 @@ class Px4Sim(SimulatedAutopilot):
 
     # ------------------------------------------------------------------ streams
     # SCALED_IMU carries the IMU's time stamp with the latest sensor_mag, measured 28–36 ms older on
-    # PX4 v1.16 SITL against an analytic truth (issue 50; 12–32 ms on an older build, shared/reference §14)
+    # PX4 v1.16 SITL against an analytic truth (issue 50; 12–32 ms on an older build, docs/firmware.md, *Timing*)
     MAG_AGE_S = (0.028, 0.036)
 
     def mag_age_s(self) -> float:

@@ -15,7 +15,7 @@ from typing import Any
 HEADER = """# Writing magline plugins — reference
 
 Generated from the code by `python -m magline.testing.reference > docs/plugins.md`; CI fails
-when this file is not current.  Start with the README's "Writing a plugin"; this page is the
+when this file is not current.  Start with `docs/writing-plugins.md`; this page is the
 exact contract.
 
 A plugin is a module with `@hookimpl` functions, listed under the `magline` entry-point group of

@@ -193,3 +193,23 @@ def test_the_sequencer_imports_no_output_room():
     group = {ep.name: ep.value for ep in entry_points(group="magline")}
     assert group["process_review"] == "magline.core.quality.in_run"
     assert group["unit_reports"] == "magline.core.reports.unit_report"
+
+
+def test_the_readme_is_a_front_page_and_every_page_it_points_to_is_in_the_repository():
+    """Issue 44: the README says what magline is, gives the two commands and the commands table, and
+    points to docs/ for the operator, the quality engineer, the station file, the firmware facts and
+    the plugin author; the facts the code relies on are in docs/, never in a folder outside it."""
+    import re
+
+    readme = (REPO / "README.md").read_text(encoding="utf-8")
+    assert readme.splitlines()[3].startswith("python3 -m venv .venv && .venv/bin/pip install -q -e . && ")
+    assert len(readme.splitlines()) < 100
+    pages = re.findall(r"\]\((docs/[\w-]+\.md)\)", readme)
+    assert {"docs/operator.md", "docs/quality.md", "docs/station-file.md", "docs/firmware.md",
+            "docs/writing-plugins.md", "docs/plugins.md"} <= set(pages)
+    assert all((REPO / p).is_file() for p in pages)
+    outside = [f"{p.relative_to(REPO)}:{n}" for root in ("core", "plugins", "sim", "testing", "plugin")
+               for p in (REPO / root).rglob("*.py")
+               for n, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1)
+               if "shared/reference" in line or re.search(r"reference §", line)]
+    assert outside == []

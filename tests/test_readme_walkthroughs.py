@@ -21,9 +21,9 @@ PORT = re.compile(r"127\.0\.0\.1(:|::)(\d{4,5})")
 
 
 def readme_sequences() -> list[tuple[str, list[str], str]]:
-    """(name, simulator commands, run command) for each sequence: README shell blocks, and the
-    four-slot station file's own commented commands the README points to."""
-    text = (REPO / "README.md").read_text(encoding="utf-8")
+    """(name, simulator commands, run command) for each sequence: the shell blocks of the README and
+    of every page under docs/, and the four-slot station file's own commented commands the docs point to."""
+    text = "\n".join(p.read_text(encoding="utf-8") for p in [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))])
     sequences = []
     for block in re.findall(r"```sh\n(.*?)```", text, re.S):
         sims: list[str] = []

@@ -2,7 +2,7 @@
 
 Why: a magnetometer's offset settles while the board warms after power-on.  The fit's drift test
 and the settle check see a warm-up only where it moves the offset by more than about 14 offset σ
-within a tumble (README, "What the drift test cannot see"); a smaller or later one passes them
+within a tumble (docs/quality.md, "What the drift test cannot see"); a smaller or later one passes them
 unseen, bends the calibration and may fail the post-reboot field check of a good unit.  No test
 on the readings can bound a drift below its own σ, so a line whose units warm up during
 calibration bounds it by time: the tumble starts only once the unit has run ``warm_up_s``.

@@ -1,7 +1,7 @@
 """ArduPilot's calibration parameters: names per compass set, the fit → parameter mapping, the
 firmware's own limits, and the inverse of the correction it applies to streamed data.
 
-Conventions (``shared/reference`` §0, §7): ArduPilot works in milligauss, in the rotated body
+Conventions (``docs/firmware.md``, *Conventions* and *ArduPilot*): ArduPilot works in milligauss, in the rotated body
 frame, and *adds* its offsets: ``v = M·(SCALE·(raw + OFS))``.  magline's fit is
 ``m_cal = S·(m_raw − h)`` in µT, so OFS = −10·h, DIA = diag(S), ODI = (S12, S13, S23), SCALE = 1.
 """

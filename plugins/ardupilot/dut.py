@@ -107,7 +107,8 @@ class ArduPilotDut:
     def _magnetometer(self, suffix: str, device_id: int) -> Magnetometer:
         """A compass as the firmware holds it: COMPASS_ORIENTn turns an external compass's readings into
         the body before anything else (so the streamed field is in body axes); an internal compass
-        ignores it — its fix is COMPASS_EXTERNn = 1 together with the orientation (reference §16)."""
+        ignores it — its fix is COMPASS_EXTERNn = 1 together with the orientation (docs/firmware.md,
+        *What the firmware applies*)."""
         names = set_names(suffix)
         external = int(self.link.get(names["EXTERN"][0])) != 0
         orient = int(self.link.get(names["ORIENT"][0])) if external else 0

@@ -1,6 +1,6 @@
 """PX4's calibration parameters: slot choice by device id, the fit → CAL_MAGn_* mapping.
 
-Conventions (``shared/reference`` §0–§3): PX4 stores offsets in Gauss and *subtracts* them,
+Conventions (``docs/firmware.md``, *Conventions* and *PX4*): PX4 stores offsets in Gauss and *subtracts* them,
 ``m = S·(raw − OFF)`` in the sensor frame, so with magline's ``S·(m_raw − h)`` in µT:
 OFF = h/100, SCALE = diag(S), XODIAG = S12, YODIAG = S13, ZODIAG = S23 (ODIAG from 1.12 only).
 """

@@ -102,7 +102,7 @@ class Px4Dut:
         self.uid = self.link.hardware_uid()  # the board itself: a second one may share the system id
         firmware = ".".join(map(str, version)) if version else "unknown"
         # what the firmware can hold, read from its own parameter list: a build from an untagged tree
-        # reports 0.0.0 whatever it has, and a version string proves nothing (reference §17)
+        # reports 0.0.0 whatever it has, and a version string proves nothing (docs/firmware.md, *Versions*)
         self.with_odiag = self._has_param("CAL_MAG0_XODIAG")
         self.with_euler = self._has_param("CAL_MAG0_ROLL")
         slot_ids = [int(self.link.get(f"CAL_MAG{n}_ID", True)) for n in range(SLOTS)]
@@ -282,7 +282,7 @@ class Px4Dut:
 
     def orientation_params(self, device_id: int, value: int) -> dict[str, ParamValue]:
         """CAL_MAGn_ROT of the sensor's slot: how PX4 turns an external sensor into the body (its custom
-        Euler angles zeroed where the firmware has them: a non-zero one forces ROT = 100, reference §1)."""
+        Euler angles zeroed where the firmware has them: a non-zero one forces ROT = 100, docs/firmware.md)."""
         p = f"CAL_MAG{self.sensors[device_id]['slot']}_"
         zeroed = {p + a: 0.0 for a in ("ROLL", "PITCH", "YAW")} if self.with_euler else {}
         return {p + "ROT": int(value)} | zeroed
@@ -320,7 +320,7 @@ class Px4Dut:
 
     def release_link(self) -> None:
         """The power is about to be cut.  PREFLIGHT_STORAGE is ACKed before its save runs and PX4 sends
-        nothing when the save ends (reference §: autosave), so no event exists to wait for: the
+        nothing when the save ends (docs/firmware.md, *Persistence*), so no event exists to wait for: the
         cut waits ``save_settle_s`` after the save was asked, then the read-back after the boot proves it."""
         if self._saved_at is not None:
             time.sleep(max(0.0, self._saved_at + self.opts.save_settle_s - time.monotonic()))
