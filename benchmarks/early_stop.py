@@ -37,9 +37,9 @@ from pathlib import Path
 
 import numpy as np
 
+from magline.core.acquisition.tumble import CHECK_EVERY_FRACTION, CHECK_EVERY_MIN
 from magline.core.fit import FitOptions, FitRefused, coverage_of, fit_calibration
 from magline.core.fit.running import StopRule
-from magline.core.phases import CHECK_EVERY_FRACTION, CHECK_EVERY_MIN
 from magline.sim.truth import motion_directions, random_truth
 
 sys.path.insert(0, str(Path(__file__).parent))

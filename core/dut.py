@@ -36,6 +36,15 @@ def float32_equal(a: float, b: float) -> bool:
     return math.isclose(a, b, rel_tol=1e-6, abs_tol=1e-6)
 
 
+def param_equal(written: ParamValue, echoed: ParamValue) -> bool:
+    """A parameter read back (or echoed) is the value written: an integer exactly (a firmware may echo
+    it as a whole float), a float at float32 precision."""
+    if isinstance(written, int) and not isinstance(written, bool):
+        return (isinstance(echoed, int) and echoed == written) or (
+            isinstance(echoed, float) and echoed.is_integer() and int(echoed) == written)
+    return math.isclose(float(written), float(echoed), rel_tol=1e-6, abs_tol=1e-7)  # float32 precision
+
+
 class DutError(RuntimeError):
     """The unit itself failed: its firmware refused the calibration, its magnetometer is missing, the
     calibration did not survive the power cycle.  The sequencer books the unit as FAIL."""

@@ -1,6 +1,6 @@
 """When a tumble is enough (``acquisition.stop: determined``): the running fit's rule built from the
 station's limits, the mounting's σ targets, and the stall of a tumble that stopped covering new
-directions.  The acquire phase (:mod:`magline.core.phases`) asks; the rule itself and the fit beside
+directions.  The acquire phase (:mod:`magline.core.acquisition.tumble`) asks; the rule itself and the fit beside
 the stream are :mod:`magline.core.fit.running`.
 """
 

@@ -1,0 +1,42 @@
+"""The default verify phase (entry point ``core_verify``): power-cycle the unit through the station's
+power control, prove the new boot, read every written parameter back, ask the firmware what it says
+is wrong, and prove the calibration it applies (:mod:`.calibrated_output`).  ``trylast``: a plugin
+implementing ``magline_verify_persistence`` replaces it.
+"""
+
+from __future__ import annotations
+
+from magline.core.dut import (
+    HasBootTimeout,
+    ReportsSensorsPresent,
+    param_equal,
+)
+from magline.core.plugins import hookimpl
+from magline.core.record import PersistReport, VerifyReport
+from magline.core.sequencer.context import RunContext
+from magline.core.verify.calibrated_output import calibrated_output_problems
+
+
+@hookimpl(trylast=True)
+def magline_verify_persistence(run: RunContext, persisted: PersistReport) -> VerifyReport:
+    dut = run.require_dut()
+    power = run.require_power()
+    boot_timeout_s = dut.boot_timeout_s if isinstance(dut, HasBootTimeout) else None
+    with run.waiting("power cycle: waiting for the unit to boot", boot_timeout_s):
+        figures = dict(power.cycle(dut))
+    method = str(figures.pop("method", power.method))
+    missing: list[str] = []
+    if len(run.magnetometers) > 1 and isinstance(dut, ReportsSensorsPresent):
+        now = set(dut.sensors_present())
+        missing = [run.sensor_label(m.device_id) for m in run.magnetometers if m.device_id not in now]
+        present = not missing
+    else:
+        present = dut.selected_sensor_present()
+    read_back = dut.read_params(list(persisted.written))
+    mismatches = [f"{k}: wrote {v!r}, read back {read_back.get(k)!r}" for k, v in persisted.written.items()
+                  if k not in read_back or not param_equal(v, read_back[k])]
+    if present:
+        mismatches += [f"autopilot reports: {text}" for text in dut.persistence_problems()]
+        mismatches += calibrated_output_problems(run, dut, figures)
+    return VerifyReport(read_back=read_back, mismatches=mismatches, sensor_present=present,
+                        method=method, figures={k: float(v) for k, v in figures.items()}, missing=missing)
