@@ -272,3 +272,30 @@ def test_the_latest_units_of_a_part_are_read_as_aligned_series(make_station, sto
     assert series.attempts.tolist() == [2, 2]  # the demo spins once about one axis, then tumbles
     assert list(only.values) == ["coverage"] and len(only) == 4
     assert failing.failed == [[], ["hard_iron_norm_ut"]] and [r["verdict"] for r in failing.runs] == ["pass", "fail"]
+
+
+def test_every_migration_downgrades_and_upgrades_again_to_the_same_schema(tmp_path):
+    """The column migrations' downgrades are derived from their upgrades (core/results/migrations/
+    columns.py): down to the baseline and up again leaves the schema exactly as a fresh store's."""
+    from alembic import command
+    from sqlalchemy import create_engine, inspect
+
+    def schema(engine) -> dict:
+        found = inspect(engine)
+        return {t: sorted((c["name"], str(c["type"]), c["nullable"]) for c in found.get_columns(t))
+                for t in sorted(found.get_table_names())}
+
+    path = tmp_path / "round.sqlite"
+    SqliteSink(path).close()
+    engine = create_engine(f"sqlite:///{path}")
+    try:
+        fresh = schema(engine)
+        with engine.begin() as conn:
+            command.downgrade(schema_version._config(conn), "0001")
+        down = schema(engine)
+        assert "review" not in {c for c, _, _ in down["runs"]} and "stopped" not in {c for c, _, _ in down["attempts"]}
+        with engine.begin() as conn:
+            command.upgrade(schema_version._config(conn), "head")
+        assert schema(engine) == fresh
+    finally:
+        engine.dispose()

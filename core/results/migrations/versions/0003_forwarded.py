@@ -7,19 +7,10 @@ Revision ID: 0003
 from __future__ import annotations
 
 import sqlalchemy as sa
-from alembic import op
+
+from magline.core.results.migrations.columns import added_columns
 
 revision = "0003"
 down_revision = "0002"
-branch_labels = None
-depends_on = None
 
-
-def upgrade() -> None:
-    with op.batch_alter_table("runs") as batch:
-        batch.add_column(sa.Column("forwarded", sa.Text, nullable=True))
-
-
-def downgrade() -> None:
-    with op.batch_alter_table("runs") as batch:
-        batch.drop_column("forwarded")
+upgrade, downgrade = added_columns("runs", forwarded=sa.Text)

@@ -10,8 +10,6 @@ from alembic import op
 
 revision = "0004"
 down_revision = "0003"
-branch_labels = None
-depends_on = None
 
 INDEXES = (("phases_run", "phases", ["run_id"]), ("attempts_run", "attempts", ["run_id"]),
            ("measurements_run", "measurements", ["run_id"]), ("params_run", "params", ["run_id"]),

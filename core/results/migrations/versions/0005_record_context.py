@@ -6,21 +6,10 @@ Revision ID: 0005
 from __future__ import annotations
 
 import sqlalchemy as sa
-from alembic import op
+
+from magline.core.results.migrations.columns import added_columns
 
 revision = "0005"
 down_revision = "0004"
-branch_labels = None
-depends_on = None
 
-
-def upgrade() -> None:
-    with op.batch_alter_table("runs") as batch:
-        batch.add_column(sa.Column("station_hash", sa.Text, nullable=True))
-        batch.add_column(sa.Column("reference_field_ut", sa.Float, nullable=True))
-
-
-def downgrade() -> None:
-    with op.batch_alter_table("runs") as batch:
-        batch.drop_column("reference_field_ut")
-        batch.drop_column("station_hash")
+upgrade, downgrade = added_columns("runs", station_hash=sa.Text, reference_field_ut=sa.Float)

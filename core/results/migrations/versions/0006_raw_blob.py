@@ -18,8 +18,6 @@ from magline.core.results import raw_blob
 
 revision = "0006"
 down_revision = "0005"
-branch_labels = None
-depends_on = None
 
 BATCH = 500
 

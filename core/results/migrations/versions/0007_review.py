@@ -6,21 +6,10 @@ Revision ID: 0007
 from __future__ import annotations
 
 import sqlalchemy as sa
-from alembic import op
+
+from magline.core.results.migrations.columns import added_columns
 
 revision = "0007"
 down_revision = "0006"
-branch_labels = None
-depends_on = None
 
-
-def upgrade() -> None:
-    with op.batch_alter_table("runs") as batch:
-        batch.add_column(sa.Column("review", sa.Text, nullable=True))
-        batch.add_column(sa.Column("review_note", sa.Text, nullable=True))
-
-
-def downgrade() -> None:
-    with op.batch_alter_table("runs") as batch:
-        batch.drop_column("review_note")
-        batch.drop_column("review")
+upgrade, downgrade = added_columns("runs", review=sa.Text, review_note=sa.Text)

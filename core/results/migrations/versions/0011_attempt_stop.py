@@ -8,23 +8,10 @@ Revision ID: 0011
 from __future__ import annotations
 
 import sqlalchemy as sa
-from alembic import op
+
+from magline.core.results.migrations.columns import added_columns
 
 revision = "0011"
 down_revision = "0010"
-branch_labels = None
-depends_on = None
 
-
-def upgrade() -> None:
-    with op.batch_alter_table("attempts") as batch:
-        batch.add_column(sa.Column("stopped", sa.Text))
-        batch.add_column(sa.Column("tumble_s", sa.Float))
-        batch.add_column(sa.Column("predicted", sa.Text))
-
-
-def downgrade() -> None:
-    with op.batch_alter_table("attempts") as batch:
-        batch.drop_column("predicted")
-        batch.drop_column("tumble_s")
-        batch.drop_column("stopped")
+upgrade, downgrade = added_columns("attempts", stopped=sa.Text, tumble_s=sa.Float, predicted=sa.Text)
