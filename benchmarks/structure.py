@@ -2,8 +2,9 @@
 
 Printed: lines of Python per root, the modules at core/'s top, the import cycles among magline's
 modules (strongly connected components of the module import graph, imports inside functions
-included), core → plugins / sim imports, plugin → other plugin imports, and which magline modules
-the built-in plugins import besides their own package and the public face.
+included; at run time, and counting the imports only type hints make), core → plugins / sim
+imports, plugin → other plugin imports, and which magline modules the built-in plugins import
+besides their own package and the public face.
 
     python benchmarks/structure.py
 """
@@ -31,12 +32,18 @@ def modules() -> dict[str, Path]:
     return found
 
 
-def imports(path: Path, name: str, known: set[str]) -> set[str]:
-    """The magline modules ``path`` imports (``from a import b`` counts ``a.b`` where that is a module)."""
+def imports(path: Path, name: str, known: set[str], typing_too: bool = True) -> set[str]:
+    """The magline modules ``path`` imports (``from a import b`` counts ``a.b`` where that is a module);
+    ``typing_too=False`` leaves out what only type hints import (``if TYPE_CHECKING:`` blocks)."""
     tree = ast.parse(path.read_text(encoding="utf-8"))
     package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    hints = {id(n) for block in ast.walk(tree) if isinstance(block, ast.If) and not typing_too
+             and getattr(block.test, "id", getattr(block.test, "attr", "")) == "TYPE_CHECKING"
+             for stmt in block.body for n in ast.walk(stmt)}
     out: set[str] = set()
     for node in ast.walk(tree):
+        if id(node) in hints:
+            continue
         targets: list[str] = []
         if isinstance(node, ast.Import):
             targets = [a.name for a in node.names]
@@ -120,10 +127,12 @@ def main() -> None:
     top = sorted(p.stem for p in (REPO / "core").glob("*.py") if p.stem != "__init__")
     print(f"core/'s top: {len(top)} modules ({', '.join(top)}); rooms: "
           f"{', '.join(sorted(p.name for p in (REPO / 'core').iterdir() if (p / '__init__.py').exists()))}")
-    found_cycles = cycles(graph)
-    print(f"import cycles: {len(found_cycles)}")
-    for component in found_cycles:
-        print(f"   {len(component)} modules: {', '.join(component[:6])}{' …' if len(component) > 6 else ''}")
+    runtime = {name: imports(path, name, known, typing_too=False) for name, path in found.items()}
+    for label, among in (("import cycles at run time", runtime), ("import cycles counting type hints", graph)):
+        found_cycles = cycles(among)
+        print(f"{label}: {len(found_cycles)}")
+        for component in found_cycles:
+            print(f"   {len(component)} modules: {', '.join(component[:6])}{' …' if len(component) > 6 else ''}")
     core_out = sorted((a, b) for a, bs in graph.items() if a.startswith("magline.core") for b in bs
                       if b.startswith(("magline.plugins", "magline.sim")))
     print(f"core → plugins/sim imports: {len(core_out)}")

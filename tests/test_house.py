@@ -213,3 +213,16 @@ def test_the_readme_is_a_front_page_and_every_page_it_points_to_is_in_the_reposi
                for n, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1)
                if "shared/reference" in line or re.search(r"reference §", line)]
     assert outside == []
+
+
+def test_no_import_cycle_among_maglines_modules_at_run_time():
+    """Issue 44: two modules importing each other (one of them inside a function to get away with it)
+    is one concept in two rooms; ``benchmarks/structure.py`` prints the graph's figures."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("structure", REPO / "benchmarks" / "structure.py")
+    structure = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(structure)
+    found = structure.modules()
+    runtime = {name: structure.imports(path, name, set(found), typing_too=False) for name, path in found.items()}
+    assert structure.cycles(runtime) == []

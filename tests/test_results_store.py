@@ -4,6 +4,7 @@ newer stores refused."""
 from __future__ import annotations
 
 import shutil
+import socket
 import sqlite3
 from pathlib import Path
 
@@ -112,7 +113,7 @@ def test_a_run_whose_writer_died_is_marked_incomplete_on_each_engine(store_url, 
     from magline.core.results.store import SqlStore
 
     store = SqlStore(create_engine(store_url), "test store")
-    monkeypatch.setattr(store_module, "owner", lambda: f"{store_module.socket.gethostname()}:999999999")
+    monkeypatch.setattr(store_module, "owner", lambda: f"{socket.gethostname()}:999999999")
     record = RunRecord(serial="K-1", part="P", station_id="s", line="L", operator="", software_version="0",
                        limit_hash="h")
     store.begin(record)  # a writer with a pid that does not exist

@@ -22,7 +22,7 @@ from typing import Any
 from sqlalchemy import and_, delete, select, update
 from sqlalchemy.exc import IntegrityError
 
-from magline.core.results.store import alive
+from magline.core.results.processes import alive
 from magline.core.results.tables import slot_claims
 
 STALE_S = 120.0  # a claim not refreshed this long belongs to a computer that is gone

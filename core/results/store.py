@@ -10,8 +10,6 @@ run finishes — so a crash later in the run loses nothing, and a run whose writ
 from __future__ import annotations
 
 import json
-import os
-import socket
 import uuid
 from collections.abc import Sequence
 from dataclasses import asdict
@@ -23,33 +21,13 @@ from sqlalchemy.exc import SQLAlchemyError
 from magline.core.faults import StationFault
 from magline.core.measurements import Array, Json, Numeric
 from magline.core.record import AttemptRecord, RunRecord
-from magline.core.results import raw_blob, schema_version
+from magline.core.results import claims, raw_blob, schema_version
+from magline.core.results.processes import alive, owner
 from magline.core.results.reading import RunFilter, same_serial
 from magline.core.results.series import RunSeries, load_series
 from magline.core.results.tables import attachments, attempt_streams, attempts, measurements, params, phases, runs
 
 RUNNING = "running"
-
-
-def owner() -> str:
-    return f"{socket.gethostname()}:{os.getpid()}"
-
-
-def alive(writer: str | None) -> bool:
-    """Is the process that wrote a ``running`` row still there?  Another PC's process cannot be
-    checked and counts as alive; a row without a writer (older versions) as dead."""
-    host, _, pid = (writer or "").rpartition(":")
-    if not pid.isdigit():
-        return False
-    if host != socket.gethostname():
-        return True
-    try:
-        os.kill(int(pid), 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
 
 
 class SqlStore:
@@ -86,23 +64,15 @@ class SqlStore:
     def claim_slot(self, holder: dict) -> str | None:
         """Claim the holder's (station, slot) here; the sentence refusing it when another live holder
         has it (see :mod:`magline.core.results.claims`)."""
-        from magline.core.results import claims
-
         return self._write("claiming the slot", lambda conn: claims.claim(conn, holder))
 
     def touch_slot(self, holder: dict) -> None:
-        from magline.core.results import claims
-
         self._write("refreshing the slot's claim", lambda conn: claims.heartbeat(conn, holder))
 
     def release_slot(self, holder: dict) -> None:
-        from magline.core.results import claims
-
         self._write("releasing the slot", lambda conn: claims.release(conn, holder))
 
     def slots_held(self) -> list[dict[str, Any]]:
-        from magline.core.results import claims
-
         try:
             with self.engine.connect() as conn:
                 return claims.held(conn)

@@ -27,20 +27,6 @@ class StationError(ValueError):
         self.problems = problems
 
 
-def load_station(path: str | Path, plugins: Any = None) -> Station:
-    """The validated station.  With ``plugins`` (:func:`magline.core.plugins.load_plugins`), also
-    what only the plugins know — backend, sink, source and motion names and their options — every
-    problem in one :class:`StationError`, as ``magline check`` reports them."""
-    if plugins is None:
-        return load_station_text(read_station_text(path), str(path))
-    from magline.core.station.checks import station_problems
-
-    station, problems = station_problems(read_station_text(path), str(path), plugins)
-    if problems or station is None:
-        raise StationError(problems)
-    return station
-
-
 def read_station_text(path: str | Path) -> str:
     """The file's text, or a StationError naming the file when it cannot be read."""
     try:
