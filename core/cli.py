@@ -1,6 +1,6 @@
 """``magline`` command line: run a station, check a station file, fit a CSV, list plugins, history.
 
-Plugins add their own sub-commands through ``magline_add_commands`` (the mock plugin: ``sim``).
+Plugins add their own sub-commands through ``magline_add_commands`` (the simulators: ``sim``).
 
 Exit codes of ``magline run``: 0 pass, 1 fail, 2 error (bad station file, no DUT, plugin error).
 """

@@ -129,7 +129,8 @@ def magline_add_commands(subparsers: argparse._SubParsersAction) -> None:
     :param subparsers: the command line's sub-parser collection; call
         ``subparsers.add_parser(name, help=...)`` and ``parser.set_defaults(handler=fn)``, where
         ``fn(args) -> int`` runs the command and returns its exit code.  Keep imports inside ``fn``
-        so that ``magline --help`` stays fast.  (The mock plugin adds ``magline sim`` this way.)
+        so that ``magline --help`` stays fast.  (The simulators add ``magline sim`` this way:
+        ``magline.sim.commands``.)
     """
 
 

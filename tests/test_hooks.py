@@ -1,0 +1,354 @@
+"""A test per hook, named for it (datasette's ``test_plugin_hooks_have_tests``): each hook of
+``core/hookspecs.py`` implemented by a plugin object the way a third-party plugin would, on the
+embedded demo station (the in-process mock unit), and what the plugin received or changed checked.
+
+The listener hooks share one unit's run (``heard``); the hooks that change the run get a unit each.
+``test_every_hook_has_a_test_named_for_it_and_its_signature_in_the_reference`` keeps it so.
+"""
+
+from __future__ import annotations
+
+import inspect
+import threading
+from pathlib import Path
+
+import pytest
+from conftest import REPO, deep_update, demo_config
+
+from magline.core import hookspecs
+from magline.core.measurements import Numeric
+from magline.core.plugins import hookimpl, load_plugins
+from magline.core.record import Outcome, RunRecord
+from magline.core.sequencer import Sequencer
+from magline.core.station import load_station
+from magline.testing.reference import _signature
+
+HOOKS = sorted(name for name, fn in inspect.getmembers(hookspecs, inspect.isfunction) if name.startswith("magline_"))
+
+
+def write_station(folder: Path, changes: dict | None = None) -> Path:
+    import yaml
+
+    cfg = deep_update(demo_config(), {"products": {"MOCK-100": {"options": {"realtime": False, "seed": 7}}},
+                                      "acquisition": {"retry_delay_s": 0.0, "stop": "samples"},
+                                      "results": {"path": str(folder / "results.sqlite")}})
+    path = folder / "station.yaml"
+    path.write_text(yaml.safe_dump(deep_update(cfg, changes or {}), sort_keys=False), encoding="utf-8")
+    return path
+
+
+def run_with(folder: Path, *plugins: object, changes: dict | None = None, serial: str = "HOOK-1") -> RunRecord:
+    path = write_station(folder, changes)
+    seq = Sequencer(load_station(path), load_plugins(extra=list(plugins)), folder, sleep=lambda s: None)
+    try:
+        return seq.run_unit(serial)
+    finally:
+        seq.close()
+
+
+class Listener:
+    """Every listener hook: what each call received, in order."""
+
+    def __init__(self) -> None:
+        self.calls: list[tuple[str, dict]] = []
+        self.tick = threading.Event()
+
+    def of(self, hook: str) -> list[dict]:
+        return [kw for name, kw in self.calls if name == hook]
+
+    @hookimpl
+    def magline_phase_started(self, run, phase):
+        self.calls.append(("magline_phase_started", {"phase": phase}))
+        if phase == "connect":  # a wait of the station's, as the power cycle's: a countdown, then its end
+            with run.waiting("the hook test's wait", 5.0, tick_s=0.02):
+                self.tick.wait(10.0)
+
+    @hookimpl
+    def magline_phase_finished(self, run, phase, result):
+        self.calls.append(("magline_phase_finished", {"phase": phase, "outcome": result.outcome}))
+
+    @hookimpl
+    def magline_acquisition_progress(self, run, attempt, samples, coverage, target, bins, n_bins):
+        self.calls.append(("magline_acquisition_progress", {"attempt": attempt, "samples": samples,
+                                                            "coverage": coverage, "target": target}))
+
+    @hookimpl
+    def magline_acquisition_stopped(self, run, attempt, reason, after_s, readings, predicted):
+        self.calls.append(("magline_acquisition_stopped", {"attempt": attempt, "reason": reason,
+                                                           "readings": readings}))
+
+    @hookimpl
+    def magline_waiting(self, run, what, elapsed_s, limit_s):
+        self.calls.append(("magline_waiting", {"what": what, "elapsed_s": elapsed_s, "limit_s": limit_s}))
+        if what == "the hook test's wait":
+            self.tick.set()
+
+    @hookimpl
+    def magline_wait_ended(self, run, what, waited_s):
+        self.calls.append(("magline_wait_ended", {"what": what, "waited_s": waited_s}))
+
+    @hookimpl
+    def magline_motion_started(self, round, slots, motion):
+        self.calls.append(("magline_motion_started", {"round": round, "slots": slots, "motion": motion}))
+
+    @hookimpl
+    def magline_motion_stopped(self, round, slots, motion):
+        self.calls.append(("magline_motion_stopped", {"round": round, "slots": slots, "motion": motion}))
+
+    @hookimpl
+    def magline_operator_prompt(self, run, message):
+        self.calls.append(("magline_operator_prompt", {"message": message}))
+
+    @hookimpl
+    def magline_unit_judged(self, run, measurements):
+        self.calls.append(("magline_unit_judged", {"names": [m.name for m in measurements]}))
+
+    @hookimpl
+    def magline_unit_finished(self, run, record):
+        self.calls.append(("magline_unit_finished", {"record": record}))
+
+
+@pytest.fixture(scope="module")
+def heard(tmp_path_factory) -> tuple[Listener, RunRecord]:
+    listener = Listener()
+    record = run_with(tmp_path_factory.mktemp("heard"), listener)
+    assert record.verdict is Outcome.PASS, record.cause
+    return listener, record
+
+
+# ----------------------------------------------------------------------------------- registration
+class Registers:
+    @hookimpl
+    def magline_register_dut_backends(self, register):
+        register("hook-dut", lambda product, options: None)
+
+    @hookimpl
+    def magline_register_field_sources(self, register):
+        register("hook-field", lambda station, options: None)
+
+    @hookimpl
+    def magline_register_result_sinks(self, register):
+        register("hook-sink", lambda station, folder, entry, options: None)
+
+    @hookimpl
+    def magline_register_power_controls(self, register):
+        register("hook-power", lambda config, folder, options: None)
+
+    @hookimpl
+    def magline_register_motions(self, register):
+        register("hook-motion", lambda station, folder, options: None)
+
+
+@pytest.fixture(scope="module")
+def registered():
+    return load_plugins(extra=[Registers()])
+
+
+def test_magline_register_dut_backends(registered):
+    assert "hook-dut" in registered.dut_backends and "mock" in registered.dut_backends
+
+
+def test_magline_register_field_sources(registered):
+    assert "hook-field" in registered.field_sources and "fixed" in registered.field_sources
+
+
+def test_magline_register_result_sinks(registered):
+    assert "hook-sink" in registered.result_sinks and "sqlite" in registered.result_sinks
+
+
+def test_magline_register_power_controls(registered):
+    assert "hook-power" in registered.power_controls and "mavlink-reboot" in registered.power_controls
+
+
+def test_magline_register_motions(registered):
+    assert "hook-motion" in registered.motions and "operator" in registered.motions
+
+
+def test_magline_add_commands(monkeypatch, capsys):
+    import magline.core.cli as cli
+
+    class Command:
+        @hookimpl
+        def magline_add_commands(self, subparsers):
+            parser = subparsers.add_parser("hook-hello", help="say hello")
+            parser.add_argument("name")
+            parser.set_defaults(handler=lambda args: print(f"hello {args.name}") or 3)
+
+    real = cli.load_plugins
+    monkeypatch.setattr(cli, "load_plugins", lambda: real(extra=[Command()]))
+    assert cli.main(["hook-hello", "line"]) == 3
+    assert capsys.readouterr().out == "hello line\n"
+
+
+# ----------------------------------------------------------------------------------- the phases
+def test_magline_acquire(tmp_path):
+    """A plugin's acquire is asked first (``firstresult``); returning None leaves it to the core's."""
+    asked: list[int] = []
+
+    class Watch:
+        @hookimpl
+        def magline_acquire(self, run, attempt):
+            asked.append(attempt)
+
+    record = run_with(tmp_path, Watch())
+    assert record.verdict is Outcome.PASS and asked == [a.attempt for a in record.attempts]
+
+
+def test_magline_fit(tmp_path):
+    """A plugin's fit replaces the core's: its result is what the unit is calibrated with."""
+    from magline.core.fit import fit_calibration
+
+    fitted: list[int] = []
+
+    class Fit:
+        @hookimpl
+        def magline_fit(self, run, samples, options):
+            fitted.append(len(samples.mag_ut))
+            return fit_calibration(samples.mag_ut, options, t_ms=samples.t_ms, temp_c=samples.temp_c)
+
+    record = run_with(tmp_path, Fit())
+    assert record.verdict is Outcome.PASS, record.cause
+    assert fitted == [len(record.attempts[-1].raw.mag_ut)]
+
+
+def test_magline_validate(tmp_path):
+    """What a plugin measures on each sensor's fit is recorded beside the core's, under the sensor's
+    prefix, judged against the station's limits (a name the catalogue does not know has none: info)."""
+    given = []
+
+    class Extra:
+        @hookimpl
+        def magline_validate(self, run, fit):
+            given.append(fit.hard_iron_ut.tolist())
+            return [Numeric(name="hook_extra_ut", value=5.0, unit="µT")]
+
+    record = run_with(tmp_path, Extra())
+    assert record.verdict is Outcome.PASS, record.cause
+    extra = next(m for m in record.measurements if m.name == "hook_extra_ut")
+    assert extra.value == 5.0 and str(extra.verdict) == "info" and given == [record.calibration["hard_iron_ut"]]
+
+
+def test_magline_validate_unit(tmp_path):
+    seen: list[list[int]] = []
+
+    class Unit:
+        @hookimpl
+        def magline_validate_unit(self, run, fits):
+            seen.append(list(fits))
+            return [Numeric(name="hook_unit_figure", value=1.0, unit="")]
+
+    record = run_with(tmp_path, Unit())
+    assert record.verdict is Outcome.PASS, record.cause
+    assert seen == [[m["device_id"] for m in record.unit_info["magnetometers"]]]
+    assert next(m for m in record.measurements if m.name == "hook_unit_figure").value == 1.0
+
+
+def test_magline_persist(tmp_path):
+    """The persist phase is asked with the primary's fit; None leaves it to the core's."""
+    given = []
+
+    class Persist:
+        @hookimpl
+        def magline_persist(self, run, fit):
+            given.append(fit.hard_iron_ut.tolist())
+
+    record = run_with(tmp_path, Persist())
+    assert record.verdict is Outcome.PASS and given == [record.calibration["hard_iron_ut"]]
+
+
+def test_magline_verify_persistence(tmp_path):
+    """A plugin's verify replaces the core's: a mismatch it reports fails the unit at verify."""
+    from magline.core.record import VerifyReport
+
+    class Verify:
+        @hookimpl
+        def magline_verify_persistence(self, run, persisted):
+            return VerifyReport(read_back=dict(persisted.written), mismatches=["hook says no"], sensor_present=True,
+                                method="hook", figures={}, missing=[])
+
+    record = run_with(tmp_path, Verify())
+    assert record.verdict is Outcome.FAIL and "hook says no" in record.cause
+    assert [p.name for p in record.phases if p.outcome is Outcome.FAIL] == ["verify"]
+
+
+# ----------------------------------------------------------------------------------- listeners
+def test_magline_phase_started(heard):
+    listener, record = heard
+    assert [c["phase"] for c in listener.of("magline_phase_started")] == [p.name for p in record.phases]
+
+
+def test_magline_phase_finished(heard):
+    listener, record = heard
+    finished = listener.of("magline_phase_finished")
+    assert [(c["phase"], c["outcome"]) for c in finished] == [(p.name, p.outcome) for p in record.phases]
+
+
+def test_magline_acquisition_progress(heard):
+    listener, record = heard
+    progress = listener.of("magline_acquisition_progress")
+    assert progress and {c["attempt"] for c in progress} == {a.attempt for a in record.attempts}
+    for attempt in record.attempts:  # coverage only grows as readings arrive, up to the attempt's own
+        shown = [c["coverage"] for c in progress if c["attempt"] == attempt.attempt]
+        assert shown == sorted(shown) and shown[0] >= 0.0 and shown[-1] <= attempt.coverage + 1e-12
+
+
+def test_magline_acquisition_stopped(heard):
+    listener, record = heard
+    stopped = listener.of("magline_acquisition_stopped")
+    assert [(c["attempt"], c["reason"]) for c in stopped] == [(a.attempt, a.stopped) for a in record.attempts]
+
+
+def test_magline_waiting(heard):
+    listener, _ = heard
+    ticks = [c for c in listener.of("magline_waiting") if c["what"] == "the hook test's wait"]
+    assert ticks and ticks[0]["limit_s"] == 5.0 and all(c["elapsed_s"] >= 0.0 for c in ticks)
+
+
+def test_magline_wait_ended(heard):
+    listener, _ = heard
+    ended = [c for c in listener.of("magline_wait_ended") if c["what"] == "the hook test's wait"]
+    assert len(ended) == 1  # once, and no tick after it
+    names = [(n, kw.get("what")) for n, kw in listener.calls]
+    last_tick = max(i for i, (n, w) in enumerate(names) if n == "magline_waiting" and w == "the hook test's wait")
+    assert last_tick < names.index(("magline_wait_ended", "the hook test's wait"))
+
+
+def test_magline_motion_started(heard):
+    listener, record = heard
+    started = listener.of("magline_motion_started")
+    assert [c["round"] for c in started] == list(range(1, len(record.attempts) + 1))
+    assert {c["motion"] for c in started} == {"operator"}
+
+
+def test_magline_motion_stopped(heard):
+    listener, _ = heard
+    assert [c["round"] for c in listener.of("magline_motion_stopped")] == \
+        [c["round"] for c in listener.of("magline_motion_started")]
+
+
+def test_magline_operator_prompt(heard):
+    listener, record = heard
+    prompts = listener.of("magline_operator_prompt")
+    assert len(prompts) == len(record.attempts) and all(c["message"] for c in prompts)
+
+
+def test_magline_unit_judged(heard):
+    listener, record = heard
+    (judged,) = listener.of("magline_unit_judged")
+    assert "hard_iron_norm_ut" in judged["names"] and record.verdict is Outcome.PASS
+
+
+def test_magline_unit_finished(heard):
+    listener, record = heard
+    (finished,) = listener.of("magline_unit_finished")
+    assert finished["record"] is record and record.store  # stored before the listeners hear it
+    assert listener.calls[-1][0] == "magline_unit_finished"
+
+
+# ----------------------------------------------------------------------------------- the guard
+def test_every_hook_has_a_test_named_for_it_and_its_signature_in_the_reference():
+    tests = {name for name in globals() if name.startswith("test_magline_")}
+    assert {f"test_{h}" for h in HOOKS} == tests
+    reference = (REPO / "docs" / "plugins.md").read_text(encoding="utf-8")
+    missing = [h for h in HOOKS if _signature(getattr(hookspecs, h)) not in reference]
+    assert missing == []
