@@ -26,6 +26,7 @@ from magline.core.fit.geometric import DRIFT_SEPARATION_MIN
 from magline.core.fit.samples_csv import SampleFileError, parse_samples, select_export_rows
 from magline.core.plugins import PluginError, Plugins, load_plugins
 from magline.core.record import Outcome
+from magline.core.results.contract import ClaimsSlots, ForwardsQueued
 from magline.core.results.sinks import close_sink, open_results
 from magline.core.results.store import reason
 from magline.core.serials import Refused, SerialRefused, clean_serial, known_part, one_serial_per_slot
@@ -555,11 +556,10 @@ def _sync(args: argparse.Namespace, plugins: Plugins) -> int:
         _err(str(exc))
         return 2
     try:
-        forward = getattr(sink, "forward", None)
-        if forward is None:
+        if not isinstance(sink, ForwardsQueued):
             print("this station writes straight into its results store: nothing to forward")
             return 0
-        done, pending = forward()
+        done, pending = sink.forward()
         print(f"forwarded {done} record(s) to {sink.server}")
         if pending:
             _err(f"{pending} record(s) still queued ({sink.last_error or 'not forwarded yet'})")
@@ -594,11 +594,10 @@ def _slots(args: argparse.Namespace, plugins: Plugins) -> int:
     """Every slot claimed in the store, with its holder: what a line lead checks before a second PC
     starts on the same station file."""
     def use(store: Any, *_: Any) -> int:
-        held = getattr(store, "slots_held", None)
-        if held is None:
+        if not isinstance(store, ClaimsSlots):
             print(f"results store {getattr(store, 'where', '')} keeps no slot claims")
             return 0
-        rows = held()
+        rows = store.slots_held()
         if not rows:
             print("no slot is held")
         for r in rows:

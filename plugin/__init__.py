@@ -31,7 +31,9 @@ What is here, by role:
 * results: what a sink stores and how it is judged — :class:`RunRecord`, :class:`AttemptRecord`,
   :class:`PhaseResult`, :class:`Outcome`, :class:`Measurement`, :class:`Numeric`, :class:`Verdict`, and
   the sink's contract :class:`ResultSink` with the history it answers (:class:`HistoryRun`,
-  :class:`HistoryAttempt`, :class:`HistoryFailure`).
+  :class:`HistoryAttempt`, :class:`HistoryFailure`) and its optional capabilities (:class:`SaysWhere`,
+  :class:`KeepsSeries`, :class:`HoldsRecordsInSql`, :class:`ReadsInSql`, :class:`ClaimsSlots`,
+  :class:`ForwardsQueued`).
 """
 
 from magline.core.acquisition.tumble_stop import stop_rule
@@ -77,7 +79,18 @@ from magline.core.mounting import ImuSeries
 from magline.core.plugins import hookimpl
 from magline.core.power import PowerControl, PowerError
 from magline.core.record import AttemptRecord, Outcome, PhaseResult, RunRecord
-from magline.core.results.contract import HistoryAttempt, HistoryFailure, HistoryRun, ResultSink
+from magline.core.results.contract import (
+    ClaimsSlots,
+    ForwardsQueued,
+    HistoryAttempt,
+    HistoryFailure,
+    HistoryRun,
+    HoldsRecordsInSql,
+    KeepsSeries,
+    ReadsInSql,
+    ResultSink,
+    SaysWhere,
+)
 from magline.core.sequencer.context import Acquisition, RunContext
 from magline.core.sequencer.rounds import wait_or_abort
 from magline.core.station.schema import PowerConfig, Product, Station
@@ -88,6 +101,7 @@ __all__ = [
     "Acquisition",
     "AttemptRecord",
     "CalibratesSeveral",
+    "ClaimsSlots",
     "DutBackend",
     "DutError",
     "FieldSource",
@@ -96,12 +110,15 @@ __all__ = [
     "FitRefused",
     "FitResult",
     "Fluxgate",
+    "ForwardsQueued",
     "HasBootTimeout",
     "HistoryAttempt",
     "HistoryFailure",
     "HistoryRun",
+    "HoldsRecordsInSql",
     "ImuSeries",
     "InstrumentError",
+    "KeepsSeries",
     "LinkError",
     "Magnetometer",
     "Measurement",
@@ -118,6 +135,7 @@ __all__ = [
     "RawSamples",
     "ReadsCalibratedField",
     "ReadsCalibratedFields",
+    "ReadsInSql",
     "ReadsRawAndCalibrated",
     "ReferenceOptions",
     "RepeatFilter",
@@ -127,6 +145,7 @@ __all__ = [
     "RunContext",
     "RunRecord",
     "SampleChunk",
+    "SaysWhere",
     "ScpiInstrument",
     "SensorStreams",
     "Station",

@@ -62,16 +62,14 @@ def protocol_section(title: str, cls: Any) -> list[str]:
     return out
 
 
-def capabilities_section() -> list[str]:
-    """The optional DUT capabilities: a backend has one by having its member; the core asks
-    ``isinstance(dut, Capability)``."""
-    from magline.core import dut as contract
-
-    out = ["## Optional DUT capabilities", "", "A backend has a capability by having its method (nothing to declare); "
-           "the core asks `isinstance(dut, Capability)` and does without it otherwise.", ""]
+def capabilities_section(contract: Any, what: str, contract_name: str) -> list[str]:
+    """The optional capabilities of ``contract``'s module: a plugin's object has one by having its
+    member; the core asks ``isinstance(obj, Capability)``."""
+    out = [f"## Optional {what} capabilities", "", f"A {what} has a capability by having its member (nothing to "
+           f"declare); the core asks `isinstance(obj, Capability)` and does without it otherwise.", ""]
     caps = [obj for _, obj in inspect.getmembers(contract, inspect.isclass)
             if getattr(obj, "_is_runtime_protocol", False) and obj.__module__ == contract.__name__
-            and obj.__name__ != "DutBackend"]
+            and obj.__name__ != contract_name]
     for cls in sorted(caps, key=lambda c: inspect.getsourcelines(c)[1]):
         members = [(n, m) for n, m in cls.__dict__.items() if not n.startswith("_") and callable(m)]
         fields = list(getattr(cls, "__annotations__", {}).items())
@@ -118,10 +116,14 @@ def testing_section() -> list[str]:
 
 
 def generate() -> str:
+    from magline.core import dut
+    from magline.core.results import contract
     from magline.plugin import DutBackend, FieldSource, Motion, PowerControl, ResultSink
 
-    lines = [HEADER, *hooks_section(), *protocol_section("DUT backend", DutBackend), *capabilities_section(),
-             *protocol_section("Result sink", ResultSink), *protocol_section("Field source", FieldSource),
+    lines = [HEADER, *hooks_section(), *protocol_section("DUT backend", DutBackend),
+             *capabilities_section(dut, "DUT backend", "DutBackend"), *protocol_section("Result sink", ResultSink),
+             *capabilities_section(contract, "result sink", "ResultSink"),
+             *protocol_section("Field source", FieldSource),
              *protocol_section("Power control", PowerControl), *protocol_section("Motion", Motion),
              *testing_section(), *face_section()]
     return "\n".join(lines).rstrip() + "\n"

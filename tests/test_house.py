@@ -226,3 +226,41 @@ def test_no_import_cycle_among_maglines_modules_at_run_time():
     found = structure.modules()
     runtime = {name: structure.imports(path, name, set(found), typing_too=False) for name, path in found.items()}
     assert structure.cycles(runtime) == []
+
+
+def test_core_asks_a_results_store_for_a_capability_by_its_protocol_and_a_fan_out_answers_as_its_first():
+    """Sinks likewise (issue 44): no ``getattr(sink, "series")`` probes; several stores behind one
+    answer each capability as the station's own (the first) does."""
+    import re
+
+    from magline.core.results.contract import ClaimsSlots, HoldsRecordsInSql, KeepsSeries, ReadsInSql, SaysWhere
+    from magline.core.results.sinks import ResultSinks
+    from magline.core.results.sqlite_sink import SqliteSink
+
+    probe = re.compile(r"""\b(getattr|hasattr)\((self\.)?(sink|store|run\.results)\b, ["']"""
+                       r"""(series|engine|record_engine|location|forward|pending|claim_slot|slots_held)""")
+    found = [f"{p.relative_to(REPO)}:{n}" for p in (REPO / "core").rglob("*.py")
+             for n, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1) if probe.search(line)]
+    assert found == []
+
+    class Plain:  # a third-party sink with the contract only
+        def begin(self, record): ...
+        def save_attempt(self, record, attempt): ...
+        def finish(self, record): ...
+        def history(self, serial): return []
+        def close(self): ...
+
+    capabilities = (KeepsSeries, ClaimsSlots, HoldsRecordsInSql, ReadsInSql)
+    plain_first = ResultSinks([("plain", Plain()), ("plain2", Plain())])
+    assert not any(isinstance(plain_first, c) for c in capabilities) and isinstance(plain_first, SaysWhere)
+    import tempfile
+    from pathlib import Path
+
+    with tempfile.TemporaryDirectory() as folder:
+        sql = SqliteSink(Path(folder) / "r.sqlite")
+        try:
+            sql_first = ResultSinks([("sqlite", sql), ("plain", Plain())])
+            assert all(isinstance(sql_first, c) for c in capabilities)
+            assert sql_first.engine is sql.engine and sql_first.series.__self__ is sql
+        finally:
+            sql.close()

@@ -10,6 +10,7 @@ from typing import Any
 
 from magline.core.faults import StationFault
 from magline.core.quality.spc import build, format_text, to_json
+from magline.core.results.contract import KeepsSeries
 from magline.core.results.reading import RunFilter
 from magline.core.results.series import Limit
 from magline.core.station import Station
@@ -27,12 +28,11 @@ def part_of(station: Station, part: str | None) -> str:
 
 
 def spc(store: Any, station: Station, args: argparse.Namespace) -> int:
-    series_of = getattr(store, "series", None)
-    if series_of is None:
+    if not isinstance(store, KeepsSeries):
         raise StationFault("this station's results sink keeps no history: spc reads SQL stores only")
     part = part_of(station, args.part)
     where = RunFilter(part=part, station_id=args.station_id, since=args.since, until=args.until)
-    series = series_of(where, last=args.last, names=args.measurement, with_attempts=True)
+    series = store.series(where, last=args.last, names=args.measurement, with_attempts=True)
     if part in station.products:  # Cpk against the limits this station file declares today
         for name, limit in station.effective_limits(part).items():
             if name in series.limits:

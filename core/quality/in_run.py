@@ -16,6 +16,7 @@ from magline.core.measurements import Numeric, Verdict
 from magline.core.plugins import hookimpl
 from magline.core.quality.review import review
 from magline.core.record import Outcome
+from magline.core.results.contract import KeepsSeries
 from magline.core.results.reading import RunFilter
 from magline.core.sequencer.context import RunContext
 
@@ -26,8 +27,7 @@ def magline_unit_judged(run: RunContext, measurements: list[Numeric]) -> None:
     if not settings.enabled:
         run.record.review_note = "process review off in the station file"
         return
-    series_of = getattr(run.results, "series", None)
-    if series_of is None:
+    if not isinstance(run.results, KeepsSeries):
         run.record.review_note = (f"no process review: the results sink {run.station.main_results.sink!r} "
                                   "keeps no history")
         run.log(run.record.review_note)
@@ -35,7 +35,7 @@ def magline_unit_judged(run: RunContext, measurements: list[Numeric]) -> None:
     numeric = [m for m in measurements if m.name not in settings.exclude]
     started = time.monotonic()
     try:
-        past = series_of(RunFilter(part=run.record.part, line=run.record.line, verdict=str(Outcome.PASS)),
+        past = run.results.series(RunFilter(part=run.record.part, line=run.record.line, verdict=str(Outcome.PASS)),
                          last=settings.window, names=[m.name for m in numeric], with_limits=False)
     except StationFault as exc:
         run.record.review_note = f"no process review: {exc}"

@@ -12,6 +12,7 @@ from sqlalchemy import Connection
 
 from magline.core.faults import StationFault
 from magline.core.reports.unit_page import write_unit_page
+from magline.core.results.contract import ReadsInSql
 from magline.core.results.reading import find_run_or_serial, run_attempts
 from magline.core.station import Station
 
@@ -39,10 +40,9 @@ def write_report(engine: Any, wanted: str, output: Path | None, folder: Path = P
 
 
 def report(store: Any, station: Station, wanted: str, output: str | None) -> int:
-    engine = getattr(store, "engine", None)
-    if engine is None:
+    if not isinstance(store, ReadsInSql):
         raise StationFault("this station's results sink is not a SQL store: reports read SQL stores only")
-    path = write_report(engine, wanted, Path(output) if output else None)
+    path = write_report(store.engine, wanted, Path(output) if output else None)
     print(path)
     print(f"report of {wanted} from {store.where}", file=sys.stderr)
     return 0

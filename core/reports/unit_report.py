@@ -12,6 +12,7 @@ from __future__ import annotations
 from magline.core.faults import StationFault
 from magline.core.plugins import hookimpl
 from magline.core.record import RunRecord
+from magline.core.results.contract import HoldsRecordsInSql
 from magline.core.sequencer.context import RunContext
 
 
@@ -22,10 +23,10 @@ def magline_unit_finished(run: RunContext, record: RunRecord) -> None:
         return
     from magline.core.reports.commands import write_report  # plotly and the page: only when a report is due
 
-    engine = getattr(run.results, "record_engine", None)
     try:
-        if engine is None:
+        if not isinstance(run.results, HoldsRecordsInSql):
             raise StationFault(f"the results sink {run.station.main_results.sink!r} is not a SQL store")
-        record.report = str(write_report(engine, str(record.run_id), None, run.station_dir / folder_name))
+        folder = run.station_dir / folder_name
+        record.report = str(write_report(run.results.record_engine, str(record.run_id), None, folder))
     except (StationFault, OSError) as exc:
         record.report_error = f"report not written: {exc}"

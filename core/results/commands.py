@@ -12,6 +12,7 @@ import sys
 from typing import Any, TextIO
 
 from magline.core.faults import StationFault
+from magline.core.results.contract import ReadsInSql
 from magline.core.results.reading import (
     NUMERIC_NAMES,
     RUN_COLUMNS,
@@ -25,10 +26,9 @@ from magline.core.text import fmt, seconds, stop_line
 
 
 def engine_of(store: Any) -> Any:
-    engine = getattr(store, "engine", None)
-    if engine is None:
+    if not isinstance(store, ReadsInSql):
         raise StationFault("this station's results sink is not a SQL store: show and export read SQL stores only")
-    return engine
+    return store.engine
 
 
 def show(store: Any, run: str, as_json: bool, out: TextIO | None = None) -> int:

@@ -77,10 +77,62 @@ class ResultSink(Protocol):
         """Release the store (end of the batch)."""
 
 
-# Optional, used when present: ``location(record) -> str`` (where the record is, in the operator's
-# words), ``series(...)`` (statistics, process review), ``record_engine`` (a SQLAlchemy engine:
-# reports), ``pending() -> int`` and ``forward()`` (store-and-forward), ``where`` (a description).
-# ``claim_slot(holder) -> str | None`` / ``touch_slot(holder)`` / ``release_slot(holder)`` / ``slots_held()``
-# (which station holds which slot across computers, see core/results/claims.py: the refusal sentence, or None).
-OPTIONAL = ("location", "series", "record_engine", "pending", "forward", "where", "claim_slot", "touch_slot",
-            "release_slot", "slots_held")
+# ---------------------------------------------------------------------------------------------- optional
+# What some stores can do and others cannot: a sink has a capability by having its member; the core
+# asks ``isinstance(sink, Capability)`` (a fan-out of several stores answers for the first, the
+# station's own).
+
+
+@runtime_checkable
+class SaysWhere(Protocol):
+    """Where a stored record is, in the operator's words (a file, a server, an outbox)."""
+
+    def location(self, record: RunRecord) -> str: ...
+
+
+@runtime_checkable
+class KeepsSeries(Protocol):
+    """The latest runs matching a filter with their numeric measurements as arrays: statistics, control
+    charts and the in-run process review read it (``magline.core.results.series.RunSeries``)."""
+
+    def series(self, where: Any, last: int | None = None, names: Any = None, with_attempts: bool = False,
+               with_limits: bool = True) -> Any: ...
+
+
+@runtime_checkable
+class HoldsRecordsInSql(Protocol):
+    """A SQLAlchemy engine over the tables the record just written is in (a forwarding store: its
+    outbox): the unit report written at the end of a run reads it."""
+
+    record_engine: Any
+
+
+@runtime_checkable
+class ReadsInSql(Protocol):
+    """A SQLAlchemy engine over the store's tables to read (a forwarding store: the server): ``show``,
+    ``export`` and ``report`` read it."""
+
+    engine: Any
+
+
+@runtime_checkable
+class ClaimsSlots(Protocol):
+    """Which station holds which slot across computers (``core/results/claims.py``): ``claim_slot``
+    returns the sentence refusing the claim, or None when it is the holder's."""
+
+    def claim_slot(self, holder: dict) -> str | None: ...
+
+    def touch_slot(self, holder: dict) -> None: ...
+
+    def release_slot(self, holder: dict) -> None: ...
+
+    def slots_held(self) -> list[dict[str, Any]]: ...
+
+
+@runtime_checkable
+class ForwardsQueued(Protocol):
+    """Store and forward: records queued while the server was away, and sending them on."""
+
+    def pending(self) -> int: ...
+
+    def forward(self) -> tuple[int, int]: ...

@@ -48,15 +48,31 @@ def close_sink(sink: Any) -> None:
         closer()
 
 
+# The optional capabilities' members (core/results/contract.py) a fan-out answers for its first store.
+CAPABILITY_MEMBERS = ("series", "record_engine", "engine", "pending", "forward", "claim_slot", "touch_slot",
+                      "release_slot", "slots_held")
+
+
 class ResultSinks:
-    """Several stores behind the one-sink interface; each keeps its own run id for the record."""
+    """Several stores behind the one-sink interface; each keeps its own run id for the record.
+
+    The first store's optional capabilities are the fan-out's: each instance's class carries exactly
+    the members its first store's class has, so ``isinstance(sinks, KeepsSeries)`` answers as for that
+    store (a ``__getattr__`` alone is invisible to a Protocol check that looks at the class, as
+    Python 3.12's does)."""
+
+    def __new__(cls, sinks: list[tuple[str, Any]]) -> ResultSinks:
+        main_type = type(sinks[0][1])
+        members = {name: property(lambda self, name=name: getattr(self.main, name))
+                   for name in CAPABILITY_MEMBERS if hasattr(main_type, name)}
+        return object.__new__(type(cls.__name__, (cls,), members) if members else cls)
 
     def __init__(self, sinks: list[tuple[str, Any]]) -> None:
         self.sinks = sinks
         self.main = sinks[0][1]
         self._ids: dict[int, dict[int, int | None]] = {}  # id(record) → store index → its run id
 
-    def __getattr__(self, name: str) -> Any:  # history, series, location, record_engine, pending, where …
+    def __getattr__(self, name: str) -> Any:  # history, where, server, last_error …
         return getattr(self.main, name)
 
     def _each(self, method: str, record: RunRecord, *args: Any) -> None:

@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
 
 from magline.core.faults import StationFault
+from magline.core.results.contract import ClaimsSlots
 from magline.core.sequencer.periodic import every
 
 if TYPE_CHECKING:
@@ -92,10 +93,10 @@ def claimed_in_store(sink: object, holder: dict) -> Iterator[None]:
     file lock above is per computer).  Refused: :class:`StationBusy` naming the holder, before any
     record.  The claim is refreshed while the unit runs, so a computer that dies loses it in minutes.
     A store without claims (a third-party sink) leaves the file lock alone to hold the slot."""
-    claim = getattr(sink, "claim_slot", None)
-    if claim is None:
+    if not isinstance(sink, ClaimsSlots):
         yield
         return
+    claim = sink.claim_slot
     from magline.core.results.claims import HEARTBEAT_S
 
     refusal = claim(holder)

@@ -29,6 +29,7 @@ from magline.core.fit import FitRefused, FitResult
 from magline.core.measurements import Json, Verdict, limit_for, prefixed, verdicts
 from magline.core.plugins import Plugins
 from magline.core.record import AttemptRecord, Outcome, PersistReport, PhaseResult, RunRecord, now_iso
+from magline.core.results.contract import SaysWhere
 from magline.core.results.sinks import open_results
 from magline.core.sequencer.abort import AbortSwitch
 from magline.core.sequencer.context import Acquisition, AcquisitionAborted, RunContext
@@ -243,8 +244,7 @@ class Sequencer:
 
     def _count_earlier_runs(self, run: RunContext) -> None:
         """A re-test is allowed, but said: the record keeps how many runs and passes came before."""
-        history = getattr(self.sink, "history", None)
-        earlier = history(run.serial) if history is not None else []
+        earlier = self.sink.history(run.serial)  # the sink contract's own method
         passes = [r for r in earlier if r.get("verdict") == Outcome.PASS]
         run.record.earlier_runs, run.record.earlier_passes = len(earlier), len(passes)
         if passes:
@@ -495,8 +495,7 @@ class Sequencer:
         phase = run.record.phases[-1]  # this phase: stored with its real outcome, timed up to the write
         phase.outcome, phase.duration_s = Outcome.PASS, time.monotonic() - run.phase_started_at
         self.sink.finish(run.record)
-        where = getattr(self.sink, "location", None)
-        run.record.store = where(run.record) if callable(where) else ""
+        run.record.store = self.sink.location(run.record) if isinstance(self.sink, SaysWhere) else ""
 
     def _cleanup(self, run: RunContext) -> None:
         """Always: put the DUT back as it was, release it, then leave the fixture in its final state."""
