@@ -308,13 +308,24 @@ class ReadsCalibratedFields(Protocol):
     def calibrated_fields_ut(self, count: int, device_ids: list[int]) -> dict[int, NDArray | None]: ...
 
 
+@dataclass(frozen=True)
+class CalibratedBesideRaw:
+    """The firmware's calibrated readings (µT, body axes, rows) each beside the raw reading of every
+    calibrated sensor it may have been made from (``raw_ut``: device id → rows, µT, the sensor's own
+    axes), with the rotation the firmware turns each sensor's calibrated reading into the body by
+    (``to_body``: device id → 3×3, as it holds it now: board or sensor rotation, level adjustment)."""
+
+    calibrated_ut: NDArray
+    raw_ut: dict[int, NDArray]
+    to_body: dict[int, NDArray]
+
+
 @runtime_checkable
 class ReadsRawAndCalibrated(Protocol):
-    """The firmware's calibrated readings each beside the raw reading of every calibrated sensor it may
-    have been made from, all µT: ``({device id: raw rows}, calibrated rows)``, None where it cannot tell
-    — what proves the firmware *applies* magline's calibration (issue 50)."""
+    """The firmware's calibrated output beside the raw readings it was made from, None where it cannot
+    tell — what proves the firmware *applies* magline's calibration, vector by vector (issue 50)."""
 
-    def raw_and_calibrated_ut(self, count: int) -> tuple[dict[int, NDArray], NDArray] | None: ...
+    def raw_and_calibrated_ut(self, count: int) -> CalibratedBesideRaw | None: ...
 
 
 DutFactory = Callable[["Product", Any], DutBackend]  # (the product entry, its validated options)

@@ -19,10 +19,12 @@ What is here, by role:
 * optional capabilities a backend has by having the method (the core asks ``isinstance(dut, …)``):
   :class:`CalibratesSeveral`, :class:`ReportsSensorsPresent`, :class:`WritesOrientation`,
   :class:`WritesRotation`, :class:`ReportsUptime`, :class:`HasBootTimeout`, :class:`ReadsCalibratedField`,
-  :class:`ReadsCalibratedFields`, :class:`ReadsRawAndCalibrated`;
+  :class:`ReadsCalibratedFields`, :class:`ReadsRawAndCalibrated` (answering a :class:`CalibratedBesideRaw`);
 * links to hardware: :func:`get_listening`, :func:`stall_s`, :data:`SLICE_S` (reading a queue while
   the link may die), :class:`RepeatFilter`, :class:`SensorStreams`, :func:`untruncate_mg`,
   :data:`INT16_MG_RANGE_UT` (MAVLink's int16 milligauss), :class:`ScpiInstrument`, :class:`InstrumentError`;
+* frames: :func:`orientation_matrix` (a firmware orientation value's rotation), :func:`configured_rotation`
+  (the rotation a firmware applies to a :class:`Magnetometer` now);
 * the run: :class:`RunContext`, :class:`Acquisition`, :class:`ImuSeries`, :class:`RawSamples`,
   :func:`wait_or_abort`, the station's :class:`Station`, :class:`Product`, :class:`PowerConfig`;
 * fitting and stopping (field sources that run their own schedule): :class:`FitOptions`,
@@ -38,6 +40,7 @@ What is here, by role:
 
 from magline.core.acquisition.tumble_stop import stop_rule
 from magline.core.dut import (
+    CalibratedBesideRaw,
     CalibratesSeveral,
     DutBackend,
     DutError,
@@ -75,7 +78,8 @@ from magline.core.links.readings import INT16_MG_RANGE_UT, RepeatFilter, SensorS
 from magline.core.links.scpi import InstrumentError, ScpiInstrument
 from magline.core.measurements import Measurement, Numeric, Verdict
 from magline.core.motion import Motion
-from magline.core.mounting import ImuSeries
+from magline.core.mounting import ImuSeries, orientation_matrix
+from magline.core.mounting.checks import configured_rotation
 from magline.core.plugins import hookimpl
 from magline.core.power import PowerControl, PowerError
 from magline.core.record import AttemptRecord, Outcome, PhaseResult, RunRecord
@@ -100,6 +104,7 @@ __all__ = [
     "SLICE_S",
     "Acquisition",
     "AttemptRecord",
+    "CalibratedBesideRaw",
     "CalibratesSeveral",
     "ClaimsSlots",
     "DutBackend",
@@ -157,11 +162,13 @@ __all__ = [
     "WritesOrientation",
     "WritesRotation",
     "await_new_boot",
+    "configured_rotation",
     "fibonacci_sphere",
     "fit_affine",
     "float32_equal",
     "get_listening",
     "hookimpl",
+    "orientation_matrix",
     "prove_unechoed_write",
     "require_same_vehicle",
     "stall_s",

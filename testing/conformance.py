@@ -296,16 +296,17 @@ def check_dut_backend(open_dut: Callable[[], Any], field_ut: float, *, samples: 
                     f"calibrated_fields_ut reads {beside:.2f} µT where calibrated_field_ut read {measured:.2f} µT: "
                     "they must read the same calibrated output")
         if isinstance(dut, ReadsRawAndCalibrated) and (both := dut.raw_and_calibrated_ut(20)) is not None:
-            raws, calibrated = both
-            assert info.selected_sensor in raws, (
-                f"raw_and_calibrated_ut returned raw readings of {sorted(raws)}, not of the calibrated sensor "
-                f"{info.selected_sensor}")
-            made = np.linalg.norm(fit.apply(raws[info.selected_sensor]), axis=1)
-            apart = float(np.mean(np.linalg.norm(np.atleast_2d(calibrated), axis=1) - made))
+            sensor = info.selected_sensor
+            assert sensor in both.raw_ut and sensor in both.to_body, (
+                f"raw_and_calibrated_ut returned raw readings of {sorted(both.raw_ut)} and rotations of "
+                f"{sorted(both.to_body)}, not of the calibrated sensor {sensor}")
+            made = fit.apply(both.raw_ut[sensor]) @ np.asarray(both.to_body[sensor], float).T
+            apart = float(np.linalg.norm(np.mean(np.atleast_2d(both.calibrated_ut) - made, axis=0)))
             figures["applied_difference_ut"] = apart
-            assert abs(apart) < 0.5, (
-                f"the calibrated readings are {apart:+.2f} µT from the fit applied to the raw readings returned "
-                "beside them: each raw row must be the reading its calibrated row was made from, both in µT")
+            assert apart < 0.5, (
+                f"the calibrated readings are {apart:.2f} µT from the fit applied to the raw readings returned "
+                "beside them and turned by to_body: each raw row must be the reading its calibrated row was made "
+                "from, both in µT, and to_body the rotation the firmware applies after its calibration")
 
         dut.restore()
         cycle(dut)

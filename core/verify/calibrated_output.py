@@ -5,8 +5,9 @@ firmware does not apply to this sensor, or with a wrong sign or unit, is stored 
 
 Where the backend reads the firmware's raw and calibrated output side by side
 (``raw_and_calibrated_ut(count)``, PX4), two things are proven (issue 50).  First, that the firmware
-applies magline's calibration: its calibrated magnitudes equal magline's calibration applied to the
-same raw readings, within what noise and the int16 quantisation leave — a wrong sign, unit, slot, or a
+applies magline's calibration: its calibrated vectors equal magline's calibration applied to the same
+raw readings and turned into the body as the firmware turns them, within what noise and the int16
+quantisation leave — a wrong sign, unit, slot, or a
 calibration not applied is far outside that, whatever the fit's quality.  With several compasses the
 firmware's output is the one its voter selected, which MAVLink does not name: it must be magline's
 calibration of one of them.  Second, that the sensor is where the tumble left it: the magnitude
@@ -25,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from magline.core.dut import ReadsCalibratedField, ReadsCalibratedFields, ReadsRawAndCalibrated
+from magline.core.dut import CalibratedBesideRaw, ReadsCalibratedField, ReadsCalibratedFields, ReadsRawAndCalibrated
 from magline.core.fit import FitResult
 from magline.core.mounting.checks import configured_rotation
 from magline.core.sequencer.context import RunContext
@@ -42,25 +43,30 @@ NOT_MAGLINES = "is not magline's calibration of the same raw readings"
 
 @dataclass(frozen=True)
 class Applied:
-    """The firmware's calibrated magnitudes against magline's calibration of the same raw readings."""
+    """The firmware's calibrated vectors against magline's calibration of the same raw readings,
+    turned into the body as the firmware turns them."""
 
-    mean_ut: float  # mean of firmware − magline's
+    difference_ut: float  # |mean of firmware − magline's|, a vector's length
     tolerance_ut: float  # from the noise of the difference and the quantisation
-    firmware_ut: float  # medians, for the words
+    firmware_ut: float  # median magnitudes, for the words
     expected_ut: float
 
     @property
     def holds(self) -> bool:
-        return abs(self.mean_ut) <= self.tolerance_ut
+        return self.difference_ut <= self.tolerance_ut
 
 
-def applied(fit: FitResult, raw_ut: np.ndarray, firmware_ut: np.ndarray) -> Applied:
-    """Compare the firmware's calibrated magnitudes with magline's calibration of ``raw_ut``."""
-    expected = np.linalg.norm(fit.apply(raw_ut), axis=1)
-    difference = firmware_ut - expected
-    spread = float(np.std(difference, ddof=1)) / np.sqrt(len(difference)) if len(difference) > 1 else 0.0
-    return Applied(float(np.mean(difference)), PROOF_Z * spread + QUANTUM_UT, float(np.median(firmware_ut)),
-                   float(np.median(expected)))
+def applied(fit: FitResult, raw_ut: np.ndarray, to_body: np.ndarray, firmware_ut: np.ndarray) -> Applied:
+    """Compare the firmware's calibrated vectors with magline's calibration of ``raw_ut`` turned by
+    ``to_body``.  Vectors, not magnitudes: a wrong sign of an offset perpendicular to the field where
+    the unit rests leaves the magnitude as it should be (1 of 20 such units passed a magnitude proof)."""
+    expected = fit.apply(raw_ut) @ np.asarray(to_body, float).T
+    difference = np.atleast_2d(firmware_ut) - expected
+    mean = difference.mean(axis=0)
+    spread = difference.std(axis=0, ddof=1) / np.sqrt(len(difference)) if len(difference) > 1 else np.zeros(3)
+    return Applied(float(np.linalg.norm(mean)), PROOF_Z * float(np.linalg.norm(spread)) + QUANTUM_UT,
+                   float(np.median(np.linalg.norm(np.atleast_2d(firmware_ut), axis=1))),
+                   float(np.median(np.linalg.norm(expected, axis=1))))
 
 
 def calibrated_output_problems(run: RunContext, dut: object, figures: dict) -> list[str]:
@@ -73,29 +79,31 @@ def calibrated_output_problems(run: RunContext, dut: object, figures: dict) -> l
         return []
     both = dut.raw_and_calibrated_ut(CALIBRATED_READINGS) if isinstance(dut, ReadsRawAndCalibrated) else None
     if both is not None:
-        return _paired_proof(run, *both, figures)
+        return _paired_proof(run, both, figures)
     return _magnitude_proof(run, dut, figures)
 
 
-def _paired_proof(run: RunContext, raws: dict[int, np.ndarray], calibrated: np.ndarray, figures: dict) -> list[str]:
+def _paired_proof(run: RunContext, read: CalibratedBesideRaw, figures: dict) -> list[str]:
     """The firmware's calibrated output beside the raw readings of every compass it may come from:
     it must be magline's calibration of one of them, and that one's magnitude meets the reference."""
     several = len(run.magnetometers) > 1
-    magnitudes = np.linalg.norm(np.atleast_2d(calibrated), axis=1)
-    found = {d: applied(run.fits[d], raw, magnitudes) for d, raw in raws.items() if d in run.fits}
+    raws = read.raw_ut
+    magnitudes = np.linalg.norm(np.atleast_2d(read.calibrated_ut), axis=1)
+    found = {d: applied(run.fits[d], raw, read.to_body[d], read.calibrated_ut) for d, raw in raws.items()
+             if d in run.fits}
     if not found:
         return []
     matched = [d for d, a in found.items() if a.holds]
-    device_id = matched[0] if matched else min(found, key=lambda d: abs(found[d].mean_ut) / found[d].tolerance_ut)
+    device_id = matched[0] if matched else min(found, key=lambda d: found[d].difference_ut / found[d].tolerance_ut)
     prefix = run.sensor_prefix(device_id).replace(".", "_") if several else ""
     result = found[device_id]
-    figures[f"{prefix}applied_difference_ut"] = result.mean_ut
+    figures[f"{prefix}applied_difference_ut"] = result.difference_ut
     if not matched:
         whose = (f" of any of its compasses (closest: {run.sensor_label(device_id)})" if several else "")
         return [f"the firmware's calibrated output {NOT_MAGLINES}{whose}: it reads {result.firmware_ut:.2f} µT where "
-                f"the calibration written gives {result.expected_ut:.2f} µT ({result.mean_ut:+.2f} µT, tolerance "
-                f"±{result.tolerance_ut:.2f} µT from noise and quantisation) — a wrong sign, unit or slot, or the "
-                "calibration not applied"]
+                f"the calibration written gives {result.expected_ut:.2f} µT (the vectors {result.difference_ut:.2f} µT "
+                f"apart, tolerance {result.tolerance_ut:.2f} µT from noise and quantisation) — a wrong sign, unit or "
+                "slot, or the calibration not applied"]
     whose = f"{run.sensor_label(device_id)} (the compass the firmware selects): " if several else ""
     problem = _magnitude_problem(run, run.fits[device_id], raws[device_id], float(np.median(magnitudes)),
                                  prefix, figures)

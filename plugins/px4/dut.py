@@ -27,6 +27,7 @@ import numpy as np
 
 from magline.plugin import (
     INT16_MG_RANGE_UT,
+    CalibratedBesideRaw,
     DutError,
     FitResult,
     Magnetometer,
@@ -38,6 +39,7 @@ from magline.plugin import (
     StationFault,
     UnitInfo,
     await_new_boot,
+    configured_rotation,
     get_listening,
     require_same_vehicle,
     untruncate_mg,
@@ -362,13 +364,14 @@ class Px4Dut:
         if len(self.chosen) > 1:
             return None
         both = self.raw_and_calibrated_ut(count)
-        return None if both is None else both[1]
+        return None if both is None else both.calibrated_ut
 
-    def raw_and_calibrated_ut(self, count: int) -> tuple[dict[int, np.ndarray], np.ndarray] | None:
+    def raw_and_calibrated_ut(self, count: int) -> CalibratedBesideRaw | None:
         """``count`` of the firmware's calibrated readings (HIGHRES_IMU, Gauss), each beside the raw
         reading of every calibrated sensor it may have been made from (the latest SCALED_IMU/2/3 of that
-        sensor at or before its time, mG, truncation undone), all in µT: ``({device id: raw}, calibrated)``
-        — what proves the calibration the firmware *applies* (issue 50).  HIGHRES_IMU carries the
+        sensor at or before its time, mG, truncation undone), all in µT, with the rotation PX4 turns each
+        sensor's calibrated reading into the body by — what proves the calibration the firmware
+        *applies* (issue 50).  HIGHRES_IMU carries the
         sensor PX4's voter selected, which MAVLink does not name, so the station finds which one it is.
         None where HIGHRES_IMU may carry a sensor this run did not calibrate (the unit has more than it
         calibrates, or several stream and no shell names them) or the firmware does not send it."""
@@ -407,7 +410,20 @@ class Px4Dut:
             for handle in handles:
                 self.link.unsubscribe(handle)
         raws = {d: untruncate_mg(np.array([raw[d] for raw, _ in pairs], float)) / MG_PER_UT for d in instances}
-        return raws, np.array([c for _, c in pairs], float) * UT_PER_GAUSS
+        return CalibratedBesideRaw(calibrated_ut=np.array([c for _, c in pairs], float) * UT_PER_GAUSS, raw_ut=raws,
+                                   to_body={d: self.body_rotation(d) for d in instances})
+
+    def body_rotation(self, device_id: int) -> np.ndarray:
+        """The rotation PX4 applies after the calibration, read from the parameters it holds now: the
+        sensor's (external: CAL_MAGn_ROT or its custom Euler angles) or the board's (internal:
+        SENS_BOARD_ROT), behind the board's level adjustment SENS_BOARD_X/Y/Z_OFF where the firmware
+        has it (roll, pitch, yaw in degrees; PX4 applies it to external sensors too)."""
+        board_rot = int(self.link.get("SENS_BOARD_ROT", True))
+        turn = configured_rotation(self._magnetometer(device_id, board_rot))
+        if self._has_param("SENS_BOARD_X_OFF"):
+            roll, pitch, yaw = (float(self.link.get(f"SENS_BOARD_{a}_OFF", False)) for a in "XYZ")
+            turn = euler_rotation(roll, pitch, yaw) @ turn
+        return turn
 
     def persistence_problems(self) -> list[str]:
         """The firmware uses the *first* slot whose ID matches; it must be the one written."""
