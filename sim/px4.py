@@ -99,6 +99,7 @@ class Px4Sim(SimulatedAutopilot):
                   ParamSpec("SENS_MAG_AUTOCAL", INT32, 1), ParamSpec("SENS_MAG_AUTOROT", INT32, 1),
                   ParamSpec("SENS_MAG_MODE", INT32, 1), ParamSpec("SENS_MAG_RATE", REAL32, 15.0),
                   ParamSpec("SENS_MAG_SIDES", INT32, 63), ParamSpec("SENS_BOARD_ROT", INT32, 0),
+                  *(ParamSpec(f"SENS_BOARD_{a}_OFF", REAL32, 0.0) for a in AXES),
                   ParamSpec("MBE_ENABLE", INT32, 1), ParamSpec("SYS_FAC_CAL_MODE", INT32, 0),
                   ParamSpec("SYS_AUTOSTART", INT32, 4001), ParamSpec("MAV_SYS_ID", INT32, 1)]
         return specs
@@ -182,8 +183,15 @@ class Px4Sim(SimulatedAutopilot):
         return self.rotation(n, sensor) @ s @ (raw_ut / 100.0 - off_g) * 100.0
 
     def rotation(self, n: int, sensor: SimMagnetometer) -> NDArray:
-        """R of ``R·S·(raw − OFF)``: an external sensor's CAL_MAGn_ROT (the custom Euler angles for 100,
-        none for −1); internal sensors follow the board rotation (SENS_BOARD_ROT)."""
+        """R of ``R·S·(raw − OFF)``: the board's level adjustment (SENS_BOARD_X/Y/Z_OFF: roll, pitch, yaw
+        in degrees, applied to external sensors too) times the sensor's rotation: an external sensor's
+        CAL_MAGn_ROT (the custom Euler angles for 100, none for −1), an internal one the board's
+        (SENS_BOARD_ROT)."""
+        v = self.table.values
+        level = Rotation.from_euler("ZYX", [v[f"SENS_BOARD_{a}_OFF"] for a in "ZYX"], degrees=True).as_matrix()
+        return level @ self._sensor_rotation(n, sensor)
+
+    def _sensor_rotation(self, n: int, sensor: SimMagnetometer) -> NDArray:
         v = self.table.values
         p = f"CAL_MAG{n}_"
         if not sensor.external:

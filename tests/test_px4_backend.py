@@ -294,6 +294,17 @@ def test_after_the_power_cycle_the_firmware_is_proven_to_apply_the_calibration_w
     assert 0.0 < figures["calibrated_field_sigma_ut"] < 1.0
 
 
+def test_the_proof_turns_magline_s_calibration_as_the_firmware_does_with_the_boards_level_adjustment(tmp_path):
+    """PX4 turns every calibrated reading by the board's level adjustment (SENS_BOARD_X/Y/Z_OFF) as well:
+    a board levelled by 3° in pitch would part the firmware's vectors from magline's by 2.5 µT if the
+    proof left it out."""
+    with start_sim(tmp_path, stored={"SENS_BOARD_Y_OFF": 3.0}) as sim:
+        assert sim.param("SENS_BOARD_Y_OFF") == pytest.approx(3.0)
+        record = run_unit(station(tmp_path, sim))
+    assert record.verdict is Outcome.PASS, record.cause
+    assert record.persistence["figures"]["applied_difference_ut"] < 0.3
+
+
 def test_a_simulated_unit_rests_where_its_tumble_showed_the_field_least():
     from magline.sim.vehicle import least_seen_attitude
 

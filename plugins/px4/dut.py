@@ -411,19 +411,19 @@ class Px4Dut:
                 self.link.unsubscribe(handle)
         raws = {d: untruncate_mg(np.array([raw[d] for raw, _ in pairs], float)) / MG_PER_UT for d in instances}
         return CalibratedBesideRaw(calibrated_ut=np.array([c for _, c in pairs], float) * UT_PER_GAUSS, raw_ut=raws,
-                                   to_body={d: self.body_rotation(d) for d in instances})
+                                   to_body=self.body_rotations(list(instances)))
 
-    def body_rotation(self, device_id: int) -> np.ndarray:
-        """The rotation PX4 applies after the calibration, read from the parameters it holds now: the
-        sensor's (external: CAL_MAGn_ROT or its custom Euler angles) or the board's (internal:
+    def body_rotations(self, device_ids: list[int]) -> dict[int, np.ndarray]:
+        """The rotation PX4 applies after each sensor's calibration, read from the parameters it holds
+        now: the sensor's (external: CAL_MAGn_ROT or its custom Euler angles) or the board's (internal:
         SENS_BOARD_ROT), behind the board's level adjustment SENS_BOARD_X/Y/Z_OFF where the firmware
-        has it (roll, pitch, yaw in degrees; PX4 applies it to external sensors too)."""
+        has it (roll, pitch, yaw in degrees; PX4 applies it to external sensors too).  The board's
+        parameters are read once for all sensors."""
         board_rot = int(self.link.get("SENS_BOARD_ROT", True))
-        turn = configured_rotation(self._magnetometer(device_id, board_rot))
+        level = np.eye(3)
         if self._has_param("SENS_BOARD_X_OFF"):
-            roll, pitch, yaw = (float(self.link.get(f"SENS_BOARD_{a}_OFF", False)) for a in "XYZ")
-            turn = euler_rotation(roll, pitch, yaw) @ turn
-        return turn
+            level = euler_rotation(*(float(self.link.get(f"SENS_BOARD_{a}_OFF", False)) for a in "XYZ"))
+        return {d: level @ configured_rotation(self._magnetometer(d, board_rot)) for d in device_ids}
 
     def persistence_problems(self) -> list[str]:
         """The firmware uses the *first* slot whose ID matches; it must be the one written."""
