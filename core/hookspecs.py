@@ -6,6 +6,7 @@ Order of a unit's run (one direction of data: station file → sequencer → pha
     phase_started / phase_finished around each phase, operator_prompt and acquisition_progress
     during them:
       identify → connect → acquire (retries) → fit → validate → persist → verify → record
+    unit_started (identify), attempt_ended (each attempt), record_unit (record): the results stores
     unit_finished (after the record is stored)
 
 Hooks marked ``firstresult`` have one answer: the first plugin returning non-``None`` wins, so a
@@ -30,7 +31,7 @@ if TYPE_CHECKING:
     from magline.core.fit import FitOptions, FitResult
     from magline.core.fit.samples_csv import RawSamples
     from magline.core.measurements import Measurement, Numeric
-    from magline.core.record import PersistReport, PhaseResult, RunRecord, VerifyReport
+    from magline.core.record import AttemptRecord, PersistReport, PhaseResult, RunRecord, VerifyReport
     from magline.core.sequencer.context import Acquisition, RunContext
 
 hookspec = pluggy.HookspecMarker("magline")
@@ -213,6 +214,45 @@ def magline_verify_persistence(run: RunContext, persisted: PersistReport) -> Ver
     :param persisted: what :func:`magline_persist` wrote.
     :return: read-back values, mismatches and power-cycle figures; the unit fails on any mismatch
         or when the calibrated sensor is missing after the cycle.
+    """
+
+
+# --------------------------------------------------------------------------- the record
+
+
+@hookspec
+def magline_unit_started(run: RunContext) -> str | None:
+    """The unit was accepted (identify phase, before its link is opened): ``run.record`` holds its
+    serial, part, station and limit set.  The core's store listener (``results_store``) begins the
+    run in ``run.results`` and sets ``run.record.run_id``; another store (a plant system) may begin
+    its own.
+
+    :return: the store's name when it began the run, None from a listener that keeps no record.  At
+        least one answer is required: a unit no store heard of is an ERROR, never run unrecorded.
+        Raise :class:`~magline.plugin.StationFault` when the store cannot take it (ERROR).
+    """
+
+
+@hookspec
+def magline_attempt_ended(run: RunContext, attempt: AttemptRecord) -> str | None:
+    """An acquisition attempt ended — accepted, refused for coverage, or interrupted by a lost link
+    or an abort — before anything is fitted: store its raw readings now (``attempt.raw``,
+    ``attempt.more`` for the other compasses), so they survive whatever follows.
+
+    :return: the store's name when it kept the readings; at least one answer is required (raw data
+        nobody kept make the unit an ERROR).  Raise :class:`~magline.plugin.StationFault` when the
+        store cannot take them.
+    """
+
+
+@hookspec
+def magline_record_unit(run: RunContext, record: RunRecord) -> str | None:
+    """The unit's verdict is final, the DUT released: store the whole record (verdict, cause, phases,
+    measurements, parameters before, written and read back).  Called once, in the record phase.
+
+    :return: where the record is kept in the operator's words (a file, a server, an outbox),
+        ``record.store`` joins every answer.  At least one answer is required, and a store that
+        raises makes a PASS or FAIL an ERROR: a judgement nobody can trace does not count.
     """
 
 

@@ -100,6 +100,19 @@ class Listener:
         self.calls.append(("magline_operator_prompt", {"message": message}))
 
     @hookimpl
+    def magline_unit_started(self, run):
+        self.calls.append(("magline_unit_started", {"run_id": run.record.run_id, "phase": run.record.phases[-1].name}))
+
+    @hookimpl
+    def magline_attempt_ended(self, run, attempt):
+        self.calls.append(("magline_attempt_ended", {"attempt": attempt, "fitted": run.fit is not None}))
+
+    @hookimpl
+    def magline_record_unit(self, run, record):
+        self.calls.append(("magline_record_unit", {"verdict": record.verdict, "finished": record.finished}))
+        return "the hook test's ledger"
+
+    @hookimpl
     def magline_unit_judged(self, run, measurements):
         self.calls.append(("magline_unit_judged", {"names": [m.name for m in measurements]}))
 
@@ -330,6 +343,31 @@ def test_magline_operator_prompt(heard):
     listener, record = heard
     prompts = listener.of("magline_operator_prompt")
     assert len(prompts) == len(record.attempts) and all(c["message"] for c in prompts)
+
+
+def test_magline_unit_started(heard):
+    """Heard in identify, after the results store listener began the run (it answered: run id set)."""
+    listener, record = heard
+    (started,) = listener.of("magline_unit_started")
+    assert started["phase"] == "identify" and started["run_id"] == record.run_id is not None
+
+
+def test_magline_attempt_ended(heard):
+    """Each attempt, before anything is fitted, with its raw readings: the store kept them (the
+    stored run shows them)."""
+    listener, record = heard
+    ended = listener.of("magline_attempt_ended")
+    assert all(c["attempt"] is a for c, a in zip(ended, record.attempts, strict=True))
+    assert not any(c["fitted"] for c in ended)
+    assert all(len(c["attempt"].raw) == c["attempt"].samples > 0 for c in ended)
+
+
+def test_magline_record_unit(heard):
+    """In the record phase with the final verdict; every store's answer is in ``record.store``."""
+    listener, record = heard
+    (recorded,) = listener.of("magline_record_unit")
+    assert recorded["verdict"] is Outcome.PASS and recorded["finished"]
+    assert "results.sqlite" in record.store and "the hook test's ledger" in record.store
 
 
 def test_magline_unit_judged(heard):

@@ -5,6 +5,7 @@ core imports no simulator and no plugin, and the simulators import no plugin."""
 from __future__ import annotations
 
 import ast
+import inspect
 from importlib.metadata import entry_points
 
 from conftest import REPO
@@ -183,9 +184,12 @@ def test_each_built_in_backend_has_the_capabilities_its_firmware_offers():
 
 
 def test_the_sequencer_imports_no_output_room():
-    """Issue 44: reports, the process review and what the operator sees listen to the run's hooks
-    (``magline_unit_judged``, ``magline_unit_finished`` …); the sequencer runs the procedure and
-    writes the record through the results-sink contract it opens from the registry."""
+    """Issue 44: reports, the process review, the results stores and what the operator sees listen
+    to the run's hooks (``magline_unit_judged``, ``magline_record_unit``, ``magline_unit_finished`` …);
+    the sequencer runs the procedure, opens the station's stores from the registry for the run to
+    carry (``run.results``) and writes nothing into them itself."""
+    import re
+
     outputs = ("magline.core.reports", "magline.core.quality", "magline.core.operator_ui")
     offending = {f: sorted(n for n in names if n.startswith(outputs))
                  for f, names in imports_of("core/sequencer").items()}
@@ -193,6 +197,11 @@ def test_the_sequencer_imports_no_output_room():
     group = {ep.name: ep.value for ep in entry_points(group="magline")}
     assert group["process_review"] == "magline.core.quality.in_run"
     assert group["unit_reports"] == "magline.core.reports.unit_report"
+    assert group["results_store"] == "magline.core.results.recorder"
+    writes = re.compile(r"\.(begin|save_attempt|finish)\(")
+    found = [f"{p.name}:{n}" for p in (REPO / "core" / "sequencer").glob("*.py")
+             for n, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1) if writes.search(line)]
+    assert found == []
 
 
 def test_the_readme_is_a_front_page_and_every_page_it_points_to_is_in_the_repository():
@@ -236,6 +245,7 @@ def test_core_asks_a_results_store_for_a_capability_by_its_protocol_and_a_fan_ou
     from magline.core.results.contract import ClaimsSlots, HoldsRecordsInSql, KeepsSeries, ReadsInSql, SaysWhere
     from magline.core.results.sinks import ResultSinks
     from magline.core.results.sqlite_sink import SqliteSink
+    from magline.core.sequencer.slots import Serialized
 
     probe = re.compile(r"""\b(getattr|hasattr)\((self\.)?(sink|store|run\.results)\b, ["']"""
                        r"""(series|engine|record_engine|location|forward|pending|claim_slot|slots_held)""")
@@ -262,5 +272,13 @@ def test_core_asks_a_results_store_for_a_capability_by_its_protocol_and_a_fan_ou
             sql_first = ResultSinks([("sqlite", sql), ("plain", Plain())])
             assert all(isinstance(sql_first, c) for c in capabilities)
             assert sql_first.engine is sql.engine and sql_first.series.__self__ is sql
+            # slots share a store through a lock; it answers as the store does, also to a static
+            # lookup (how Python 3.12's runtime Protocols look), and its calls still take the lock
+            shared = Serialized(sql)
+            assert all(isinstance(shared, c) for c in capabilities) and not isinstance(Serialized(Plain()), KeepsSeries)
+            assert all(inspect.getattr_static(shared, name) for name in ("series", "location", "engine", "claim_slot"))
+            with shared._lock:
+                assert shared.history("NONE") == []  # re-entrant for the thread holding it
+            assert shared.engine is sql.engine
         finally:
             sql.close()

@@ -120,3 +120,39 @@ def test_store_options_and_names_are_checked_with_file_and_line(make_station):
     path = make_station({"results": {"sink": "sqlite", "pathh": "x.sqlite"}})  # the single mapping, as before
     _, problems = station_problems(path.read_text(encoding="utf-8"), str(path), load_plugins())
     assert len(problems) == 1 and "results.pathh: unknown key (did you mean 'path'?)" in problems[0]
+
+
+def test_a_run_no_store_listens_to_is_an_error_before_the_unit_is_touched(make_station, tmp_path, monkeypatch):
+    """Issue 44: the results stores hear the run through hooks (``magline.core.results.recorder``);
+    with that listener switched off nothing would keep the unit, so it is refused in identify, an
+    ERROR saying why — never a judgement nobody can trace, never a DUT connected for it."""
+    monkeypatch.setenv("MAGLINE_DISABLE_PLUGINS", "results_store")
+    seq = Sequencer(load_station(make_station()), load_plugins(), tmp_path, sleep=lambda s: None)
+    try:
+        record = seq.run_unit("NOBODY-1")
+        history = seq.sink.history("NOBODY-1")
+    finally:
+        seq.close()
+    assert record.verdict is Outcome.ERROR and record.phases[0].name == "identify"
+    assert record.phases[0].outcome is Outcome.ERROR and record.phases[1].outcome is Outcome.SKIPPED
+    assert "no results store began the run of NOBODY-1 (is the results_store plugin disabled?)" in record.cause
+    assert record.store == "" and history == []
+
+
+def test_two_stations_sharing_one_plugin_manager_keep_their_own_records(make_station, tmp_path):
+    """The store listener writes into the stores the run carries (``run.results``), so two
+    sequencers sharing one plugin manager — as a screen running two stations would — never write
+    each other's units."""
+    plugins = load_plugins()
+    folders = [tmp_path / "a", tmp_path / "b"]
+    records = []
+    for folder, serial in zip(folders, ("A-1", "B-1"), strict=True):
+        folder.mkdir()
+        seq = Sequencer(load_station(make_station()), plugins, folder, sleep=lambda s: None)
+        try:
+            records.append((seq.run_unit(serial), seq.sink.history("A-1"), seq.sink.history("B-1")))
+        finally:
+            seq.close()
+    (a, a_has_a, a_has_b), (b, b_has_a, b_has_b) = records
+    assert a.verdict is b.verdict is Outcome.PASS
+    assert [len(a_has_a), len(a_has_b), len(b_has_a), len(b_has_b)] == [1, 0, 0, 1]

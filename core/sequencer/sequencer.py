@@ -29,7 +29,6 @@ from magline.core.fit import FitRefused, FitResult
 from magline.core.measurements import Json, Verdict, limit_for, prefixed, verdicts
 from magline.core.plugins import Plugins
 from magline.core.record import AttemptRecord, Outcome, PersistReport, PhaseResult, RunRecord, now_iso
-from magline.core.results.contract import SaysWhere
 from magline.core.results.sinks import open_results
 from magline.core.sequencer.abort import AbortSwitch
 from magline.core.sequencer.context import Acquisition, AcquisitionAborted, RunContext
@@ -240,11 +239,11 @@ class Sequencer:
     def _identify(self, run: RunContext) -> None:
         run.log(f"unit {run.serial}, part {run.part}, limit set {run.record.limit_hash}")
         self._count_earlier_runs(run)
-        self.sink.begin(run.record)
+        _kept(self.plugins.hook.magline_unit_started(run=run), f"no results store began the run of {run.serial}")
 
     def _count_earlier_runs(self, run: RunContext) -> None:
         """A re-test is allowed, but said: the record keeps how many runs and passes came before."""
-        earlier = self.sink.history(run.serial)  # the sink contract's own method
+        earlier = run.results.history(run.serial) if run.results is not None else []  # the sink contract's own
         passes = [r for r in earlier if r.get("verdict") == Outcome.PASS]
         run.record.earlier_runs, run.record.earlier_passes = len(earlier), len(passes)
         if passes:
@@ -422,7 +421,8 @@ class Sequencer:
                                more=dict(result.more), imu=result.imu, stopped=result.stopped,
                                tumble_s=result.tumble_s, predicted=dict(result.predicted))
         run.record.attempts.append(stored)
-        self.sink.save_attempt(run.record, stored)  # raw data safe before any fitting
+        _kept(self.plugins.hook.magline_attempt_ended(run=run, attempt=stored),  # raw data safe before any fitting
+              f"no results store kept the readings of attempt {stored.attempt}")
         return stored
 
     def _fit(self, run: RunContext) -> None:
@@ -494,8 +494,8 @@ class Sequencer:
         run.record.finished = now_iso()
         phase = run.record.phases[-1]  # this phase: stored with its real outcome, timed up to the write
         phase.outcome, phase.duration_s = Outcome.PASS, time.monotonic() - run.phase_started_at
-        self.sink.finish(run.record)
-        run.record.store = self.sink.location(run.record) if isinstance(self.sink, SaysWhere) else ""
+        run.record.store = "; ".join(_kept(self.plugins.hook.magline_record_unit(run=run, record=run.record),
+                                           "no results store kept the record"))
 
     def _cleanup(self, run: RunContext) -> None:
         """Always: put the DUT back as it was, release it, then leave the fixture in its final state."""
@@ -559,6 +559,14 @@ def _warming_up(run: RunContext, fits: dict[int, FitResult]) -> str:
     caught = [(run.sensor_label(device_id), words) for device_id, fit in fits.items()
               if (words := fit.warm_up_caught)]
     return "; ".join(f"{label}: {words}" if len(fits) > 1 else words for label, words in caught)
+
+
+def _kept(answers: list[str], nobody: str) -> list[str]:
+    """The stores that answered a record hook; none is the station's fault (an ERROR), never a unit
+    judged with nothing kept — the store listener disabled, or a plugin manager without it."""
+    if not answers:
+        raise StationFault(f"{nobody} (is the results_store plugin disabled?)")
+    return answers
 
 
 def _text(exc: BaseException) -> str:

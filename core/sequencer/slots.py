@@ -27,7 +27,16 @@ JOIN_S = 0.2
 
 
 class Serialized:
-    """A shared object whose methods run one at a time (a results store, a field source)."""
+    """A shared object whose methods run one at a time (a results store, a field source).
+
+    Each instance's class carries the target's public members, so a capability check
+    (``isinstance(store, KeepsSeries)``) answers as for the target: from Python 3.12 a runtime
+    Protocol looks members up statically, and a ``__getattr__`` alone would hide them all."""
+
+    def __new__(cls, target: Any) -> Serialized:
+        members = {name: property(lambda self, name=name: self.__getattr__(name))
+                   for name in dir(target) if not name.startswith("_")}
+        return object.__new__(type(cls.__name__, (cls,), members))
 
     def __init__(self, target: Any) -> None:
         self._target = target
