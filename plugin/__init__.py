@@ -22,7 +22,9 @@ What is here, by role:
   :class:`ReadsCalibratedFields`, :class:`ReadsRawAndCalibrated` (answering a :class:`CalibratedBesideRaw`);
 * links to hardware: :func:`get_listening`, :func:`stall_s`, :data:`SLICE_S` (reading a queue while
   the link may die), :class:`RepeatFilter`, :class:`SensorStreams`, :func:`untruncate_mg`,
-  :data:`INT16_MG_RANGE_UT` (MAVLink's int16 milligauss), :class:`ScpiInstrument`, :class:`InstrumentError`;
+  :data:`INT16_MG_RANGE_UT` (MAVLink's int16 milligauss), :class:`ScpiInstrument`, :class:`InstrumentError`,
+  a board on a serial port: :class:`SerialAddress`, :class:`SerialPortWatch` (present, permitted, not held,
+  the same board after its reboot), :class:`UsbIdentity`, :func:`list_ports`, :data:`SERIAL_HINT`;
 * frames: :func:`orientation_matrix` (a firmware orientation value's rotation), :func:`configured_rotation`
   (the rotation a firmware applies to a :class:`Magnetometer` now);
 * the run: :class:`RunContext`, :class:`Acquisition`, :class:`ImuSeries`, :class:`RawSamples`,
@@ -76,6 +78,14 @@ from magline.core.fit.samples_csv import RawSamples
 from magline.core.links.listening import SLICE_S, get_listening, stall_s
 from magline.core.links.readings import INT16_MG_RANGE_UT, RepeatFilter, SensorStreams, untruncate_mg
 from magline.core.links.scpi import InstrumentError, ScpiInstrument
+from magline.core.links.serial_port import (
+    SERIAL_HINT,
+    SerialAddress,
+    SerialAddressError,
+    SerialPortWatch,
+    UsbIdentity,
+    list_ports,
+)
 from magline.core.measurements import Measurement, Numeric, Verdict
 from magline.core.motion import Motion
 from magline.core.mounting import ImuSeries, orientation_matrix
@@ -101,6 +111,7 @@ from magline.core.station.schema import PowerConfig, Product, Station
 
 __all__ = [
     "INT16_MG_RANGE_UT",
+    "SERIAL_HINT",
     "SLICE_S",
     "Acquisition",
     "AttemptRecord",
@@ -153,11 +164,15 @@ __all__ = [
     "SaysWhere",
     "ScpiInstrument",
     "SensorStreams",
+    "SerialAddress",
+    "SerialAddressError",
+    "SerialPortWatch",
     "Station",
     "StationFault",
     "StopRule",
     "UnansweredRequest",
     "UnitInfo",
+    "UsbIdentity",
     "Verdict",
     "WritesOrientation",
     "WritesRotation",
@@ -168,6 +183,7 @@ __all__ = [
     "float32_equal",
     "get_listening",
     "hookimpl",
+    "list_ports",
     "orientation_matrix",
     "prove_unechoed_write",
     "require_same_vehicle",

@@ -57,9 +57,13 @@ def add_sim_command(subparsers: argparse._SubParsersAction) -> None:
     board.add_argument("--supply", metavar="tcp:HOST:PORT",
                        help="also run a simulated SCPI bench supply that powers this board (it starts off)")
     board.add_argument("--supply-fault", choices=["dead_board", "short", "output_error"])
+    board.add_argument("--usb-alias", action="append", default=[], metavar="PATH",
+                       help="with --listen serial:PATH: another link to the same port, kept as the first is (a udev "
+                            "by-id name beside the by-path one); repeat for several")
     px4 = flavours.add_parser("px4", parents=[board], help="a simulated PX4 flight controller (MAVLink)")
     px4.add_argument("--listen", default="udp:127.0.0.1:14550",
-                     help="udp:HOST:PORT or tcp:HOST:PORT (default udp:127.0.0.1:14550; port 0 picks a free one)")
+                     help="udp:HOST:PORT, tcp:HOST:PORT (default udp:127.0.0.1:14550; port 0 picks a free one) or "
+                          "serial:PATH[:BAUD] (a pseudo-terminal linked at PATH: USB without a baud, a UART at BAUD)")
     px4.add_argument("--firmware", default="1.15.0", help="firmware version (ODIAG from 1.12)")
     px4.add_argument("--untagged", action="store_true",
                      help="report version 0.0.0, as a build from an untagged tree (SITL) does")
@@ -70,7 +74,9 @@ def add_sim_command(subparsers: argparse._SubParsersAction) -> None:
     ardupilot = flavours.add_parser("ardupilot", parents=[board], help="a simulated ArduPilot flight controller "
                                                                         "(MAVLink)")
     ardupilot.add_argument("--listen", default="tcp:127.0.0.1:5760",
-                           help="tcp:HOST:PORT or udp:HOST:PORT (default tcp:127.0.0.1:5760; port 0 picks a free one)")
+                           help="tcp:HOST:PORT, udp:HOST:PORT (default tcp:127.0.0.1:5760; port 0 picks a free one) "
+                                "or serial:PATH[:BAUD] (a pseudo-terminal linked at PATH: USB without a baud, a UART "
+                                "at BAUD)")
     coil = flavours.add_parser("coil", help="a 3-axis Helmholtz coil current source with a fluxgate DAQ at its "
                                             "centre (SCPI)")
     coil.add_argument("--listen", default="tcp:127.0.0.1:5026", help="the coil's address (default tcp:127.0.0.1:5026)")
@@ -160,7 +166,7 @@ def run_sim(args: argparse.Namespace) -> int:
                                    "motions": motions, "speed": args.speed, "field_ut": args.field_ut,
                                    "inclination_deg": args.inclination_deg, "seed": args.seed,
                                    "faults": SimFaults.parse(args.fault), "mag_rate_hz": args.mag_rate,
-                                   "motion_source": args.gimbal}
+                                   "motion_source": args.gimbal, "usb_aliases": tuple(args.usb_alias)}
         if args.flavour == "px4":
             options.update(firmware=args.firmware, shell=not args.no_shell, preset_ids=args.preset_ids,
                            untagged=args.untagged)

@@ -1,10 +1,13 @@
-"""The simulator's end of the link: a UDP or TCP server socket on a real address.
+"""The simulator's end of the link: a UDP or TCP server socket on a real address, or a serial port
+(a pseudo-terminal behind a link that stays in place, as udev's ``/dev/serial/by-path`` names do).
 
 Why servers: a backend must reach the simulator exactly as it reaches a board on a network
 (``udpout://127.0.0.1:14550`` for MAVSDK, ``tcp:127.0.0.1:5760`` for pymavlink), so the
 simulator listens and learns its peers from what they send.  Both links can be taken down the
 way a rebooting board does it: TCP closes its connections and accepts no new ones until the
-board is up again; UDP forgets its peers and drops what arrives meanwhile.
+board is up again; UDP forgets its peers and drops what arrives meanwhile.  A serial port does
+what a USB CDC ACM board does: its node vanishes at the reboot and a new one (another kernel number)
+appears under the same names when the board is up again (:mod:`magline.sim.pty_port`).
 """
 
 from __future__ import annotations
@@ -16,17 +19,27 @@ from typing import Protocol
 
 
 class AddressError(ValueError):
-    """A ``--listen`` address that is not ``udp:HOST:PORT`` or ``tcp:HOST:PORT``."""
+    """A ``--listen`` address that is not ``udp:HOST:PORT``, ``tcp:HOST:PORT`` or ``serial:PATH[:BAUD]``."""
 
 
 def parse_listen(address: str) -> tuple[str, str, int]:
+    """(scheme, host or path, port or baud; 0 for a serial port without one)."""
+    if address.startswith("serial:"):
+        path, _, baud = address.removeprefix("serial:").rpartition(":")
+        if not path or not baud.isdigit():  # no baud (udev names have colons): USB CDC ACM, which ignores it
+            path, baud = address.removeprefix("serial:"), "0"
+        if not path.startswith("/"):
+            raise AddressError(f"listen address {address!r}: expected serial:PATH[:BAUD] with an absolute PATH "
+                               "(the link the simulator keeps pointing at its pseudo-terminal)")
+        return "serial", path, int(baud)
     try:
         scheme, host, port = address.split(":")
         if scheme not in ("udp", "tcp"):
             raise ValueError(scheme)
         return scheme, host, int(port)
     except ValueError as exc:
-        raise AddressError(f"listen address {address!r}: expected udp:HOST:PORT or tcp:HOST:PORT") from exc
+        raise AddressError(f"listen address {address!r}: expected udp:HOST:PORT, tcp:HOST:PORT or "
+                           "serial:PATH[:BAUD]") from exc
 
 
 class ServerLink(Protocol):
@@ -40,7 +53,12 @@ class ServerLink(Protocol):
         """Send to every known peer."""
 
     def drop_peers(self) -> None:
-        """Forget (UDP) or close (TCP) every peer: what a reboot or power loss does."""
+        """Forget (UDP) or close (TCP) every peer, or take the serial node away: what a reboot or power
+        loss does."""
+
+    def unplug(self) -> None:
+        """The link is lost for good (fault ``link_loss_after_s``): a network link goes silent, a USB
+        board's node vanishes as when its cable is pulled."""
 
     def close(self) -> None: ...
 
@@ -75,6 +93,9 @@ class UdpServerLink:
 
     def drop_peers(self) -> None:
         self.peers.clear()
+
+    def unplug(self) -> None:
+        return None
 
     def close(self) -> None:
         self.sock.close()
@@ -131,11 +152,19 @@ class TcpServerLink:
         for client in list(self.clients):
             self._drop(client)
 
+    def unplug(self) -> None:
+        return None
+
     def close(self) -> None:
         self.drop_peers()
         self.listener.close()
 
 
-def open_server(address: str) -> ServerLink:
+def open_server(address: str, aliases: tuple[str, ...] = ()) -> ServerLink:
+    """The board's end of ``address``; ``aliases``: more names of a serial port (its udev by-id link)."""
     scheme, host, port = parse_listen(address)
+    if scheme == "serial":
+        from magline.sim.pty_port import PtyServerLink
+
+        return PtyServerLink(host, port or None, aliases)
     return UdpServerLink(host, port) if scheme == "udp" else TcpServerLink(host, port)

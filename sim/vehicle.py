@@ -99,8 +99,10 @@ class SimulatedAutopilot(ABC):
                  motions: tuple[str, ...] | None = None, speed: float = 1.0, boot_time_s: float = 2.0,
                  faults: SimFaults | None = None, seed: int | None = None, system_id: int = 1,
                  save_duration_s: float = 0.05, field_provider: Callable[[], NDArray] | None = None,
-                 mag_rate_hz: float | None = None, motion_source: str | None = None) -> None:
+                 mag_rate_hz: float | None = None, motion_source: str | None = None,
+                 usb_aliases: tuple[str, ...] = ()) -> None:
         self.listen = listen or self.default_listen
+        self.usb_aliases = usb_aliases  # more names of a serial port (a udev by-id link beside by-path)
         self.workdir = Path(workdir)
         self.rng = np.random.default_rng(seed)
         self.random = random.Random(seed)
@@ -212,7 +214,7 @@ class SimulatedAutopilot(ABC):
             from magline.sim.gimbal import MotionFollower
 
             self.follower = MotionFollower(self.motion_source)
-        self.link = open_server(self.listen)
+        self.link = open_server(self.listen, self.usb_aliases)
         self.listen = self.link.address
         with self.lock:
             self._supply(True, time.monotonic())
@@ -409,8 +411,9 @@ class SimulatedAutopilot(ABC):
         if self.power is not Power.UP:
             return
         if (self.faults.link_loss_after_s is not None and self._mag_stream_started is not None
-                and now - self._mag_stream_started > self.faults.link_loss_after_s):
+                and now - self._mag_stream_started > self.faults.link_loss_after_s and not self.link_dead):
             self.link_dead = True
+            self.link.unplug()  # a network link goes silent; a USB board's node vanishes, its cable pulled
         if now >= self._next_heartbeat:
             self._next_heartbeat += 1.0
             self.mav.heartbeat_send(mavlink.MAV_TYPE_QUADROTOR, self.autopilot,

@@ -22,7 +22,19 @@ import socket
 
 from pymavlink import mavutil
 
-from magline.plugin import SLICE_S, DutError, LinkError, UnansweredRequest, float32_equal, prove_unechoed_write, stall_s
+from magline.plugin import (
+    SERIAL_HINT,
+    SLICE_S,
+    DutError,
+    LinkError,
+    SerialAddress,
+    SerialAddressError,
+    SerialPortWatch,
+    UnansweredRequest,
+    float32_equal,
+    prove_unechoed_write,
+    stall_s,
+)
 
 ML = mavutil.mavlink
 GCS_SYSTEM, GCS_COMPONENT = 255, 190
@@ -64,14 +76,16 @@ def pymavlink_device(connection: str) -> tuple[str, int]:
     """Station connection string → (pymavlink device, baud).
 
     ``tcp:HOST:PORT``, ``udpin:HOST:PORT``, ``udpout:HOST:PORT`` pass through;
-    ``serial:/dev/ttyACM0:115200`` (or a bare device path) opens a serial port.
+    ``serial:/dev/serial/by-path/…:115200`` (or a bare device path) names a serial port, opened by
+    its kernel node at each opening (:class:`~magline.plugin.SerialPortWatch`).
     """
-    if connection.startswith("serial:"):
-        device, _, baud = connection.removeprefix("serial:").rpartition(":")
-        if not device:
-            device, baud = baud, "115200"
-        return device, int(baud)
-    if connection.startswith(("tcp:", "udpin:", "udpout:", "udp:", "/dev/", "COM")):
+    try:
+        serial = SerialAddress.parse(connection)
+    except SerialAddressError as exc:
+        raise DutError(str(exc)) from None
+    if serial is not None:
+        return serial.path, serial.baud
+    if connection.startswith(("tcp:", "udpin:", "udpout:", "udp:")):
         return connection, 115200
     raise DutError(f"connection {connection!r}: expected tcp:HOST:PORT, udpin:HOST:PORT, udpout:HOST:PORT "
                    "or serial:DEVICE:BAUD")
@@ -83,6 +97,8 @@ class ArduPilotLink:
     def __init__(self, connection: str, *, param_timeout_s: float = 1.0, param_retries: int = 5) -> None:
         self.connection = connection
         self.device, self.baud = pymavlink_device(connection)
+        serial = SerialAddress.parse(connection)
+        self.port = SerialPortWatch(serial) if serial is not None else None
         self.param_timeout_s = param_timeout_s
         self.param_retries = param_retries
         self.conn: Any = None
@@ -100,7 +116,8 @@ class ArduPilotLink:
         last_error = "no heartbeat"
         while (remaining := deadline - time.monotonic()) > 0:
             try:
-                self.conn = self._connect(remaining)
+                device = self.port.ready(remaining).device if self.port is not None else self.device
+                self.conn = self._connect(device, remaining)
             except OSError as exc:  # refused while the vehicle boots; try again until the deadline
                 last_error = _socket_error(exc)
                 time.sleep(min(0.2, max(deadline - time.monotonic(), 0.0)))
@@ -112,14 +129,16 @@ class ArduPilotLink:
             if heartbeat is not None:
                 return heartbeat
             last_error = "connected, but no autopilot heartbeat"
+            if self.port is not None:
+                last_error += f"; {SERIAL_HINT}"
             self.close()
         raise LinkError(f"no ArduPilot vehicle answered on {self.connection} within {timeout_s:g} s ({last_error})")
 
-    def _connect(self, timeout_s: float) -> Any:
-        if self.device.startswith("tcp:"):
-            return DeadlineTcp(self.device.removeprefix("tcp:"), timeout_s, source_system=GCS_SYSTEM,
+    def _connect(self, device: str, timeout_s: float) -> Any:
+        if device.startswith("tcp:"):
+            return DeadlineTcp(device.removeprefix("tcp:"), timeout_s, source_system=GCS_SYSTEM,
                                source_component=GCS_COMPONENT)
-        return mavutil.mavlink_connection(self.device, baud=self.baud, source_system=GCS_SYSTEM,
+        return mavutil.mavlink_connection(device, baud=self.baud, source_system=GCS_SYSTEM,
                                           source_component=GCS_COMPONENT, retries=0, autoreconnect=False)
 
     def _wait_autopilot_heartbeat(self, deadline: float) -> Any | None:

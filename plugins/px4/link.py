@@ -27,7 +27,17 @@ from mavsdk.plugins.param.param import Param, ParamError
 from mavsdk.plugins.shell.shell import Device, Shell
 from pymavlink.dialects.v20 import common as mavlink
 
-from magline.plugin import DutError, LinkError, StationFault, UnansweredRequest, get_listening, prove_unechoed_write
+from magline.plugin import (
+    SERIAL_HINT,
+    DutError,
+    LinkError,
+    SerialAddress,
+    SerialPortWatch,
+    StationFault,
+    UnansweredRequest,
+    get_listening,
+    prove_unechoed_write,
+)
 
 log = logging.getLogger("magline.px4.mavsdk")
 # MAVSDK's results that mean the command was not answered, as opposed to answered with a no
@@ -56,6 +66,10 @@ def _route_mavsdk_logs() -> None:
 class Px4Link:
     def __init__(self, url: str, *, connect_timeout_s: float = 10.0) -> None:
         self.url = url
+        # a board on a serial port: opened by its kernel node (MAVSDK's URL takes no colons in a path, and
+        # udev's by-path names have them), looked up again at each opening — it re-enumerates at a reboot
+        serial = SerialAddress.parse(url)
+        self.port = SerialPortWatch(serial) if serial is not None else None
         self.connect_timeout_s = connect_timeout_s
         self.mavsdk: Mavsdk | None = None
         self.system: Any = None
@@ -67,17 +81,21 @@ class Px4Link:
     def open(self, timeout_s: float | None = None) -> None:
         _route_mavsdk_logs()
         timeout_s = self.connect_timeout_s if timeout_s is None else timeout_s
-        with NATIVE_LOCK:  # two Mavsdk instances created at once crash the process (slots connect together)
-            self.mavsdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
-        result = self.mavsdk.add_any_connection(self.url)
-        if result != ConnectionResult.SUCCESS:
-            self.close()
-            raise StationFault(f"cannot open {self.url}: {ConnectionResult(result).name} "
-                           "(expected udpin://HOST:PORT, udpout://HOST:PORT, tcpout://HOST:PORT or serial://DEV:BAUD)")
-        self.system = self.mavsdk.first_autopilot(timeout_s)
-        if self.system is None:
-            self.close()
-            raise LinkError(f"no PX4 vehicle answered on {self.url} within {timeout_s:g} s")
+        deadline = time.monotonic() + timeout_s
+        node = self._connect(deadline)
+        while True:
+            self.system = self.mavsdk.first_autopilot(self._listen_s(deadline))
+            if self.system is not None:
+                break
+            if time.monotonic() >= deadline:
+                self.close()
+                hint = f"; {SERIAL_HINT}" if self.port is not None else ""
+                raise LinkError(f"no PX4 vehicle answered on {self.url} within {timeout_s:g} s{hint}")
+            if self.port is not None and not self.port.still_at(node):
+                # the node went away (the board's reboot had not yet taken it when it was opened), or
+                # another took its name: open what the name points at now
+                self.close()
+                node = self._connect(deadline)
         if self.system.autopilot_type() != Autopilot.PX4:
             kind = Autopilot(self.system.autopilot_type()).name
             self.close()
@@ -89,6 +107,29 @@ class Px4Link:
         self.direct = MavlinkDirect(self.system)
         self.shell_plugin = Shell(self.system)
         self.shell_plugin.subscribe_receive(lambda data, _: self._shell_out.put(data.data))
+
+    def _connect(self, deadline: float) -> str | None:
+        """A new MAVSDK instance on the link; for a serial port, on the node its name points at once the
+        board is there (returned), waiting for it until ``deadline``."""
+        url = self.url
+        node = None
+        if self.port is not None:
+            node = self.port.ready(max(deadline - time.monotonic(), 0.0)).device
+            url = f"serial://{node}:{self.port.address.baud}"
+        with NATIVE_LOCK:  # two Mavsdk instances created at once crash the process (slots connect together)
+            self.mavsdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
+        result = self.mavsdk.add_any_connection(url)
+        if result != ConnectionResult.SUCCESS:
+            self.close()
+            raise StationFault(f"cannot open {url}: {ConnectionResult(result).name} "
+                           "(expected udpin://HOST:PORT, udpout://HOST:PORT, tcpout://HOST:PORT or serial:DEV:BAUD)")
+        return node
+
+    def _listen_s(self, deadline: float) -> float:
+        """How long to wait for the vehicle before looking again: all the time left on a network link,
+        half a second on a serial port (whose node may vanish meanwhile)."""
+        left = max(deadline - time.monotonic(), 0.05)
+        return left if self.port is None else min(left, 0.5)
 
     def reopen(self, timeout_s: float) -> None:
         """A new MAVSDK instance: nothing cached from the previous boot can answer a read."""
