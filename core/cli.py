@@ -119,6 +119,10 @@ def main(argv: list[str] | None = None) -> int:
     held = sub.add_parser("slots", help="which station holds which slot now, from the results store every "
                                         "computer of the line shares")
     held.add_argument("--station", help="station file naming the results store (default: demo)")
+    ports = sub.add_parser("ports", help="serial ports plugged in, by the names a station file uses (udev's by-path: "
+                                         "the fixture's port; by-id: the board's USB serial)")
+    ports.add_argument("--root", help="a folder laid out as /dev/serial is (default /dev/serial)")
+    ports.add_argument("--json", action="store_true", help="one JSON object per port")
     hist = sub.add_parser("history", help="show a unit's runs from a station's results store")
     hist.add_argument("serial")
     hist.add_argument("--station", help="station file naming the results store (default: demo)")
@@ -138,7 +142,7 @@ def main(argv: list[str] | None = None) -> int:
         return args.handler(args)
     handler = {"run": _run, "check": _check, "fit": _fit, "plugins": _plugins, "history": _history,
                "show": _show, "export": _export, "sync": _sync, "spc": _spc, "report": _report,
-               "station": _station, "slots": _slots}
+               "station": _station, "slots": _slots, "ports": _ports}
     return _quiet_broken_pipe(lambda: handler[args.command](args, plugins))
 
 
@@ -485,6 +489,33 @@ def _plugins(args: argparse.Namespace, plugins: Plugins) -> int:
                       "result_sinks": sorted(plugins.result_sinks),
                       "power_controls": sorted(plugins.power_controls), "motions": sorted(plugins.motions)},
                      indent=2))
+    return 0
+
+
+def _ports(args: argparse.Namespace, plugins: Plugins) -> int:
+    """What is plugged in, each port with the names to write in a station file (``serial:NAME:BAUD``)."""
+    from dataclasses import asdict
+
+    from magline.core.links.serial_port import UDEV_ROOT, list_ports
+
+    root = Path(args.root) if args.root else UDEV_ROOT
+    found = list_ports(root)
+    if args.json:
+        for port in found:
+            print(json.dumps(asdict(port)))
+        return 0 if found else 1
+    if not found:
+        print(f"no serial port is plugged in (nothing under {root}); a flight controller on USB appears as "
+              "/dev/ttyACM0 with udev's names under /dev/serial (docs/connecting-units.md)")
+        return 1
+    print(f"{len(found)} serial port{'s' if len(found) > 1 else ''} ({root}); name a slot by its port, "
+          "a unit by its board:")
+    for port in found:
+        print(f"  {port.device}" + (f"  {port.description}" if port.description else ""))
+        if port.by_path:
+            print(f"    port   {port.by_path}")
+        if port.by_id:
+            print(f"    board  {port.by_id}")
     return 0
 
 

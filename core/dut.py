@@ -80,6 +80,17 @@ def prove_unechoed_write(name: str, value: ParamValue, unanswered: str, read: Ca
     return held
 
 
+class OldBootRunning(DutError):
+    """After a reboot or power cut the vehicle still runs the boot it ran before (its uptime kept
+    counting).  After a commanded reboot the firmware refused it: the unit FAILs.  After a supply cut
+    the cut never reached the board — it is powered by USB too — and the power control makes it the
+    station's fault (:func:`magline.core.power.await_boot_after_cut`)."""
+
+    def __init__(self, message: str, uptime_s: float) -> None:
+        super().__init__(message)
+        self.uptime_s = uptime_s
+
+
 class NotRestored(DutError):
     """:meth:`DutBackend.restore` could not put back what :meth:`DutBackend.prepare` changed.
 
@@ -345,6 +356,7 @@ def await_new_boot(reconnect: Callable[[float], None], uptime_s: Callable[[], fl
     """
     deadline = started + timeout_s
     told = False  # did the vehicle ever say its uptime?
+    last_uptime = 0.0
     while True:
         time.sleep(poll_s)
         try:
@@ -354,6 +366,7 @@ def await_new_boot(reconnect: Callable[[float], None], uptime_s: Callable[[], fl
                             f"(last attempt: {exc})") from None
         reconnected = time.monotonic() - started
         uptime = uptime_s()
+        last_uptime = uptime if uptime is not None else last_uptime
         if uptime is not None and uptime < reconnected:
             return reconnected, uptime
         told = told or uptime is not None
@@ -361,8 +374,8 @@ def await_new_boot(reconnect: Callable[[float], None], uptime_s: Callable[[], fl
             if not told:  # no answer is no proof of an old boot: the station could not judge
                 raise LinkError(f"the vehicle answered after the power cycle but never said its uptime within "
                                 f"{timeout_s:g} s: the new boot is not proven")
-            raise DutError(f"the vehicle still runs its old boot {timeout_s:g} s after the reboot command "
-                           "(reboot refused?)")
+            raise OldBootRunning(f"the vehicle still runs its old boot {timeout_s:g} s after the reboot command "
+                                 f"(reboot refused?): up {last_uptime:.0f} s", last_uptime)
 
 
 def require_same_vehicle(system_id: int, answered: int, connection: str, uid: int = 0, answered_uid: int = 0) -> None:

@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 from typing import Protocol, runtime_checkable
 
-from magline.core.dut import DutBackend
+from magline.core.dut import DutBackend, OldBootRunning
 from magline.core.faults import StationFault
 from magline.core.plugins import hookimpl
 from magline.core.station.schema import PowerConfig
@@ -38,6 +38,22 @@ class PowerControl(Protocol):
         """End of the unit, also after errors: leave the fixture in the station's final state."""
 
     def close(self) -> None: ...
+
+
+USB_FEEDS_IT = ("it is powered by USB as well — feed it from the fixture's supply only, or cut the USB port's "
+                "power instead (power method usb-hub)")
+
+
+def await_boot_after_cut(dut: DutBackend, on_at: float, cut: str, fed_by: str = USB_FEEDS_IT) -> dict[str, float]:
+    """The new boot after a power cut (``cut``: what was switched off, in the operator's words).  A
+    board whose uptime kept counting never lost power: something else feeds it (``fed_by`` says what,
+    and what to do) — the USB cable, on a board that takes its power from USB too.  That is the
+    fixture's fault, not the unit's: an ERROR, where a refused *commanded* reboot stays a FAIL."""
+    try:
+        return dut.await_boot(on_at)
+    except OldBootRunning as exc:
+        raise PowerError(f"the board kept running through the {cut} (its uptime kept counting: {exc.uptime_s:.0f} s): "
+                         f"{fed_by}") from exc
 
 
 class MavlinkReboot:

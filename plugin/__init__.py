@@ -10,11 +10,12 @@ What is here, by role:
 
 * registration: :data:`hookimpl` (the hooks and their order: ``docs/plugins.md``) and the contracts
   a registered factory returns: :class:`DutBackend`, :class:`FieldSource`, :class:`Motion`,
-  :class:`PowerControl`, :class:`ResultSink`;
+  :class:`PowerControl` (a power cut's new boot: :func:`await_boot_after_cut`), :class:`ResultSink`;
 * the DUT contract: :class:`DutBackend`, :class:`UnitInfo`, :class:`Magnetometer`, :class:`SampleChunk`,
   :data:`ParamValue`, its errors (:class:`DutError`, :class:`LinkError`, :class:`UnansweredRequest`,
   :class:`NotRestored`, :class:`StationFault`, :class:`PowerError`, :class:`FieldSourceError`) and the
-  helpers every MAVLink-like backend needs (:func:`await_new_boot`, :func:`require_same_vehicle`,
+  helpers every MAVLink-like backend needs (:func:`await_new_boot` — :class:`OldBootRunning` when the old
+  boot answers —, :func:`require_same_vehicle`,
   :func:`prove_unechoed_write`, :func:`float32_equal`);
 * optional capabilities a backend has by having the method (the core asks ``isinstance(dut, …)``):
   :class:`CalibratesSeveral`, :class:`ReportsSensorsPresent`, :class:`WritesOrientation`,
@@ -50,6 +51,7 @@ from magline.core.dut import (
     LinkError,
     Magnetometer,
     NotRestored,
+    OldBootRunning,
     ParamValue,
     ReadsCalibratedField,
     ReadsCalibratedFields,
@@ -91,7 +93,7 @@ from magline.core.motion import Motion
 from magline.core.mounting import ImuSeries, orientation_matrix
 from magline.core.mounting.checks import configured_rotation
 from magline.core.plugins import hookimpl
-from magline.core.power import PowerControl, PowerError
+from magline.core.power import PowerControl, PowerError, await_boot_after_cut
 from magline.core.record import AttemptRecord, Outcome, PhaseResult, RunRecord
 from magline.core.results.contract import (
     ClaimsSlots,
@@ -141,6 +143,7 @@ __all__ = [
     "Motion",
     "NotRestored",
     "Numeric",
+    "OldBootRunning",
     "Outcome",
     "ParamValue",
     "PhaseResult",
@@ -176,6 +179,7 @@ __all__ = [
     "Verdict",
     "WritesOrientation",
     "WritesRotation",
+    "await_boot_after_cut",
     "await_new_boot",
     "configured_rotation",
     "fibonacci_sphere",

@@ -57,6 +57,13 @@ def add_sim_command(subparsers: argparse._SubParsersAction) -> None:
     board.add_argument("--supply", metavar="tcp:HOST:PORT",
                        help="also run a simulated SCPI bench supply that powers this board (it starts off)")
     board.add_argument("--supply-fault", choices=["dead_board", "short", "output_error"])
+    board.add_argument("--usb-powered", action="store_true",
+                       help="the board takes its power from its USB port: a supply cut does not reboot it, the "
+                            "hub port's power does (--usb-hub)")
+    board.add_argument("--usb-hub", metavar="tcp:HOST:PORT",
+                       help="also run a simulated USB hub (location 1-1) with this board on --hub-port, switched by "
+                            "the stand-in uhubctl: MAGLINE_SIM_USB_HUB=tcp:HOST:PORT python -m magline.sim.uhubctl")
+    board.add_argument("--hub-port", type=int, default=1, help="the hub port the board is on (default 1)")
     board.add_argument("--usb-alias", action="append", default=[], metavar="PATH",
                        help="with --listen serial:PATH: another link to the same port, kept as the first is (a udev "
                             "by-id name beside the by-path one); repeat for several")
@@ -166,7 +173,8 @@ def run_sim(args: argparse.Namespace) -> int:
                                    "motions": motions, "speed": args.speed, "field_ut": args.field_ut,
                                    "inclination_deg": args.inclination_deg, "seed": args.seed,
                                    "faults": SimFaults.parse(args.fault), "mag_rate_hz": args.mag_rate,
-                                   "motion_source": args.gimbal, "usb_aliases": tuple(args.usb_alias)}
+                                   "motion_source": args.gimbal, "usb_aliases": tuple(args.usb_alias),
+                                   "usb_powered": args.usb_powered}
         if args.flavour == "px4":
             options.update(firmware=args.firmware, shell=not args.no_shell, preset_ids=args.preset_ids,
                            untagged=args.untagged)
@@ -179,12 +187,19 @@ def run_sim(args: argparse.Namespace) -> int:
             from magline.sim.supply import SupplySim
             supply = SupplySim(args.supply, board=sim, fault=args.supply_fault).start()
             sim.power_off()  # the supply's output starts off
+        hub = None
+        if args.usb_hub:
+            from magline.sim.usb_hub import UsbHubSim
+            hub = UsbHubSim(args.usb_hub, boards={args.hub_port: sim}).start()
     except (ValueError, OSError) as exc:
         print(f"magline sim: {exc}", file=sys.stderr)
         return 2
     lines = [f"listening on {sim.address}"]
     if supply is not None:
         lines.append(f"supply listening on {supply.address} (VISA {supply.visa_resource}), output off")
+    if hub is not None:
+        lines.append(f"usb hub {hub.location} listening on {hub.address}, the board on port {args.hub_port} "
+                     f"(uhubctl: MAGLINE_SIM_USB_HUB={hub.address} python -m magline.sim.uhubctl)")
     lines.append(f"{args.flavour} simulator, storage {sim.storage_path}, boot time {sim.boot_time_s:g} s")
     for mag in sim.magnetometers:
         h = ", ".join(f"{v:.2f}" for v in mag.hard_iron_ut)
@@ -193,8 +208,9 @@ def run_sim(args: argparse.Namespace) -> int:
 
     def stop() -> None:
         sim.stop()
-        if supply is not None:
-            supply.stop()
+        for instrument in (supply, hub):
+            if instrument is not None:
+                instrument.stop()
 
     return _serve(lines, sim.wait_stopped, stop)
 

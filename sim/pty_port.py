@@ -78,7 +78,7 @@ class PtyServerLink:
         self._spare = None
         self.devices.append(self.device)
         self._connected, self._out = False, bytearray()
-        for link in self.links:
+        for link in [*self.links[1:], self.links[0]]:  # the station's name last, its other names ready then
             staged = link.with_name(link.name + ".new")
             with contextlib.suppress(FileNotFoundError):
                 staged.unlink()

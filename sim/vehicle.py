@@ -100,9 +100,14 @@ class SimulatedAutopilot(ABC):
                  faults: SimFaults | None = None, seed: int | None = None, system_id: int = 1,
                  save_duration_s: float = 0.05, field_provider: Callable[[], NDArray] | None = None,
                  mag_rate_hz: float | None = None, motion_source: str | None = None,
-                 usb_aliases: tuple[str, ...] = ()) -> None:
+                 usb_aliases: tuple[str, ...] = (), usb_powered: bool = False) -> None:
         self.listen = listen or self.default_listen
         self.usb_aliases = usb_aliases  # more names of a serial port (a udev by-id link beside by-path)
+        # where the board takes its power: a supply (power_off / power_on) and, ``usb_powered``, its USB port
+        # (usb_power); it runs while either feeds it — a supply cut does not reboot a board on USB
+        self.usb_powered = usb_powered
+        self.supply_on = not usb_powered  # a board on USB alone has no supply until one switches on
+        self.usb_on = usb_powered
         self.workdir = Path(workdir)
         self.rng = np.random.default_rng(seed)
         self.random = random.Random(seed)
@@ -249,11 +254,26 @@ class SimulatedAutopilot(ABC):
 
     # ------------------------------------------------------------------ power (thread-safe)
     def power_off(self) -> None:
-        """Cut power: link silent, RAM lost, an unfinished save lost."""
-        self._on_board_thread(self._power_off)
+        """Cut the supply: unless USB feeds the board, link silent, RAM lost, an unfinished save lost."""
+        self.supply_on = False
+        if not self.usb_on:
+            self._on_board_thread(self._power_off)
 
     def power_on(self) -> None:
+        self.supply_on = True
         self._on_board_thread(self._power_on)
+
+    def usb_power(self, on: bool) -> None:
+        """The hub port's power (uhubctl): it feeds a board powered by USB; a board that is not keeps
+        running on its supply (its port's node still goes and comes, as the hub re-enumerates it)."""
+        if not self.usb_powered:
+            self._on_board_thread(lambda: self.link.drop_peers() if not on and self.link is not None else None)
+            return
+        self.usb_on = on
+        if on:
+            self._on_board_thread(self._power_on)
+        elif not self.supply_on:
+            self._on_board_thread(self._power_off)
 
     def _on_board_thread(self, action: Callable[[], None]) -> None:
         """Run ``action`` on the board's own thread (it owns the sockets) and wait until it has run.

@@ -130,15 +130,144 @@ def test_another_board_in_the_port_after_the_reboot_is_an_error_naming_both(tmp_
     by_path, by_id = usb_names(tmp_path)
     other = by_id.with_name("usb-ArduPilot_fmuv3_99990000000000000000AAAA-if00")
     with sim(flavour, tmp_path, f"serial:{by_path}", (by_id,)) as board:
-        original = board.link._plug
+        original = board.link._unplug_node
 
-        def swapped() -> None:  # from the second boot on, the port's node has the other board's name
+        def swapped() -> None:  # at the reboot: the node comes back with the other board's USB serial
             original()
-            if len(board.link.devices) > 1 and by_id.exists():
-                by_id.rename(other)
+            board.link.links[1] = other
 
-        board.link._plug = swapped
+        board.link._unplug_node = swapped
         record = run_unit(station(flavour, tmp_path, f"serial:{by_path}:115200"))
     assert record.verdict is Outcome.ERROR, record.cause
     assert [p.name for p in record.phases if p.outcome is Outcome.ERROR] == ["verify"]
     assert f"came back as {other}, not {by_id}" in record.cause
+
+
+@pytest.mark.parametrize("flavour", ["px4", "ardupilot"])
+def test_nothing_is_written_through_a_port_that_changed_identity_mid_run(tmp_path, flavour):
+    """The port's by-id name moves to another board while the unit is judged (a unit swapped, a hub
+    re-enumerating): the persist phase refuses before the first parameter, an ERROR naming both."""
+    from magline.plugin import hookimpl
+    from magline.testing.stations import run_unit as run_with
+
+    by_path, by_id = usb_names(tmp_path)
+    other = by_id.with_name("usb-ArduPilot_fmuv3_99990000000000000000AAAA-if00")
+
+    class Swap:
+        @hookimpl
+        def magline_phase_started(self, run, phase):
+            if phase == "persist":
+                by_id.rename(other)
+
+    with sim(flavour, tmp_path, f"serial:{by_path}", (by_id,)):
+        record = run_with(station(flavour, tmp_path, f"serial:{by_path}:115200"), extra=[Swap()])
+    assert record.verdict is Outcome.ERROR, record.cause
+    assert [p.name for p in record.phases if p.outcome is Outcome.ERROR] == ["persist"]
+    assert f"is now {other}, not {by_id}" in record.cause and not record.params_written
+    assert not record.unverified_params
+
+
+def test_magline_ports_lists_each_board_with_its_port_and_its_usb_serial(tmp_path, capsys):
+    """What an engineer writes the station file from: each node once, with its by-path and by-id
+    names; nothing plugged in says where it looked (exit 1)."""
+    import json
+
+    from magline.core.cli import main
+
+    by_path, by_id = usb_names(tmp_path)
+    root = by_path.parent.parent
+    with sim("px4", tmp_path, f"serial:{by_path}", (by_id,)) as board:
+        node = board.link.device
+        assert main(["ports", "--root", str(root)]) == 0
+        text = capsys.readouterr().out
+        assert main(["ports", "--root", str(root), "--json"]) == 0
+        listed = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert text.startswith(f"1 serial port ({root})")
+    assert f"  {node}\n    port   {by_path}\n    board  {by_id}\n" in text
+    assert listed == [{"device": node, "by_path": str(by_path), "by_id": str(by_id), "description": ""}]
+    assert main(["ports", "--root", str(root)]) == 1  # the board stopped: its names are gone
+    assert f"no serial port is plugged in (nothing under {root})" in capsys.readouterr().out
+
+
+# ----------------------------------------------------------------------------------- USB port power
+STAND_IN_UHUBCTL = [sys.executable, "-m", "magline.sim.uhubctl"]
+
+
+def hub_power(**extra) -> dict:
+    return {"method": "usb-hub", "options": {"location": "1-1", "port": 3, "uhubctl": STAND_IN_UHUBCTL,
+                                             "off_time_s": 0.3, **extra}}
+
+
+@pytest.mark.parametrize("flavour", ["px4", "ardupilot"])
+def test_a_usb_powered_board_is_power_cycled_by_its_hub_port(tmp_path, monkeypatch, flavour):
+    """uhubctl switches the hub port off and on: the board loses power (RAM gone, a new boot), its node
+    goes and comes back, and the calibration is proven after it."""
+    from magline.sim.usb_hub import UsbHubSim
+
+    by_path, _ = usb_names(tmp_path)
+    with sim(flavour, tmp_path, f"serial:{by_path}", usb_powered=True) as board, \
+            UsbHubSim("tcp:127.0.0.1:0", boards={3: board}) as hub:
+        monkeypatch.setenv("MAGLINE_SIM_USB_HUB", hub.address)
+        record = run_unit(station(flavour, tmp_path, f"serial:{by_path}:115200",
+                                  products={"PX4-X500-100" if flavour == "px4" else "AP-QUAD-200": {
+                                      "power": hub_power()}}))
+        switched = [c for c in hub.log if c.startswith("PORT 3,")]
+        boots = board.boots
+    assert record.verdict is Outcome.PASS, record.cause
+    assert record.persistence["method"] == "usb-hub" and record.persistence["figures"]["off_time_s"] >= 0.3
+    assert switched[-2:] == ["PORT 3,OFF", "PORT 3,ON"] and boots >= 2
+
+
+def test_a_supply_cut_that_a_usb_powered_board_runs_through_is_an_error_saying_so(tmp_path):
+    """The fixture's supply is cut, but USB feeds the board: its uptime keeps counting.  Not the unit's
+    fault — an ERROR naming USB, never a FAIL for a 'refused reboot'."""
+    from magline.sim.supply import SupplySim
+
+    by_path, _ = usb_names(tmp_path)
+    with sim("px4", tmp_path, f"serial:{by_path}", usb_powered=True) as board, \
+            SupplySim("tcp:127.0.0.1:0", board=board) as supply:
+        power = {"method": "scpi-supply", "options": {"resource": supply.visa_resource, "off_time_s": 0.3,
+                                                      "settle_s": 0.1}}
+        record = run_unit(station("px4", tmp_path, f"serial:{by_path}:115200", options={"boot_timeout_s": 3.0},
+                                  products={"PX4-X500-100": {"power": power}}))
+        boots = board.boots
+    assert record.verdict is Outcome.ERROR, record.cause
+    assert [p.name for p in record.phases if p.outcome is Outcome.ERROR] == ["verify"]
+    assert "kept running through the supply's cut" in record.cause and "powered by USB as well" in record.cause
+    assert boots == 1
+
+
+def test_a_hub_that_cannot_switch_its_ports_is_an_error_not_a_power_cycle(tmp_path, monkeypatch):
+    """A hub without per-port power switching: uhubctl says the port is still powered after "off"."""
+    from magline.sim.usb_hub import UsbHubSim
+
+    by_path, _ = usb_names(tmp_path)
+    with sim("ardupilot", tmp_path, f"serial:{by_path}", usb_powered=True) as board, \
+            UsbHubSim("tcp:127.0.0.1:0", boards={3: board}, per_port=False) as hub:
+        monkeypatch.setenv("MAGLINE_SIM_USB_HUB", hub.address)
+        record = run_unit(station("ardupilot", tmp_path, f"serial:{by_path}:115200",
+                                  products={"AP-QUAD-200": {"power": hub_power()}}))
+    assert record.verdict is Outcome.ERROR, record.cause
+    assert "uhubctl asked hub 1-1 port 3 off but the hub reports it still powered" in record.cause
+
+
+def test_a_port_back_without_the_name_that_says_which_board_is_not_proven_the_same(tmp_path):
+    """udev names a node one link after the other; the station waits for the names the board had, and
+    a board that comes back without its USB-serial name within the time is an ERROR, not assumed."""
+    from magline.core.dut import LinkError
+    from magline.plugin import SerialAddress, SerialPortWatch
+
+    by_path, by_id = usb_names(tmp_path)
+    node = tmp_path / "ttyACM0"
+    node.write_bytes(b"")
+    for name in (by_path, by_id):
+        name.parent.mkdir(parents=True, exist_ok=True)
+        name.symlink_to(node)
+    watch = SerialPortWatch(SerialAddress.parse(f"serial:{by_path}:115200"))
+    first = watch.ready(1.0)
+    assert (first.device, first.by_path, first.by_id) == (str(node), str(by_path), str(by_id))
+    by_id.unlink()
+    with pytest.raises(LinkError, match=r"came back without its by-id name within 0\.3 s"):
+        watch.ready(0.3)
+    by_id.symlink_to(node)
+    assert watch.ready(0.3) == first

@@ -128,6 +128,9 @@ def list_ports(root: Path | None = None) -> list[PortListing]:
         for link in sorted(folder.iterdir()):
             if os.path.exists(link):
                 names.setdefault(os.path.realpath(link), {})[naming] = str(link)
+    if root == UDEV_ROOT:  # nodes udev gave no names (a machine without udev rules for them)
+        for node in sorted(Path("/dev").glob("tty[AU][CS][MB]*")):
+            names.setdefault(str(node), {})
     described = _udev_descriptions(list(names)) if root == UDEV_ROOT else {}
     return [PortListing(device=d, by_path=n.get("by-path"), by_id=n.get("by-id"), description=described.get(d, ""))
             for d, n in sorted(names.items())]
@@ -218,14 +221,17 @@ def _command_of(pid: int) -> str:
         return "a process"
 
 
-def same_board(before: UsbIdentity, now: UsbIdentity, named: str) -> None:
-    """After the board came back under ``named``: it is on the same port with the same USB serial,
-    else a LinkError naming both (a board moved, a second board in the port)."""
+def same_board(before: UsbIdentity, now: UsbIdentity, named: str, back: bool = True) -> None:
+    """The board under ``named`` (``back``: come back after its reboot; else: now, mid-run) is on the
+    same port with the same USB serial, else a LinkError naming both (a board moved, another board in
+    the port, a hub re-enumerating)."""
     if before.by_id and now.by_id and before.by_id != now.by_id:
-        raise LinkError(f"the board on {named} came back as {now.by_id}, not {before.by_id}: another board; "
+        change = "came back as" if back else "is now"
+        raise LinkError(f"the board on {named} {change} {now.by_id}, not {before.by_id}: another board; "
                         "nothing is written to it")
     if before.by_path and now.by_path and before.by_path != now.by_path:
-        raise LinkError(f"the board {named} came back on another port, {now.by_path}, not {before.by_path}: "
+        change = "came back" if back else "is now"
+        raise LinkError(f"the board {named} {change} on another port, {now.by_path}, not {before.by_path}: "
                         "nothing is written to it")
 
 
@@ -238,14 +244,30 @@ class SerialPortWatch:
         self.first: UsbIdentity | None = None
 
     def ready(self, timeout_s: float, what: str = "the unit") -> UsbIdentity:
+        deadline = time.monotonic() + timeout_s
         wait_present(self.address, timeout_s, what)
         check_usable(self.address)
         now = identity_of(self.address.path)
         if self.first is None:
             self.first = now
-        else:
-            same_board(self.first, now, self.address.path)
+            return now
+        # udev makes a node's names one after the other: the one the station named may be back before
+        # the other, which says whether this is the same board — wait for it, as for the node
+        while self._names_missing(now) and time.monotonic() < deadline:
+            time.sleep(0.05)
+            now = identity_of(self.address.path)
+        missing = self._names_missing(now)
+        if missing:
+            raise LinkError(f"the board on {self.address.path} came back without its {' and '.join(missing)} name "
+                            f"within {timeout_s:g} s: not proven the same board; nothing is written to it")
+        same_board(self.first, now, self.address.path)
         return now
+
+    def _names_missing(self, now: UsbIdentity) -> list[str]:
+        first = self.first
+        assert first is not None
+        pairs = (("by-path", first.by_path, now.by_path), ("by-id", first.by_id, now.by_id))
+        return [naming for naming, was, is_ in pairs if was and not is_]
 
     def still_at(self, node: str | None) -> bool:
         """The station's name still points at ``node`` (it did not vanish or move meanwhile)."""
@@ -257,4 +279,4 @@ class SerialPortWatch:
             return
         if not os.path.exists(self.address.path):
             raise LinkError(f"{self.address.path} is gone (the cable pulled, or the board reset): nothing is written")
-        same_board(self.first, identity_of(self.address.path), self.address.path)
+        same_board(self.first, identity_of(self.address.path), self.address.path, back=False)

@@ -263,6 +263,8 @@ class ArduPilotLink:
         """C-cast PARAM_SET; return the echoed value once an echo with this name and value arrives."""
         if not math.isfinite(value):
             raise DutError(f"refusing to write {name} = {value}: not a finite number")
+        if self.port is not None:
+            self.port.require_same()  # nothing is written through a port that now names another board
         echoed: float | None = None
         for _ in range(self.param_retries):
             self.drain()  # an earlier vector echo may carry this name with its old value

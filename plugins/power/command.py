@@ -11,7 +11,7 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from magline.plugin import DutBackend, PowerConfig, PowerError
+from magline.plugin import DutBackend, PowerConfig, PowerError, await_boot_after_cut
 
 
 class CommandOptions(BaseModel):
@@ -53,7 +53,8 @@ class CommandPower:
         on_at = time.monotonic()
         self._run("on", self.opts.on)
         self.is_off = False
-        return {"method": self.method, "off_time_s": on_at - off_at, **dut.await_boot(on_at)}
+        return {"method": self.method, "off_time_s": on_at - off_at,
+                **await_boot_after_cut(dut, on_at, f"power-off command ({self.opts.off[0]})")}
 
     def finish(self) -> None:
         if self.is_off and self.opts.final_state == "on":

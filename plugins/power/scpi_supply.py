@@ -15,7 +15,15 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from magline.plugin import DutBackend, DutError, InstrumentError, PowerConfig, PowerError, ScpiInstrument
+from magline.plugin import (
+    DutBackend,
+    DutError,
+    InstrumentError,
+    PowerConfig,
+    PowerError,
+    ScpiInstrument,
+    await_boot_after_cut,
+)
 
 
 class ScpiSupplyOptions(BaseModel):
@@ -94,7 +102,7 @@ class ScpiSupply:
         time.sleep(self.opts.off_time_s)
         on_at = time.monotonic()
         current = self._output_on()
-        figures = dut.await_boot(on_at)
+        figures = await_boot_after_cut(dut, on_at, "supply's cut")
         return {"method": self.method, "off_time_s": on_at - off_at, "current_after_power_on_a": current,
                 **figures}
 

@@ -194,6 +194,8 @@ class Px4Link:
 
     def set(self, name: str, value: int | float, is_int: bool) -> int | float:
         """PARAM_SET with the exact type (INT32 byte-wise or REAL32); return the value read afterwards."""
+        if self.port is not None:
+            self.port.require_same()  # nothing is written through a port that now names another board
         try:
             if is_int:
                 self.param.set_param_int(name, int(value))
