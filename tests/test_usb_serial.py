@@ -271,3 +271,26 @@ def test_a_port_back_without_the_name_that_says_which_board_is_not_proven_the_sa
         watch.ready(0.3)
     by_id.symlink_to(node)
     assert watch.ready(0.3) == first
+
+
+@pytest.mark.parametrize("flavour", ["px4", "ardupilot"])
+def test_a_uart_too_slow_for_the_asked_stream_is_said_before_the_tumble(tmp_path, flavour):
+    """A telemetry UART at 57600 baud carries 5,760 bytes/s; 200 readings a second of the IMU message
+    need more: an ERROR with the figures before a single reading, not a short tumble."""
+    by_path, _ = usb_names(tmp_path)
+    with sim(flavour, tmp_path, f"serial:{by_path}:57600"):
+        record = run_unit(station(flavour, tmp_path, f"serial:{by_path}:57600"))
+    assert record.verdict is Outcome.ERROR, record.cause
+    assert [p.name for p in record.phases if p.outcome is Outcome.ERROR] == ["acquire"]
+    assert f"{by_path} at 57600 baud carries 5,760 bytes/s" in record.cause and "200/s" in record.cause
+    assert "after 0 readings" in record.cause and not record.params_written
+
+
+@pytest.mark.parametrize("flavour", ["px4", "ardupilot"])
+def test_a_whole_unit_runs_over_a_uart_at_921600_baud(tmp_path, flavour):
+    by_path, _ = usb_names(tmp_path)
+    with sim(flavour, tmp_path, f"serial:{by_path}:921600") as board:
+        record = run_unit(station(flavour, tmp_path, f"serial:{by_path}:921600"))
+        garbled = board.link.garbled_bytes
+    assert record.verdict is Outcome.PASS, record.cause
+    assert garbled == 0 and record.params_read_back

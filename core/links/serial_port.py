@@ -235,6 +235,18 @@ def same_board(before: UsbIdentity, now: UsbIdentity, named: str, back: bool = T
                         "nothing is written to it")
 
 
+MAVLINK2_OVERHEAD = 12  # a MAVLink 2 frame: 10 header bytes and a 2-byte checksum around the payload
+LINE_SHARE = 0.9  # of what a UART carries, the most a stream may take: the board sends heartbeats and more
+
+
+def ignores_baud(node: str) -> bool:
+    """A USB CDC ACM port (the kernel's ``cdc_acm`` driver: ttyACM) carries what USB carries whatever baud
+    is set; a UART behind a USB-serial adapter (ttyUSB) or on the board (ttyS, ttyAMA) carries baud/10
+    bytes a second.  A node the kernel does not say (a simulator's pty) is taken at its baud."""
+    driver = Path("/sys/class/tty") / Path(node).name / "device" / "driver"
+    return driver.exists() and driver.resolve().name == "cdc_acm"
+
+
 class SerialPortWatch:
     """One unit's serial port for the run: ready to open (present, permitted, not held) and the
     same board each time it is opened again."""
@@ -268,6 +280,21 @@ class SerialPortWatch:
         assert first is not None
         pairs = (("by-path", first.by_path, now.by_path), ("by-id", first.by_id, now.by_id))
         return [naming for naming, was, is_ in pairs if was and not is_]
+
+    def require_capacity(self, streams: dict[str, tuple[int, float]]) -> None:
+        """Before a stream is asked (name → (frame bytes, messages a second)): a UART at the station's
+        baud carries it, else a StationFault with the figures — said before the tumble, not found as a
+        short one (the firmware drops what its transmit buffer cannot hold)."""
+        node = os.path.realpath(self.address.path)
+        if ignores_baud(node):
+            return
+        need = sum(size * rate for size, rate in streams.values())
+        line = self.address.baud / 10.0  # 8N1: ten bits a byte
+        if need > LINE_SHARE * line:
+            asked = ", ".join(f"{name} {rate:g}/s" for name, (_, rate) in streams.items())
+            raise StationFault(f"{self.address.path} at {self.address.baud} baud carries {line:,.0f} bytes/s; the "
+                               f"stream asked ({asked}) needs {need:,.0f} bytes/s: raise the baud (on the board and "
+                               "in the station file), connect the board's USB port, or lower acquisition.rate_hz")
 
     def still_at(self, node: str | None) -> bool:
         """The station's name still points at ``node`` (it did not vanish or move meanwhile)."""

@@ -45,7 +45,7 @@ from magline.plugins.ardupilot.calibration import (
     rename_for_set,
     set_names,
 )
-from magline.plugins.ardupilot.link import ML, ArduPilotLink
+from magline.plugins.ardupilot.link import ML, ArduPilotLink, frame_bytes
 from magline.plugins.ardupilot.options import ArduPilotOptions
 
 log = logging.getLogger(__name__)
@@ -189,6 +189,8 @@ class ArduPilotDut:
         by_kind = {STREAMS[SETS.index(self._suffix_of(d))][0]: d for d in self.chosen}
         kinds = list(dict.fromkeys(["RAW_IMU", *by_kind]))
         ids = {kind: msg_id for kind, msg_id in STREAMS}
+        if self.link.port is not None:
+            self.link.port.require_capacity({k: (frame_bytes(ids[k]), rate_hz) for k in kinds})
         self.link.drain()
         for kind in kinds:
             self.link.set_message_interval(ids[kind], rate_hz)

@@ -23,6 +23,7 @@ import socket
 from pymavlink import mavutil
 
 from magline.plugin import (
+    MAVLINK2_OVERHEAD,
     SERIAL_HINT,
     SLICE_S,
     DutError,
@@ -42,6 +43,11 @@ RESULT_NAMES = {v: k.removeprefix("MAV_RESULT_") for k, v in vars(ML).items() if
                 and isinstance(v, int)}
 # An autopilot sends HEARTBEAT at 1 Hz: this long without any message means the link is gone.
 SILENCE_S = 2.5
+
+
+def frame_bytes(msg_id: int) -> int:
+    """A message's MAVLink 2 frame at most (its whole payload, extensions included): what it takes of a line."""
+    return int(ML.mavlink_map[msg_id].unpacker.size) + MAVLINK2_OVERHEAD
 
 
 class LinkClosed(ConnectionError):

@@ -56,7 +56,7 @@ from magline.plugins.px4.calibration import (
     rotation_params,
 )
 from magline.plugins.px4.discovery import Identified, from_shell, without_shell
-from magline.plugins.px4.link import Px4Link
+from magline.plugins.px4.link import Px4Link, frame_bytes
 from magline.plugins.px4.options import Px4Options
 
 STREAMS = (("SCALED_IMU", 26), ("SCALED_IMU2", 116), ("SCALED_IMU3", 129))  # uORB sensor_mag instance 0/1/2
@@ -239,6 +239,8 @@ class Px4Dut:
         by_kind = {STREAMS[self.sensors[d]["instance"]][0]: d for d in self.chosen}
         kinds = list(dict.fromkeys([STREAMS[0][0], *by_kind]))
         ids = dict(STREAMS)
+        if self.link.port is not None:
+            self.link.port.require_capacity({k: (frame_bytes(ids[k]), rate_hz) for k in kinds})
         inbox, handles = self.link.subscribe_all(kinds)
         streams = SensorStreams(self.device_id, self.chosen, lambda _, mg: mg / MG_PER_UT)
         try:

@@ -28,6 +28,7 @@ from mavsdk.plugins.shell.shell import Device, Shell
 from pymavlink.dialects.v20 import common as mavlink
 
 from magline.plugin import (
+    MAVLINK2_OVERHEAD,
     SERIAL_HINT,
     DutError,
     LinkError,
@@ -61,6 +62,11 @@ def _route_mavsdk_logs() -> None:
         levels = {0: logging.DEBUG, 1: logging.INFO, 2: logging.WARNING, 3: logging.ERROR}
         log_subscribe(lambda level, message, *_: log.log(levels.get(int(level), logging.INFO), message) or True)
         _routed = True
+
+
+def frame_bytes(msg_id: int) -> int:
+    """A message's MAVLink 2 frame at most (its whole payload, extensions included): what it takes of a line."""
+    return int(mavlink.mavlink_map[msg_id].unpacker.size) + MAVLINK2_OVERHEAD
 
 
 class Px4Link:
