@@ -1,6 +1,7 @@
 """Every command sequence of the README runs as written (issue 31), each simulator with its shipped
 defaults, on free loopback ports instead of the fixed ones (several test workers run side by side):
-the ports are rewritten in the commands and in a copy of the station file, nothing else."""
+the ports, and the folder simulated USB boards name their ports in, are rewritten in the commands and
+in a copy of the station file, nothing else."""
 
 from __future__ import annotations
 
@@ -18,6 +19,7 @@ MAGLINE = [str(Path(sys.executable).with_name("magline"))]
 DEFAULT_LISTEN = {"px4": "udp:127.0.0.1:14550", "ardupilot": "tcp:127.0.0.1:5760", "coil": "tcp:127.0.0.1:5026",
                   "gimbal": "tcp:127.0.0.1:5030"}
 PORT = re.compile(r"127\.0\.0\.1(:|::)(\d{4,5})")
+USB_ROOT = "/tmp/magline-usb"  # where the walkthroughs' simulated boards lay out their udev-style names
 
 
 def readme_sequences() -> list[tuple[str, list[str], str]]:
@@ -34,11 +36,12 @@ def readme_sequences() -> list[tuple[str, list[str], str]]:
             elif command.startswith("magline run stations/") and sims:
                 sequences.append((command.split()[2], sims, command))
                 sims = []
-    slots = (REPO / "stations" / "slots-sim.yaml").read_text(encoding="utf-8")
-    commented = [re.sub(r"\s+\(.*\)$", "", line.lstrip("# ").strip()) for line in slots.splitlines()
-                 if line.startswith("#   magline ")]
-    sequences.append(("stations/slots-sim.yaml", [c for c in commented if c.startswith("magline sim")],
-                      next(c for c in commented if c.startswith("magline run"))))
+    for name in ("slots-sim.yaml", "usb-slots-sim.yaml"):
+        slots = (REPO / "stations" / name).read_text(encoding="utf-8")
+        commented = [re.sub(r"\s+\(.*\)$", "", line.lstrip("# ").strip()) for line in slots.splitlines()
+                     if line.startswith("#   magline ")]
+        sequences.append((f"stations/{name}", [c for c in commented if c.startswith("magline sim")],
+                          next(c for c in commented if c.startswith("magline run"))))
     return sequences
 
 
@@ -59,8 +62,9 @@ def test_a_readme_walkthrough_passes_as_written(tmp_path, name, sims, run):
     ports |= {"5027"} if any(c.split()[2] == "coil" for c in sims) else set()
     moved = {p: str(free_port()) for p in ports}
 
-    def rewrite(text: str) -> str:
-        return PORT.sub(lambda m: f"127.0.0.1{m.group(1)}{moved[m.group(2)]}", text)
+    def rewrite(text: str) -> str:  # free ports, and the serial ports' names in this test's own folder
+        text = PORT.sub(lambda m: f"127.0.0.1{m.group(1)}{moved[m.group(2)]}", text)
+        return text.replace(USB_ROOT, str(tmp_path / "usb"))
 
     station = tmp_path / Path(name).name
     station.write_text(rewrite(station_text), encoding="utf-8")
