@@ -294,3 +294,29 @@ def test_a_whole_unit_runs_over_a_uart_at_921600_baud(tmp_path, flavour):
         garbled = board.link.garbled_bytes
     assert record.verdict is Outcome.PASS, record.cause
     assert garbled == 0 and record.params_read_back
+
+
+@pytest.mark.parametrize("flavour", ["px4", "ardupilot"])
+def test_a_serial_device_that_is_not_a_flight_controller_is_an_error_within_the_connect_timeout(tmp_path, flavour):
+    """A port that answers nothing MAVLink (a GPS, a modem, another board's console): an ERROR in
+    connect within the connect timeout, saying what silence on a serial port means."""
+    import pty
+
+    by_path, _ = usb_names(tmp_path)
+    master, slave = pty.openpty()
+    by_path.parent.mkdir(parents=True)
+    by_path.symlink_to(os.ttyname(slave))
+    os.close(slave)
+    try:
+        record = run_unit(station(flavour, tmp_path, f"serial:{by_path}:115200"))
+    finally:
+        os.close(master)
+    assert record.verdict is Outcome.ERROR and record.phases[1].outcome is Outcome.ERROR, record.cause
+    assert "within 4 s" in record.cause and "a device that is not a flight controller" in record.cause
+
+
+@pytest.mark.parametrize("flavour", ["px4", "ardupilot"])
+def test_a_serial_connection_without_an_absolute_device_is_a_station_error(tmp_path, flavour):
+    record = run_unit(station(flavour, tmp_path, "serial:ttyACM0:115200"))
+    assert record.verdict is Outcome.ERROR and record.phases[1].outcome is Outcome.ERROR
+    assert "expected serial:DEVICE:BAUD with an absolute DEVICE path" in record.cause

@@ -31,6 +31,7 @@ from magline.plugin import (
     SerialAddress,
     SerialAddressError,
     SerialPortWatch,
+    StationFault,
     UnansweredRequest,
     float32_equal,
     prove_unechoed_write,
@@ -88,12 +89,12 @@ def pymavlink_device(connection: str) -> tuple[str, int]:
     try:
         serial = SerialAddress.parse(connection)
     except SerialAddressError as exc:
-        raise DutError(str(exc)) from None
+        raise StationFault(str(exc)) from None  # the station file's mistake, not the unit's: an ERROR
     if serial is not None:
         return serial.path, serial.baud
     if connection.startswith(("tcp:", "udpin:", "udpout:", "udp:")):
         return connection, 115200
-    raise DutError(f"connection {connection!r}: expected tcp:HOST:PORT, udpin:HOST:PORT, udpout:HOST:PORT "
+    raise StationFault(f"connection {connection!r}: expected tcp:HOST:PORT, udpin:HOST:PORT, udpout:HOST:PORT "
                    "or serial:DEVICE:BAUD")
 
 

@@ -33,6 +33,7 @@ from magline.plugin import (
     DutError,
     LinkError,
     SerialAddress,
+    SerialAddressError,
     SerialPortWatch,
     StationFault,
     UnansweredRequest,
@@ -74,7 +75,10 @@ class Px4Link:
         self.url = url
         # a board on a serial port: opened by its kernel node (MAVSDK's URL takes no colons in a path, and
         # udev's by-path names have them), looked up again at each opening — it re-enumerates at a reboot
-        serial = SerialAddress.parse(url)
+        try:
+            serial = SerialAddress.parse(url)
+        except SerialAddressError as exc:
+            raise StationFault(str(exc)) from None  # the station file's mistake, not the unit's: an ERROR
         self.port = SerialPortWatch(serial) if serial is not None else None
         self.connect_timeout_s = connect_timeout_s
         self.mavsdk: Mavsdk | None = None
