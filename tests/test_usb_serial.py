@@ -320,3 +320,43 @@ def test_a_serial_connection_without_an_absolute_device_is_a_station_error(tmp_p
     record = run_unit(station(flavour, tmp_path, "serial:ttyACM0:115200"))
     assert record.verdict is Outcome.ERROR and record.phases[1].outcome is Outcome.ERROR
     assert "expected serial:DEVICE:BAUD with an absolute DEVICE path" in record.cause
+
+
+def test_the_simulator_command_serves_a_usb_powered_board_on_a_hub_the_stand_in_uhubctl_switches(tmp_path):
+    """``magline sim px4 --listen serial:… --usb-powered --usb-hub …``: the hub port switched off by the
+    stand-in uhubctl takes the board's node away (it lost power), on brings it back under its name."""
+    import re
+    import time
+
+    by_path, _ = usb_names(tmp_path)
+    magline = str(Path(sys.executable).with_name("magline"))
+    board = subprocess.Popen([magline, "sim", "px4", "--listen", f"serial:{by_path}", "--usb-powered",
+                              "--usb-hub", "tcp:127.0.0.1:0", "--hub-port", "2", "--boot-time", "0.2",
+                              "--workdir", str(tmp_path / "fc")], stdout=subprocess.PIPE, text=True)
+    try:
+        lines = [board.stdout.readline() for _ in range(2)]
+        assert lines[0].startswith(f"listening on serial:{by_path}"), lines
+        hub = re.search(r"MAGLINE_SIM_USB_HUB=(tcp:127\.0\.0\.1:\d+)", lines[1]).group(1)
+        env = {**os.environ, "MAGLINE_SIM_USB_HUB": hub}
+
+        def uhubctl(action: str) -> str:
+            done = subprocess.run([sys.executable, "-m", "magline.sim.uhubctl", "-l", "1-1", "-p", "2", "-a", action],
+                                  capture_output=True, text=True, env=env, timeout=30, check=True)
+            return done.stdout
+
+        before = os.path.realpath(by_path)
+        off = uhubctl("off")
+        assert "Sent power off request" in off and off.rstrip().endswith("Port 2: 0000 off")
+        assert not by_path.exists()
+        on = uhubctl("on")
+        assert on.rstrip().splitlines()[-1].startswith("  Port 2: 0503 power")
+        deadline = time.monotonic() + 20
+        while not by_path.exists() and time.monotonic() < deadline:  # back once the board has booted
+            time.sleep(0.05)
+        assert by_path.exists() and os.path.realpath(by_path) != before
+        wrong = subprocess.run([sys.executable, "-m", "magline.sim.uhubctl", "-l", "3-1", "-p", "2", "-a", "off"],
+                               capture_output=True, text=True, env=env, timeout=30, check=False)
+        assert wrong.returncode == 1 and "No compatible devices detected at location 3-1!" in wrong.stderr
+    finally:
+        board.terminate()
+        board.wait(10)
