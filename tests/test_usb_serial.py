@@ -360,3 +360,29 @@ def test_the_simulator_command_serves_a_usb_powered_board_on_a_hub_the_stand_in_
     finally:
         board.terminate()
         board.wait(10)
+
+
+@pytest.mark.parametrize("with_fuser", [True, False])
+def test_who_holds_a_port_is_found_with_fuser_or_from_proc(tmp_path, monkeypatch, with_fuser):
+    """``fuser`` (psmisc) where installed; the same reading of /proc without it."""
+    import pty
+    import shutil
+
+    from magline.core.links import serial_port
+
+    if not with_fuser:
+        monkeypatch.setattr(shutil, "which", lambda name: None)
+    master, slave = pty.openpty()
+    node = os.ttyname(slave)
+    os.close(slave)
+    holder = subprocess.Popen([sys.executable, "-c", "import sys, time; f = open(sys.argv[1], 'rb', buffering=0); "
+                               "print('open', flush=True); time.sleep(60)", node], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "open"
+        name = Path(f"/proc/{holder.pid}/comm").read_text(encoding="utf-8").strip()  # python, python3 …
+        assert name.startswith("python") and serial_port.holders(node) == [f"{name} (pid {holder.pid})"]
+    finally:
+        holder.kill()
+        holder.wait()
+        os.close(master)
+    assert serial_port.holders(node) == []
