@@ -386,3 +386,55 @@ def test_who_holds_a_port_is_found_with_fuser_or_from_proc(tmp_path, monkeypatch
         holder.wait()
         os.close(master)
     assert serial_port.holders(node) == []
+
+
+def test_two_slots_on_usb_each_power_cycled_by_its_own_hub_port(tmp_path, monkeypatch):
+    """The shipped USB slots station (each slot named by its hub port) with each slot's power on its own
+    hub port: one shared tumble, each board power cycled by its port alone, each record its own board's."""
+    import yaml
+    from conftest import REPO
+
+    from magline.core.plugins import load_plugins
+    from magline.core.sequencer import Sequencer
+    from magline.core.sequencer.slots import SlotRunner
+    from magline.core.station import load_station
+    from magline.sim.gimbal import GimbalSim
+    from magline.sim.usb_hub import UsbHubSim
+
+    text = (REPO / "stations" / "usb-slots-sim.yaml").read_text(encoding="utf-8")
+    cfg = yaml.safe_load(text.replace("/tmp/magline-usb", str(tmp_path / "usb")))
+    names = {slot["id"]: slot["connection"].removeprefix("serial:").rsplit(":", 1)[0] for slot in cfg["slots"]}
+    with GimbalSim("tcp:127.0.0.1:0") as gimbal:
+        boards = {slot: create_sim(flavour, f"serial:{names[slot]}", workdir=tmp_path / f"fc-{slot}", seed=seed,
+                                   boot_time_s=0.3, mag_rate_hz=FAST_SENSOR_HZ, motion_source=gimbal.address,
+                                   usb_powered=True).start()
+                  for slot, flavour, seed in (("A", "px4", 11), ("B", "ardupilot", 12))}
+        try:
+            with UsbHubSim("tcp:127.0.0.1:0", boards={1: boards["A"], 2: boards["B"]}) as hub:
+                monkeypatch.setenv("MAGLINE_SIM_USB_HUB", hub.address)
+                for slot, port in (("A", 1), ("B", 2)):
+                    entry = next(s for s in cfg["slots"] if s["id"] == slot)
+                    entry["power"] = {"method": "usb-hub", "options": {"location": "1-1", "port": port,
+                                                                       "uhubctl": STAND_IN_UHUBCTL, "off_time_s": 0.3}}
+                cfg["products"]["AP-QUAD-200"]["options"]["prearm_wait_s"] = 0.3
+                cfg["motion"]["options"].update(resource=gimbal.visa_resource, speed=5.0)
+                cfg["acquisition"].update(samples=400, rate_hz=200.0, retry_delay_s=0.0, timeout_s=30.0)
+                cfg["results"]["path"] = str(tmp_path / "results.sqlite")
+                path = tmp_path / "station.yaml"
+                path.write_text(yaml.safe_dump(cfg, sort_keys=False), encoding="utf-8")
+                seq = Sequencer(load_station(path), load_plugins(), tmp_path)
+                try:
+                    records = SlotRunner(seq).run({"A": "SN-A", "B": "SN-B"})
+                finally:
+                    seq.close()
+                switched = [c for c in hub.log if c.startswith("PORT ")]
+            boots = {slot: board.boots for slot, board in boards.items()}
+        finally:
+            for board in boards.values():
+                board.stop()
+    assert [(r.slot, r.verdict) for r in records] == [("A", Outcome.PASS), ("B", Outcome.PASS)], \
+        [r.cause for r in records]
+    assert all(r.persistence["method"] == "usb-hub" for r in records)
+    for port in (1, 2):  # each port off then on, once (the order between the slots is theirs)
+        assert [c for c in switched if c.startswith(f"PORT {port},")][-2:] == [f"PORT {port},OFF", f"PORT {port},ON"]
+    assert boots == {"A": 2, "B": 2}
