@@ -438,3 +438,29 @@ def test_two_slots_on_usb_each_power_cycled_by_its_own_hub_port(tmp_path, monkey
     for port in (1, 2):  # each port off then on, once (the order between the slots is theirs)
         assert [c for c in switched if c.startswith(f"PORT {port},")][-2:] == [f"PORT {port},OFF", f"PORT {port},ON"]
     assert boots == {"A": 2, "B": 2}
+
+
+def test_a_board_named_by_its_usb_serial_back_on_another_port_is_an_error_naming_both(tmp_path):
+    """Named by-id (the board), it re-enumerated behind another hub port: not the slot the station
+    holds it in — an ERROR naming both ports."""
+    from magline.core.dut import LinkError
+    from magline.plugin import SerialAddress, SerialPortWatch
+
+    by_path, by_id = usb_names(tmp_path)
+    node, moved_node = tmp_path / "ttyACM0", tmp_path / "ttyACM1"
+    for n in (node, moved_node):
+        n.write_bytes(b"")
+    by_path.parent.mkdir(parents=True)
+    by_id.parent.mkdir(parents=True)
+    by_path.symlink_to(node)
+    by_id.symlink_to(node)
+    watch = SerialPortWatch(SerialAddress.parse(f"serial:{by_id}:115200"))
+    watch.ready(1.0)
+    other_port = by_path.with_name("pci-0000:00:14.0-usb-0:4:1.0-port0")
+    by_path.unlink()
+    other_port.symlink_to(moved_node)
+    by_id.unlink()
+    by_id.symlink_to(moved_node)
+    with pytest.raises(LinkError, match="came back on another port") as caught:
+        watch.ready(1.0)
+    assert str(other_port) in str(caught.value) and str(by_path) in str(caught.value)
