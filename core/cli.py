@@ -107,7 +107,10 @@ def main(argv: list[str] | None = None) -> int:
     spc.add_argument("--baseline", type=int, default=50, help="units that set the centre line and limits")
     spc.add_argument("--html", metavar="FILE", help="also write the charts as one self-contained HTML page")
     spc.add_argument("--json", action="store_true", help="print the report as one JSON object (per measurement: "
-                     "chart kind, n, centre, limits, signals with each unit's serial)")
+                     "chart kind, n, centre, limits, capability and its method, signals, and every point with "
+                     "its unit's serial, run and time)")
+    spc.add_argument("--csv", action="store_true", help="print every charted point as CSV: measurement, serial, run, "
+                                                        "time, value, moving range, the chart's lines, the signals")
     rep = sub.add_parser("report", help="one self-contained HTML report of a run (by run id, UUID or serial)")
     rep.add_argument("run", metavar="RUN_ID|SERIAL")
     rep.add_argument("--station", help="station file naming the results store (default: demo)")

@@ -142,14 +142,16 @@ def test_magline_spc_reads_the_store_and_flags_a_drifting_offset(make_station, s
     finally:
         store.close()
     html = tmp_path / "spc.html"
-    assert main(["spc", "--station", str(path), "--baseline", "100", "--html", str(html)]) == 0
+    assert main(["spc", "--station", str(path), "--baseline", "100", "--html", str(html),
+                 "--measurement", "hard_iron_x_ut", "--measurement", "hard_iron_norm_ut"]) == 0  # x: no limit
     out = capsys.readouterr().out
     row = next(line for line in out.splitlines() if line.startswith("hard_iron_x_ut"))
     assert " 120 " in row and "latest " in row
     assert int(row.split(" at U-")[1].split()[0]) >= 100  # the latest signal is the step's
     engine = create_engine(store_url)
     with engine.connect() as conn:
-        report = build(load_series(conn, RunFilter(part="MOCK-100"), with_attempts=True), "t", baseline=100)
+        report = build(load_series(conn, RunFilter(part="MOCK-100"), with_attempts=True), "t",
+                       ["hard_iron_x_ut"], baseline=100)
     engine.dispose()
     chart = next(m.chart for m in report.measurements if m.name == "hard_iron_x_ut")
     assert next(s.point for s in chart.signals if s.point >= 100) <= 110  # flagged within 10 units of the step
@@ -187,7 +189,9 @@ def test_one_failed_unit_gives_one_signal_and_counts_are_charted_as_counts(make_
 
     station = _thirty_units_one_failure(make_station)
     capsys.readouterr()
-    assert main(["spc", "--station", str(station), "--json"]) == 0
+    figures = ("hard_iron_sigma_ut", "rejected_fraction", "field_ut", "attempts")
+    asked = [a for n in figures for a in ("--measurement", n)]
+    assert main(["spc", "--station", str(station), "--json", *asked]) == 0  # station figures: charted when asked
     report = __import__("json").loads(capsys.readouterr().out)
     by_name = {m["name"]: m for m in report["measurements"]}
     sigma = by_name["hard_iron_sigma_ut"]
@@ -206,8 +210,106 @@ def test_too_few_units_for_capability_and_an_unknown_measurement_are_said(make_s
 
     station = _thirty_units_one_failure(make_station)
     capsys.readouterr()
-    assert main(["spc", "--station", str(station), "--last", "3", "--measurement", "nope",
-                 "--measurement", "hard_iron_x_ut"]) == 0
+    assert main(["spc", "--station", str(station), "--last", "3", "--measurement", "hard_iron_x_ut",
+                 "--measurement", "mag2.axis_ratio"]) == 0
     out = capsys.readouterr().out
     assert "n = 3: capability needs at least 25 judged units (AIAG SPC manual: 25 subgroups)" in out
-    assert "no such measurement in the store: nope" in out
+    assert "no run here holds: mag2.axis_ratio" in out  # a measurement magline makes, not on these units
+    assert main(["spc", "--station", str(station), "--measurement", "hard_iron_x", "--measurement", "nope"]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == ""  # never a chart of nothing
+    assert ("--measurement: no measurement is called hard_iron_x (did you mean hard_iron_x_ut?), nope; "
+            "magline measures: hard_iron_x_ut, ") in captured.err
+
+
+def test_by_default_only_product_characteristics_are_charted_and_station_figures_are_listed(make_station, capsys):
+    """Issue 45: 30 identical good units raised 47 signals, coverage (a stop-rule figure under
+    ``stop: determined``, in 1/40 steps) and the uncertainties leading.  By default spc charts what
+    describes the unit and has a limit; station figures and measurements without a limit are listed."""
+    from magline.core.cli import main
+    from magline.testing import run_unit
+
+    for i in range(6):  # six boards (the mock's seed is its board)
+        station = make_station({"acquisition": {"stop": "determined"}}, seed=100 + i)
+        assert run_unit(station, f"GOOD-{i}").verdict.value == "pass"
+    capsys.readouterr()
+    assert main(["spc", "--station", str(station), "--json"]) == 0
+    report = __import__("json").loads(capsys.readouterr().out)
+    charted = {m["name"] for m in report["measurements"]}
+    figures = set(report["station_figures"])
+    assert {"hard_iron_norm_ut", "axis_ratio", "residual_rms_ut", "field_error_pct"} <= charted
+    assert {"coverage", "hard_iron_sigma_ut", "direction_sigma_deg", "attempts"} <= figures | {
+        c["name"] for c in report["constants"]}
+    assert "coverage" in figures and not charted & figures
+    assert not any("_sigma_" in n or n in ("coverage", "attempts", "drift_detectable_ut") for n in charted)
+    assert "hard_iron_x_ut" in report["unlimited"]  # no limit in the demo station: listed, not charted
+    assert main(["spc", "--station", str(station)]) == 0
+    out = capsys.readouterr().out
+    assert "station figures, not product characteristics (not charted; --measurement NAME charts one): " in out
+    assert main(["spc", "--station", str(station), "--json", "--measurement", "coverage"]) == 0
+    asked = __import__("json").loads(capsys.readouterr().out)
+    assert [m["name"] for m in asked["measurements"]] == ["coverage"]
+
+
+def test_the_capability_method_follows_the_shape_of_the_characteristic():
+    """Issue 45 / ISO 22514-2: a normal characteristic gets the normal indices with intervals; a
+    log-normal one is made normal by Box-Cox (λ near 0) and its Ppk is the normal Ppk of ln x against
+    ln USL — known here from the generating distribution; a shape neither fits gets the percentile Ppk
+    of a fitted Johnson SU, said as such, without an interval."""
+    from scipy import stats
+
+    rng = np.random.default_rng(45)
+    normal = capability(rng.normal(10.0, 1.0, 200), 4.0, 16.0, 1.0)
+    assert normal.method == "normal" and normal.normality.normal and normal.ppk.low is not None
+    assert normal.method_words.startswith("normal (Anderson–Darling p ")
+
+    logn = rng.lognormal(0.0, 0.5, 400)  # ln x ~ N(0, 0.5): against USL e^1.5, Ppk = 1.5 / (3 · 0.5) = 1.0
+    skewed = capability(logn, None, float(np.exp(1.5)), float(np.abs(np.diff(logn)).mean() / 1.128))
+    assert skewed.normality.p <= 0.01 and skewed.method == "box-cox" and abs(skewed.box_cox_lambda) < 0.2
+    assert skewed.ppk.low <= 1.0 <= skewed.ppk.high  # the interval holds the truth
+    assert skewed.method_words.startswith("Box-Cox λ = ")
+
+    bimodal = np.concatenate([rng.normal(-2.0, 0.5, 150), rng.normal(2.0, 0.5, 150)])  # neither fits
+    shaped = capability(bimodal, -6.0, 6.0, 0.6)
+    assert shaped.method == "percentile" and shaped.cpk is None and shaped.ppk.low is None
+    params = stats.johnsonsu.fit(bimodal)
+    lo, mid, hi = stats.johnsonsu(*params).ppf([0.00135, 0.5, 0.99865])
+    assert shaped.ppk.value == pytest.approx(min((6.0 - mid) / (hi - mid), (mid + 6.0) / (mid - lo)))
+    assert "ISO 22514-2 percentiles of a fitted Johnson SU" in shaped.method_words
+
+
+def test_the_json_and_the_csv_hold_every_point_behind_every_chart(make_station, capsys):
+    """Issue 45: everything a chart shows can be recomputed from ``--json`` (each point: serial, run id,
+    time, value, signals) and from ``--csv`` (the same, flat): the centre line from the baseline points,
+    the moving ranges from consecutive values."""
+    import csv
+    import io
+    import json
+
+    from magline.core.cli import main
+
+    station = _thirty_units_one_failure(make_station)
+    capsys.readouterr()
+    assert main(["spc", "--station", str(station), "--json", "--measurement", "hard_iron_sigma_ut",
+                 "--measurement", "rejected_fraction"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    chart = next(m for m in report["measurements"] if m["name"] == "hard_iron_sigma_ut")
+    points = chart["points"]
+    assert [p["serial"] for p in points] == [f"U-{i:02d}" for i in range(30)]
+    assert len({p["run_id"] for p in points}) == 30
+    assert all(p["started"] for p in points)
+    base = [p["value"] for p in points if p["in_baseline"] and p["serial"] != "U-14"]  # a failed unit sets no line
+    assert chart["centre"] == pytest.approx(np.mean(base))
+    values = [p["value"] for p in points]
+    assert [p["moving_range"] for p in points[1:]] == pytest.approx(np.abs(np.diff(values)).tolist())
+    assert [p["serial"] for p in points if p["signals"]] == [s["serial"] for s in chart["signals"]] == ["U-14"]
+    assert chart["capability"]["method"] in ("normal", "box-cox", "percentile")
+    assert chart["capability"]["normality"]["test"] == "Anderson-Darling"
+
+    assert main(["spc", "--station", str(station), "--csv", "--measurement", "hard_iron_sigma_ut"]) == 0
+    rows = list(csv.DictReader(io.StringIO(capsys.readouterr().out)))
+    assert len(rows) == 30 and {r["measurement"] for r in rows} == {"hard_iron_sigma_ut"}
+    assert [float(r["value"]) for r in rows] == pytest.approx(values)
+    flagged = next(p for p in points if p["serial"] == "U-14")
+    assert [(r["serial"], r["signals"]) for r in rows if r["signals"]] == [("U-14", " ".join(flagged["signals"]))]
+    assert float(rows[0]["centre"]) == pytest.approx(chart["centre"]) and rows[0]["usl"] == "0.5"

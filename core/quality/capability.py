@@ -3,12 +3,26 @@ with confidence intervals — so that limits can be tightened once the process i
 
 * Cpk = min(USL − μ, μ − LSL) / 3σ_within, σ_within = MR̄ / d₂ (the I-MR chart's);
 * Ppk = the same with the overall sample standard deviation;
-* a one-sided limit gives the one-sided index (CPU or CPL);
+* a one-sided limit gives the one-sided index (CPU or CPL): a bounded figure (an angle ≥ 0, a
+  fraction) with only its upper limit is judged against that limit alone;
 * confidence interval: Bissell's normal approximation (1990),
   Ĉ ± z₁₋α/₂ · √(1/(9n) + Ĉ²/(2(n − 1))), for both indices.
 
-Written here because no maintained Python library computes them; the normal quantile is the
-standard library's ``statistics.NormalDist`` (scipy.stats would add a second to every start).
+Those formulas hold for a normal characteristic.  Which shape applies is tested first
+(Anderson–Darling, :mod:`.normality`), then, as ISO 22514-2 / -4 allow (Minitab's non-normal
+capability does the same):
+
+1. normal (p ≥ 0.05): the normal indices above;
+2. else, a positive characteristic that a Box-Cox transformation (λ by maximum likelihood,
+   ``scipy.stats.boxcox``) makes normal: the normal indices of the transformed values against the
+   transformed limits (the transformation is increasing, so the limits keep their order);
+3. else the ISO 22514-2 percentile method on a fitted Johnson SU distribution
+   (``scipy.stats.johnsonsu``): Ppk = min((USL − X₅₀)/(X₉₉.₈₆₅ − X₅₀), (X₅₀ − LSL)/(X₅₀ − X₀.₁₃₅)), an
+   overall index only (there is no within-process σ of a fitted shape) and no interval.
+
+The method is always said with the index.  Written here because no maintained Python library
+computes the indices; the normal quantile is the standard library's ``statistics.NormalDist``,
+scipy.stats is imported only where the shape is not normal.
 """
 
 from __future__ import annotations
@@ -19,12 +33,25 @@ from statistics import NormalDist
 
 import numpy as np
 
+from magline.core.quality.normality import Normality, anderson_darling
+
+D2 = 1.128  # E[range of two normal values] / σ: the within σ of a transformed characteristic
+
 
 @dataclass(frozen=True)
 class Index:
     value: float
-    low: float  # confidence interval
-    high: float
+    low: float | None  # confidence interval (None: the method gives none)
+    high: float | None
+
+    def words(self) -> str:
+        return f"{self.value:.2f}" if self.low is None or self.high is None else \
+            f"{self.value:.2f} [{self.low:.2f}, {self.high:.2f}]"
+
+
+def index_words(index: Index | None) -> str:
+    """An index with its interval as the tables print it; "—" where none is stated."""
+    return "—" if index is None else index.words()
 
 
 @dataclass(frozen=True)
@@ -35,6 +62,25 @@ class Capability:
     sigma_overall: float
     cpk: Index | None
     ppk: Index | None
+    method: str = "normal"  # "normal", "box-cox" or "percentile"
+    method_words: str = "normal"  # the method as the report says it, with its figures
+    normality: Normality | None = None  # the Anderson–Darling test on the values (None below 8 values)
+    box_cox_lambda: float | None = None
+
+    @property
+    def method_short(self) -> str:
+        if self.method == "box-cox":
+            return f"Box-Cox λ {self.box_cox_lambda:.2f}"
+        return "ISO percentile" if self.method == "percentile" else "normal"
+
+    def to_dict(self) -> dict:
+        def index(i: Index | None) -> dict | None:
+            return None if i is None else {"value": i.value, "low": i.low, "high": i.high}
+
+        return {"n": self.n, "mean": self.mean, "sigma_within": self.sigma_within,
+                "sigma_overall": self.sigma_overall, "cpk": index(self.cpk), "ppk": index(self.ppk),
+                "method": self.method, "method_words": self.method_words, "box_cox_lambda": self.box_cox_lambda,
+                "normality": None if self.normality is None else self.normality.to_dict()}
 
 
 # Fewer judged units than this and no capability is stated: AIAG's SPC manual (2nd ed.) asks 25 subgroups
@@ -57,11 +103,64 @@ def _index(mean: float, sigma: float, low: float | None, high: float | None, n: 
 
 def capability(values: np.ndarray, low: float | None, high: float | None, sigma_within: float,
                confidence: float = 0.95, min_units: int = MIN_UNITS) -> Capability:
-    """Cpk / Ppk with their intervals; None for an index below ``min_units`` values (see MIN_UNITS)."""
+    """Cpk / Ppk with their intervals by the method the shape allows (see the module); None for an
+    index below ``min_units`` values (see MIN_UNITS) or without a limit."""
     x = np.asarray(values, dtype=float)
     x = x[np.isfinite(x)]
     mean = float(x.mean()) if x.size else math.nan
     overall = float(x.std(ddof=1)) if x.size > 1 else 0.0
-    return Capability(n=int(x.size), mean=mean, sigma_within=sigma_within, sigma_overall=overall,
-                      cpk=_index(mean, sigma_within, low, high, x.size, confidence, min_units),
-                      ppk=_index(mean, overall, low, high, x.size, confidence, min_units))
+    normality = anderson_darling(x)
+    normal = Capability(n=int(x.size), mean=mean, sigma_within=sigma_within, sigma_overall=overall,
+                        cpk=_index(mean, sigma_within, low, high, x.size, confidence, min_units),
+                        ppk=_index(mean, overall, low, high, x.size, confidence, min_units),
+                        method_words="normal" + (f" (Anderson–Darling p {normality.p_words})" if normality else ""),
+                        normality=normality)
+    if normality is None or normality.normal or normal.ppk is None:
+        return normal
+    return _box_cox(x, low, high, normal, confidence, min_units) or _percentile(x, low, high, normal)
+
+
+def _box_cox(x: np.ndarray, low: float | None, high: float | None, normal: Capability, confidence: float,
+             min_units: int) -> Capability | None:
+    """The normal indices of Box-Cox-transformed values, where the transformation makes them normal."""
+    from scipy import special, stats
+
+    if np.any(x <= 0) or (high is not None and high <= 0):
+        return None
+    y, lam = stats.boxcox(x)
+    shape = anderson_darling(y)
+    if shape is None or not shape.normal:
+        return None
+    t_low = None if low is None or low <= 0 else float(special.boxcox(low, lam))  # ≤ 0: no value reaches it
+    t_high = None if high is None else float(special.boxcox(high, lam))
+    if t_low is None and t_high is None:
+        return None
+    mean, overall = float(y.mean()), float(y.std(ddof=1))
+    within = float(np.abs(np.diff(y)).mean()) / D2
+    return Capability(n=normal.n, mean=normal.mean, sigma_within=normal.sigma_within,
+                      sigma_overall=normal.sigma_overall,
+                      cpk=_index(mean, within, t_low, t_high, y.size, confidence, min_units),
+                      ppk=_index(mean, overall, t_low, t_high, y.size, confidence, min_units), method="box-cox",
+                      box_cox_lambda=float(lam),
+                      method_words=(f"Box-Cox λ = {lam:.2f} (not normal: Anderson–Darling p {normal.normality.p_words}"
+                                    f"; transformed: p {shape.p_words})"), normality=normal.normality)
+
+
+def _percentile(x: np.ndarray, low: float | None, high: float | None, normal: Capability) -> Capability:
+    """ISO 22514-2's percentile Ppk on a fitted Johnson SU distribution (no Cpk, no interval)."""
+    import warnings
+
+    from scipy import stats
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the optimiser's own complaints; the fit is checked below
+        params = stats.johnsonsu.fit(x)
+    lower, median, upper = (float(q) for q in stats.johnsonsu(*params).ppf([0.00135, 0.5, 0.99865]))
+    sides = [(high - median) / (upper - median)] if high is not None and upper > median else []
+    sides += [(median - low) / (median - lower)] if low is not None and median > lower else []
+    words = (f"ISO 22514-2 percentiles of a fitted Johnson SU (not normal: Anderson–Darling p "
+             f"{normal.normality.p_words if normal.normality else '—'}); Ppk only, no interval")
+    ppk = Index(min(sides), None, None) if sides and all(map(math.isfinite, sides)) else None
+    return Capability(n=normal.n, mean=normal.mean, sigma_within=normal.sigma_within,
+                      sigma_overall=normal.sigma_overall, cpk=None, ppk=ppk, method="percentile",
+                      method_words=words, normality=normal.normality)

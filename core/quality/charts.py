@@ -30,6 +30,7 @@ class ImrChart:
     baseline: int  # how many points set the centre and the limits
     signals: list[Signal] = field(default_factory=list)
     bounds: tuple[float, float] = (-np.inf, np.inf)  # what the measurement can take (a fraction: [0, 1])
+    in_baseline: np.ndarray | None = None  # which values set the centre and the limits (``baseline`` of them)
 
     @property
     def ucl(self) -> float:
@@ -61,13 +62,16 @@ def imr_chart(name: str, values: np.ndarray, baseline: int = 50, outside: np.nda
     if x.size < 3:
         return None
     failed = np.zeros(values.size, bool) if outside is None else np.asarray(outside, bool)
-    base = x[: max(3, min(baseline, x.size))]
-    in_limits = base[~failed[index][: base.size]]
-    base = in_limits if in_limits.size >= 3 else base
+    window = max(3, min(baseline, x.size))
+    chosen = np.zeros(x.size, bool)
+    chosen[:window] = True
+    if np.count_nonzero(chosen & ~failed[index]) >= 3:
+        chosen &= ~failed[index]
+    base = x[chosen]
     centre = float(base.mean())
     mr_bar = float(np.abs(np.diff(base)).mean())
     sigma = mr_bar / D2
     chart = ImrChart(name=name, values=x, index=index, centre=centre, sigma=sigma, mr_bar=mr_bar, baseline=base.size,
-                     bounds=bounds)
+                     bounds=bounds, in_baseline=chosen)
     chart.signals = evaluate(x, centre, sigma) if sigma > 0 else []
     return chart

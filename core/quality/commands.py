@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import sys
+from difflib import get_close_matches
 from pathlib import Path
 from typing import Any
 
 from magline.core.faults import StationFault
-from magline.core.quality.spc import build, format_text, to_json
+from magline.core.measurements import CATALOGUE, base_name, known_limit_name
+from magline.core.quality.spc import CSV_COLUMNS, build, csv_rows, format_text, to_json
 from magline.core.results.contract import KeepsSeries
 from magline.core.results.reading import RunFilter
 from magline.core.results.series import Limit
@@ -27,9 +30,24 @@ def part_of(station: Station, part: str | None) -> str:
     raise StationFault(f"give --part: the station has several products ({', '.join(station.products)})")
 
 
+def unknown_measurements(names: list[str] | None) -> str | None:
+    """Why ``--measurement`` names no measurement magline makes (a sentence, with the nearest names),
+    or None when every name is one."""
+    unknown = [n for n in names or () if not known_limit_name(n)]
+    if not unknown:
+        return None
+    hints = [f"{n} (did you mean {close[0]}?)" if (close := get_close_matches(base_name(n), CATALOGUE, 1)) else n
+             for n in unknown]
+    return f"--measurement: no measurement is called {', '.join(hints)}; magline measures: {', '.join(CATALOGUE)}"
+
+
 def spc(store: Any, station: Station, args: argparse.Namespace) -> int:
     if not isinstance(store, KeepsSeries):
         raise StationFault("this station's results sink keeps no history: spc reads SQL stores only")
+    unknown = unknown_measurements(args.measurement)
+    if unknown:
+        print(unknown, file=sys.stderr)
+        return 2
     part = part_of(station, args.part)
     where = RunFilter(part=part, station_id=args.station_id, since=args.since, until=args.until)
     series = store.series(where, last=args.last, names=args.measurement, with_attempts=True)
@@ -39,9 +57,14 @@ def spc(store: Any, station: Station, args: argparse.Namespace) -> int:
                 series.limits[name] = Limit(limit.low, limit.high, series.limits[name].unit)
     title = f"part {part}" + (f", station {args.station_id}" if args.station_id else ", every station") + \
         f", latest {len(series)} runs"
-    report = build(series, title, args.measurement, args.baseline)
+    report = build(series, title, args.measurement, args.baseline,
+                   stop_determined=station.acquisition.stop == "determined")
     if getattr(args, "json", False):
         print(json.dumps(to_json(report), default=float))
+    elif getattr(args, "csv", False):
+        out = csv.DictWriter(sys.stdout, fieldnames=CSV_COLUMNS, lineterminator="\n")
+        out.writeheader()
+        out.writerows(csv_rows(report))
     else:
         print(format_text(report))
     if args.html:

@@ -14,11 +14,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from magline.core.measurements import CATALOGUE, POSSIBLE, base_name
-from magline.core.quality.capability import MIN_UNITS, MIN_UNITS_SOURCE, Capability, capability
+from magline.core.quality.capability import MIN_UNITS, MIN_UNITS_SOURCE, Capability, capability, index_words
 from magline.core.quality.charts import ImrChart, imr_chart
 from magline.core.quality.rules import RULES
 from magline.core.quality.yields import YieldRow, ranked_causes, yields
 from magline.core.results.series import Limit, RunSeries
+from magline.core.station.schema import NOT_PROCESS_FIGURES
 from magline.core.text import fmt, percent
 
 
@@ -57,6 +58,19 @@ ATTRIBUTES = {"rejected_fraction": ("units with readings rejected", lambda v: v 
               "attempts": ("units that needed another tumble", lambda v: v > 1)}
 
 
+# Figures of the station's method, not of the unit: how sure a measurement is (every ``*_sigma_*``), how
+# hard the station had to work for it (attempts, readings rejected, a warm-up set aside).  Charted only
+# when asked for (``--measurement``); under ``stop: determined`` coverage joins them — the stop rule
+# ends each tumble at the coverage it needs, in 1/bins steps, so its spread is the rule's, not the unit's.
+STATION_FIGURES = frozenset(NOT_PROCESS_FIGURES) | {"rejected_fraction", "warm_up_fraction"}
+
+
+def station_figure(name: str, stop_determined: bool = True) -> bool:
+    """Is ``name`` (a sensor's or pair's too) a station figure rather than a product characteristic?"""
+    base = base_name(name)
+    return base in STATION_FIGURES or "_sigma_" in base or (stop_determined and base == "coverage")
+
+
 @dataclass
 class SpcReport:
     title: str
@@ -67,7 +81,9 @@ class SpcReport:
     failed: list[tuple[str, int]] = field(default_factory=list)
     constants: list[tuple[str, float, str]] = field(default_factory=list)  # (name, value, unit): not charted
     attributes: list[AttributeReport] = field(default_factory=list)
-    missing: list[str] = field(default_factory=list)  # names asked for that the store does not hold
+    missing: list[str] = field(default_factory=list)  # names asked for that these runs do not hold
+    station_figures: list[str] = field(default_factory=list)  # not charted by default: the station's, not the unit's
+    unlimited: list[str] = field(default_factory=list)  # not charted by default: no limit describes them
 
 
 def _order(name: str) -> tuple[int, str]:
@@ -75,7 +91,11 @@ def _order(name: str) -> tuple[int, str]:
     return (names.index(base_name(name)) if base_name(name) in names else len(names), name)
 
 
-def build(series: RunSeries, title: str, names: Sequence[str] | None = None, baseline: int = 50) -> SpcReport:
+def build(series: RunSeries, title: str, names: Sequence[str] | None = None, baseline: int = 50,
+          stop_determined: bool = True) -> SpcReport:
+    """The report of ``series``: the measurements in ``names``, or by default every product
+    characteristic — a measurement with a limit that is not a station figure (:func:`station_figure`);
+    the others are listed, not charted."""
     report = SpcReport(title=title, series=series)
     judged = [i for i, r in enumerate(series.runs) if r["verdict"] in ("pass", "fail")]
     report.missing = [n for n in names or () if n not in series.values]
@@ -83,8 +103,14 @@ def build(series: RunSeries, title: str, names: Sequence[str] | None = None, bas
         values = series.values.get(name)
         if values is None:
             continue
-        x = values[judged]  # a station fault's run is not the process
         limit = series.limits.get(name, Limit(None, None, None))
+        if not names and station_figure(name, stop_determined):
+            report.station_figures.append(name)
+            continue
+        if not names and limit.low is None and limit.high is None:
+            report.unlimited.append(name)
+            continue
+        x = values[judged]  # a station fault's run is not the process
         unit = limit.unit or CATALOGUE.get(base_name(name), ("", ""))[0]
         finite = x[np.isfinite(x)]
         if finite.size and np.all(finite == finite[0]):
@@ -114,10 +140,10 @@ def build(series: RunSeries, title: str, names: Sequence[str] | None = None, bas
     return report
 
 
-def _interval(index: object) -> str:
-    if index is None:
-        return "—"
-    return f"{index.value:.2f} [{index.low:.2f}, {index.high:.2f}]"
+
+
+def _ad_p(cap: Capability) -> str:
+    return "—" if cap.normality is None else cap.normality.p_words.replace(" ", "")
 
 
 def format_text(report: SpcReport) -> str:
@@ -128,7 +154,7 @@ def format_text(report: SpcReport) -> str:
     if not runs:
         return "\n".join([*lines, "no runs match"])
     header = (f"{'measurement':<24} {'n':>6} {'centre':>11} {'σ within':>10} {'LCL':>10} {'UCL':>10} "
-              f"{'limits':>18}  {'Cpk [95% CI]':<20} {'Ppk [95% CI]':<20} signals")
+              f"{'limits':>18}  {'Cpk [95% CI]':<20} {'Ppk [95% CI]':<20} {'AD p':>6} {'method':<16} signals")
     lines += [header, "-" * len(header)]
     for m in report.measurements:
         c = m.chart
@@ -138,10 +164,11 @@ def format_text(report: SpcReport) -> str:
         where = (f"{len(c.signals)}: latest {latest.rule} at {runs[c.index[latest.point]]['serial']}"
                  if latest else "none")
         lines.append(f"{m.name:<24} {c.values.size:>6} {fmt(c.centre):>11} {fmt(c.sigma):>10} {fmt(c.lcl):>10} "
-                     f"{fmt(c.ucl):>10} {limits:>18}  {_interval(m.capability.cpk):<20} "
-                     f"{_interval(m.capability.ppk):<20} {where}")
+                     f"{fmt(c.ucl):>10} {limits:>18}  {index_words(m.capability.cpk):<20} "
+                     f"{index_words(m.capability.ppk):<20} {_ad_p(m.capability):>6} {m.capability.method_short:<16} "
+                     f"{where}")
     if report.missing:
-        lines.append(f"no such measurement in the store: {', '.join(report.missing)}")
+        lines.append(f"no run here holds: {', '.join(report.missing)}")
     judged = max((m.capability.n for m in report.measurements), default=0)
     if judged < MIN_UNITS:
         lines.append(f"n = {judged}: capability needs at least {MIN_UNITS} judged units ({MIN_UNITS_SOURCE}); "
@@ -152,6 +179,12 @@ def format_text(report: SpcReport) -> str:
                   for a in report.attributes]
     if report.constants:
         lines += ["", "constant: " + "; ".join(f"{n} {fmt(v, u)}" for n, v, u in report.constants)]
+    if report.station_figures:
+        lines += ["", "station figures, not product characteristics (not charted; --measurement NAME charts one): "
+                  + ", ".join(report.station_figures)]
+    if report.unlimited:
+        lines += ["", "no limit in the station file, not charted (--measurement NAME charts one): "
+                  + ", ".join(report.unlimited)]
     baseline = report.measurements[0].chart.baseline if report.measurements else None
     lines += ["", "rules: " + "; ".join(f"{k} = {v}" for k, v in RULES.items()),
               (f"limits from the first {baseline} judged units within their limits (baseline)" if baseline else
@@ -171,6 +204,25 @@ def format_text(report: SpcReport) -> str:
     return "\n".join(lines)
 
 
+CSV_COLUMNS = ("measurement", "chart", "serial", "run_id", "started", "value", "moving_range", "in_baseline",
+               "centre", "lcl", "ucl", "mr_ucl", "lsl", "usl", "signals")
+
+
+def csv_rows(report: SpcReport) -> list[dict]:
+    """Every charted point with its chart's lines, one row each (``magline spc --csv``): what any chart of
+    the report shows, recomputable in a spreadsheet."""
+    data = to_json(report)
+    rows = []
+    for m in data["measurements"]:
+        low, high = m.get("limits", [None, None])
+        for pt in m["points"]:
+            rows.append({"measurement": m["name"], "chart": m["chart"], "serial": pt["serial"], "run_id": pt["run_id"],
+                         "started": pt["started"], "value": pt["value"], "moving_range": pt.get("moving_range"),
+                         "in_baseline": pt.get("in_baseline"), "centre": m["centre"], "lcl": m["lcl"], "ucl": m["ucl"],
+                         "mr_ucl": m.get("mr_ucl"), "lsl": low, "usl": high, "signals": " ".join(pt["signals"])})
+    return rows
+
+
 def to_json(report: SpcReport) -> dict:
     """The report as data (``magline spc --json``) for a spreadsheet or an MES: per measurement its
     chart kind, centre, limits and every signal with the unit's serial."""
@@ -179,22 +231,41 @@ def to_json(report: SpcReport) -> dict:
     def serial(position: int) -> str:
         return runs[position]["serial"]
 
+    def point(chart: ImrChart, k: int, rules: list[str]) -> dict:
+        """One plotted unit: which run it is and what the chart makes of it (the MR of the first is None)."""
+        run = runs[chart.index[k]]
+        return {"serial": run["serial"], "run_id": run["id"], "run_uuid": run.get("run_uuid"),
+                "started": str(run["started"]), "value": float(chart.values[k]),
+                "moving_range": None if k == 0 else float(abs(chart.values[k] - chart.values[k - 1])),
+                "in_baseline": bool(chart.in_baseline[k]) if chart.in_baseline is not None else k < chart.baseline,
+                "signals": rules}
+
     measurements = []
     for m in report.measurements:
         c = m.chart
+        signalled: dict[int, list[str]] = {}
+        for sig in c.signals:
+            signalled.setdefault(sig.point, []).append(sig.rule)
         measurements.append({
             "name": m.name, "unit": m.unit, "n": int(c.values.size), "chart": "I-MR", "centre": c.centre,
             "lcl": c.lcl, "ucl": c.ucl, "sigma_within": c.sigma, "limits": [m.limit.low, m.limit.high],
             "cpk": None if m.capability.cpk is None else vars(m.capability.cpk),
             "ppk": None if m.capability.ppk is None else vars(m.capability.ppk),
+            "capability": m.capability.to_dict(),
             "signals": [{"rule": s.rule, "serial": serial(c.index[s.point]), "value": float(c.values[s.point])}
-                        for s in c.signals]})
+                        for s in c.signals],
+            "baseline": c.baseline, "mr_bar": c.mr_bar, "mr_ucl": c.mr_ucl,
+            "points": [point(c, k, signalled.get(k, [])) for k in range(c.values.size)]})
     for a in report.attributes:
         measurements.append({"name": a.name, "n": a.n, "chart": "p (units with any)", "centre": a.proportion,
                              "lcl": 0.0, "ucl": a.ucl, "what": a.what,
-                             "units": [serial(i) for i in a.units], "signals": []})
+                             "units": [serial(i) for i in a.units], "signals": [],
+                             "points": [{"serial": runs[i]["serial"], "run_id": runs[i]["id"],
+                                         "started": str(runs[i]["started"]), "value": 1.0, "signals": []}
+                                        for i in a.units]})
     return {"title": report.title, "runs": len(runs), "measurements": measurements,
             "constants": [{"name": n, "value": v, "unit": u} for n, v, u in report.constants],
+            "station_figures": report.station_figures, "unlimited": report.unlimited,
             "capability_needs": {"units": MIN_UNITS, "source": MIN_UNITS_SOURCE},
             "missing": report.missing,
             "yields": {by: [vars(r) for r in rows] for by, rows in report.yields.items()},

@@ -9,7 +9,7 @@ import numpy as np
 import plotly.graph_objects as go
 from plotly.subplots import make_subplots
 
-from magline.core.quality.capability import MIN_UNITS, MIN_UNITS_SOURCE
+from magline.core.quality.capability import MIN_UNITS, MIN_UNITS_SOURCE, index_words
 from magline.core.quality.rules import RULES
 from magline.core.quality.spc import MeasurementReport, SpcReport
 from magline.core.reports.page import figure_html, table, write_page
@@ -63,15 +63,13 @@ def write_spc_page(report: SpcReport, path: Path) -> Path:
                 + ". Centre line and 3σ limits from the first judged units (baseline); rules: "
                 + html.escape("; ".join(RULES.values())) + ".</p>"]
 
-    def interval(index: object) -> str:
-        return "—" if index is None else f"{index.value:.2f} [{index.low:.2f}, {index.high:.2f}]"
-
     rows = [(m.name, m.chart.values.size, fmt(m.chart.centre, m.unit), fmt(m.chart.sigma, m.unit),
-             f"[{fmt(m.limit.low)}, {fmt(m.limit.high)}]", interval(m.capability.cpk), interval(m.capability.ppk),
-             len(m.chart.signals)) for m in report.measurements]
+             f"[{fmt(m.limit.low)}, {fmt(m.limit.high)}]", index_words(m.capability.cpk),
+             index_words(m.capability.ppk), m.capability.method_words, len(m.chart.signals))
+            for m in report.measurements]
     sections += ["<h2>Capability</h2>",
                  table(("measurement", "n", "centre", "σ within", "limits", "Cpk [95% CI]", "Ppk [95% CI]",
-                        "rule signals"), rows, numeric=(1, 2, 3, 7))]
+                        "shape and method", "rule signals"), rows, numeric=(1, 2, 3, 8))]
     judged = max((m.capability.n for m in report.measurements), default=0)
     if judged < MIN_UNITS:
         sections.append(f"<p class=note>n = {judged}: capability needs at least {MIN_UNITS} judged units "
@@ -83,6 +81,12 @@ def write_spc_page(report: SpcReport, path: Path) -> Path:
                             for a in report.attributes], numeric=(1, 2, 3, 4))]
     if report.constants:
         sections.append("<p>constant: " + html.escape("; ".join(f"{n} {fmt(v, u)}" for n, v, u in report.constants))
+                        + "</p>")
+    if report.station_figures:
+        sections.append("<p>station figures, not product characteristics (not charted; <code>--measurement NAME</code> "
+                        "charts one): " + html.escape(", ".join(report.station_figures)) + "</p>")
+    if report.unlimited:
+        sections.append("<p>no limit in the station file, not charted: " + html.escape(", ".join(report.unlimited))
                         + "</p>")
     sections.append("<h2>Yield</h2>")
     for by, yrows in report.yields.items():
