@@ -283,3 +283,35 @@ def test_station_fit_settings_reach_the_fit(make_station):
                          "products": {"MOCK-100": {"options": {"motions": ["hand_tumble"]}}}})
     record = run_station(path)
     assert record.verdict is Outcome.FAIL and "heading 1σ up to" in record.cause
+
+
+def test_a_fit_the_warm_up_left_undetermined_is_measured_again_as_a_warm_up(make_station):
+    """A drift the fit caught can also leave the calibration undetermined; that refusal is the warm-up's
+    (reason ``warm_up``): the attempt is kept, refused as a warm-up, the operator told the sensor was
+    warming up — not to rotate more, which would not help — and the next attempt is calibrated."""
+    from magline.core.fit import FitRefused
+    from magline.core.plugins import hookimpl
+    from magline.testing import make_fit
+    from magline.testing import run_unit as run_with
+
+    class Warming:
+        calls = 0
+
+        @hookimpl
+        def magline_fit(self, run, samples, options):
+            Warming.calls += 1
+            if Warming.calls == 1:
+                raise FitRefused("warm_up", "the offset drifted through the tumble (the drift modelled), and the "
+                                 "calibration is not determined while it settles (heading 1σ up to 0.78°)",
+                                 "leave the unit powered a little longer, then acquire again")
+            return make_fit(hard_iron_ut=(35.0, -22.0, 61.0), residuals_ut=np.full(len(samples), 0.05))
+
+    record = run_with(make_station({"acquisition": {"stop": "samples"}}), "WU-1", extra=[Warming()])
+    assert record.verdict.value == "pass", record.cause
+    fitted = [a for a in record.attempts if not (a.refused or "").startswith("coverage")]  # the demo's first is short
+    assert len(fitted) == 2 and Warming.calls == 2
+    assert not fitted[0].accepted and fitted[0].refused.startswith("warm-up: the offset drifted through the tumble")
+    assert fitted[1].accepted and fitted[1] is record.attempts[-1]
+    lines = [line for phase in record.phases for line in phase.log]
+    assert "operator: The magnetometer was still warming up — tumble again" in lines
+    assert not any("rotate the unit" in line for line in lines)

@@ -29,7 +29,7 @@ from magline.core.fit.objective import (
     sampson_weights,
 )
 from magline.core.fit.radial import RadialUncertainty
-from magline.core.fit.result import FitOptions, FitRefused, FitResult
+from magline.core.fit.result import FitOptions, FitRefused, FitResult, warm_up_words
 from magline.core.fit.screening import planarity, screen_samples
 from magline.core.fit.solver import SETTLED_STEP, gauss_newton, levenberg_marquardt
 from magline.core.fit.uncertainty import condition_number, direction_sigma_deg, soft_sigma
@@ -52,6 +52,7 @@ MAX_BIAS_SIGMAS = 10.0  # a settled bias beyond this many σ is not trusted to s
 # 5 is twice the onset; benchmarks/drift_null.py measures the rates at it.
 DRIFT_SEPARATION_MIN = 5.0
 ROTATE_MORE = "rotate the unit through more orientations (tumble about all three axes) and acquire again"
+WAIT_FOR_WARM_UP = "leave the unit powered a little longer, then acquire again: its magnetometer is still warming up"
 
 
 def fit_calibration(
@@ -606,9 +607,13 @@ def _assemble(layout, p, cov, gram, x, tau, centre, scale, keep, inliers, reject
     judged_sigma = misfit["full_model_direction_sigma_deg"] if misfit else dir_sigma
     if not np.isfinite(cond) or not np.isfinite(judged_sigma) or judged_sigma > opts.max_direction_sigma_deg \
             or (misfit is None and np.linalg.norm(h_sigma) > opts.max_offset_sigma_fraction * field_est):
-        raise FitRefused("undetermined",
-                         f"the orientations covered do not determine the calibration (heading 1σ up to "
-                         f"{dir_sigma:.2f}°, offset 1σ {np.linalg.norm(h_sigma):.2f} µT)", ROTATE_MORE)
+        uncertainty = f"heading 1σ up to {dir_sigma:.2f}°, offset 1σ {np.linalg.norm(h_sigma):.2f} µT"
+        drifting = warm_up_words(drift_info)
+        if drifting:  # the drift, not the motion, is what the data could not pin: rotating more would not help
+            raise FitRefused("warm_up", f"{drifting}, and the calibration is not determined while it settles "
+                             f"({uncertainty})", WAIT_FOR_WARM_UP)
+        raise FitRefused("undetermined", f"the orientations covered do not determine the calibration ({uncertainty})",
+                         ROTATE_MORE)
     axis_ratio = np.linalg.eigvalsh(s_out)
     if axis_ratio[-1] / axis_ratio[0] > opts.max_axis_ratio:
         raise FitRefused("not_ellipsoid",

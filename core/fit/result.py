@@ -26,6 +26,18 @@ class FitRefused(ValueError):
         self.advice = advice
 
 
+def warm_up_words(drift: dict | None) -> str:
+    """What the drift test caught (its ``drift`` dict), in words; "" when it caught nothing."""
+    drift = drift or {}
+    if drift.get("modelled"):
+        return "the offset drifted through the tumble (the drift modelled)"
+    if drift.get("warm_up_excluded"):
+        return f"the offset drifted early in the tumble (the first {drift['warm_up_excluded']} readings set aside)"
+    if drift.get("unresolved"):
+        return "the offset drifted, and the drift could be neither set aside nor modelled"
+    return ""
+
+
 @dataclass(frozen=True)
 class FitOptions:
     """Tunable behaviour of :func:`magline.core.fit.fit_calibration`.
@@ -108,14 +120,7 @@ class FitResult:
         """What the warm-up drift test caught in these readings, in words ("" when nothing): readings
         set aside, the drift modelled, or a drift found that could be neither.  Why it matters: such a
         fit is the offset *during* the warm-up, and the sensor goes on settling after it."""
-        drift = self.drift or {}
-        if drift.get("modelled"):
-            return "the offset drifted through the tumble (the drift modelled)"
-        if drift.get("warm_up_excluded"):
-            return f"the offset drifted early in the tumble (the first {drift['warm_up_excluded']} readings set aside)"
-        if drift.get("unresolved"):
-            return "the offset drifted, and the drift could be neither set aside nor modelled"
-        return ""
+        return warm_up_words(self.drift)
 
     def radial_sigma_ut(self, raw_ut: NDArray) -> NDArray | None:
         """1σ of the calibrated magnitude this fit gives each raw reading (µT); None when the fit

@@ -367,6 +367,13 @@ class Sequencer:
             try:
                 fits = self._fit_every_sensor(run, result)
             except FitRefused as exc:
+                if exc.reason == "warm_up" and acq.retry_on_warm_up and attempt <= acq.retries:
+                    # the drift left the calibration undetermined: a warm-up, measured again like one caught
+                    refusal, warm = None, None
+                    stored.accepted, stored.refused = False, f"warm-up: {exc.message}"
+                    run.retry_advice = f"The magnetometer was still warming up — {again_words(run)}"
+                    run.log(f"attempt {attempt}: {exc.message}: measured again (acquisition.retry_on_warm_up)")
+                    continue
                 refusal = exc
                 stored.accepted, stored.refused = False, f"{exc.reason}: {exc.message}"
                 run.retry_advice = exc.advice[:1].upper() + exc.advice[1:]
@@ -382,8 +389,7 @@ class Sequencer:
             if warming:  # a settling sensor: measured again, not calibrated on its way (see Acquisition)
                 refusal, warm = None, fits
                 stored.accepted, stored.refused = False, f"warm-up: {warming}"
-                again = "tumble again" if run.unit_moves else "measuring again"
-                run.retry_advice = f"The magnetometer was still warming up — {again}"
+                run.retry_advice = f"The magnetometer was still warming up — {again_words(run)}"
                 run.log(f"attempt {attempt}: {warming}: measured again (acquisition.retry_on_warm_up)")
                 continue
             run.fits = fits
@@ -559,6 +565,11 @@ def _warming_up(run: RunContext, fits: dict[int, FitResult]) -> str:
     caught = [(run.sensor_label(device_id), words) for device_id, fit in fits.items()
               if (words := fit.warm_up_caught)]
     return "; ".join(f"{label}: {words}" if len(fits) > 1 else words for label, words in caught)
+
+
+def again_words(run: RunContext) -> str:
+    """What the operator does for another attempt: tumble, or nothing (a coil or gimbal measures)."""
+    return "tumble again" if run.unit_moves else "measuring again"
 
 
 def _kept(answers: list[str], nobody: str) -> list[str]:
