@@ -99,12 +99,23 @@ def main(argv: list[str] | None = None) -> int:
     exp.add_argument("--format", choices=["csv", "jsonl"], default="csv")
     exp.add_argument("--raw", action="store_true", help="every raw sample (CSV: a row per sample)")
 
+    from magline.core.results.instants import instant_argument
+
     spc = sub.add_parser("spc", help="control charts, Cpk / Ppk, yield and refusal causes of a part's latest units")
     spc.add_argument("--station", help="station file naming the results store and the limits (default: demo)")
     _run_filter_arguments(spc, "part number (default: the station's default or only part)")
     spc.add_argument("--measurement", action="append", metavar="NAME", help="only these measurements (repeat)")
     spc.add_argument("--last", type=int, default=10_000, help="the latest N runs (default 10000)")
-    spc.add_argument("--baseline", type=int, default=50, help="units that set the centre line and limits")
+    spc.add_argument("--baseline", type=int, default=50,
+                     help="the first N judged units set the centre line and limits (provisional ones; with --freeze: "
+                          "the baseline frozen; default 50)")
+    spc.add_argument("--freeze", action="store_true",
+                     help="Phase I: establish limits from a baseline (the first --baseline judged units, or those "
+                          "between --baseline-since and --baseline-until), check its stability and store them, "
+                          "versioned, in the results store; every later spc judges units against them")
+    spc.add_argument("--baseline-since", type=instant_argument, metavar="WHEN", help="a baseline by date: its start")
+    spc.add_argument("--baseline-until", type=instant_argument, metavar="WHEN", help="a baseline by date: its end")
+    spc.add_argument("--by", metavar="NAME", help="who freezes the limits (default: this computer's user)")
     spc.add_argument("--html", metavar="FILE", help="also write the charts as one self-contained HTML page")
     spc.add_argument("--json", action="store_true", help="print the report as one JSON object (per measurement: "
                      "chart kind, n, centre, limits, capability and its method, signals, and every point with "

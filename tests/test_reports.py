@@ -104,7 +104,11 @@ def test_the_batch_report_draws_every_chart_offline(make_station, tmp_path, brow
         station = make_station(seed=40 + i)  # four different units (one seed would repeat one unit: constants)
         assert main(["run", str(station), "--serial", serial]) == 0
     page = tmp_path / "spc.html"
-    assert main(["spc", "--station", str(station), "--html", str(page)]) == 0
+    many = ("hard_iron_x_ut", "hard_iron_y_ut", "hard_iron_z_ut", "hard_iron_norm_ut", "axis_ratio",
+            "soft_iron_offdiag_max", "residual_rms_ut", "residual_max_ut", "field_error_pct", "hard_iron_sigma_ut",
+            "direction_sigma_deg", "mounting_error_deg", "inclination_deg", "residual_ut.std")
+    asked = [a for name in many for a in ("--measurement", name)]  # many charts on one page (issue 30)
+    assert main(["spc", "--station", str(station), "--html", str(page), *asked]) == 0
     assert "hard_iron_x_ut" in capsys.readouterr().out
     opened = open_page(browser, page.as_uri())
     plots = plots_with_data(opened.page)

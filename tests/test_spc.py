@@ -313,3 +313,82 @@ def test_the_json_and_the_csv_hold_every_point_behind_every_chart(make_station, 
     flagged = next(p for p in points if p["serial"] == "U-14")
     assert [(r["serial"], r["signals"]) for r in rows if r["signals"]] == [("U-14", " ".join(flagged["signals"]))]
     assert float(rows[0]["centre"]) == pytest.approx(chart["centre"]) and rows[0]["usl"] == "0.5"
+
+
+def steady(n: int) -> list[float]:
+    """A process at rest by construction, not by a lucky draw: it alternates about 40 µT with small
+    varying swings, so no run rule can fire on it (no run on one side, no trend, nothing past 1σ) —
+    random stable data raises rule signals at the rate the benchmark prints."""
+    return [40.0 + 0.4 * (-1) ** i * (1 + (i % 3) / 3) for i in range(n)]
+
+
+def _units(station, values: list[float]) -> None:
+    """Judged units of the demo part, one per value of hard_iron_norm_ut (limit ≤ 300 µT)."""
+    from magline.core.measurements import Numeric, Verdict
+    from magline.core.results.sqlite_sink import SqliteSink
+    from magline.testing import make_record
+
+    store = SqliteSink(station.parent / "magline-demo-results.sqlite")
+    try:
+        with store.engine.connect() as conn:
+            start = conn.execute(__import__("sqlalchemy").text("select count(*) from runs")).scalar()
+        for i, v in enumerate(values, start):
+            store.finish(make_record(f"P-{i:03d}", part="MOCK-100", verdict="pass", measurements=[
+                Numeric("hard_iron_norm_ut", v, "µT", None, 300.0, Verdict.PASS)]))
+    finally:
+        store.close()
+
+
+def test_a_frozen_baseline_judges_later_units_and_its_stability_is_checked(make_station, capsys):
+    """Issue 45, AIAG Phase I then II: before a baseline is frozen the limits are provisional and said
+    so; ``--freeze`` establishes them from the first 30 judged units (stable: said), stores them as
+    version 1 with who froze them; later units — here a +3σ step — are judged against the frozen
+    limits, not against limits their own values moved; a second freeze is version 2."""
+    import json
+
+    from magline.core.cli import main
+
+    station = make_station()
+    stable = steady(30)
+    _units(station, stable)
+    capsys.readouterr()
+    assert main(["spc", "--station", str(station)]) == 0
+    provisional = "limits PROVISIONAL for every chart: from the first 30 judged units of this window"
+    assert provisional in capsys.readouterr().out
+
+    assert main(["spc", "--station", str(station), "--freeze", "--baseline", "30", "--by", "qe-anna"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("froze limits v1 of part MOCK-100 (every station) from the first 30 judged units, "
+                          "1 characteristics:")
+    assert "hard_iron_norm_ut" in out and "the baseline was stable" in out
+
+    sigma = np.abs(np.diff(stable)).mean() / 1.128
+    _units(station, (np.array(steady(15)) + 3 * sigma).tolist())  # +3σ from here on
+    assert main(["spc", "--station", str(station), "--json"]) == 0
+    chart = json.loads(capsys.readouterr().out)["measurements"][0]
+    assert chart["frozen"]["version"] == 1 and chart["frozen"]["frozen_by"] == "qe-anna"
+    assert chart["limits_from"].startswith("frozen v1 ") and "from the first 30 judged units" in chart["limits_from"]
+    assert chart["centre"] == pytest.approx(np.mean(stable))  # the baseline's, not this window's
+    assert not any(p["in_baseline"] for p in chart["points"])
+    after = [p for p in chart["points"][30:] if p["signals"]]
+    assert after and not [p for p in chart["points"][:30] if p["signals"]]  # the step, and only the step
+
+    assert main(["spc", "--station", str(station), "--freeze", "--baseline", "45", "--by", "qe-anna"]) == 0
+    assert "v2" in capsys.readouterr().out.splitlines()[0]
+
+
+def test_a_baseline_too_short_or_unstable_is_said(make_station, capsys):
+    from magline.core.cli import main
+
+    station = make_station()
+    values = np.array(steady(30))
+    values[20] = 46.0  # one unit far out: a special cause in the baseline
+    _units(station, values.tolist())
+    capsys.readouterr()
+    assert main(["spc", "--station", str(station), "--freeze", "--baseline", "20"]) == 2
+    err = capsys.readouterr().err
+    assert ("a baseline needs at least 25 judged units (AIAG SPC manual: 25 subgroups); the first 20 judged units of "
+            "part MOCK-100 hold 20: nothing frozen") in err
+    assert main(["spc", "--station", str(station), "--freeze", "--baseline", "30"]) == 0
+    out = capsys.readouterr().out
+    assert "NOT STABLE: beyond_3sigma at P-020" in out and "the baseline was NOT stable" in out

@@ -75,3 +75,18 @@ def imr_chart(name: str, values: np.ndarray, baseline: int = 50, outside: np.nda
                      bounds=bounds, in_baseline=chosen)
     chart.signals = evaluate(x, centre, sigma) if sigma > 0 else []
     return chart
+
+
+def frozen_chart(name: str, values: np.ndarray, centre: float, sigma: float, mr_bar: float,
+                 bounds: tuple[float, float] = (-np.inf, np.inf)) -> ImrChart | None:
+    """The chart of ``values`` against limits a baseline froze earlier (AIAG Phase II): no point of this
+    window sets them, every point is judged by the rules; None without values."""
+    values = np.asarray(values, dtype=float)
+    index = np.flatnonzero(np.isfinite(values))
+    x = values[index]
+    if x.size == 0:
+        return None
+    chart = ImrChart(name=name, values=x, index=index, centre=centre, sigma=sigma, mr_bar=mr_bar, baseline=0,
+                     bounds=bounds, in_baseline=np.zeros(x.size, bool))
+    chart.signals = evaluate(x, centre, sigma) if sigma > 0 else []
+    return chart

@@ -12,10 +12,12 @@ from typing import Any
 
 from magline.core.faults import StationFault
 from magline.core.measurements import CATALOGUE, base_name, known_limit_name
+from magline.core.quality.baseline import BaselineRefused, baseline_words, freeze_baseline, frozen_text
 from magline.core.quality.spc import CSV_COLUMNS, build, csv_rows, format_text, to_json
-from magline.core.results.contract import KeepsSeries
+from magline.core.results.contract import KeepsSeries, ReadsInSql
+from magline.core.results.control_limits import newest
 from magline.core.results.reading import RunFilter
-from magline.core.results.series import Limit
+from magline.core.results.series import Limit, RunSeries
 from magline.core.station import Station
 
 
@@ -28,6 +30,36 @@ def part_of(station: Station, part: str | None) -> str:
     if len(station.products) == 1:
         return next(iter(station.products))
     raise StationFault(f"give --part: the station has several products ({', '.join(station.products)})")
+
+
+def _with_station_limits(series: RunSeries, station: Station, part: str) -> RunSeries:
+    """Cpk against the limits this station file declares today (where it declares the part)."""
+    if part in station.products:
+        for name, limit in station.effective_limits(part).items():
+            if name in series.limits:
+                series.limits[name] = Limit(limit.low, limit.high, series.limits[name].unit)
+    return series
+
+
+def _freeze(store: Any, station: Station, part: str, args: argparse.Namespace, stop_determined: bool) -> int:
+    """Phase I: the baseline's units alone, every point in it; its limits stored (see core/quality/baseline)."""
+    if not isinstance(store, ReadsInSql):
+        raise StationFault("this station's results store keeps no control limits: --freeze needs a SQL store")
+    by_date = args.baseline_since is not None or args.baseline_until is not None
+    first = None if by_date else args.baseline
+    words = baseline_words(first, args.baseline_since, args.baseline_until)
+    where = RunFilter(part=part, station_id=args.station_id, since=args.baseline_since, until=args.baseline_until,
+                      verdicts=("pass", "fail"))
+    series = _with_station_limits(store.series(where, names=args.measurement, first=first), station, part)
+    report = build(series, f"baseline of part {part}", args.measurement, baseline=max(len(series), 1),
+                   stop_determined=stop_determined)
+    try:
+        frozen = freeze_baseline(store.engine, report, part, args.station_id, words, args.by)
+    except BaselineRefused as exc:
+        print(str(exc), file=sys.stderr)
+        return 2
+    print(frozen_text(frozen, part, args.station_id))
+    return 0
 
 
 def unknown_measurements(names: list[str] | None) -> str | None:
@@ -49,16 +81,19 @@ def spc(store: Any, station: Station, args: argparse.Namespace) -> int:
         print(unknown, file=sys.stderr)
         return 2
     part = part_of(station, args.part)
+    stop_determined = station.acquisition.stop == "determined"
+    if getattr(args, "freeze", False):
+        return _freeze(store, station, part, args, stop_determined)
     where = RunFilter(part=part, station_id=args.station_id, since=args.since, until=args.until)
-    series = store.series(where, last=args.last, names=args.measurement, with_attempts=True)
-    if part in station.products:  # Cpk against the limits this station file declares today
-        for name, limit in station.effective_limits(part).items():
-            if name in series.limits:
-                series.limits[name] = Limit(limit.low, limit.high, series.limits[name].unit)
+    series = _with_station_limits(store.series(where, last=args.last, names=args.measurement, with_attempts=True),
+                                  station, part)
     title = f"part {part}" + (f", station {args.station_id}" if args.station_id else ", every station") + \
         f", latest {len(series)} runs"
-    report = build(series, title, args.measurement, args.baseline,
-                   stop_determined=station.acquisition.stop == "determined")
+    frozen = {}
+    if isinstance(store, ReadsInSql):
+        with store.engine.connect() as conn:
+            frozen = newest(conn, part, args.station_id)
+    report = build(series, title, args.measurement, args.baseline, stop_determined=stop_determined, frozen=frozen)
     if getattr(args, "json", False):
         print(json.dumps(to_json(report), default=float))
     elif getattr(args, "csv", False):

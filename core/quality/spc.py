@@ -15,9 +15,10 @@ import numpy as np
 
 from magline.core.measurements import CATALOGUE, POSSIBLE, base_name
 from magline.core.quality.capability import MIN_UNITS, MIN_UNITS_SOURCE, Capability, capability, index_words
-from magline.core.quality.charts import ImrChart, imr_chart
+from magline.core.quality.charts import ImrChart, frozen_chart, imr_chart
 from magline.core.quality.rules import RULES
 from magline.core.quality.yields import YieldRow, ranked_causes, yields
+from magline.core.results.control_limits import FrozenLimits
 from magline.core.results.series import Limit, RunSeries
 from magline.core.station.schema import NOT_PROCESS_FIGURES
 from magline.core.text import fmt, percent
@@ -30,6 +31,13 @@ class MeasurementReport:
     limit: Limit
     chart: ImrChart
     capability: Capability
+    frozen: FrozenLimits | None = None  # the Phase I limits it is judged against (None: provisional)
+
+    @property
+    def limits_from(self) -> str:
+        if self.frozen is not None:
+            return self.frozen.words()
+        return f"provisional: the first {self.chart.baseline} judged units of this window"
 
 
 @dataclass
@@ -92,10 +100,12 @@ def _order(name: str) -> tuple[int, str]:
 
 
 def build(series: RunSeries, title: str, names: Sequence[str] | None = None, baseline: int = 50,
-          stop_determined: bool = True) -> SpcReport:
+          stop_determined: bool = True, frozen: dict[str, FrozenLimits] | None = None) -> SpcReport:
     """The report of ``series``: the measurements in ``names``, or by default every product
     characteristic — a measurement with a limit that is not a station figure (:func:`station_figure`);
-    the others are listed, not charted."""
+    the others are listed, not charted.  A measurement with ``frozen`` limits is judged against them
+    (Phase II); the others get provisional limits from the first ``baseline`` judged units."""
+    frozen = frozen or {}
     report = SpcReport(title=title, series=series)
     judged = [i for i, r in enumerate(series.runs) if r["verdict"] in ("pass", "fail")]
     report.missing = [n for n in names or () if n not in series.values]
@@ -127,19 +137,37 @@ def build(series: RunSeries, title: str, names: Sequence[str] | None = None, bas
             outside |= x < limit.low
         if limit.high is not None:
             outside |= x > limit.high
-        chart = imr_chart(name, x, baseline, outside, POSSIBLE.get(base_name(name), (-np.inf, np.inf)))
+        bounds = POSSIBLE.get(base_name(name), (-np.inf, np.inf))
+        held = frozen.get(name)
+        chart = (frozen_chart(name, x, held.centre, held.sigma_within, held.mr_bar, bounds) if held is not None
+                 else imr_chart(name, x, baseline, outside, bounds))
         if chart is None:
             continue
         chart.index = [judged[i] for i in chart.index]
         report.measurements.append(MeasurementReport(
             name=name, unit=unit, limit=limit, chart=chart,
-            capability=capability(chart.values, limit.low, limit.high, chart.sigma)))
+            capability=capability(chart.values, limit.low, limit.high, chart.sigma), frozen=held))
     for by in ("station_id", "operator", "part"):
         report.yields[by] = yields(series, by)
     report.refusals, report.failed = ranked_causes(series)
     return report
 
 
+
+
+def limits_words(report: SpcReport) -> list[str]:
+    """Where each chart's centre line and limits come from: frozen (Phase II) or provisional."""
+    if not report.measurements:
+        return ["no chart: no measurement varies over these units"]
+    frozen = sorted({m.frozen.words() for m in report.measurements if m.frozen is not None})
+    provisional = [m.name for m in report.measurements if m.frozen is None]
+    lines = [f"limits {words} (Phase II: every unit here judged against them)" for words in frozen]
+    if provisional:
+        first = next(m for m in report.measurements if m.frozen is None).chart.baseline
+        lines.append(f"limits PROVISIONAL for {'every chart' if not frozen else ', '.join(provisional)}: from the "
+                     f"first {first} judged units of this window, the same units they judge (freeze a baseline: "
+                     "magline spc --freeze)")
+    return lines
 
 
 def _ad_p(cap: Capability) -> str:
@@ -185,11 +213,8 @@ def format_text(report: SpcReport) -> str:
     if report.unlimited:
         lines += ["", "no limit in the station file, not charted (--measurement NAME charts one): "
                   + ", ".join(report.unlimited)]
-    baseline = report.measurements[0].chart.baseline if report.measurements else None
-    lines += ["", "rules: " + "; ".join(f"{k} = {v}" for k, v in RULES.items()),
-              (f"limits from the first {baseline} judged units within their limits (baseline)" if baseline else
-               "no chart: no measurement varies over these units")
-              + "; station faults (error / aborted / incomplete) are not plotted", ""]
+    lines += ["", "rules: " + "; ".join(f"{k} = {v}" for k, v in RULES.items()), *limits_words(report),
+              "station faults (error / aborted / incomplete) are not plotted", ""]
     for by, rows in report.yields.items():
         lines.append(f"{'by ' + by.replace('_id', ''):<24} {'runs':>6} {'judged':>7} {'FPY':>7} {'retry rate':>11} "
                      f"{'station faults':>15}")
@@ -251,7 +276,10 @@ def to_json(report: SpcReport) -> dict:
             "lcl": c.lcl, "ucl": c.ucl, "sigma_within": c.sigma, "limits": [m.limit.low, m.limit.high],
             "cpk": None if m.capability.cpk is None else vars(m.capability.cpk),
             "ppk": None if m.capability.ppk is None else vars(m.capability.ppk),
-            "capability": m.capability.to_dict(),
+            "capability": m.capability.to_dict(), "limits_from": m.limits_from,
+            "frozen": None if m.frozen is None else {"version": m.frozen.version, "frozen_by": m.frozen.frozen_by,
+                                                     "frozen_at": m.frozen.frozen_at, "baseline": m.frozen.baseline,
+                                                     "station_id": m.frozen.station_id, "n": m.frozen.n},
             "signals": [{"rule": s.rule, "serial": serial(c.index[s.point]), "value": float(c.values[s.point])}
                         for s in c.signals],
             "baseline": c.baseline, "mr_bar": c.mr_bar, "mr_ucl": c.mr_ucl,

@@ -96,7 +96,7 @@ class KeepsSeries(Protocol):
     charts and the in-run process review read it (``magline.core.results.series.RunSeries``)."""
 
     def series(self, where: Any, last: int | None = None, names: Any = None, with_attempts: bool = False,
-               with_limits: bool = True) -> Any: ...
+               with_limits: bool = True, first: int | None = None) -> Any: ...
 
 
 @runtime_checkable

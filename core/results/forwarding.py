@@ -139,16 +139,16 @@ class ForwardingStore:
         return central.history(serial) if central is not None else self.outbox.history(serial)
 
     def series(self, where: RunFilter, last: int | None = None, names: Any = None,
-               with_attempts: bool = False, with_limits: bool = True) -> RunSeries:
+               with_attempts: bool = False, with_limits: bool = True, first: int | None = None) -> RunSeries:
         """The line's history from the central store; this station's outbox while it is unreachable
         (``source`` says which)."""
         central = self.central()
         if central is not None:
             try:
-                return central.series(where, last, names, with_attempts, with_limits)
+                return central.series(where, last, names, with_attempts, with_limits, first)
             except StationFault as exc:
                 self.last_error = str(exc)
-        found = self.outbox.series(where, last, names, with_attempts, with_limits)
+        found = self.outbox.series(where, last, names, with_attempts, with_limits, first)
         found.source = f"this station's outbox {self.outbox.where} (server unreachable)"
         return found
 

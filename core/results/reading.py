@@ -33,10 +33,13 @@ class RunFilter:
     line: str | None = None
     verdict: str | None = None
     serial: str | None = None  # one unit's runs, whatever the case it is typed in (spaces around it ignored)
+    verdicts: tuple[str, ...] | None = None  # any of these verdicts (judged units: pass and fail)
 
     def apply(self, query: Any) -> Any:
         if self.serial is not None:
             query = query.where(func.upper(runs.c.serial) == self.serial.strip().upper())
+        if self.verdicts is not None:
+            query = query.where(runs.c.verdict.in_(self.verdicts))
         for column, value, op in ((runs.c.started, self.since, "ge"), (runs.c.started, self.until, "lt"),
                                   (runs.c.part, self.part, "eq"), (runs.c.station_id, self.station_id, "eq"),
                                   (runs.c.line, self.line, "eq"),

@@ -47,17 +47,21 @@ class RunSeries:
 
 
 def load_series(conn: Connection, where: RunFilter, last: int | None = None, names: Sequence[str] | None = None,
-                with_attempts: bool = False, with_limits: bool = True) -> RunSeries:
-    """The latest ``last`` runs matching ``where`` (all when None), oldest first, with their numeric
-    measurements (only ``names`` when given), the limits they were judged against (``with_limits``)
-    and, ``with_attempts``, their acquisition attempts, refusals and failed measurements."""
-    newest = where.apply(select(*(runs.c[f] for f in RUN_FIELDS))).order_by(runs.c.id.desc())
-    found = [dict(r._mapping) for r in conn.execute(newest.limit(last) if last is not None else newest)][::-1]
+                with_attempts: bool = False, with_limits: bool = True, first: int | None = None) -> RunSeries:
+    """The latest ``last`` runs matching ``where`` (all when None) — or, ``first``, the oldest that many
+    (a Phase I baseline) — oldest first, with their numeric measurements (only ``names`` when given),
+    the limits they were judged against (``with_limits``) and, ``with_attempts``, their acquisition
+    attempts, refusals and failed measurements."""
+    order = runs.c.id.asc() if first is not None else runs.c.id.desc()
+    count = first if first is not None else last
+    picked = where.apply(select(*(runs.c[f] for f in RUN_FIELDS))).order_by(order)
+    found = [dict(r._mapping) for r in conn.execute(picked.limit(count) if count is not None else picked)]
+    found = found if first is not None else found[::-1]
     series = RunSeries(runs=found)
     if not found:
         return series
-    chosen = where.apply(select(runs.c.id)).order_by(runs.c.id.desc())
-    chosen = (chosen.limit(last) if last is not None else chosen).subquery("chosen")
+    chosen = where.apply(select(runs.c.id)).order_by(order)
+    chosen = (chosen.limit(count) if count is not None else chosen).subquery("chosen")
     position = {r["id"]: i for i, r in enumerate(found)}  # a run added meanwhile is not in it: skipped below
 
     match = measurements.c.kind == "numeric"

@@ -155,11 +155,12 @@ class SqlStore:
         self._write("storing the run's record", write)
 
     def series(self, where: RunFilter, last: int | None = None, names: Sequence[str] | None = None,
-               with_attempts: bool = False, with_limits: bool = True) -> RunSeries:
-        """The latest runs matching ``where`` with their numeric measurements as arrays (statistics)."""
+               with_attempts: bool = False, with_limits: bool = True, first: int | None = None) -> RunSeries:
+        """The latest runs matching ``where`` (``first``: the oldest that many) with their numeric
+        measurements as arrays (statistics)."""
         try:
             with self.engine.connect() as conn:
-                found = load_series(conn, where, last, names, with_attempts, with_limits)
+                found = load_series(conn, where, last, names, with_attempts, with_limits, first)
         except SQLAlchemyError as exc:
             raise StationFault(f"results store {self.where}: reading the process history failed: "
                                f"{reason(exc)}") from exc

@@ -102,3 +102,19 @@ slot_claims = Table(
     Column("since", Text), Column("heartbeat", Text),
     Index("slot_claims_serial", "serial", unique=True),  # one serial under test once, across computers
 )
+
+# Frozen control limits (``magline spc --freeze``, AIAG Phase I): a part's process as a baseline of its units
+# established it, on one station ("" for every station writing to the store); later units are judged against
+# the newest version (Phase II).  Every measurement frozen together shares the version.
+control_limits = Table(
+    "control_limits", metadata,
+    Column("id", Integer, primary_key=True, autoincrement=True),
+    Column("part", Text, nullable=False), Column("station_id", Text, nullable=False),
+    Column("measurement", Text, nullable=False), Column("version", Integer, nullable=False),
+    Column("centre", Float), Column("sigma_within", Float), Column("mr_bar", Float), Column("n", Integer),
+    Column("baseline", Text),  # how the baseline was chosen, in words
+    Column("first_run", Integer), Column("last_run", Integer),  # the baseline's first and last run ids
+    Column("signals", Text),  # JSON: the run rules' signals on the baseline itself [{rule, serial, run_id}]
+    Column("frozen_by", Text), Column("frozen_at", Text), Column("software_version", Text),
+    Index("control_limits_lookup", "part", "station_id", "measurement", "version", unique=True),
+)
