@@ -16,9 +16,10 @@ capability does the same):
 2. else, a positive characteristic that a Box-Cox transformation (λ by maximum likelihood,
    ``scipy.stats.boxcox``) makes normal: the normal indices of the transformed values against the
    transformed limits (the transformation is increasing, so the limits keep their order);
-3. else the ISO 22514-2 percentile method on a fitted Johnson SU distribution
-   (``scipy.stats.johnsonsu``): Ppk = min((USL − X₅₀)/(X₉₉.₈₆₅ − X₅₀), (X₅₀ − LSL)/(X₅₀ − X₀.₁₃₅)), an
-   overall index only (there is no within-process σ of a fitted shape) and no interval.
+3. else the ISO 22514-2 percentile method on the best-fitting shape (3-parameter gamma, log-normal
+   or Weibull, Johnson SU or SB, by AIC, as ``scipy.stats`` fits them): Ppk = min((USL − X₅₀)/(X₉₉.₈₆₅ −
+   X₅₀), (X₅₀ − LSL)/(X₅₀ − X₀.₁₃₅)), an overall index only (there is no within-process σ of a fitted
+   shape) and no interval.
 
 The method is always said with the index.  Written here because no maintained Python library
 computes the indices; the normal quantile is the standard library's ``statistics.NormalDist``,
@@ -33,9 +34,8 @@ from statistics import NormalDist
 
 import numpy as np
 
+from magline.core.quality.charts import D2  # the within σ of a transformed characteristic: MR̄ / d₂
 from magline.core.quality.normality import Normality, anderson_darling
-
-D2 = 1.128  # E[range of two normal values] / σ: the within σ of a transformed characteristic
 
 
 @dataclass(frozen=True)
@@ -146,20 +146,54 @@ def _box_cox(x: np.ndarray, low: float | None, high: float | None, normal: Capab
                                     f"; transformed: p {shape.p_words})"), normality=normal.normality)
 
 
-def _percentile(x: np.ndarray, low: float | None, high: float | None, normal: Capability) -> Capability:
-    """ISO 22514-2's percentile Ppk on a fitted Johnson SU distribution (no Cpk, no interval)."""
+# The shapes the percentile method may fit, as Minitab's distribution identification offers them: the
+# one with the lowest AIC describes the characteristic (a tail the data never reach is the fitted
+# shape's, so the family matters — a Johnson SU alone put a gamma's 99.865 % point 40 % too far out).
+SHAPES = ("gamma", "lognorm", "weibull_min", "johnsonsu", "johnsonsb")
+SHAPE_NAMES = {"gamma": "3-parameter gamma", "lognorm": "3-parameter log-normal", "weibull_min": "3-parameter Weibull",
+               "johnsonsu": "Johnson SU", "johnsonsb": "Johnson SB"}
+
+
+def best_shape(x: np.ndarray) -> tuple[str, object] | None:
+    """(name, frozen scipy distribution) of the candidate shape with the lowest AIC; None if none fits."""
     import warnings
 
     from scipy import stats
 
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # the optimiser's own complaints; the fit is checked below
-        params = stats.johnsonsu.fit(x)
-    lower, median, upper = (float(q) for q in stats.johnsonsu(*params).ppf([0.00135, 0.5, 0.99865]))
+    best: tuple[float, str, object] | None = None
+    for name in SHAPES:
+        family = getattr(stats, name)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # the optimiser's own complaints; a failed fit is skipped
+            try:
+                params = family.fit(x)
+                dist = family(*params)
+                log_likelihood = float(np.sum(dist.logpdf(x)))
+            except (ValueError, RuntimeError, FloatingPointError):
+                continue
+        if not np.isfinite(log_likelihood):
+            continue
+        aic = 2 * len(params) - 2 * log_likelihood
+        if best is None or aic < best[0]:
+            best = (aic, name, dist)
+    return None if best is None else (best[1], best[2])
+
+
+def _percentile(x: np.ndarray, low: float | None, high: float | None, normal: Capability) -> Capability:
+    """ISO 22514-2's percentile Ppk on the best-fitting shape (no Cpk, no interval)."""
+    chosen = best_shape(x)
+    if chosen is None:
+        return Capability(n=normal.n, mean=normal.mean, sigma_within=normal.sigma_within,
+                          sigma_overall=normal.sigma_overall, cpk=None, ppk=None, method="percentile",
+                          method_words="not normal, and no shape fits: no capability stated",
+                          normality=normal.normality)
+    name, dist = chosen
+    lower, median, upper = (float(q) for q in dist.ppf([0.00135, 0.5, 0.99865]))  # type: ignore[attr-defined]
     sides = [(high - median) / (upper - median)] if high is not None and upper > median else []
     sides += [(median - low) / (median - lower)] if low is not None and median > lower else []
-    words = (f"ISO 22514-2 percentiles of a fitted Johnson SU (not normal: Anderson–Darling p "
-             f"{normal.normality.p_words if normal.normality else '—'}); Ppk only, no interval")
+    words = (f"ISO 22514-2 percentiles of a fitted {SHAPE_NAMES[name]}, the best of {len(SHAPES)} shapes by AIC "
+             f"(not normal: Anderson–Darling p {normal.normality.p_words if normal.normality else '—'}); "
+             "Ppk only, no interval")
     ppk = Index(min(sides), None, None) if sides and all(map(math.isfinite, sides)) else None
     return Capability(n=normal.n, mean=normal.mean, sigma_within=normal.sigma_within,
                       sigma_overall=normal.sigma_overall, cpk=None, ppk=ppk, method="percentile",
