@@ -94,12 +94,13 @@ def main(argv: list[str] | None = None) -> int:
     exp = sub.add_parser("export", help="stream runs from the results store as CSV or JSON lines")
     exp.add_argument("--station", help="station file naming the results store (default: demo)")
     _run_filter_arguments(exp, "part number")
-    exp.add_argument("--verdict", choices=["pass", "fail", "error", "aborted", "incomplete", "running"])
+    exp.add_argument("--verdict", type=str.lower, choices=["pass", "fail", "error", "aborted", "incomplete", "running"],
+                     help="one verdict's runs (in any case: PASS, pass)")
     exp.add_argument("--serial", help="one unit's runs (whatever the case it is typed in)")
     exp.add_argument("--format", choices=["csv", "jsonl"], default="csv")
     exp.add_argument("--raw", action="store_true", help="every raw sample (CSV: a row per sample)")
 
-    from magline.core.results.instants import instant_argument
+    from magline.core.results.instants import instant_argument, until_argument
 
     spc = sub.add_parser("spc", help="control charts, Cpk / Ppk, yield and refusal causes of a part's latest units")
     spc.add_argument("--station", help="station file naming the results store and the limits (default: demo)")
@@ -114,7 +115,8 @@ def main(argv: list[str] | None = None) -> int:
                           "between --baseline-since and --baseline-until), check its stability and store them, "
                           "versioned, in the results store; every later spc judges units against them")
     spc.add_argument("--baseline-since", type=instant_argument, metavar="WHEN", help="a baseline by date: its start")
-    spc.add_argument("--baseline-until", type=instant_argument, metavar="WHEN", help="a baseline by date: its end")
+    spc.add_argument("--baseline-until", type=until_argument, metavar="WHEN",
+                     help="a baseline by date: its end (a date: that day included)")
     spc.add_argument("--by", metavar="NAME", help="who freezes the limits (default: this computer's user)")
     spc.add_argument("--html", metavar="FILE", help="also write the charts as one self-contained HTML page")
     spc.add_argument("--json", action="store_true", help="print the report as one JSON object (per measurement: "
@@ -162,12 +164,13 @@ def main(argv: list[str] | None = None) -> int:
 
 def _run_filter_arguments(parser: argparse.ArgumentParser, part_help: str) -> None:
     """Which runs a reading command looks at (``RunFilter``)."""
-    from magline.core.results.instants import instant_argument
+    from magline.core.results.instants import instant_argument, until_argument
 
     when = ("an ISO time (a time without offset is this computer's local time; Z or +01:00 say otherwise), "
             "a date, today, yesterday, or a time ago: 8h, 7d")
     parser.add_argument("--since", type=instant_argument, help=f"runs started at or after: {when}")
-    parser.add_argument("--until", type=instant_argument, help=f"runs started before: {when}")
+    parser.add_argument("--until", type=until_argument, help=f"runs started before: {when} (a date: that day "
+                                                           "included)")
     parser.add_argument("--part", help=part_help)
     parser.add_argument("--station-id", help="only this writing station's runs (a shared store holds several)")
 

@@ -69,3 +69,23 @@ def test_export_and_spc_select_the_same_runs_for_every_spelling(make_station, ca
         assert main([command, "--station", str(station), "--since", "2026-11-25", "--until", "2026-11-24"]) == 2
         said = capsys.readouterr()
         assert said.out == "" and "is not before --until" in said.err and "swapped?" in said.err
+
+
+def test_until_a_date_includes_that_day_and_a_verdict_is_taken_in_any_case(make_station, capsys, zurich):
+    """Issue 45: ``--until 2026-11-24`` meant its first instant and left the whole day out; a date now
+    includes its day (to the next local midnight), a time stays the instant it names.  ``--verdict
+    PASS`` is ``pass``."""
+    from magline.core.results.instants import until_argument
+
+    assert until_argument("2026-11-24") == "2026-11-24T23:00:00.000+00:00"  # Zurich's midnight after the 24th
+    assert until_argument("2026-11-24T12:00Z") == "2026-11-24T12:00:00.000+00:00"
+    station = make_station()
+    store = SqliteSink(station.parent / "magline-demo-results.sqlite")
+    for hour in (8, 22, 23):  # UTC: 09:00 and 23:00 on the 24th in Zurich, 00:00 on the 25th
+        store.finish(make_record(f"D-{hour}", part="MOCK-100", verdict="pass",
+                                 started=stored_form(datetime(2026, 11, 24, hour, 0, tzinfo=UTC))))
+    store.close()
+    capsys.readouterr()
+    assert main(["export", "--station", str(station), "--until", "2026-11-24", "--verdict", "PASS"]) == 0
+    serials = [line.split(",")[2] for line in capsys.readouterr().out.strip().splitlines()[1:]]
+    assert serials == ["D-8", "D-22"]

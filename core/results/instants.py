@@ -17,7 +17,7 @@ import re
 from datetime import UTC, datetime, timedelta
 
 FORMS = ("an ISO 8601 time (2026-11-24T20:53, 2026-11-24 20:53, 2026-11-24T20:53Z, 2026-11-24T21:53+01:00)",
-         "a date (2026-11-24: its local midnight)", "today, yesterday, now",
+         "a date (2026-11-24: its local midnight; as --until, the end of that day)", "today, yesterday, now",
          "a time ago: 8h, -8h, 30m, 7d, 2w")
 _AGO = re.compile(r"^-?(\d+(?:\.\d+)?)\s*([mhdw])$")
 _UNITS = {"m": "minutes", "h": "hours", "d": "days", "w": "weeks"}
@@ -48,6 +48,21 @@ def parse_instant(text: str, now: datetime | None = None) -> datetime:
 def stored_form(when: datetime) -> str:
     """The instant as runs store their start (UTC, milliseconds, ``+00:00``): text order = time order."""
     return when.astimezone(UTC).isoformat(timespec="milliseconds")
+
+
+_DATE = re.compile(r"^\d{4}-\d{2}-\d{2}$")
+
+
+def until_argument(text: str) -> str:
+    """argparse ``type=`` for ``--until``: a bare date includes that day (the window ends at the next
+    local midnight) — what "until the 27th" means to a person; any other form is the instant it names."""
+    if _DATE.match(text.strip()):
+        try:
+            day = datetime.fromisoformat(text.strip()).astimezone()
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a date: {exc}") from None
+        return stored_form(day + timedelta(days=1))
+    return instant_argument(text)
 
 
 def instant_argument(text: str) -> str:
