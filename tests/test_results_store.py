@@ -300,3 +300,41 @@ def test_every_migration_downgrades_and_upgrades_again_to_the_same_schema(tmp_pa
         assert schema(engine) == fresh
     finally:
         engine.dispose()
+
+
+def test_the_export_has_columns_for_the_compasses_the_units_have_and_says_test_review_and_params(
+        make_station, capsys):
+    """Issue 45: a one-compass station's CSV had 60 empty mag2/mag3 columns and no word on re-tests,
+    review flags or what was written; integers came as 2.0."""
+    import csv
+    import io
+
+    from magline.core.cli import main
+    from magline.testing import run_unit
+
+    station = make_station({"acquisition": {"stop": "samples"}})
+    first = run_unit(station, "EX-1")
+    again = run_unit(station, "EX-1")
+    assert first.verdict.value == again.verdict.value == "pass"
+    from magline.core.results.sqlite_sink import SqliteSink
+    from magline.testing import make_record
+
+    flagged = make_record("EX-2", part="MOCK-100", verdict="pass")
+    flagged.review = [{"name": "hard_iron_norm_ut", "reason": "4.2σ above the recent units"},
+                      {"name": "axis_ratio", "reason": "3.9σ"}]
+    store = SqliteSink(station.parent / "magline-demo-results.sqlite")
+    store.finish(flagged)
+    store.close()
+    capsys.readouterr()
+    assert main(["export", "--station", str(station)]) == 0
+    header, *rows = list(csv.reader(io.StringIO(capsys.readouterr().out)))
+    assert not [h for h in header if h.startswith(("mag2", "mag3", "mag1-"))]  # the mock has one compass
+    assert {"test", "review", "params_written", "soft_iron_11", "limit_hash"} <= set(header)
+    cells = [dict(zip(header, row, strict=True)) for row in rows]
+    assert [c["test"] for c in cells] == ["first", "re-test 1", "first"]
+    assert cells[2]["review"] == "axis_ratio;hard_iron_norm_ut"
+    assert cells[0]["attempts"] == "2" and cells[0]["id"] == "1"  # integers as integers
+    written = dict(item.split("=") for item in cells[0]["params_written"].split(";"))
+    assert set(written) == set(first.params_written)
+    assert all(float(written[k]) == pytest.approx(v, rel=1e-6) for k, v in first.params_written.items())
+    assert cells[0]["review"] == ""

@@ -20,6 +20,7 @@ from magline.core.results.reading import (
     attempt_sensor_streams,
     export_runs,
     find_run_or_serial,
+    measurement_names,
     run_attempts,
 )
 from magline.core.text import fmt, seconds, stop_line
@@ -128,14 +129,45 @@ def export(store: Any, where: RunFilter, fmt_name: str, raw: bool, out: TextIO |
                                              *samples.mag_ut[i].tolist(), t])
                 count += 1
             return _done(count)
-        writer.writerow([*RUN_COLUMNS, *NUMERIC_NAMES, *SOFT_IRON_COLUMNS, "failed"])
-        for run in export_runs(conn, where):
+        held = measurement_names(conn, where)
+        sensors = ["mag1", *(p for p in ("mag2", "mag3") if any(n.startswith(f"{p}.") for n in held))]
+        names = [n for n in NUMERIC_NAMES if _sensor_of(n) in sensors and (
+            "-" not in n.split(".")[0] or n in held)]  # a pair's columns where some unit has the pair
+        writer.writerow([*RUN_COLUMNS, "test", *names, *(f"{p}.{c}" if p != "mag1" else c for p in sensors
+                                                          for c in SOFT_IRON_COLUMNS),
+                         "failed", "review", "params_written"])
+        for run in export_runs(conn, where, with_params=True):
             m = run["measurements"]
             failed = ";".join(sorted(k for k, v in m.items() if v["verdict"] == "fail"))
-            writer.writerow([run[c] for c in RUN_COLUMNS] + [m.get(n, {}).get("value", "") for n in NUMERIC_NAMES]
-                            + _soft_iron(run.get("calibration")) + [failed])
+            review = ";".join(sorted(f.get("name", "") for f in run.get("review") or [] if isinstance(f, dict)))
+            written = ";".join(f"{k}={_cell(v)}" for k, v in sorted(run.get("params_written", {}).items()))
+            writer.writerow([_cell(run[c]) for c in RUN_COLUMNS] + [_test(run)]
+                            + [_cell(m.get(n, {}).get("value")) for n in names]
+                            + [c for p in sensors for c in _soft_iron(run.get("calibration"), p)]
+                            + [failed, review, written])
             count += 1
     return _done(count)
+
+
+def _sensor_of(name: str) -> str:
+    """Which compass a measurement column belongs to ("mag1" the primary; a pair: its second)."""
+    head = name.split(".")[0] if "." in name and name.split(".")[0].startswith("mag") else "mag1"
+    return head.split("-")[-1]
+
+
+def _test(run: dict) -> str:
+    """First test of the serial, or which re-test (the record counts the runs before it)."""
+    earlier = run.get("earlier_runs") or 0
+    return "first" if earlier == 0 else f"re-test {earlier}"
+
+
+def _cell(value: Any) -> Any:
+    """A CSV cell: integers as integers (2, not 2.0), nothing as empty."""
+    if value is None:
+        return ""
+    if isinstance(value, float) and value.is_integer() and abs(value) < 2**53:
+        return int(value)
+    return value
 
 
 def _sensor_names(calibration: Any) -> dict[int, str]:
@@ -148,9 +180,12 @@ def _sensor_names(calibration: Any) -> dict[int, str]:
 SOFT_IRON_COLUMNS = tuple(f"soft_iron_{i}{j}" for i in (1, 2, 3) for j in (1, 2, 3))
 
 
-def _soft_iron(calibration: Any) -> list[Any]:
-    matrix = calibration.get("soft_iron") if isinstance(calibration, dict) else None
-    return [v for row in matrix for v in row] if matrix else [""] * len(SOFT_IRON_COLUMNS)
+def _soft_iron(calibration: Any, sensor: str = "mag1") -> list[Any]:
+    """The soft-iron matrix written for ``sensor`` (the primary's at the top of the calibration, the
+    others' under ``magnetometers``), row by row; empty cells where the run has none."""
+    own = calibration if sensor == "mag1" else (calibration or {}).get("magnetometers", {}).get(sensor)
+    matrix = own.get("soft_iron") if isinstance(own, dict) else None
+    return [_cell(v) for row in matrix for v in row] if matrix else [""] * len(SOFT_IRON_COLUMNS)
 
 
 def _raw_attempt(attempt: dict) -> dict:

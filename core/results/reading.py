@@ -108,13 +108,28 @@ RUN_COLUMNS = ("run_uuid", "id", "serial", "part", "station_id", "line", "operat
                "limit_hash", "started", "finished", "verdict", "cause")
 
 
-def export_runs(conn: Connection, where: RunFilter) -> Iterator[dict[str, Any]]:
-    """Every matching run, oldest first, with its numeric measurements (``{name: {value, verdict}}``)."""
+def measurement_names(conn: Connection, where: RunFilter) -> set[str]:
+    """The numeric measurements the matching runs hold (an export's columns: only the compasses and
+    pairs these units have)."""
+    chosen = where.apply(select(runs.c.id)).subquery("chosen")
+    query = select(measurements.c.name).distinct().where(
+        measurements.c.run_id.in_(select(chosen.c.id)) & (measurements.c.kind == "numeric"))
+    return {name for (name,) in conn.execute(query)}
+
+
+def export_runs(conn: Connection, where: RunFilter, with_params: bool = False) -> Iterator[dict[str, Any]]:
+    """Every matching run, oldest first, with its numeric measurements (``{name: {value, verdict}}``)
+    and, ``with_params``, the parameters written to the unit (``params_written``: name → value)."""
     query = where.apply(select(runs).order_by(runs.c.id))
     result = conn.execution_options(stream_results=True, yield_per=BATCH).execute(query)
     for batch in result.partitions(BATCH):
         found = [_run_row(r) for r in batch]
         ids = [r["id"] for r in found]
+        written: dict[int, dict[str, float]] = {i: {} for i in ids}
+        if with_params:
+            for row in conn.execute(select(params.c.run_id, params.c.name, params.c.value).where(
+                    params.c.run_id.in_(ids) & (params.c.stage == "written"))):
+                written[row.run_id][row.name] = row.value
         numeric: dict[int, dict[str, dict]] = {i: {} for i in ids}
         for m in conn.execute(select(measurements.c.run_id, measurements.c.name, measurements.c.value,
                                      measurements.c.unit, measurements.c.low, measurements.c.high,
@@ -124,6 +139,8 @@ def export_runs(conn: Connection, where: RunFilter) -> Iterator[dict[str, Any]]:
                                          "verdict": m.verdict}
         for run in found:
             run["measurements"] = numeric[run["id"]]
+            if with_params:
+                run["params_written"] = written[run["id"]]
             yield run
 
 
