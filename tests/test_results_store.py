@@ -155,6 +155,7 @@ def test_show_and_export_read_the_store_on_each_engine(make_station, store_url, 
     import csv
     import io
     import json
+    import re
 
     from magline.core.cli import main
 
@@ -170,8 +171,8 @@ def test_show_and_export_read_the_store_on_each_engine(make_station, store_url, 
     assert "unit X-1" in out and "PASS" in out and "params written:" in out and "params read_back:" in out
     assert "attempts:" in out and "not used (coverage" in out  # the demo's first, single-axis attempt
     persistence = next(line for line in out.splitlines() if line.startswith("persistence: "))
-    figures = json.loads(persistence.removeprefix("persistence: "))["figures"]
-    assert all(v == float(f"{v:.4g}") for v in figures.values())  # for reading, not 15-digit floats
+    numbers = re.findall(r"-?\d+\.\d+", persistence)
+    assert numbers and all(len(n.lstrip("-").replace(".", "").lstrip("0")) <= 4 for n in numbers)  # 4 digits
     assert main(["show", "1", "--station", str(good), "--json"]) == 0
     whole = json.loads(capsys.readouterr().out)
     assert whole["serial"] == "X-1" and len(whole["attempts"]) == 2 and whole["params"]["written"]
@@ -338,3 +339,36 @@ def test_the_export_has_columns_for_the_compasses_the_units_have_and_says_test_r
     assert set(written) == set(first.params_written)
     assert all(float(written[k]) == pytest.approx(v, rel=1e-6) for k, v in first.params_written.items())
     assert cells[0]["review"] == ""
+
+
+def test_show_and_the_unit_report_read_as_a_document_not_as_stored_json(make_station, capsys, tmp_path):
+    """Issue 45: ``show`` printed the unit's facts, its mounting and the power cycle as Python dicts and
+    raw JSON; the unit report put dicts in table cells and showed two coverage figures (88 % beside
+    85 %).  Now every part is words with units, and the coverage picture is the judged figure."""
+    import re
+
+    from magline.core.cli import main
+    from magline.testing import run_unit
+
+    station = make_station()
+    record = run_unit(station, "DOC-1")
+    assert record.verdict.value == "pass"
+    capsys.readouterr()
+    assert main(["show", "DOC-1", "--station", str(station)]) == 0
+    out = capsys.readouterr().out
+    assert not re.search(r"[{}\[\]']|\bTrue\b|\bNone\b", out.split("measurements:")[0]), out  # no repr above
+    tail = out.split("station file")[1]
+    assert not re.search(r"[{}']|\bTrue\b|\bFalse\b|\bNone\b", tail), tail
+    assert "magnetometers:\n  mag1  magnetometer, device id " in out
+    assert re.search(r"mounting:\n  mag1 +orientation 0 \(configured 0\), \d\.\d\d° ± \d\.\d\d° from it", out)
+    assert "persistence: power cycle mavlink-reboot; time to heartbeat " in out and "read back as written" in out
+
+    page = tmp_path / "doc.html"
+    assert main(["report", "DOC-1", "--station", str(station), "-o", str(page)]) == 0
+    text = page.read_text(encoding="utf-8")
+    body = text.split("<script")[0] + "".join(part.split("</script>", 1)[-1] for part in text.split("<script")[1:])
+    assert "{&#x27;" not in body and "{'" not in body and "&#x27;prefix" not in body  # no dict in a cell
+    accepted = record.attempts[-1]
+    shown = re.findall(r"coverage: \d+ of \d+ direction bins \((\d+)%\)", text)
+    assert shown == [f"{round(accepted.coverage * 100)}"]  # the 3D picture says the judged figure
+    assert "<h3>Power cycle</h3>" in text and "as written" in text

@@ -20,9 +20,10 @@ from typing import Any
 import numpy as np
 import plotly.graph_objects as go
 
-from magline.core.fit.coverage import bin_index, fibonacci_sphere
+from magline.core.fit.coverage import bin_index, covered_bins, fibonacci_sphere
 from magline.core.fit.samples_csv import RawSamples
 from magline.core.reports.page import figure_html, table, write_page
+from magline.core.results.record_words import compass_rows, mounting_rows, persistence_rows, unit_facts, value_words
 from magline.core.text import fmt, percent, seconds
 
 MAX_POINTS = 3000  # per 3D trace: keeps the page small and the browser quick
@@ -42,14 +43,17 @@ def _identity(run: dict[str, Any]) -> str:
              ("magline", run.get("software_version") or "—"), ("limit set", run.get("limit_hash") or "—"),
              ("station file", run.get("station_hash") or "—"),
              ("field reference", fmt(run.get("reference_field_ut"), "µT"))]
-    facts += [(k, v) for k, v in unit.items()]
+    facts += unit_facts(unit)
     out = [f"<h1>{html.escape(run['serial'])} {_verdict(run['verdict'])}{review}</h1>"]
     if run.get("cause"):
         out.append(f"<p><b>cause:</b> {html.escape(run['cause'])}</p>")
     for key, title in (("left_changed", "NOT RESTORED"), ("unverified_params", "UNVERIFIED")):
         if run.get(key):
-            out.append(f"<p><b>{title}:</b> {html.escape(json.dumps(run[key]))} — re-test the unit</p>")
+            out.append(f"<p><b>{title}:</b> {html.escape(value_words(run[key]))} — re-test the unit</p>")
     out.append(table(None, [(k, v) for k, v in facts]))  # facts by name: no header row
+    compasses = compass_rows(unit)
+    if compasses:
+        out += ["<h2>Magnetometers</h2>", table(("compass", "sensor", "device id", "orientation"), compasses)]
     return "".join(out)
 
 
@@ -89,19 +93,8 @@ def _residual_charts(run: dict[str, Any]) -> str:
 
 def _mounting(run: dict[str, Any]) -> str:
     """Each sensor's mounting and each pair's agreement, as the validate phase judged them."""
-    mounting = (run.get("unit_info") or {}).get("mounting")
-    if not isinstance(mounting, dict):
-        return f"<h2>Mounting</h2><p class=note>{html.escape(str(mounting))}</p>" if mounting else ""
-    rows = []
-    for key, v in mounting.items():
-        if "found" in v:
-            rows.append([key, f"orientation {v['found']} (configured {v['configured']})",
-                         f"{v['from_nearest_deg']:.2f}° ± {v['sigma_deg']:.2f}°", f"{v['inclination_deg']:.2f}°"])
-        else:
-            fitted = f" (relation fitted to {v['used']} of {v['pairs']} paired readings)" if "used" in v else ""
-            rows.append([key, "heading agreement",
-                         f"median {v['median_deg']:.2f}°, max {v['max_deg']:.2f}°{fitted}", ""])
-    return "<h2>Mounting</h2>" + table(["sensor / pair", "found", "misalignment", "inclination"], rows)
+    rows = mounting_rows(run.get("unit_info"))
+    return "<h2>Mounting</h2>" + table(["sensor / pair", "found", "misalignment", "inclination"], rows) if rows else ""
 
 
 def _residual_chart(residual: list[float], title: str, name: str) -> str:
@@ -154,14 +147,18 @@ def _samples_3d(cal: dict[str, Any], raw: RawSamples) -> str:
 
 
 def _coverage_3d(cal: dict[str, Any], raw: RawSamples) -> str:
+    """The direction bins of the accepted attempt, found as its judged coverage was (the same function,
+    the same bins): the picture and the figure in the attempts table are one number."""
     bins = int((cal.get("coverage") or {}).get("bins") or 100)
     centres = fibonacci_sphere(bins)
     hit = np.bincount(bin_index(raw.mag_ut - np.asarray(cal["hard_iron_ut"]), bins), minlength=bins)
-    covered = hit > 0
+    covered = np.zeros(bins, bool)
+    covered[covered_bins(raw.mag_ut, bins)] = True
     mesh = _sphere_mesh() * 0.97
     fig = go.Figure([_surface(mesh, "sphere", "#d0d7de"),
                      go.Scatter3d(x=centres[covered, 0], y=centres[covered, 1], z=centres[covered, 2], mode="markers",
-                                  name=f"covered bins ({covered.sum()})", text=[f"{n} samples" for n in hit[covered]],
+                                  name=f"covered bins ({covered.sum()})",
+                                  text=[f"{n} samples" if n else "covered" for n in hit[covered]],
                                   marker={"size": 7, "color": "#1a7f37"}),
                      go.Scatter3d(x=centres[~covered, 0], y=centres[~covered, 1], z=centres[~covered, 2],
                                   mode="markers", name=f"empty bins ({(~covered).sum()})",
@@ -190,11 +187,9 @@ def _params(run: dict[str, Any]) -> str:
     rows = [(n, *(fmt(run["params"].get(stage, {}).get(n), digits=7) for stage in stages)) for n in names]
     out = ["<h2>Parameters</h2>", table(("parameter", "before", "written", "echoed", "read back after power cycle"),
                                          rows, numeric=(1, 2, 3, 4))]
-    persistence = run.get("persistence") or {}
+    persistence = persistence_rows(run.get("persistence"))
     if persistence:
-        figures = ", ".join(f"{k} {fmt(v)}" for k, v in (persistence.get("figures") or {}).items())
-        out.append(f"<p class=note>power cycle: {html.escape(str(persistence.get('method', '—')))}"
-                   f"{'; ' + html.escape(figures) if figures else ''}</p>")
+        out += ["<h3>Power cycle</h3>", table(None, persistence)]
     return "".join(out)
 
 

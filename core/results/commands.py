@@ -23,6 +23,7 @@ from magline.core.results.reading import (
     measurement_names,
     run_attempts,
 )
+from magline.core.results.record_words import compass_rows, mounting_rows, persistence_rows, unit_facts, value_words
 from magline.core.text import fmt, seconds, stop_line
 
 
@@ -51,7 +52,17 @@ def show(store: Any, run: str, as_json: bool, out: TextIO | None = None) -> int:
              + (f": {record['cause']}" if record["cause"] else "")]
     unit = record.get("unit_info") or {}
     if unit:
-        lines.append("unit info: " + ", ".join(f"{k} {v}" for k, v in unit.items()))
+        lines.append("unit: " + "; ".join(f"{name} {words}" for name, words in unit_facts(unit)))
+    compasses = compass_rows(unit)
+    if compasses:
+        lines.append("magnetometers:")
+        lines += [f"  {name:<5} {label}, device id {device}, orientation {orientation}"
+                  for name, label, device, orientation in compasses]
+    mounting = mounting_rows(unit)
+    if mounting:
+        lines.append("mounting:")
+        lines += [f"  {name:<10} {found}" + (f", {distance}" if distance else "")
+                  + (f", inclination {incl}" if incl else "") for name, found, distance, incl in mounting]
     lines.append("phases:")
     lines += [f"  {p['name']:<9} {str(p['outcome']).upper():<8} {seconds(p['duration_s'] or 0.0):>7}"
               + (f"  {p['message']}" if p["message"] else "") for p in record["phases"]]
@@ -73,10 +84,11 @@ def show(store: Any, run: str, as_json: bool, out: TextIO | None = None) -> int:
         if values:
             lines.append(f"params {stage}: " + ", ".join(f"{k}={fmt(v, digits=7)}" for k, v in sorted(values.items())))
     if record.get("persistence"):
-        lines.append(f"persistence: {json.dumps(_rounded(record['persistence']), ensure_ascii=False)}")
+        lines.append("persistence: " + "; ".join(f"{name} {words}" for name, words in
+                                                 persistence_rows(_rounded(record["persistence"]))))
     for key, title in (("left_changed", "NOT RESTORED"), ("unverified_params", "UNVERIFIED")):
         if record.get(key):
-            lines.append(f"{title}: {record[key]}")
+            lines.append(f"{title}: {value_words(record[key])} — re-test the unit")
     out.write("\n".join(lines) + "\n")
     return 0
 
