@@ -52,7 +52,10 @@ def test_demo_command_passes_after_exactly_one_retry(tmp_path):
     raw = attempts[1]["raw"]
     # the first attempt (a spin about one axis) stops when its coverage stops growing; the second
     # once determined, with every reading up to the stop kept
-    assert attempts[0]["stopped"] in ("stalled", "samples")  # the demo's mock is unseeded: it may creep to 600
+    # the demo's mock is unseeded: it may creep to 600; on a machine starved of CPU (the suite beside other
+    # work) the station reads the real-time mock slower than it sends and the 60 s timeout ends the spin
+    # first — every one of them a short spin refused for its coverage, which is what this test is about
+    assert attempts[0]["stopped"] in ("stalled", "samples", "timeout")
     assert attempts[1]["stopped"] == "determined" and 100 <= len(raw) == attempts[1]["samples"] < 600
     predicted = json.loads(attempts[1]["predicted"])[""]
     assert predicted["direction_sigma_deg"] <= 0.7 * 0.5 and attempts[1]["tumble_s"] > 0
