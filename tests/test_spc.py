@@ -34,11 +34,14 @@ def test_cpk_and_ppk_by_hand_with_bissell_intervals():
     sigma_within = 1.5 / 1.128
     cap = capability(SMALL, 5.0, 20.0, sigma_within, min_units=2)  # the formulas; the 25-unit rule is below
     cpk = (11.6 - 5.0) / (3 * sigma_within)  # the lower side is nearer
-    half = 1.959963984540054 * math.sqrt(1 / (9 * 5) + cpk ** 2 / (2 * 4))
+    # σ from the moving ranges: 0.62 (n − 1) degrees of freedom (Cryer & Ryan), not n − 1
+    half = 1.959963984540054 * math.sqrt(1 / (9 * 5) + cpk ** 2 / (2 * 0.62 * 4))
     assert cap.cpk.value == pytest.approx(cpk) and cap.cpk.low == pytest.approx(cpk - half)
     assert cap.cpk.high == pytest.approx(cpk + half)
     s = math.sqrt(5.2 / 4)  # squared deviations 2.56 + .16 + .36 + 1.96 + .16
     assert cap.sigma_overall == pytest.approx(s) and cap.ppk.value == pytest.approx(6.6 / (3 * s))
+    ppk_half = 1.959963984540054 * math.sqrt(1 / (9 * 5) + cap.ppk.value ** 2 / (2 * 4))
+    assert cap.ppk.high - cap.ppk.value == pytest.approx(ppk_half)
     upper_only = capability(SMALL, None, 20.0, sigma_within, min_units=2)
     assert upper_only.cpk.value == pytest.approx((20.0 - 11.6) / (3 * sigma_within))  # CPU
     assert capability(SMALL, None, None, sigma_within, min_units=2).cpk is None
