@@ -464,3 +464,30 @@ def test_a_board_named_by_its_usb_serial_back_on_another_port_is_an_error_naming
     with pytest.raises(LinkError, match="came back on another port") as caught:
         watch.ready(1.0)
     assert str(other_port) in str(caught.value) and str(by_path) in str(caught.value)
+
+
+def test_a_node_that_vanishes_between_the_look_and_the_opening_is_looked_for_again(tmp_path):
+    """Right after the reboot command the board's old node is still there for a moment: the station may
+    find it and then fail to open it (gone, ENOENT) — seen once in CI.  That is the reboot under way,
+    not a station fault: the PX4 link looks again, and opens the node the name points at then."""
+    from magline.plugin import UsbIdentity
+    from magline.plugins.px4.link import Px4Link
+
+    by_path, _ = usb_names(tmp_path)
+    with sim("px4", tmp_path, f"serial:{by_path}"):
+        link = Px4Link(f"serial:{by_path}:115200", connect_timeout_s=4.0)
+        real = link.port.ready
+        looks = []
+
+        def ready(timeout_s, what="the unit"):
+            looks.append(timeout_s)
+            if len(looks) == 1:  # the first look finds a node that is gone by the time it is opened
+                return UsbIdentity(device=str(tmp_path / "gone-ttyACM0"))
+            return real(timeout_s, what)
+
+        link.port.ready = ready
+        try:
+            link.open()
+            assert link.is_open and len(looks) == 2
+        finally:
+            link.close()

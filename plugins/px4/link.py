@@ -121,19 +121,22 @@ class Px4Link:
     def _connect(self, deadline: float) -> str | None:
         """A new MAVSDK instance on the link; for a serial port, on the node its name points at once the
         board is there (returned), waiting for it until ``deadline``."""
-        url = self.url
-        node = None
-        if self.port is not None:
-            node = self.port.ready(max(deadline - time.monotonic(), 0.0)).device
-            url = f"serial://{node}:{self.port.address.baud}"
-        with NATIVE_LOCK:  # two Mavsdk instances created at once crash the process (slots connect together)
-            self.mavsdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
-        result = self.mavsdk.add_any_connection(url)
-        if result != ConnectionResult.SUCCESS:
+        while True:
+            url = self.url
+            node = None
+            if self.port is not None:
+                node = self.port.ready(max(deadline - time.monotonic(), 0.0)).device
+                url = f"serial://{node}:{self.port.address.baud}"
+            with NATIVE_LOCK:  # two Mavsdk instances created at once crash the process (slots connect together)
+                self.mavsdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
+            result = self.mavsdk.add_any_connection(url)
+            if result == ConnectionResult.SUCCESS:
+                return node
             self.close()
-            raise StationFault(f"cannot open {url}: {ConnectionResult(result).name} "
-                           "(expected udpin://HOST:PORT, udpout://HOST:PORT, tcpout://HOST:PORT or serial:DEV:BAUD)")
-        return node
+            if self.port is not None and not self.port.still_at(node) and time.monotonic() < deadline:
+                continue  # the node went between the look and the opening (a reboot under way): look again
+            raise StationFault(f"cannot open {url}: {ConnectionResult(result).name} (expected udpin://HOST:PORT, "
+                               "udpout://HOST:PORT, tcpout://HOST:PORT or serial:DEV:BAUD)")
 
     def _listen_s(self, deadline: float) -> float:
         """How long to wait for the vehicle before looking again: all the time left on a network link,
