@@ -675,7 +675,7 @@ def _export(args: argparse.Namespace, plugins: Plugins) -> int:
 def _spc(args: argparse.Namespace, plugins: Plugins) -> int:
     from magline.core.quality.commands import spc
 
-    return _with_store(args, plugins, lambda store, station, _: spc(store, station, args))
+    return _with_store(args, plugins, lambda store, station, where: spc(store, station, args, Path(where)))
 
 
 def _report(args: argparse.Namespace, plugins: Plugins) -> int:

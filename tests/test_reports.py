@@ -131,3 +131,54 @@ def test_report_of_an_unknown_run_says_so(make_station, capsys, wanted):
     capsys.readouterr()
     assert main(["report", wanted, "--station", str(station)]) == 2
     assert f"no run or serial '{wanted}' in the results store" in capsys.readouterr().err
+
+
+def test_the_batch_report_reads_like_a_capability_study_and_a_point_opens_its_unit(make_station, tmp_path, browser,
+                                                                                 capsys):
+    """Issue 45: per characteristic the I-MR chart against unit time, the histogram with the limits and the
+    fitted curve, the normal probability plot and the capability summary; FPY per day and the failure
+    Pareto; a click on a point opens that unit's report (written by the station, offline); the limit
+    labels never overprint the axis' tick labels.  Checked in Chromium on what it drew."""
+    for i, serial in enumerate(("C-1", "C-2", "C-3", "C-4", "C-5")):
+        station = make_station({"results": {"reports": "reports"}, "acquisition": {"stop": "samples"}},
+                               seed=60 + i)
+        assert main(["run", str(station), "--serial", serial]) == 0
+    page = tmp_path / "study" / "spc.html"
+    capsys.readouterr()
+    assert main(["spc", "--station", str(station), "--html", str(page)]) == 0
+    opened = open_page(browser, page.as_uri())
+    plots = plots_with_data(opened.page)
+    assert {"chart-hard_iron_norm_ut", "shape-hard_iron_norm_ut", "fpy-by-day"} <= set(plots)
+    drawn = drawn_points(opened.page)
+    # the probability plot: one marker per unit (the line is not a marker)
+    shape_points = opened.page.evaluate("""() => document.getElementById('shape-hard_iron_norm_ut')
+        .querySelectorAll('.scatterlayer .trace:first-child .point').length""")
+    bars = opened.page.evaluate("""() => document.getElementById('shape-hard_iron_norm_ut')
+        .querySelectorAll('.barlayer .point').length""")
+    assert shape_points == 5 and bars >= 1 and drawn["chart-hard_iron_norm_ut"] >= 5
+    text = opened.page.inner_text("body")
+    assert "shape and method" in text and "control limits" in text and "provisional" in text
+
+    # the limits' labels sit inside the plot: none overlaps a tick label of the y axis
+    overlaps = opened.page.evaluate("""() => {
+        const out = [];
+        document.querySelectorAll('.js-plotly-plot').forEach(plot => {
+            const labels = [...plot.querySelectorAll('.annotation-text')].filter(
+                t => /^(LSL|USL)/.test(t.textContent)).map(t => t.getBoundingClientRect());
+            const ticks = [...plot.querySelectorAll('.ytick text')].map(t => t.getBoundingClientRect());
+            for (const a of labels) for (const b of ticks)
+                if (a.left < b.right && b.left < a.right && a.top < b.bottom && b.top < a.bottom) out.push(plot.id);
+        });
+        return out;}""")
+    assert overlaps == []
+
+    # a click on the first unit's point opens its report, from the station's reports folder
+    point = opened.page.locator("#chart-hard_iron_norm_ut .scatterlayer .trace:first-child .point").first
+    point.scroll_into_view_if_needed()
+    box = point.bounding_box()
+    with opened.page.expect_navigation():
+        opened.page.mouse.click(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
+    assert opened.page.url.endswith("/reports/C-1-run1.html") and opened.page.url.startswith("file://")
+    assert "C-1" in opened.page.inner_text("h1")
+    assert opened.outside(OFFLINE) == []
+    screenshot(opened.page, tmp_path / "study.png")

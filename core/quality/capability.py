@@ -67,6 +67,8 @@ class Capability:
     method_words: str = "normal"  # the method as the report says it, with its figures
     normality: Normality | None = None  # the Anderson–Darling test on the values (None below 8 values)
     box_cox_lambda: float | None = None
+    transformed: tuple[float, float] | None = None  # Box-Cox: mean and σ of the transformed values
+    shape: object | None = None  # the percentile method's fitted scipy distribution (the report draws it)
 
     @property
     def method_short(self) -> str:
@@ -152,7 +154,7 @@ def _box_cox(x: np.ndarray, low: float | None, high: float | None, normal: Capab
                       sigma_overall=normal.sigma_overall,
                       cpk=_index(mean, within, t_low, t_high, y.size, confidence, min_units, within=True),
                       ppk=_index(mean, overall, t_low, t_high, y.size, confidence, min_units), method="box-cox",
-                      box_cox_lambda=float(lam),
+                      box_cox_lambda=float(lam), transformed=(mean, overall),
                       method_words=(f"Box-Cox λ = {lam:.2f} (not normal: Anderson–Darling p {normal.normality.p_words}"
                                     f"; transformed: p {shape.p_words})"), normality=normal.normality)
 
@@ -208,4 +210,4 @@ def _percentile(x: np.ndarray, low: float | None, high: float | None, normal: Ca
     ppk = Index(min(sides), None, None) if sides and all(map(math.isfinite, sides)) else None
     return Capability(n=normal.n, mean=normal.mean, sigma_within=normal.sigma_within,
                       sigma_overall=normal.sigma_overall, cpk=None, ppk=ppk, method="percentile",
-                      method_words=words, normality=normal.normality)
+                      method_words=words, normality=normal.normality, shape=dist)

@@ -73,7 +73,7 @@ def unknown_measurements(names: list[str] | None) -> str | None:
     return f"--measurement: no measurement is called {', '.join(hints)}; magline measures: {', '.join(CATALOGUE)}"
 
 
-def spc(store: Any, station: Station, args: argparse.Namespace) -> int:
+def spc(store: Any, station: Station, args: argparse.Namespace, station_dir: Path | None = None) -> int:
     if not isinstance(store, KeepsSeries):
         raise StationFault("this station's results sink keeps no history: spc reads SQL stores only")
     unknown = unknown_measurements(args.measurement)
@@ -105,6 +105,7 @@ def spc(store: Any, station: Station, args: argparse.Namespace) -> int:
     if args.html:
         from magline.core.reports.spc_page import write_spc_page
 
-        path = write_spc_page(report, Path(args.html))
+        folder = station.main_results.reports
+        path = write_spc_page(report, Path(args.html), station_dir / folder if folder and station_dir else None)
         print(f"charts written to {path}", file=sys.stderr)
     return 0 if len(series) else 1

@@ -5,56 +5,26 @@ from __future__ import annotations
 import html
 from pathlib import Path
 
-import numpy as np
-import plotly.graph_objects as go
-from plotly.subplots import make_subplots
-
 from magline.core.quality.capability import MIN_UNITS, MIN_UNITS_SOURCE, index_words
 from magline.core.quality.rules import RULES
-from magline.core.quality.spc import MeasurementReport, SpcReport
+from magline.core.quality.spc import SpcReport
+from magline.core.reports.capability_figures import (
+    CLICK_SCRIPT,
+    capability_rows,
+    failure_pareto,
+    imr_figure,
+    report_links,
+    shape_figure,
+    yield_by_day,
+)
 from magline.core.reports.page import figure_html, table, write_page
 from magline.core.text import fmt, percent
 
 
-def _chart(m: MeasurementReport, serials: list[str]) -> go.Figure:
-    """SVG traces, not WebGL: Chromium keeps at most 16 WebGL contexts per page (the oldest charts lose
-    their points beyond that), and each costs a second to start under software rendering."""
-    c = m.chart
-    x = np.arange(1, c.values.size + 1)
-    names = [serials[i] for i in c.index]
-    fig = make_subplots(rows=2, cols=1, shared_xaxes=True, row_heights=[0.68, 0.32], vertical_spacing=0.06,
-                        subplot_titles=(f"{m.name} — individuals", "moving range"))
-    fig.add_trace(go.Scatter(x=x, y=c.values, mode="lines+markers", name=m.name, text=names,
-                               marker={"size": 4}, line={"width": 1},
-                               hovertemplate="%{text}<br>%{y:.4g}<extra></extra>"), row=1, col=1)
-    flagged = sorted({s.point for s in c.signals})
-    if flagged:
-        rules = {}
-        for s in c.signals:
-            rules.setdefault(s.point, []).append(RULES[s.rule])
-        fig.add_trace(go.Scatter(x=x[flagged], y=c.values[flagged], mode="markers", name="rule signals",
-                                   marker={"color": "#cf222e", "size": 8, "symbol": "x"},
-                                   text=[f"{names[p]}: {'; '.join(rules[p])}" for p in flagged],
-                                   hovertemplate="%{text}<extra></extra>"), row=1, col=1)
-    for value, label, dash in ((c.centre, "centre", "solid"), (c.ucl, "UCL", "dash"), (c.lcl, "LCL", "dash")):
-        fig.add_hline(y=value, line={"color": "#0969da", "dash": dash, "width": 1}, row=1, col=1,
-                      annotation_text=f"{label} {fmt(value)}", annotation_position="right")
-    for value, label in ((m.limit.low, "LSL"), (m.limit.high, "USL")):
-        if value is not None:
-            fig.add_hline(y=value, line={"color": "#cf222e", "dash": "dot", "width": 1}, row=1, col=1,
-                          annotation_text=f"{label} {fmt(value)}", annotation_position="left")
-    fig.add_trace(go.Scatter(x=x[1:], y=c.moving_ranges, mode="lines", name="moving range",
-                               line={"width": 1, "color": "#57606a"}), row=2, col=1)
-    fig.add_hline(y=c.mr_bar, line={"color": "#0969da", "width": 1}, row=2, col=1)
-    fig.add_hline(y=c.mr_ucl, line={"color": "#0969da", "dash": "dash", "width": 1}, row=2, col=1)
-    fig.update_layout(height=430, margin={"l": 60, "r": 110, "t": 40, "b": 30}, showlegend=False)
-    fig.update_yaxes(title_text=m.unit or "", row=1, col=1)
-    fig.update_xaxes(title_text="unit (oldest first)", row=2, col=1)
-    return fig
-
-
-def write_spc_page(report: SpcReport, path: Path) -> Path:
+def write_spc_page(report: SpcReport, path: Path, reports: Path | None = None) -> Path:
+    """The page; ``reports``: the station's unit-report folder, whose files a click on a point opens."""
     serials = [r["serial"] for r in report.series.runs]
+    links = report_links(report, reports, path)
     sections = [f"<h1>Process control — {html.escape(report.title)}</h1>",
                 f"<p class=note>{len(serials)} runs"
                 + (f", {html.escape(report.series.runs[0]['started'])} → "
@@ -98,6 +68,16 @@ def write_spc_page(report: SpcReport, path: Path) -> Path:
                  table(("acquisition attempts refused, by cause", "count"), report.refusals or [("none", 0)],
                        numeric=(1,)),
                  table(("measurements that failed units", "count"), report.failed or [("none", 0)], numeric=(1,))]
-    sections.append("<h2>Control charts</h2>")
-    sections += [figure_html(_chart(m, serials), f"chart-{m.name}") for m in report.measurements]
+    trends = [(fig, name) for fig, name in ((yield_by_day(report), "fpy-by-day"), (failure_pareto(report), "pareto"))
+              if fig is not None]
+    if trends:
+        sections += ["<h2>Over time</h2>", *(figure_html(fig, name) for fig, name in trends)]
+    sections.append("<h2>Characteristics</h2><p class=note>each point is a unit (hover: its serial; click: its "
+                    "report" + (", from " + html.escape(str(reports)) if reports else "") + ")</p>")
+    for m in report.measurements:
+        sections += [f"<h3>{html.escape(m.name)}</h3>",
+                     f"<div class=imr-chart>{figure_html(imr_figure(m, report.series.runs, links), f'chart-{m.name}')}"
+                     "</div>",
+                     figure_html(shape_figure(m), f"shape-{m.name}"), table(None, capability_rows(m))]
+    sections.append(CLICK_SCRIPT)
     return write_page(path, f"magline spc — {report.title}", sections)

@@ -1,0 +1,204 @@
+"""What a quality engineer reads of one characteristic in the batch report (issue 45), after Minitab's
+capability sixpack: the I-MR chart by unit time (each point's serial on hover, a click opening the
+unit's report), the histogram with the specification limits and the curve the capability was computed
+from, and the normal probability plot.  And the process over time: first-pass yield per day and the
+failure causes as a Pareto chart.
+
+SVG traces only (Chromium keeps 16 WebGL contexts per page).  Labels of the limits sit inside the plot
+area, above their line: on the left edge they overprinted the axis' tick labels ("LSL 0.5").
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import plotly.graph_objects as go
+from plotly.subplots import make_subplots
+
+from magline.core.quality.capability import Capability
+from magline.core.quality.rules import RULES
+from magline.core.quality.spc import MeasurementReport, SpcReport
+from magline.core.text import fmt
+
+LIMIT_COLOUR, LINE_COLOUR = "#cf222e", "#0969da"
+
+
+def report_links(report: SpcReport, folder: Path | None, page: Path) -> dict[int, str]:
+    """Run id → the unit report's path relative to the page, for every run whose report exists in
+    ``folder`` (the station's ``results.reports``): the page opens them offline."""
+    if folder is None or not folder.is_dir():
+        return {}
+    found = {}
+    for run in report.series.runs:
+        name = f"{''.join(c if c.isalnum() or c in '-_.' else '_' for c in run['serial'])}-run{run['id']}.html"
+        if (folder / name).is_file():
+            found[run["id"]] = Path(os.path.relpath(folder / name, page.parent)).as_posix()
+    return found
+
+
+def imr_figure(m: MeasurementReport, runs: list[dict[str, Any]], links: dict[int, str]) -> go.Figure:
+    """The individuals and moving-range chart against unit start time."""
+    c = m.chart
+    chosen = [runs[i] for i in c.index]
+    when = [str(r["started"]) for r in chosen]
+    data = [[r["serial"], links.get(r["id"], ""), f"magline report {r['serial']}"] for r in chosen]
+    fig = make_subplots(rows=2, cols=1, shared_xaxes=True, row_heights=[0.68, 0.32], vertical_spacing=0.06,
+                        subplot_titles=(f"{m.name} — individuals ({m.limits_from})", "moving range"))
+    fig.add_trace(go.Scatter(x=when, y=c.values, mode="lines+markers", name=m.name, customdata=data,
+                             marker={"size": 5}, line={"width": 1},
+                             hovertemplate="%{customdata[0]}<br>%{x}<br>%{y:.4g}<br><i>click: its report</i>"
+                                           "<extra></extra>"), row=1, col=1)
+    flagged = sorted({s.point for s in c.signals})
+    if flagged:
+        rules: dict[int, list[str]] = {}
+        for s in c.signals:
+            rules.setdefault(s.point, []).append(RULES[s.rule])
+        fig.add_trace(go.Scatter(x=[when[p] for p in flagged], y=c.values[flagged], mode="markers",
+                                 name="rule signals", customdata=[data[p] for p in flagged],
+                                 marker={"color": LIMIT_COLOUR, "size": 9, "symbol": "x"},
+                                 text=[f"{data[p][0]}: {'; '.join(rules[p])}" for p in flagged],
+                                 hovertemplate="%{text}<extra></extra>"), row=1, col=1)
+    for value, label, dash in ((c.centre, "centre", "solid"), (c.ucl, "UCL", "dash"), (c.lcl, "LCL", "dash")):
+        fig.add_hline(y=value, line={"color": LINE_COLOUR, "dash": dash, "width": 1}, row=1, col=1,
+                      annotation_text=f"{label} {fmt(value)}", annotation_position="right")
+    for value, label in ((m.limit.low, "LSL"), (m.limit.high, "USL")):
+        if value is not None:
+            fig.add_hline(y=value, line={"color": LIMIT_COLOUR, "dash": "dot", "width": 1}, row=1, col=1,
+                          annotation_text=f"{label} {fmt(value)}", annotation_position="top left")
+    fig.add_trace(go.Scatter(x=when[1:], y=c.moving_ranges, mode="lines", name="moving range",
+                             line={"width": 1, "color": "#57606a"}), row=2, col=1)
+    fig.add_hline(y=c.mr_bar, line={"color": LINE_COLOUR, "width": 1}, row=2, col=1)
+    fig.add_hline(y=c.mr_ucl, line={"color": LINE_COLOUR, "dash": "dash", "width": 1}, row=2, col=1)
+    fig.update_layout(height=430, margin={"l": 60, "r": 110, "t": 40, "b": 30}, showlegend=False)
+    fig.update_yaxes(title_text=m.unit or "", row=1, col=1)
+    fig.update_xaxes(title_text="unit start time", row=2, col=1)
+    return fig
+
+
+def fitted_density(cap: Capability, x: np.ndarray) -> np.ndarray | None:
+    """The density the capability was computed from, at ``x``: normal, Box-Cox (back-transformed) or
+    the shape the percentile method fitted."""
+    from scipy import stats
+
+    if cap.method == "percentile":
+        return None if cap.shape is None else np.asarray(cap.shape.pdf(x))  # type: ignore[attr-defined]
+    if cap.method == "box-cox" and cap.box_cox_lambda is not None and cap.transformed is not None:
+        lam = cap.box_cox_lambda
+        mean, sigma = cap.transformed
+        positive = np.where(x > 0, x, np.nan)
+        y = np.log(positive) if abs(lam) < 1e-12 else (positive ** lam - 1) / lam
+        return np.nan_to_num(stats.norm.pdf(y, mean, sigma) * positive ** (lam - 1))
+    if cap.sigma_overall <= 0:
+        return None
+    return stats.norm.pdf(x, cap.mean, cap.sigma_overall)
+
+
+def shape_figure(m: MeasurementReport) -> go.Figure:
+    """Histogram with the specification limits and the fitted curve, beside the normal probability plot."""
+    from scipy import stats
+
+    values = m.chart.values
+    cap = m.capability
+    fig = make_subplots(rows=1, cols=2, column_widths=[0.55, 0.45], horizontal_spacing=0.1,
+                        subplot_titles=(f"histogram — {cap.method_short}", "normal probability plot"))
+    bins = max(5, min(40, int(math.sqrt(values.size)) + 1))
+    fig.add_trace(go.Histogram(x=values, nbinsx=bins, name="units", marker={"color": "#8c959f"},
+                               hovertemplate="%{x}<br>%{y} units<extra></extra>"), row=1, col=1)
+    low = min([values.min(), *(v for v in (m.limit.low, m.limit.high) if v is not None)])
+    high = max([values.max(), *(v for v in (m.limit.low, m.limit.high) if v is not None)])
+    span = high - low or 1.0
+    grid = np.linspace(low - 0.05 * span, high + 0.05 * span, 200)
+    density = fitted_density(cap, grid)
+    if density is not None:
+        width = (values.max() - values.min()) / bins if values.max() > values.min() else 1.0
+        fig.add_trace(go.Scatter(x=grid, y=density * values.size * width, mode="lines", name="fitted",
+                                 line={"color": LINE_COLOUR, "width": 2}), row=1, col=1)
+    for value, label in ((m.limit.low, "LSL"), (m.limit.high, "USL")):
+        if value is not None:
+            fig.add_vline(x=value, line={"color": LIMIT_COLOUR, "dash": "dot", "width": 1.5}, row=1, col=1,
+                          annotation_text=f"{label} {fmt(value)}", annotation_position="top")
+    (theoretical, ordered), (slope, intercept, _) = stats.probplot(values, dist="norm")
+    fig.add_trace(go.Scatter(x=theoretical, y=ordered, mode="markers", name="units", marker={"size": 5},
+                             hovertemplate="z %{x:.2f}<br>%{y:.4g}<extra></extra>"), row=1, col=2)
+    fig.add_trace(go.Scatter(x=[theoretical[0], theoretical[-1]],
+                             y=[slope * theoretical[0] + intercept, slope * theoretical[-1] + intercept],
+                             mode="lines", name="normal", line={"color": LINE_COLOUR, "width": 1}), row=1, col=2)
+    fig.update_layout(height=320, margin={"l": 60, "r": 30, "t": 50, "b": 40}, showlegend=False, bargap=0.04)
+    fig.update_xaxes(title_text=m.unit or "", row=1, col=1)
+    fig.update_xaxes(title_text="normal quantile", row=1, col=2)
+    fig.update_yaxes(title_text="units", row=1, col=1)
+    fig.update_yaxes(title_text=m.unit or "", row=1, col=2)
+    return fig
+
+
+def capability_rows(m: MeasurementReport) -> list[tuple[str, str]]:
+    """The capability summary of one characteristic, as (name, words)."""
+    cap = m.capability
+    return [("units", str(cap.n)), ("mean", fmt(cap.mean, m.unit)),
+            ("σ within (MR̄ / d₂)", fmt(cap.sigma_within, m.unit)), ("σ overall", fmt(cap.sigma_overall, m.unit)),
+            ("limits", f"[{fmt(m.limit.low)}, {fmt(m.limit.high)}]"),
+            ("Cpk [95 % CI]", cap.cpk.words() if cap.cpk else "—"),
+            ("Ppk [95 % CI]", cap.ppk.words() if cap.ppk else "—"),
+            ("shape and method", cap.method_words), ("control limits", m.limits_from)]
+
+
+def yield_by_day(report: SpcReport) -> go.Figure | None:
+    """First-pass yield per day (first runs of a serial judged that day), judged units as bars."""
+    days: dict[str, list[int]] = {}
+    for run in report.series.runs:
+        if run["verdict"] not in ("pass", "fail") or (run.get("earlier_runs") or 0) > 0:
+            continue
+        day = str(run["started"])[:10]
+        tally = days.setdefault(day, [0, 0])
+        tally[0] += 1
+        tally[1] += run["verdict"] == "pass"
+    if not days:
+        return None
+    order = sorted(days)
+    fig = make_subplots(specs=[[{"secondary_y": True}]])
+    fig.add_trace(go.Bar(x=order, y=[days[d][0] for d in order], name="first runs judged", marker={"color": "#d0d7de"}),
+                  secondary_y=False)
+    fig.add_trace(go.Scatter(x=order, y=[100.0 * days[d][1] / days[d][0] for d in order], mode="lines+markers",
+                             name="first-pass yield", line={"color": "#1a7f37"},
+                             hovertemplate="%{x}<br>FPY %{y:.1f} %<extra></extra>"), secondary_y=True)
+    fig.update_layout(title="first-pass yield per day", height=300, margin={"l": 60, "r": 60, "t": 50, "b": 40})
+    fig.update_yaxes(title_text="units", secondary_y=False)
+    fig.update_yaxes(title_text="FPY %", range=[0, 105], secondary_y=True)
+    return fig
+
+
+def failure_pareto(report: SpcReport) -> go.Figure | None:
+    """The measurements that failed units, most frequent first, with the cumulative share."""
+    counts = Counter(dict(report.failed))
+    if not counts:
+        return None
+    names = [n for n, _ in counts.most_common()]
+    values = [counts[n] for n in names]
+    cumulative = np.cumsum(values) / sum(values) * 100.0
+    fig = make_subplots(specs=[[{"secondary_y": True}]])
+    fig.add_trace(go.Bar(x=names, y=values, name="units failed", marker={"color": LIMIT_COLOUR}), secondary_y=False)
+    fig.add_trace(go.Scatter(x=names, y=cumulative, mode="lines+markers", name="cumulative %",
+                             line={"color": "#57606a"}), secondary_y=True)
+    fig.update_layout(title="failure causes (Pareto)", height=300, margin={"l": 60, "r": 60, "t": 50, "b": 80})
+    fig.update_yaxes(title_text="units", secondary_y=False)
+    fig.update_yaxes(title_text="cumulative %", range=[0, 105], secondary_y=True)
+    return fig
+
+
+CLICK_SCRIPT = """<script>
+window.addEventListener('load', function () {
+  document.querySelectorAll('.imr-chart .plotly-graph-div').forEach(function (plot) {
+    plot.on('plotly_click', function (event) {
+      var data = event.points[0].customdata;
+      if (!data) return;
+      if (data[1]) { window.location.href = data[1]; }
+      else { alert(data[0] + ': no report file beside this page yet; write it with ' + data[2]); }
+    });
+  });
+});
+</script>"""
