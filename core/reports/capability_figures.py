@@ -23,6 +23,7 @@ from plotly.subplots import make_subplots
 from magline.core.quality.capability import Capability
 from magline.core.quality.rules import RULES
 from magline.core.quality.spc import MeasurementReport, SpcReport
+from magline.core.reports.commands import default_name
 from magline.core.text import fmt
 
 LIMIT_COLOUR, LINE_COLOUR = "#cf222e", "#0969da"
@@ -35,7 +36,7 @@ def report_links(report: SpcReport, folder: Path | None, page: Path) -> dict[int
         return {}
     found = {}
     for run in report.series.runs:
-        name = f"{''.join(c if c.isalnum() or c in '-_.' else '_' for c in run['serial'])}-run{run['id']}.html"
+        name = default_name(run)  # the name the station wrote it under
         if (folder / name).is_file():
             found[run["id"]] = Path(os.path.relpath(folder / name, page.parent)).as_posix()
     return found
