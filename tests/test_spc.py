@@ -282,7 +282,7 @@ def test_the_capability_method_follows_the_shape_of_the_characteristic():
     name, dist = best_shape(bimodal)
     lo, mid, hi = dist.ppf([0.00135, 0.5, 0.99865])
     assert shaped.ppk.value == pytest.approx(min((6.0 - mid) / (hi - mid), (mid + 6.0) / (mid - lo)))
-    said = f"ISO 22514-2 percentiles of a fitted {SHAPE_NAMES[name]}, the best of 5 shapes by AIC"
+    said = f"ISO 22514-2 percentiles of a fitted {SHAPE_NAMES[name]}, the best of 4 shapes by AIC"
     assert said in shaped.method_words
     aics = {}
     for family in SHAPES:  # the chosen shape is the one the data favour
