@@ -27,6 +27,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tests"))
 
 from magline.core.faults import StationFault  # noqa: E402
+from magline.core.links.serial_port import mavlink2_frame_bytes  # noqa: E402
 from magline.core.record import Outcome  # noqa: E402
 from magline.sim import create_sim  # noqa: E402
 from magline.testing.stations import deep_update, run_unit  # noqa: E402
@@ -80,12 +81,12 @@ def line_carries(flavour: str, rate_hz: float, folder: Path) -> tuple[float, int
     with create_sim(flavour, f"serial:{serial}:115200", workdir=folder / "fc", seed=3, boot_time_s=0.3,
                     mag_rate_hz=SENSOR_HZ) as board:
         if flavour == "px4":
-            from magline.plugins.px4.link import Px4Link, frame_bytes
+            from magline.plugins.px4.link import Px4Link
 
             link = Px4Link(f"serial:{serial}:115200", connect_timeout_s=5.0)
             link.open()
             try:
-                refusal = _refusal(link.port, {"SCALED_IMU": (frame_bytes(26), rate_hz)})
+                refusal = _refusal(link.port, {"SCALED_IMU": (mavlink2_frame_bytes(26), rate_hz)})
                 inbox, handles = link.subscribe_all(["SCALED_IMU"])
                 link.require_accepted(511, "stream", 26, 1e6 / rate_hz)
                 time.sleep(0.5)
@@ -102,12 +103,12 @@ def line_carries(flavour: str, rate_hz: float, folder: Path) -> tuple[float, int
             finally:
                 link.close()
         else:
-            from magline.plugins.ardupilot.link import ArduPilotLink, frame_bytes
+            from magline.plugins.ardupilot.link import ArduPilotLink
 
             link = ArduPilotLink(f"serial:{serial}:115200")
             link.open(5.0)
             try:
-                refusal = _refusal(link.port, {"RAW_IMU": (frame_bytes(27), rate_hz)})
+                refusal = _refusal(link.port, {"RAW_IMU": (mavlink2_frame_bytes(27), rate_hz)})
                 link.set_message_interval(27, rate_hz)
                 link.recv("RAW_IMU", 0.5)
                 time.sleep(0.5)

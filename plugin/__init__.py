@@ -26,7 +26,7 @@ What is here, by role:
   :data:`INT16_MG_RANGE_UT` (MAVLink's int16 milligauss), :class:`ScpiInstrument`, :class:`InstrumentError`,
   a board on a serial port: :class:`SerialAddress`, :class:`SerialPortWatch` (present, permitted, not held,
   the same board after its reboot), :class:`UsbIdentity`, :func:`list_ports`, :data:`SERIAL_HINT`,
-  :data:`MAVLINK2_OVERHEAD` (a stream's bytes against what a UART carries);
+  :func:`mavlink2_frame_bytes` (a stream's bytes against what a UART carries);
 * frames: :func:`orientation_matrix` (a firmware orientation value's rotation), :func:`configured_rotation`
   (the rotation a firmware applies to a :class:`Magnetometer` now);
 * the run: :class:`RunContext`, :class:`Acquisition`, :class:`ImuSeries`, :class:`RawSamples`,
@@ -82,13 +82,13 @@ from magline.core.links.listening import SLICE_S, get_listening, stall_s
 from magline.core.links.readings import INT16_MG_RANGE_UT, RepeatFilter, SensorStreams, untruncate_mg
 from magline.core.links.scpi import InstrumentError, ScpiInstrument
 from magline.core.links.serial_port import (
-    MAVLINK2_OVERHEAD,
     SERIAL_HINT,
     SerialAddress,
     SerialAddressError,
     SerialPortWatch,
     UsbIdentity,
     list_ports,
+    mavlink2_frame_bytes,
 )
 from magline.core.measurements import Measurement, Numeric, Verdict
 from magline.core.motion import Motion
@@ -115,7 +115,6 @@ from magline.core.station.schema import PowerConfig, Product, Station
 
 __all__ = [
     "INT16_MG_RANGE_UT",
-    "MAVLINK2_OVERHEAD",
     "SERIAL_HINT",
     "SLICE_S",
     "Acquisition",
@@ -191,6 +190,7 @@ __all__ = [
     "get_listening",
     "hookimpl",
     "list_ports",
+    "mavlink2_frame_bytes",
     "orientation_matrix",
     "prove_unechoed_write",
     "require_same_vehicle",

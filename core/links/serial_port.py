@@ -239,6 +239,14 @@ MAVLINK2_OVERHEAD = 12  # a MAVLink 2 frame: 10 header bytes and a 2-byte checks
 LINE_SHARE = 0.9  # of what a UART carries, the most a stream may take: the board sends heartbeats and more
 
 
+def mavlink2_frame_bytes(msg_id: int) -> int:
+    """A MAVLink message's frame at its longest (the whole payload, extensions included, and the MAVLink 2
+    header and checksum): what one message takes of a serial line."""
+    from pymavlink.dialects.v20 import common  # imported on use: only a serial link's capacity check asks
+
+    return int(common.mavlink_map[msg_id].unpacker.size) + MAVLINK2_OVERHEAD
+
+
 def ignores_baud(node: str) -> bool:
     """A USB CDC ACM port (the kernel's ``cdc_acm`` driver: ttyACM) carries what USB carries whatever baud
     is set; a UART behind a USB-serial adapter (ttyUSB) or on the board (ttyS, ttyAMA) carries baud/10

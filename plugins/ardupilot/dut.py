@@ -34,6 +34,7 @@ from magline.plugin import (
     UnansweredRequest,
     UnitInfo,
     await_new_boot,
+    mavlink2_frame_bytes,
     require_same_vehicle,
     untruncate_mg,
 )
@@ -45,7 +46,7 @@ from magline.plugins.ardupilot.calibration import (
     rename_for_set,
     set_names,
 )
-from magline.plugins.ardupilot.link import ML, ArduPilotLink, frame_bytes
+from magline.plugins.ardupilot.link import ML, ArduPilotLink
 from magline.plugins.ardupilot.options import ArduPilotOptions
 
 log = logging.getLogger(__name__)
@@ -190,7 +191,7 @@ class ArduPilotDut:
         kinds = list(dict.fromkeys(["RAW_IMU", *by_kind]))
         ids = {kind: msg_id for kind, msg_id in STREAMS}
         if self.link.port is not None:
-            self.link.port.require_capacity({k: (frame_bytes(ids[k]), rate_hz) for k in kinds})
+            self.link.port.require_capacity({k: (mavlink2_frame_bytes(ids[k]), rate_hz) for k in kinds})
         self.link.drain()
         for kind in kinds:
             self.link.set_message_interval(ids[kind], rate_hz)

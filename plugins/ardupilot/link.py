@@ -23,7 +23,6 @@ import socket
 from pymavlink import mavutil
 
 from magline.plugin import (
-    MAVLINK2_OVERHEAD,
     SERIAL_HINT,
     SLICE_S,
     DutError,
@@ -45,10 +44,6 @@ RESULT_NAMES = {v: k.removeprefix("MAV_RESULT_") for k, v in vars(ML).items() if
 # An autopilot sends HEARTBEAT at 1 Hz: this long without any message means the link is gone.
 SILENCE_S = 2.5
 
-
-def frame_bytes(msg_id: int) -> int:
-    """A message's MAVLink 2 frame at most (its whole payload, extensions included): what it takes of a line."""
-    return int(ML.mavlink_map[msg_id].unpacker.size) + MAVLINK2_OVERHEAD
 
 
 class LinkClosed(ConnectionError):
@@ -104,8 +99,8 @@ class ArduPilotLink:
     def __init__(self, connection: str, *, param_timeout_s: float = 1.0, param_retries: int = 5) -> None:
         self.connection = connection
         self.device, self.baud = pymavlink_device(connection)
-        serial = SerialAddress.parse(connection)
-        self.port = SerialPortWatch(serial) if serial is not None else None
+        serial = self.device.startswith("/")  # pymavlink_device gives a serial port as its device path
+        self.port = SerialPortWatch(SerialAddress(self.device, self.baud)) if serial else None
         self.param_timeout_s = param_timeout_s
         self.param_retries = param_retries
         self.conn: Any = None

@@ -41,6 +41,7 @@ from magline.plugin import (
     await_new_boot,
     configured_rotation,
     get_listening,
+    mavlink2_frame_bytes,
     require_same_vehicle,
     untruncate_mg,
 )
@@ -56,7 +57,7 @@ from magline.plugins.px4.calibration import (
     rotation_params,
 )
 from magline.plugins.px4.discovery import Identified, from_shell, without_shell
-from magline.plugins.px4.link import Px4Link, frame_bytes
+from magline.plugins.px4.link import Px4Link
 from magline.plugins.px4.options import Px4Options
 
 STREAMS = (("SCALED_IMU", 26), ("SCALED_IMU2", 116), ("SCALED_IMU3", 129))  # uORB sensor_mag instance 0/1/2
@@ -240,7 +241,7 @@ class Px4Dut:
         kinds = list(dict.fromkeys([STREAMS[0][0], *by_kind]))
         ids = dict(STREAMS)
         if self.link.port is not None:
-            self.link.port.require_capacity({k: (frame_bytes(ids[k]), rate_hz) for k in kinds})
+            self.link.port.require_capacity({k: (mavlink2_frame_bytes(ids[k]), rate_hz) for k in kinds})
         inbox, handles = self.link.subscribe_all(kinds)
         streams = SensorStreams(self.device_id, self.chosen, lambda _, mg: mg / MG_PER_UT)
         try:

@@ -28,7 +28,6 @@ from mavsdk.plugins.shell.shell import Device, Shell
 from pymavlink.dialects.v20 import common as mavlink
 
 from magline.plugin import (
-    MAVLINK2_OVERHEAD,
     SERIAL_HINT,
     DutError,
     LinkError,
@@ -64,10 +63,6 @@ def _route_mavsdk_logs() -> None:
         log_subscribe(lambda level, message, *_: log.log(levels.get(int(level), logging.INFO), message) or True)
         _routed = True
 
-
-def frame_bytes(msg_id: int) -> int:
-    """A message's MAVLink 2 frame at most (its whole payload, extensions included): what it takes of a line."""
-    return int(mavlink.mavlink_map[msg_id].unpacker.size) + MAVLINK2_OVERHEAD
 
 
 class Px4Link:
