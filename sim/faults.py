@@ -31,6 +31,10 @@ class SimFaults:
     mag_mounting: list[str] = field(default_factory=list)
     # "N:DEG": magnetometer N is turned DEG degrees about the body's Z axis (two compasses disagree)
     mag_yaw_error: list[str] = field(default_factory=list)
+    # "N:MS": magnetometer N's readings reach its stream MS ms (firmware time) older than the other
+    # compasses' — a compass on a slower bus or read by a slower driver loop, as a second compass of a
+    # real board often is: each stream carries its own compass's latest reading at the message's time
+    mag_latency: list[str] = field(default_factory=list)
     # "UT:TAU_S": every compass's offset is UT µT from its settled value while the board is cold and
     # settles with time constant TAU_S as it warms; a reboot keeps it warm (sim/thermal.py)
     mag_warmup: str = ""
@@ -92,6 +96,14 @@ class SimFaults:
         for item in self.mag_yaw_error:
             n, _, deg = item.partition(":")
             out[int(n) - 1] = (out.get(int(n) - 1, (0, 0.0))[0], float(deg))
+        return out
+
+    def latencies_s(self) -> dict[int, float]:
+        """Sensor index (0-based) → how much older its readings are in its stream (s)."""
+        out: dict[int, float] = {}
+        for item in self.mag_latency:
+            n, _, ms = item.partition(":")
+            out[int(n) - 1] = float(ms) / 1000.0
         return out
 
     def ignores(self, name: str) -> bool:

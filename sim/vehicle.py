@@ -116,6 +116,8 @@ class SimulatedAutopilot(ABC):
         for index, (mounting, yaw_deg) in self.faults.mountings().items():
             if index < len(self.magnetometers):
                 self.magnetometers[index].mount(mounting, (0.0, 0.0, yaw_deg))
+        self._latency_s = {self.magnetometers[index].device_id: seconds
+                           for index, seconds in self.faults.latencies_s().items() if index < len(self.magnetometers)}
         self.field_ned = earth_field_ned(field_ut, inclination_deg)
         self.field_ut = field_ut
         # ``shared``: the board is mounted on a (simulated) gimbal at ``motion_source`` and moves with it
@@ -534,7 +536,7 @@ class SimulatedAutopilot(ABC):
         period = 1.0 / self.sensor_rate_hz(sensor)
         due, reading = self._held.get(sensor.device_id, (now, None))
         if reading is None or now >= due:
-            taken = now - self._real_time(self.mag_age_s())
+            taken = now - self._real_time(self.mag_age_s() + self._latency_s.get(sensor.device_id, 0.0))
             field = self.body_field_ut(taken)
             if len(self._seen_dirs) < 20000:
                 self._seen_dirs.append(field / np.linalg.norm(field))

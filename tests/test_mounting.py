@@ -151,6 +151,22 @@ def test_a_turned_compass_is_told_on_a_fast_gimbal_too(rng):
     assert Rotation.from_matrix(apart.relation).as_euler("ZYX", degrees=True)[0] == pytest.approx(3.0, abs=0.5)
 
 
+def test_a_pair_whose_relative_timing_is_uncertain_is_judged_at_its_best_timing_and_says_what_it_hides(rng):
+    """Compass B's stamps 3 ms off its instants: paired there, two good compasses on a fast gimbal read
+    2.6–2.8° apart (a false reject).  With its relative timing open by ±4 ms the agreement is taken at the
+    timing that agrees best, found within 0.5 ms of the truth; and what the window can hide is said — a
+    compass really turned 3° reads less, but never less than 3° together with ``timing_deg``."""
+    a, t_a, b, t_b, imu = gimbal_pair(rng, speed=1.9, lag_s=0.005)
+    late = np.asarray(t_b, float) + 3.0
+    paired = heading_agreement(a, t_a, b, late, imu)
+    assert paired.median_deg > 2.0
+    opened = heading_agreement(a, t_a, b, late, imu, 4.0)
+    assert opened.median_deg < 0.6 and opened.timing_shift_ms == pytest.approx(-3.0, abs=0.5)
+    assert opened.paired_median_deg == pytest.approx(paired.median_deg)
+    turned = heading_agreement(a, t_a, b @ Rotation.from_euler("Z", 3.0, degrees=True).as_matrix().T, late, imu, 4.0)
+    assert turned.median_deg + turned.timing_deg > 3.0
+
+
 def test_a_reading_between_two_is_taken_along_the_turn():
     """Read every 0.1 s on a unit turning 500°/s, two readings are 50° apart: halfway between them the
     field is 50° from each along the arc (a straight line would be 9 % short)."""
@@ -498,6 +514,34 @@ def test_misalignment_write_holds_an_external_px4_compass_misalignment_as_custom
         combined = np.hypot(sigma, measured(again, "mounting_sigma_deg").value)
         assert measured(again, "mounting_error_deg").value < Z_NEVER * combined
         assert measured(again, "orientation").value == 0
+
+
+def test_a_compass_read_by_a_slower_loop_is_no_false_reject_and_the_unproven_agreement_is_flagged(tmp_path):
+    """A real board's third compass often reaches its stream older than the others (another bus,
+    another driver loop): here 100 ms of firmware time, 20 ms on the wire at speed 5.  The station
+    finds each compass's skew; paired at two skews known to ±0.4 ms each, good compasses turning at
+    1,400°/s read 2° apart and the unit FAILed.  Now each such pair is judged at the relative timing
+    within 3σ that agrees best: the unit passes, and an agreement that timing alone could hide is
+    flagged for review with how much, in words."""
+    with ardupilot(tmp_path, "mag_latency=3:100") as sim:
+        record = run_unit(write_station("ardupilot-sim.yaml", tmp_path, sim.address, AP_OPTIONS,
+                                        {"acquisition": {"samples": 300}}))
+    assert record.verdict is Outcome.PASS, record.cause
+    assert record.unit_info["mounting"]["mag1-mag2"]["timing_window_ms"] == 0.0  # one loop: paired at one skew
+    for first in ("mag1", "mag2"):
+        prefix = "" if first == "mag1" else "mag2."
+        lag = measured(record, prefix + "time_skew_ms").value - measured(record, "mag3.time_skew_ms").value
+        sigma = np.hypot(measured(record, prefix + "time_skew_sigma_ms").value,
+                         measured(record, "mag3.time_skew_sigma_ms").value)
+        assert lag == pytest.approx(100.0 / 5.0, abs=Z_NEVER * sigma)
+        pair = record.unit_info["mounting"][f"{first}-mag3"]
+        assert pair["timing_window_ms"] > 0.0 and abs(pair["timing_shift_ms"]) <= pair["timing_window_ms"]
+        median = measured(record, f"{first}-mag3.heading_agreement_median_deg")
+        assert median.value < 1.0
+        if median.value + pair["timing_deg"] > median.high:
+            assert median.verdict is Verdict.REVIEW and f"{pair['timing_deg']:.1f}°" in median.note
+        else:
+            assert median.verdict is Verdict.PASS
 
 
 @pytest.mark.parametrize("flavour", ["px4", "ardupilot"])

@@ -38,6 +38,7 @@ from magline.core.mounting.estimate import ImuSeries
 HORIZONTAL_MIN = 0.25
 OUTLIER_FACTOR = 4.0  # a pair whose misfit exceeds this many times the median misfit is left out
 REFITS = 3
+TIMING_GRID = 8  # shifts looked at on each side of the paired timing before the refinement
 
 
 @dataclass
@@ -48,6 +49,10 @@ class HeadingAgreement:
     pairs: int  # readings paired in time
     used: int = 0  # of them, the ones the relation was fitted to
     relation: NDArray | None = None  # ``M``: sensor B's field as a linear map of sensor A's
+    timing_window_ms: float = 0.0  # how far B's relative timing was open (0: taken as paired)
+    timing_shift_ms: float = 0.0  # the shift of B's stamps within the window the figures are taken at
+    timing_deg: float = 0.0  # how much the median moved over the window: what timing alone can explain
+    paired_median_deg: float | None = None  # the median at the paired timing itself (window open only)
 
 
 def slerp_rows(t_new: NDArray, t: NDArray, values: NDArray) -> NDArray:
@@ -105,12 +110,22 @@ def heading_difference_deg(a: NDArray, b: NDArray, up: NDArray) -> NDArray:
 
 
 def heading_agreement(body_a: NDArray, t_a_ms: NDArray, body_b: NDArray, t_b_ms: NDArray,
-                      imu: ImuSeries) -> HeadingAgreement | None:
+                      imu: ImuSeries, timing_window_ms: float = 0.0) -> HeadingAgreement | None:
     """Heading difference of sensor B against sensor A (body-axis calibrated fields on their own time
-    stamps); None when the readings do not overlap in time."""
+    stamps); None when the readings do not overlap in time.
+
+    ``timing_window_ms``: how far B's stamps may still be off against A's (the station's uncertainty of
+    their relative timing); the agreement is taken at the relative timing within it that agrees best.
+    Why: a relative time shift turns one sensor against the other about the axis the unit turns about,
+    and on a tumble that mostly turns one way it is indistinguishable from a turned sensor — 1 ms at
+    1,400°/s read as 2.3° of disagreement.  Two compasses read by different driver loops reach their
+    streams at different ages; that is not a defect of the unit, and the station measures it only to
+    its own σ.  The window is the price: a real disagreement smaller than what the window's shift
+    explains cannot be told from timing on that tumble (``timing_deg`` says how much that is)."""
     t_a = np.asarray(t_a_ms, float)
-    lo = max(np.min(t_b_ms), np.min(imu.t_ms))
-    hi = min(np.max(t_b_ms), np.max(imu.t_ms))
+    t_b = np.asarray(t_b_ms, float)
+    lo = max(np.min(t_b) + timing_window_ms, np.min(imu.t_ms))
+    hi = min(np.max(t_b) - timing_window_ms, np.max(imu.t_ms))
     inside = (t_a >= lo) & (t_a <= hi)
     if inside.sum() < 10:
         return None
@@ -120,14 +135,32 @@ def heading_agreement(body_a: NDArray, t_a_ms: NDArray, body_b: NDArray, t_b_ms:
         return None
     t = t_a[inside]
     a = np.asarray(body_a, float)[inside]
-    b = slerp_rows(t, t_b_ms, body_b)
     up = up[inside] / np.linalg.norm(up[inside], axis=1, keepdims=True)
-    relation, used = fit_relation(a, b)
     vertical = np.einsum("ij,ij->i", a, up)
     horizontal = np.sqrt(np.maximum(np.einsum("ij,ij->i", a, a) - vertical**2, 0.0)) / np.linalg.norm(a, axis=1)
     headed = horizontal >= HORIZONTAL_MIN
     if headed.sum() < 10:
         return None
-    diff = heading_difference_deg(a[headed], a[headed] @ relation.T, up[headed])
-    return HeadingAgreement(median_deg=float(np.median(np.abs(diff))), max_deg=float(np.max(np.abs(diff))),
-                            mean_deg=float(np.mean(diff)), pairs=len(diff), used=int(used.sum()), relation=relation)
+
+    def at_shift(shift_ms: float) -> HeadingAgreement:
+        relation, used = fit_relation(a, slerp_rows(t, t_b + shift_ms, body_b))
+        diff = heading_difference_deg(a[headed], a[headed] @ relation.T, up[headed])
+        return HeadingAgreement(median_deg=float(np.median(np.abs(diff))), max_deg=float(np.max(np.abs(diff))),
+                                mean_deg=float(np.mean(diff)), pairs=len(diff), used=int(used.sum()),
+                                relation=relation, timing_window_ms=timing_window_ms, timing_shift_ms=shift_ms)
+
+    paired = at_shift(0.0)
+    if timing_window_ms <= 0.0:
+        return paired
+    from scipy.optimize import minimize_scalar  # on use: scipy costs every command start
+
+    grid = np.linspace(-timing_window_ms, timing_window_ms, 2 * TIMING_GRID + 1)
+    medians = [at_shift(float(shift)).median_deg for shift in grid]
+    k = int(np.argmin(medians))
+    bounds = (float(grid[max(k - 1, 0)]), float(grid[min(k + 1, len(grid) - 1)]))
+    found = minimize_scalar(lambda shift: at_shift(float(shift)).median_deg, bounds=bounds, method="bounded",
+                            options={"xatol": timing_window_ms * 1e-3})
+    best = min((at_shift(float(found.x)), at_shift(float(grid[k]))), key=lambda agreement: agreement.median_deg)
+    best.timing_deg = float(max(medians) - best.median_deg)
+    best.paired_median_deg = paired.median_deg
+    return best

@@ -37,7 +37,7 @@ def verdict_items(record: RunRecord, measured: list, owner: bool = True) -> list
     flags = {f["name"]: f["reason"] for f in record.review}
     return [{"name": m.name, "label": label_of(m.name, owner), "value": fmt(m.value, m.unit),
              "limit": f"[{fmt(m.low)}, {fmt(m.high)}]", "verdict": str(m.verdict),
-             "why": flags.get(m.name, "within the marginal band" if m.verdict is Verdict.REVIEW else "")}
+             "why": flags.get(m.name) or (m.note or "within the marginal band" if m.verdict is Verdict.REVIEW else "")}
             for m in measured if m.verdict in (Verdict.FAIL, Verdict.REVIEW)]
 
 
