@@ -100,6 +100,7 @@ def main(argv: list[str] | None = None) -> int:
     exp.add_argument("--format", choices=["csv", "jsonl"], default="csv")
     exp.add_argument("--raw", action="store_true", help="every raw sample (CSV: a row per sample)")
 
+    from magline.core.quality.trends import shifts_argument
     from magline.core.results.instants import instant_argument, until_argument
 
     spc = sub.add_parser("spc", help="control charts, Cpk / Ppk, yield and refusal causes of a part's latest units")
@@ -119,6 +120,13 @@ def main(argv: list[str] | None = None) -> int:
                      help="a baseline by date: its end (a date: that day included)")
     spc.add_argument("--by", metavar="NAME", help="who freezes the limits (default: this computer's user)")
     spc.add_argument("--html", metavar="FILE", help="also write the charts as one self-contained HTML page")
+    spc.add_argument("--with-reports", action="store_true",
+                     help="with --html: also write the unit report of every charted unit that has none yet (into the "
+                          "station's results.reports folder, else <FILE>-reports/ beside the page), so that a click "
+                          "on any point opens one")
+    spc.add_argument("--shifts", type=shifts_argument, metavar="HH:MM,…",
+                     help="the line's shift starts (e.g. 06:00,14:00,22:00, local time): yield and failure trends per "
+                          "shift instead of per day")
     spc.add_argument("--json", action="store_true", help="print the report as one JSON object (per measurement: "
                      "chart kind, n, centre, limits, capability and its method, signals, and every point with "
                      "its unit's serial, run and time)")

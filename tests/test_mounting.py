@@ -243,6 +243,13 @@ def test_a_good_three_compass_ardupilot_unit_passes_with_every_compass_calibrate
             assert plot in page
         assert "Residual — compass 2" in page and "heading agreement" in page
         assert "relation fitted to " in page and " paired readings)" in page
+        # samples and coverage for every compass: each one's readings on its ellipsoid and sphere, and in the
+        # attempts table its readings and coverage counted as the primary's are
+        assert 'id="samples3d-mag2"' in page and 'id="samples3d-mag3"' in page
+        accepted = record.attempts[-1]
+        for sensor in sim.magnetometers[1:]:
+            name = "mag2" if sensor is sim.magnetometers[1] else "mag3"
+            assert f"{name}: {len(accepted.more[sensor.device_id])} readings, " in page
         # the export has a column per sensor's measurement and per pair
         from magline.core.cli import main
 

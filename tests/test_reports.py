@@ -138,17 +138,20 @@ def test_the_batch_report_reads_like_a_capability_study_and_a_point_opens_its_un
     """Issue 45: per characteristic the I-MR chart against unit time, the histogram with the limits and the
     fitted curve, the normal probability plot and the capability summary; FPY per day and the failure
     Pareto; a click on a point opens that unit's report (written by the station, offline); the limit
-    labels never overprint the axis' tick labels.  Checked in Chromium on what it drew."""
+    labels never overprint the axis' tick labels; a report the folder lost is written again by
+    ``--with-reports`` and opens with its charts drawn.  Checked in Chromium on what it drew."""
     for i, serial in enumerate(("C-1", "C-2", "C-3", "C-4", "C-5")):
         station = make_station({"results": {"reports": "reports"}, "acquisition": {"stop": "samples"}},
                                seed=60 + i)
         assert main(["run", str(station), "--serial", serial]) == 0
     page = tmp_path / "study" / "spc.html"
+    (station.parent / "reports" / "C-1-run1.html").unlink()  # lost: --with-reports writes it again
     capsys.readouterr()
-    assert main(["spc", "--station", str(station), "--html", str(page)]) == 0
+    assert main(["spc", "--station", str(station), "--html", str(page), "--with-reports"]) == 0
+    assert "1 unit report(s) written" in capsys.readouterr().err
     opened = open_page(browser, page.as_uri())
     plots = plots_with_data(opened.page)
-    assert {"chart-hard_iron_norm_ut", "shape-hard_iron_norm_ut", "fpy-by-day"} <= set(plots)
+    assert {"chart-hard_iron_norm_ut", "shape-hard_iron_norm_ut", "fpy-over-time"} <= set(plots)
     drawn = drawn_points(opened.page)
     # the probability plot: one marker per unit (the line is not a marker)
     shape_points = opened.page.evaluate("""() => document.getElementById('shape-hard_iron_norm_ut')
@@ -180,5 +183,6 @@ def test_the_batch_report_reads_like_a_capability_study_and_a_point_opens_its_un
         opened.page.mouse.click(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
     assert opened.page.url.endswith("/reports/C-1-run1.html") and opened.page.url.startswith("file://")
     assert "C-1" in opened.page.inner_text("h1")
+    assert plots_with_data(opened.page)  # its charts drew with the plotly.js it shares with the folder
     assert opened.outside(OFFLINE) == []
     screenshot(opened.page, tmp_path / "study.png")

@@ -150,13 +150,65 @@ def _box_cox(x: np.ndarray, low: float | None, high: float | None, normal: Capab
         return None
     mean, overall = float(y.mean()), float(y.std(ddof=1))
     within = float(np.abs(np.diff(y)).mean()) / D2
+    cpk = _index(mean, within, t_low, t_high, y.size, confidence, min_units, within=True)
+    ppk = _index(mean, overall, t_low, t_high, y.size, confidence, min_units)
+    if cpk is not None and ppk is not None:
+        cpk, ppk = _with_lambda_uncertainty(cpk, ppk, y.size, mean, overall, float(lam), low, high, confidence)
     return Capability(n=normal.n, mean=normal.mean, sigma_within=normal.sigma_within,
-                      sigma_overall=normal.sigma_overall,
-                      cpk=_index(mean, within, t_low, t_high, y.size, confidence, min_units, within=True),
-                      ppk=_index(mean, overall, t_low, t_high, y.size, confidence, min_units), method="box-cox",
+                      sigma_overall=normal.sigma_overall, cpk=cpk, ppk=ppk, method="box-cox",
                       box_cox_lambda=float(lam), transformed=(mean, overall),
                       method_words=(f"Box-Cox λ = {lam:.2f} (not normal: Anderson–Darling p {normal.normality.p_words}"
                                     f"; transformed: p {shape.p_words})"), normality=normal.normality)
+
+
+# The Box-Cox intervals come from a parametric bootstrap of the whole procedure: this many data sets drawn
+# from the fitted model (normal after the transformation), each transformed with its own λ by maximum
+# likelihood and its indices computed as the data's were.  Why: Bissell's interval on the transformed
+# values takes λ as known, and held a log-normal characteristic's true Ppk only 73–82 % of the time at
+# 95 % (benchmarks/capability_study.py); λ's own uncertainty is most of what it missed.  Seeded: a report
+# reprinted from the same units states the same interval.
+BOOTSTRAP_SETS = 200
+BOOTSTRAP_SEED = 22514
+# Data sets of more values are drawn at this size and the interval's half-widths scaled by √(size / n):
+# each λ fit is an optimiser's run, and spc charts 10,000 units inside its 3 s.
+BOOTSTRAP_VALUES = 1000
+
+
+def _with_lambda_uncertainty(cpk: Index, ppk: Index, n: int, mean: float, sd: float, lam: float,
+                             low: float | None, high: float | None, confidence: float) -> tuple[Index, Index]:
+    """Cpk and Ppk with intervals that include λ's uncertainty (see BOOTSTRAP_SETS): the bootstrap
+    indices' spread below and above their median, laid about the data's own index.  (The basic
+    interval, 2Ĉ minus the quantiles, held the log-normal's true Ppk 88–91 % of the time at 95 %;
+    this one 93–96 %.)"""
+    from scipy import special, stats
+
+    size = min(n, BOOTSTRAP_VALUES)
+    rng = np.random.default_rng(BOOTSTRAP_SEED)
+    draws = special.inv_boxcox(rng.normal(mean, sd, size=(BOOTSTRAP_SETS, size)), lam)
+    indices = []
+    for x in draws:
+        if not np.all(np.isfinite(x) & (x > 0)):
+            continue  # a draw beyond the transformation's range: no data set of the model gives it
+        y, lam_b = stats.boxcox(x)
+        t_low = None if low is None or low <= 0 else float(special.boxcox(low, lam_b))
+        t_high = None if high is None else float(special.boxcox(high, lam_b))
+        within = float(np.abs(np.diff(y)).mean()) / D2
+        c = _index(float(y.mean()), within, t_low, t_high, size, confidence, 2, within=True)
+        p = _index(float(y.mean()), float(y.std(ddof=1)), t_low, t_high, size, confidence, 2)
+        if c is not None and p is not None:
+            indices.append((c.value, p.value))
+    if len(indices) < BOOTSTRAP_SETS // 2:
+        return cpk, ppk  # the model rarely gives valid data: keep the interval that takes λ as known
+    found = np.array(indices)
+    tail = (1.0 - confidence) / 2.0
+    scale = math.sqrt(size / n)
+
+    def interval(index: Index, column: np.ndarray) -> Index:
+        q_low, q_high = np.quantile(column, [tail, 1.0 - tail])
+        centre = float(np.median(column))
+        return Index(index.value, index.value - (centre - q_low) * scale, index.value + (q_high - centre) * scale)
+
+    return interval(cpk, found[:, 0]), interval(ppk, found[:, 1])
 
 
 # The shapes the percentile method may fit, as Minitab's distribution identification offers them: the

@@ -93,7 +93,11 @@ def spc(store: Any, station: Station, args: argparse.Namespace, station_dir: Pat
     if isinstance(store, ReadsInSql):
         with store.engine.connect() as conn:
             frozen = newest(conn, part, args.station_id)
-    report = build(series, title, args.measurement, args.baseline, stop_determined=stop_determined, frozen=frozen)
+    if getattr(args, "with_reports", False) and not args.html:
+        print("--with-reports writes the reports a page's points open: give --html FILE too", file=sys.stderr)
+        return 2
+    report = build(series, title, args.measurement, args.baseline, stop_determined=stop_determined, frozen=frozen,
+                   shifts=getattr(args, "shifts", None))
     if getattr(args, "json", False):
         print(json.dumps(to_json(report), default=float))
     elif getattr(args, "csv", False):
@@ -103,9 +107,21 @@ def spc(store: Any, station: Station, args: argparse.Namespace, station_dir: Pat
     else:
         print(format_text(report))
     if args.html:
+        from magline.core.reports.commands import write_missing_reports
         from magline.core.reports.spc_page import write_spc_page
 
+        page = Path(args.html)
         folder = station.main_results.reports
-        path = write_spc_page(report, Path(args.html), station_dir / folder if folder and station_dir else None)
+        reports = station_dir / folder if folder and station_dir else None
+        if getattr(args, "with_reports", False):
+            if not isinstance(store, ReadsInSql):
+                raise StationFault("this station's results sink is not a SQL store: reports read SQL stores only")
+            reports = reports or page.with_name(page.stem + "-reports")
+            charted = sorted({i for m in report.measurements for i in m.chart.index}
+                             | {i for a in report.attributes for i in a.units})
+            written = write_missing_reports(store.engine, [series.runs[i] for i in charted], reports)
+            print(f"{len(written)} unit report(s) written to {reports} ({len(charted) - len(written)} were there)",
+                  file=sys.stderr)
+        path = write_spc_page(report, page, reports)
         print(f"charts written to {path}", file=sys.stderr)
     return 0 if len(series) else 1

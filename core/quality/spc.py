@@ -8,6 +8,7 @@ station, operator and part, refusal causes ranked.  The console prints the text 
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -17,6 +18,7 @@ from magline.core.measurements import CATALOGUE, POSSIBLE, base_name
 from magline.core.quality.capability import MIN_UNITS, MIN_UNITS_SOURCE, Capability, capability, index_words
 from magline.core.quality.charts import ImrChart, frozen_chart, imr_chart
 from magline.core.quality.rules import RULES
+from magline.core.quality.trends import Shifts, Trends, trends
 from magline.core.quality.yields import YieldRow, ranked_causes, yields
 from magline.core.results.control_limits import FrozenLimits
 from magline.core.results.series import Limit, RunSeries
@@ -92,6 +94,8 @@ class SpcReport:
     missing: list[str] = field(default_factory=list)  # names asked for that these runs do not hold
     station_figures: list[str] = field(default_factory=list)  # not charted by default: the station's, not the unit's
     unlimited: list[str] = field(default_factory=list)  # not charted by default: no limit describes them
+    trends: Trends | None = None  # yield and failure causes per day or shift, per station, operator, product, compass
+    by_shift: bool = False  # the trends' periods are the line's shifts, not days
 
 
 def _order(name: str) -> tuple[int, str]:
@@ -100,7 +104,8 @@ def _order(name: str) -> tuple[int, str]:
 
 
 def build(series: RunSeries, title: str, names: Sequence[str] | None = None, baseline: int = 50,
-          stop_determined: bool = True, frozen: dict[str, FrozenLimits] | None = None) -> SpcReport:
+          stop_determined: bool = True, frozen: dict[str, FrozenLimits] | None = None,
+          shifts: Shifts | None = None) -> SpcReport:
     """The report of ``series``: the measurements in ``names``, or by default every product
     characteristic — a measurement with a limit that is not a station figure (:func:`station_figure`);
     the others are listed, not charted.  A measurement with ``frozen`` limits is judged against them
@@ -150,6 +155,8 @@ def build(series: RunSeries, title: str, names: Sequence[str] | None = None, bas
     for by in ("station_id", "operator", "part"):
         report.yields[by] = yields(series, by)
     report.refusals, report.failed = ranked_causes(series)
+    report.trends = trends(series, shifts)
+    report.by_shift = bool(shifts and shifts.starts)
     return report
 
 
@@ -226,7 +233,30 @@ def format_text(report: SpcReport) -> str:
     lines += [f"  {count:>6}  {cause}" for cause, count in report.refusals] or ["  none"]
     lines.append("measurements that failed units:")
     lines += [f"  {count:>6}  {name}" for name, count in report.failed] or ["  none"]
+    lines += _trend_lines(report)
     return "\n".join(lines)
+
+
+TREND_PERIODS_SHOWN = 14  # the console shows the latest two weeks of days (or shifts); --json holds them all
+
+
+def _trend_lines(report: SpcReport) -> list[str]:
+    """First-pass yield per day or shift (the latest periods) and the compasses failures fell on."""
+    t = report.trends
+    if t is None or not t.periods:
+        return []
+    (points,) = t.fpy["all"].values() if t.fpy.get("all") else ([],)
+    period = "shift" if report.by_shift else "day"
+    lines = ["", f"first-pass yield per {period} (latest {min(len(points), TREND_PERIODS_SHOWN)}; failure causes of "
+                 "that period):"]
+    for p in points[-TREND_PERIODS_SHOWN:]:
+        causes = ", ".join(f"{name} {n}" for name, n in t.causes_by_period.get(p.period, Counter()).most_common(3))
+        lines.append(f"  {p.period:<26} {p.first_pass:>5} of {p.first_runs:<5} {percent(p.fpy):>7}  {causes}")
+    compasses = t.causes_by.get("compass", {})
+    if len(compasses) > 1:
+        lines.append("failed measurements per compass: "
+                     + "; ".join(f"{c} {sum(n.values())}" for c, n in compasses.items()))
+    return lines
 
 
 CSV_COLUMNS = ("measurement", "chart", "serial", "run_id", "started", "value", "moving_range", "in_baseline",
@@ -298,4 +328,6 @@ def to_json(report: SpcReport) -> dict:
             "missing": report.missing,
             "yields": {by: [vars(r) for r in rows] for by, rows in report.yields.items()},
             "refusals": [{"cause": c, "count": n} for c, n in report.refusals],
-            "failed": [{"measurement": n, "count": k} for n, k in report.failed]}
+            "failed": [{"measurement": n, "count": k} for n, k in report.failed],
+            "trends": None if report.trends is None else {"period": "shift" if report.by_shift else "day",
+                                                          **report.trends.to_json()}}

@@ -1,8 +1,8 @@
 """What a quality engineer reads of one characteristic in the batch report (issue 45), after Minitab's
 capability sixpack: the I-MR chart by unit time (each point's serial on hover, a click opening the
 unit's report), the histogram with the specification limits and the curve the capability was computed
-from, and the normal probability plot.  And the process over time: first-pass yield per day and the
-failure causes as a Pareto chart.
+from, and the normal probability plot.  And the failure causes as a Pareto chart (the trends over time
+and per group are :mod:`magline.core.reports.trend_figures`').
 
 SVG traces only (Chromium keeps 16 WebGL contexts per page).  Labels of the limits sit inside the plot
 area, above their line: on the left edge they overprinted the axis' tick labels ("LSL 0.5").
@@ -146,31 +146,6 @@ def capability_rows(m: MeasurementReport) -> list[tuple[str, str]]:
             ("Cpk [95 % CI]", cap.cpk.words() if cap.cpk else "—"),
             ("Ppk [95 % CI]", cap.ppk.words() if cap.ppk else "—"),
             ("shape and method", cap.method_words), ("control limits", m.limits_from)]
-
-
-def yield_by_day(report: SpcReport) -> go.Figure | None:
-    """First-pass yield per day (first runs of a serial judged that day), judged units as bars."""
-    days: dict[str, list[int]] = {}
-    for run in report.series.runs:
-        if run["verdict"] not in ("pass", "fail") or (run.get("earlier_runs") or 0) > 0:
-            continue
-        day = str(run["started"])[:10]
-        tally = days.setdefault(day, [0, 0])
-        tally[0] += 1
-        tally[1] += run["verdict"] == "pass"
-    if not days:
-        return None
-    order = sorted(days)
-    fig = make_subplots(specs=[[{"secondary_y": True}]])
-    fig.add_trace(go.Bar(x=order, y=[days[d][0] for d in order], name="first runs judged", marker={"color": "#d0d7de"}),
-                  secondary_y=False)
-    fig.add_trace(go.Scatter(x=order, y=[100.0 * days[d][1] / days[d][0] for d in order], mode="lines+markers",
-                             name="first-pass yield", line={"color": "#1a7f37"},
-                             hovertemplate="%{x}<br>FPY %{y:.1f} %<extra></extra>"), secondary_y=True)
-    fig.update_layout(title="first-pass yield per day", height=300, margin={"l": 60, "r": 60, "t": 50, "b": 40})
-    fig.update_yaxes(title_text="units", secondary_y=False)
-    fig.update_yaxes(title_text="FPY %", range=[0, 105], secondary_y=True)
-    return fig
 
 
 def failure_pareto(report: SpcReport) -> go.Figure | None:

@@ -13,7 +13,7 @@ from sqlalchemy import Connection
 from magline.core.faults import StationFault
 from magline.core.reports.unit_page import write_unit_page
 from magline.core.results.contract import ReadsInSql
-from magline.core.results.reading import find_run_or_serial, run_attempts
+from magline.core.results.reading import attempt_sensor_streams, find_run_or_serial, run_attempts
 from magline.core.station import Station
 
 UNSAFE = re.compile(r"[^A-Za-z0-9._-]+")
@@ -24,6 +24,8 @@ def stored_run(conn: Connection, wanted: str) -> dict[str, Any] | None:
     found = find_run_or_serial(conn, wanted)
     if found is not None:
         found["attempts"] = run_attempts(conn, found["id"], with_samples=True)
+        for attempt in found["attempts"]:  # the other compasses' readings of the same tumble
+            attempt["others"] = attempt_sensor_streams(conn, found["id"], attempt["attempt"])
     return found
 
 
@@ -37,6 +39,24 @@ def write_report(engine: Any, wanted: str, output: Path | None, folder: Path = P
     if run is None:
         raise StationFault(f"no run or serial {wanted!r} in the results store")
     return write_unit_page(run, output or folder / default_name(run))
+
+
+def write_missing_reports(engine: Any, runs: list[dict[str, Any]], folder: Path) -> list[Path]:
+    """The unit report of every run in ``runs`` that has none in ``folder`` yet, under the name the
+    station writes it under (a batch page's points open them), sharing one plotly.js in ``folder``."""
+    from magline.core.reports.page import shared_plotly
+
+    missing = [run for run in runs if not (folder / default_name(run)).is_file()]
+    if not missing:
+        return []
+    src = shared_plotly(folder)
+    written = []
+    with engine.connect() as conn:
+        for run in missing:
+            stored = stored_run(conn, str(run["id"]))
+            if stored is not None:
+                written.append(write_unit_page(stored, folder / default_name(stored), src))
+    return written
 
 
 def report(store: Any, station: Station, wanted: str, output: str | None) -> int:

@@ -55,12 +55,30 @@ def table(header: Sequence[str] | None, rows: Iterable[Sequence[object]], row_cl
     return "".join(out)
 
 
-def write_page(path: Path, title: str, sections: Sequence[str]) -> Path:
-    """The page: head with the style and plotly.js, then the sections' HTML in order."""
+PLOTLY_FILE = "plotly.min.js"
+
+
+def shared_plotly(folder: Path) -> str:
+    """plotly.js as one file in ``folder`` (written once), for pages written there by the hundred:
+    inline, each unit report carries its 3.6 MB again.  Returns the file's name for ``write_page``."""
+    target = folder / PLOTLY_FILE
+    if not target.is_file() or target.stat().st_size != len(_plotly_js().encode()):
+        folder.mkdir(parents=True, exist_ok=True)
+        tmp = target.with_name(target.name + ".part")
+        tmp.write_text(_plotly_js(), encoding="utf-8")
+        tmp.replace(target)
+    return PLOTLY_FILE
+
+
+def write_page(path: Path, title: str, sections: Sequence[str], plotly_src: str | None = None) -> Path:
+    """The page: head with the style and plotly.js, then the sections' HTML in order.  ``plotly_src``:
+    plotly.js from that file beside the page (:func:`shared_plotly`) instead of inline."""
     path.parent.mkdir(parents=True, exist_ok=True)
+    script = (f"<script src='{html.escape(plotly_src)}'></script>" if plotly_src
+              else f"<script>{_plotly_js()}</script>")
     doc = (f"<!DOCTYPE html><html lang=en><head><meta charset=utf-8><title>{html.escape(title)}</title>"
            f"<meta name=viewport content='width=device-width, initial-scale=1'><style>{STYLE}</style>"
-           f"<script>{_plotly_js()}</script></head><body>{''.join(sections)}</body></html>")
+           f"{script}</head><body>{''.join(sections)}</body></html>")
     tmp = path.with_name(path.name + ".part")
     tmp.write_text(doc, encoding="utf-8")
     tmp.replace(path)  # a half-written report is never left under the final name

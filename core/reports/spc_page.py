@@ -15,9 +15,9 @@ from magline.core.reports.capability_figures import (
     imr_figure,
     report_links,
     shape_figure,
-    yield_by_day,
 )
 from magline.core.reports.page import figure_html, table, write_page
+from magline.core.reports.trend_figures import causes_by, causes_over_time, yield_over_time
 from magline.core.text import fmt, percent
 
 
@@ -68,10 +68,7 @@ def write_spc_page(report: SpcReport, path: Path, reports: Path | None = None) -
                  table(("acquisition attempts refused, by cause", "count"), report.refusals or [("none", 0)],
                        numeric=(1,)),
                  table(("measurements that failed units", "count"), report.failed or [("none", 0)], numeric=(1,))]
-    trends = [(fig, name) for fig, name in ((yield_by_day(report), "fpy-by-day"), (failure_pareto(report), "pareto"))
-              if fig is not None]
-    if trends:
-        sections += ["<h2>Over time</h2>", *(figure_html(fig, name) for fig, name in trends)]
+    sections += _trend_sections(report)
     sections.append("<h2>Characteristics</h2><p class=note>each point is a unit (hover: its serial; click: its "
                     "report" + (", from " + html.escape(str(reports)) if reports else "") + ")</p>")
     for m in report.measurements:
@@ -81,3 +78,21 @@ def write_spc_page(report: SpcReport, path: Path, reports: Path | None = None) -
                      figure_html(shape_figure(m), f"shape-{m.name}"), table(None, capability_rows(m))]
     sections.append(CLICK_SCRIPT)
     return write_page(path, f"magline spc — {report.title}", sections)
+
+
+def _trend_sections(report: SpcReport) -> list[str]:
+    """Yield and failure causes over time, then split by station, operator, product and compass."""
+    if report.trends is None:
+        return []
+    t, by_shift = report.trends, report.by_shift
+    over_time = [(yield_over_time(t, "all", by_shift), "fpy-over-time"),
+                 (causes_over_time(t, by_shift), "causes-over-time"), (failure_pareto(report), "pareto")]
+    split = [(yield_over_time(t, word, by_shift), f"fpy-per-{word}") for word in ("station", "operator", "product")]
+    split += [(causes_by(t, word), f"causes-per-{word}") for word in ("station", "operator", "product", "compass")]
+    out = []
+    if any(fig is not None for fig, _ in over_time):
+        out += ["<h2>Over time</h2>", *(figure_html(fig, name) for fig, name in over_time if fig is not None)]
+    if any(fig is not None for fig, _ in split):
+        out += ["<h2>Per station, operator, product and compass</h2>",
+                *(figure_html(fig, name) for fig, name in split if fig is not None)]
+    return out

@@ -132,7 +132,7 @@ def _scatter(points: np.ndarray, name: str, colour: str) -> go.Scatter3d:
                         marker={"size": 2, "color": colour})
 
 
-def _samples_3d(cal: dict[str, Any], raw: RawSamples) -> str:
+def _samples_3d(cal: dict[str, Any], raw: RawSamples, div_id: str = "samples3d") -> str:
     h = np.asarray(cal["hard_iron_ut"], dtype=float)
     s = np.asarray(cal["soft_iron"], dtype=float)
     field = float(cal["field_ut"])
@@ -143,7 +143,7 @@ def _samples_3d(cal: dict[str, Any], raw: RawSamples) -> str:
                      _scatter(corrected, "corrected", "#1a7f37"), _surface(mesh, f"sphere {field:.1f} µT", "#1a7f37")])
     fig.update_layout(title="raw samples on the fitted ellipsoid, corrected samples on the field's sphere (µT)",
                       height=560, scene={"aspectmode": "data"}, margin={"l": 0, "r": 0, "t": 40, "b": 0})
-    return figure_html(fig, "samples3d")
+    return figure_html(fig, div_id)
 
 
 def _coverage_3d(cal: dict[str, Any], raw: RawSamples) -> str:
@@ -170,13 +170,43 @@ def _coverage_3d(cal: dict[str, Any], raw: RawSamples) -> str:
     return figure_html(fig, "coverage3d")
 
 
+def compass_names(run: dict[str, Any]) -> dict[int, str]:
+    """Device id → the compass's name in the record (``mag1`` the primary, ``mag2``…)."""
+    return {int(row[2]): row[0] for row in compass_rows(run.get("unit_info")) if row[2].isdigit()}
+
+
+def other_compasses(run: dict[str, Any], attempt: dict[str, Any], bins: int) -> str:
+    """The other compasses' readings in an attempt and their coverage, counted as the primary's is
+    (the same bins, the same function on their raw readings)."""
+    names = compass_names(run)
+    return "; ".join(f"{names.get(device, device)}: {len(raw.mag_ut)} readings, "
+                     f"{percent(len(covered_bins(raw.mag_ut, bins)) / bins)}"
+                     for device, raw in (attempt.get("others") or {}).items()) or "—"
+
+
 def _attempts(run: dict[str, Any]) -> str:
+    bins = int(((run.get("calibration") or {}).get("coverage") or {}).get("bins") or 100)
+    several = any(a.get("others") for a in run["attempts"])
     rows = [(a["attempt"], a["samples"], percent(a["coverage"]), percent(a["target"]),
              "accepted" if a["accepted"] else (a.get("refused") or "superseded"), a.get("repeats") or 0,
-             fmt(a.get("sensor_rate_hz"), "Hz")) for a in run["attempts"]]
+             fmt(a.get("sensor_rate_hz"), "Hz"), *((other_compasses(run, a, bins),) if several else ()))
+            for a in run["attempts"]]
     return "<h2>Acquisition attempts</h2>" + table(
-        ("attempt", "readings", "coverage", "target", "used / why not", "repeats dropped", "sensor rate"), rows,
-        numeric=(1, 2, 3, 5))
+        ("attempt", "readings", "coverage", "target", "used / why not", "repeats dropped", "sensor rate",
+         *(("other compasses: readings, coverage",) if several else ())), rows, numeric=(1, 2, 3, 5))
+
+
+def _other_samples(run: dict[str, Any], accepted: dict[str, Any]) -> list[str]:
+    """Each further compass's raw readings on its fitted ellipsoid and corrected on its sphere."""
+    fitted = (run.get("calibration") or {}).get("magnetometers") or {}
+    names = compass_names(run)
+    out = []
+    for device, raw in (accepted.get("others") or {}).items():
+        name = names.get(device)
+        cal = fitted.get(name) if name else None
+        if cal and cal.get("soft_iron") and cal.get("hard_iron_ut"):
+            out += [f"<h3>{html.escape(name)}</h3>", _samples_3d(cal, raw, f"samples3d-{name}")]
+    return out
 
 
 def _params(run: dict[str, Any]) -> str:
@@ -198,15 +228,15 @@ def _phases(run: dict[str, Any]) -> str:
     return "<h2>Phases</h2>" + table(("phase", "outcome", "duration", "message"), rows, numeric=(2,))
 
 
-def write_unit_page(run: dict[str, Any], path: Path) -> Path:
+def write_unit_page(run: dict[str, Any], path: Path, plotly_src: str | None = None) -> Path:
     """``run``: a stored record as ``reading.find_run`` returns it, its attempts read with their
-    raw arrays (``run_attempts(..., with_samples=True)``)."""
+    raw arrays (``run_attempts(..., with_samples=True)``).  ``plotly_src``: as :func:`write_page`."""
     cal = run.get("calibration")
     accepted = next((a for a in run["attempts"] if a["accepted"] and a.get("raw") is not None), None)
     sections = [_identity(run), _measurements(run), _residual_charts(run)]
     if cal and accepted is not None:
-        sections += ["<h2>Samples</h2>", _samples_3d(cal, accepted["raw"]), "<h2>Coverage</h2>",
-                     _coverage_3d(cal, accepted["raw"])]
+        sections += ["<h2>Samples</h2>", _samples_3d(cal, accepted["raw"]), *_other_samples(run, accepted),
+                     "<h2>Coverage</h2>", _coverage_3d(cal, accepted["raw"])]
         h = ", ".join(fmt(v) for v in cal["hard_iron_ut"])
         reference = fmt(run.get("reference_field_ut"), "µT")
         soft = "; ".join(", ".join(f"{v:.5f}" for v in row) for row in cal["soft_iron"])
@@ -215,4 +245,4 @@ def write_unit_page(run: dict[str, Any], path: Path) -> Path:
     else:
         sections.append("<h2>Samples</h2><p class=note>no accepted attempt: no calibration to draw</p>")
     sections += [_attempts(run), _params(run), _phases(run)]
-    return write_page(path, f"magline — {run['serial']} run {run['id']}", sections)
+    return write_page(path, f"magline — {run['serial']} run {run['id']}", sections, plotly_src)

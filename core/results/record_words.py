@@ -84,8 +84,11 @@ def mounting_rows(unit_info: dict[str, Any] | None) -> list[tuple[str, str, str,
                          f"paired readings{skew}", f"{v['inclination_deg']:.2f}°"))
         else:
             fitted = f" (relation fitted to {v['used']} of {v['pairs']} paired readings)" if "used" in v else ""
-            rows.append((key, "heading agreement", f"median {v['median_deg']:.2f}°, max {v['max_deg']:.2f}°{fitted}",
-                         ""))
+            timing = (f"; relative timing open by ±{v['timing_window_ms']:.1f} ms, taken at "
+                      f"{v.get('timing_shift_ms', 0.0):+.2f} ms: timing alone explains up to "
+                      f"{v.get('timing_deg', 0.0):.1f}°" if v.get("timing_window_ms") else "")
+            rows.append((key, "heading agreement",
+                         f"median {v['median_deg']:.2f}°, max {v['max_deg']:.2f}°{fitted}{timing}", ""))
     return rows
 
 
