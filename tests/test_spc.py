@@ -218,6 +218,12 @@ def test_too_few_units_for_capability_and_an_unknown_measurement_are_said(make_s
     out = capsys.readouterr().out
     assert "n = 3: capability needs at least 25 judged units (AIAG SPC manual: 25 subgroups)" in out
     assert "no run here holds: mag2.axis_ratio" in out  # a measurement magline makes, not on these units
+    assert "no limit in the station file for hard_iron_x_ut: charted, but without a limit there is no Cpk" in out
+    page = station.parent / "empty.html"
+    assert main(["spc", "--station", str(station), "--since", "2099-01-01", "--html", str(page)]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == "" and not page.exists()  # a window with no units: said, nothing drawn
+    assert "no runs of part MOCK-100 since 2099-01-01T" in captured.err and "nothing to chart" in captured.err
     assert main(["spc", "--station", str(station), "--measurement", "hard_iron_x", "--measurement", "nope"]) == 2
     captured = capsys.readouterr()
     assert captured.out == ""  # never a chart of nothing

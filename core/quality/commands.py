@@ -87,6 +87,12 @@ def spc(store: Any, station: Station, args: argparse.Namespace, station_dir: Pat
     where = RunFilter(part=part, station_id=args.station_id, since=args.since, until=args.until)
     series = _with_station_limits(store.series(where, last=args.last, names=args.measurement, with_attempts=True),
                                   station, part)
+    if not len(series):
+        window = "".join(f" {name} {value}" for name, value in (("since", args.since), ("until", args.until)) if value)
+        print(f"no runs of part {part}" + (f" at station {args.station_id}" if args.station_id else "")
+              + f"{window} in {series.source or 'the results store'}: nothing to chart (no page, no data written)",
+              file=sys.stderr)
+        return 2
     title = f"part {part}" + (f", station {args.station_id}" if args.station_id else ", every station") + \
         f", latest {len(series)} runs"
     frozen = {}
@@ -124,4 +130,4 @@ def spc(store: Any, station: Station, args: argparse.Namespace, station_dir: Pat
                   file=sys.stderr)
         path = write_spc_page(report, page, reports)
         print(f"charts written to {path}", file=sys.stderr)
-    return 0 if len(series) else 1
+    return 0

@@ -208,6 +208,10 @@ def format_text(report: SpcReport) -> str:
     if judged < MIN_UNITS:
         lines.append(f"n = {judged}: capability needs at least {MIN_UNITS} judged units ({MIN_UNITS_SOURCE}); "
                      "Cpk and Ppk are not stated")
+    limitless = [m.name for m in report.measurements if m.limit.low is None and m.limit.high is None]
+    if limitless:
+        lines.append(f"no limit in the station file for {', '.join(limitless)}: charted, but without a limit there "
+                     "is no Cpk or Ppk")
     if report.attributes:
         lines += ["", f"{'counted':<24} {'n':>6} {'units':>6} {'share':>7} {'UCL':>7}  what"]
         lines += [f"{a.name:<24} {a.n:>6} {len(a.units):>6} {percent(a.proportion):>7} {percent(a.ucl):>7}  {a.what}"
