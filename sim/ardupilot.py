@@ -37,6 +37,7 @@ from magline.sim.vehicle import ACCEPTED, UNSUPPORTED, SimulatedAutopilot, int16
 
 SETS = ("", "2", "3")
 AXES = ("X", "Y", "Z")
+MOTCT_CURRENT = 2  # COMPASS_MOTCT: 0 off, 1 throttle, 2 current
 MAX_SCALE_FACTOR = 1.5
 FIELD_MG_LIMITS = (185.0, 875.0)
 MAX_XYZ_ANGLE_DEG, MAX_XY_ANGLE_DEG, MAX_XY_LENGTH_MG = 90.0, 60.0, 200.0  # AP_Compass consistency limits
@@ -207,6 +208,10 @@ class ArduPilotSim(SimulatedAutopilot):
             odi = [v[x] for x in n["ODI"]]
             m = np.array([[dia[0], odi[0], odi[1]], [odi[0], dia[1], odi[2]], [odi[1], odi[2], dia[2]]])
             out = m @ out
+        if int(v["COMPASS_MOTCT"]) == MOTCT_CURRENT:
+            # AP_Compass_Backend::correct_field: after the matrix, in the rotated frame, MOT (mG/A) times the
+            # primary battery monitor's current is *added* (reference §18); no armed check in current mode
+            out = out + np.array([v[x] for x in n["MOT"]]) * self.firmware_current_a()
         return out
 
     def configured(self, i: int) -> bool:

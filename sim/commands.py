@@ -57,6 +57,12 @@ def add_sim_command(subparsers: argparse._SubParsersAction) -> None:
     board.add_argument("--supply", metavar="tcp:HOST:PORT",
                        help="also run a simulated SCPI bench supply that powers this board (it starts off)")
     board.add_argument("--supply-fault", choices=["dead_board", "short", "output_error"])
+    board.add_argument("--load", metavar="tcp:HOST:PORT",
+                       help="also run a simulated SCPI electronic load in this board's power path, downstream of its "
+                            "current sensor (its input on clamps the unit still, as for the current sweep)")
+    board.add_argument("--load-fault", choices=["no_sink"], help="the load's input reports on but nothing flows")
+    board.add_argument("--load-rating", type=float, default=60.0, metavar="A",
+                       help="the load's largest current (default 60 A)")
     board.add_argument("--usb-powered", action="store_true",
                        help="the board takes its power from its USB port: a supply cut does not reboot it, the "
                             "hub port's power does (--usb-hub)")
@@ -187,6 +193,10 @@ def run_sim(args: argparse.Namespace) -> int:
             from magline.sim.supply import SupplySim
             supply = SupplySim(args.supply, board=sim, fault=args.supply_fault).start()
             sim.power_off()  # the supply's output starts off
+        load = None
+        if args.load:
+            from magline.sim.load import LoadSim
+            load = LoadSim(args.load, board=sim, fault=args.load_fault, rating_a=args.load_rating).start()
         hub = None
         if args.usb_hub:
             from magline.sim.usb_hub import UsbHubSim
@@ -197,6 +207,9 @@ def run_sim(args: argparse.Namespace) -> int:
     lines = [f"listening on {sim.address}"]
     if supply is not None:
         lines.append(f"supply listening on {supply.address} (VISA {supply.visa_resource}), output off")
+    if load is not None:
+        lines.append(f"electronic load listening on {load.address} (VISA {load.visa_resource}), input off, "
+                     f"rated {load.rating_a:g} A")
     if hub is not None:
         lines.append(f"usb hub {hub.location} listening on {hub.address}, the board on port {args.hub_port} "
                      f"(uhubctl: MAGLINE_SIM_USB_HUB={hub.address} python -m magline.sim.uhubctl)")
@@ -204,11 +217,13 @@ def run_sim(args: argparse.Namespace) -> int:
     for mag in sim.magnetometers:
         h = ", ".join(f"{v:.2f}" for v in mag.hard_iron_ut)
         s = "; ".join(", ".join(f"{v:.4f}" for v in row) for row in mag.soft_iron)
-        lines.append(f"  magnetometer {mag.device_id}: hard iron [{h}] µT, soft iron [{s}]")
+        per_amp = ", ".join(f"{v:.3f}" for v in mag.interference_ut_per_a)
+        lines.append(f"  magnetometer {mag.device_id}: hard iron [{h}] µT, soft iron [{s}], current interference "
+                     f"[{per_amp}] µT/A")
 
     def stop() -> None:
         sim.stop()
-        for instrument in (supply, hub):
+        for instrument in (supply, hub, load):
             if instrument is not None:
                 instrument.stop()
 

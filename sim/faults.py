@@ -35,6 +35,14 @@ class SimFaults:
     # compasses' — a compass on a slower bus or read by a slower driver loop, as a second compass of a
     # real board often is: each stream carries its own compass's latest reading at the message's time
     mag_latency: list[str] = field(default_factory=list)
+    # the board's current sensor reads this many % off (−20: 20 % low, a power module's wrong scale)
+    current_sensor_pct: float = 0.0
+    # µT a magnetised part keeps adding at every compass (along its interference) once a current has flowed
+    interference_remanence: float = 0.0
+    # °/s the unit turns about its Z axis while it is held still for the current sweep (it slips in its fixture)
+    moved_during_sweep: float = 0.0
+    # MAV_CMD_DO_MOTOR_TEST is refused (no RC calibration, a safety switch on)
+    motor_test_refused: bool = False
     # "UT:TAU_S": every compass's offset is UT µT from its settled value while the board is cold and
     # settles with time constant TAU_S as it warms; a reboot keeps it warm (sim/thermal.py)
     mag_warmup: str = ""

@@ -52,9 +52,18 @@ class SimMagnetometer:
     # how the sensor is really mounted, as a firmware orientation value (ArduPilot SITL's SIM_MAGn_ORIENT):
     # its readings are the body field turned by the inverse of that rotation
     mounting: int = 0
+    # the field the board's power wiring adds at this sensor per amp (body axes, µT/A): None draws a plausible
+    # one from the device id (a compass on the board sees far more than one on a GPS mast)
+    interference_ut_per_a: NDArray | None = None
     truth: SensorTruth = field(init=False)
 
     def __post_init__(self) -> None:
+        if self.interference_ut_per_a is None:
+            own = np.random.default_rng(self.device_id)  # not the board's rng: its other draws stay as they were
+            size = own.uniform(0.02, 0.08) if self.external else own.uniform(0.2, 0.5)
+            direction = own.normal(size=3)
+            self.interference_ut_per_a = size * direction / np.linalg.norm(direction)
+        self.interference_ut_per_a = np.asarray(self.interference_ut_per_a, float)
         self.hard_iron_ut = np.asarray(self.hard_iron_ut, float)
         self.soft_iron = np.asarray(self.soft_iron, float)
         self.truth = SensorTruth(hard_iron_ut=self.hard_iron_ut, soft_iron=self.soft_iron,

@@ -180,7 +180,17 @@ class Px4Sim(SimulatedAutopilot):
             n = (n + 1) % SLOTS  # fault: the next slot's calibration
         off_g, s = self.calibration(n)
         off_g = {"sign": -off_g, "unit": off_g / 1000.0}.get(applied, off_g)  # faults: read another way
-        return self.rotation(n, sensor) @ s @ (raw_ut / 100.0 - off_g) * 100.0
+        return self.rotation(n, sensor) @ s @ (raw_ut / 100.0 + self.power_compensation_g(n) - off_g) * 100.0
+
+    def power_compensation_g(self, n: int) -> NDArray:
+        """``power · CAL_MAGn_xCOMP`` of Magnetometer::Correct (G), added to the raw reading before the
+        offset: with CAL_MAG_COMP_TYP 2 or 3, power is the battery current in kA.  A BATTERY_STATUS lands in
+        instance 0 whatever its id, and type 3 without an instance 1 keeps compensating from instance 0
+        (reference §18): both read the board's one current.  Throttle mode (1) applies only when armed."""
+        v = self.table.values
+        if int(v["CAL_MAG_COMP_TYP"]) not in (2, 3):
+            return np.zeros(3)
+        return np.array([v[f"CAL_MAG{n}_{a}COMP"] for a in AXES]) * self.firmware_current_a() / 1000.0
 
     def rotation(self, n: int, sensor: SimMagnetometer) -> NDArray:
         """R of ``R·S·(raw − OFF)``: the board's level adjustment (SENS_BOARD_X/Y/Z_OFF: roll, pitch, yaw

@@ -116,6 +116,15 @@ class SimulatedAutopilot(ABC):
         for index, (mounting, yaw_deg) in self.faults.mountings().items():
             if index < len(self.magnetometers):
                 self.magnetometers[index].mount(mounting, (0.0, 0.0, yaw_deg))
+        # the current through the board's power path, downstream of its current sensor (issue 46): the board's
+        # own draw, a load's (``current_provider``, the simulated electronic load) and its motors' on a motor test
+        self.idle_current_a = 0.0  # its own draw: part of the hard iron at rest, so 0 keeps the sensors' truth
+        self.current_provider: Callable[[], float] | None = None
+        self.current_scale = 1.0 + self.faults.current_sensor_pct / 100.0  # the board's current sensor's error
+        self._motor_test: tuple[float, float] | None = None  # (throttle %, until) while a motor test runs
+        self._peak_current_a = 0.0  # the largest current seen since boot (fault ``interference_remanence``)
+        self._still: tuple[Rotation, float] | None = None  # held still in a fixture: (attitude, since)
+        self._status_streams: dict[int, list[float]] = {}  # BATTERY_STATUS / SYS_STATUS: [interval, due]
         self._latency_s = {self.magnetometers[index].device_id: seconds
                            for index, seconds in self.faults.latencies_s().items() if index < len(self.magnetometers)}
         self.field_ned = earth_field_ned(field_ut, inclination_deg)
@@ -446,6 +455,10 @@ class SimulatedAutopilot(ABC):
                 message = self.stream_message(msg_id, now)
                 if message is not None:
                     self.mav.send(message)
+        for msg_id, due in self._status_streams.items():
+            if now >= due[1]:
+                due[1] = max(due[1] + due[0], now - due[0])
+                self.send_status(msg_id, now)
 
     def _transmit(self, data: bytes) -> None:
         if self.power not in (Power.UP, Power.SHUTTING_DOWN) or self.link_dead or self.link is None:
@@ -489,6 +502,10 @@ class SimulatedAutopilot(ABC):
         return self._rest[0] if self._rest is not None and self._motion_index < self._rest[1] else None
 
     def attitude_at(self, now: float) -> Rotation:
+        if self._still is not None:
+            held, since = self._still
+            drift = self.faults.moved_during_sweep  # °/s: a unit knocked or slipping in its fixture
+            return held * Rotation.from_euler("Z", drift * max(now - since, 0.0), degrees=True) if drift else held
         if self._rest is not None and self._motion_index < self._rest[1] and self.field_provider is None:
             return self._rest[0]
         motion = self.current_motion()
@@ -528,6 +545,50 @@ class SimulatedAutopilot(ABC):
     def sensor_rate_hz(self, sensor: SimMagnetometer) -> float:
         return self.mag_rate_hz or self.firmware_mag_rate_hz or driver_rate_hz(sensor.device_id)
 
+    # ------------------------------------------------------------------ current and its interference
+    def hold_still(self, still: bool) -> None:
+        """The unit is clamped in its fixture (a load or the motors connected): it keeps the attitude it
+        has now until released — what the operator does when the station asks for the current sweep."""
+        with self.lock:
+            now = time.monotonic()
+            self._still = (self.attitude_at(now), now) if still and self._still is None else (
+                self._still if still else None)
+
+    # Motor current against throttle, one motor spinning (ArduCopter SITL, reference §18): 0 / 0.44 / 3.1 /
+    # 5.0 / 9.9 / 18 A at 0 / 20 / 40 / 50 / 70 / 100 %
+    MOTOR_CURVE = ((0.0, 0.0), (20.0, 0.44), (40.0, 3.1), (50.0, 5.0), (70.0, 9.9), (100.0, 18.0))
+
+    def true_current_a(self, now: float) -> float:
+        """The current through the board's power path (A): its own draw, the load's, a spinning motor's."""
+        if self.power is not Power.UP:
+            return 0.0
+        load = float(self.current_provider()) if self.current_provider is not None else 0.0
+        motor = 0.0
+        if self._motor_test is not None:
+            throttle, until = self._motor_test
+            if now < until:
+                motor = float(np.interp(throttle, *zip(*self.MOTOR_CURVE, strict=True)))
+            else:
+                self._motor_test = None
+        current = self.idle_current_a + max(load, 0.0) + motor
+        self._peak_current_a = max(self._peak_current_a, current)
+        return current
+
+    def firmware_current_a(self, now: float | None = None) -> float:
+        """What the board's own current sensor reports (its scale error applied)."""
+        return self.true_current_a(time.monotonic() if now is None else now) * self.current_scale
+
+    def interference_ut(self, sensor: SimMagnetometer, now: float) -> NDArray:
+        """The field the power wiring's current adds at this compass (body axes, µT): its own vector per
+        amp, and — fault ``interference_remanence`` — a part magnetised by the largest current so far."""
+        current = self.true_current_a(now)
+        field = current * sensor.interference_ut_per_a
+        remanence = self.faults.interference_remanence
+        if remanence and self._peak_current_a > 1.0:  # magnetised once an amp or more has flowed
+            field = field + remanence * sensor.interference_ut_per_a / max(np.linalg.norm(sensor.interference_ut_per_a),
+                                                                             1e-9)
+        return field
+
     def held_reading_ut(self, sensor: SimMagnetometer, now: float) -> NDArray:
         """The sensor's latest reading: a new one every 1/rate s, held in between (sample and hold).
 
@@ -537,7 +598,7 @@ class SimulatedAutopilot(ABC):
         due, reading = self._held.get(sensor.device_id, (now, None))
         if reading is None or now >= due:
             taken = now - self._real_time(self.mag_age_s() + self._latency_s.get(sensor.device_id, 0.0))
-            field = self.body_field_ut(taken)
+            field = self.body_field_ut(taken) + self.interference_ut(sensor, taken)
             if len(self._seen_dirs) < 20000:
                 self._seen_dirs.append(field / np.linalg.norm(field))
             self._read_since_supply = True
@@ -610,6 +671,7 @@ class SimulatedAutopilot(ABC):
             mavlink.MAV_CMD_SET_MESSAGE_INTERVAL: self._set_message_interval,
             mavlink.MAV_CMD_REQUEST_MESSAGE: self._request_message,
             mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: self._request_capabilities,
+            mavlink.MAV_CMD_DO_MOTOR_TEST: self._motor_test_command,
             **self.extra_commands(),
         }
         handler = handlers.get(command)
@@ -621,12 +683,44 @@ class SimulatedAutopilot(ABC):
             self._after_ack = None
             after()
 
+    def _motor_test_command(self, params: list[float]) -> int:
+        """MAV_CMD_DO_MOTOR_TEST, throttle in percent (param2 = 0): one motor spins at param3 % for param4
+        seconds, drawing the current of :attr:`MOTOR_CURVE` through the board's sensor (ArduCopter spins the
+        next motor after a pause when param5 asks for more; one is enough for the current).  Refused with
+        the fault ``motor_test_refused`` (RC not calibrated, a safety switch on)."""
+        if self.faults.motor_test_refused:
+            return DENIED
+        if int(params[1]) != 0 or not 0.0 <= params[2] <= 100.0 or params[3] <= 0:
+            return DENIED
+        self._motor_test = (float(params[2]), time.monotonic() + float(params[3])) if params[2] > 0 else None
+        return ACCEPTED
+
     def after_ack(self, action: Callable[[], None]) -> None:
         """Run ``action`` once the current command's ACK is sent (ACK first, then act)."""
         self._after_ack = action
 
+    STATUS_MESSAGES = (mavlink.MAVLINK_MSG_ID_BATTERY_STATUS, mavlink.MAVLINK_MSG_ID_SYS_STATUS)
+
+    def send_status(self, msg_id: int, now: float) -> None:
+        """BATTERY_STATUS (battery 0, the primary monitor) and SYS_STATUS with the board's measured
+        current, in the messages' centi-amps as both firmwares send it."""
+        centi = round(self.firmware_current_a(now) * 100.0)
+        if msg_id == mavlink.MAVLINK_MSG_ID_BATTERY_STATUS:
+            self.mav.battery_status_send(0, mavlink.MAV_BATTERY_FUNCTION_ALL, mavlink.MAV_BATTERY_TYPE_LIPO, 2500,
+                                         [16800, 65535, 65535, 65535, 65535, 65535, 65535, 65535, 65535, 65535],
+                                         centi, -1, -1, 80)
+        else:
+            sensors = mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG | mavlink.MAV_SYS_STATUS_SENSOR_BATTERY
+            self.mav.sys_status_send(sensors, sensors, sensors, 100, 16800, centi, 80, 0, 0, 0, 0, 0, 0)
+
     def _set_message_interval(self, params: list[float]) -> int:
         msg_id, interval_us = int(params[0]), params[1]
+        if msg_id in self.STATUS_MESSAGES:
+            if interval_us <= 0:
+                self._status_streams.pop(msg_id, None)
+            else:
+                self._status_streams[msg_id] = [max(interval_us / 1e6, 1.0 / MAX_STREAM_HZ), time.monotonic()]
+            return ACCEPTED
         if msg_id not in self.stream_sensor and msg_id != mavlink.MAVLINK_MSG_ID_HEARTBEAT:
             return FAILED
         if msg_id == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
