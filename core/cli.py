@@ -512,7 +512,8 @@ def _plugins(args: argparse.Namespace, plugins: Plugins) -> int:
                       "dut_backends": sorted(plugins.dut_backends),
                       "field_sources": sorted(plugins.field_sources),
                       "result_sinks": sorted(plugins.result_sinks),
-                      "power_controls": sorted(plugins.power_controls), "motions": sorted(plugins.motions)},
+                      "power_controls": sorted(plugins.power_controls), "motions": sorted(plugins.motions),
+                      "current_sources": sorted(plugins.current_sources)},
                      indent=2))
     return 0
 

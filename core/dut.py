@@ -18,6 +18,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Literal, Protocol, TypeVar, runtime_checkable
 
+import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ValidationError
 
@@ -165,6 +166,9 @@ class SampleChunk:
     more: dict[int, SampleChunk] = field(default_factory=dict)
     # the unit's accelerometer (and gyro) readings that arrived meanwhile, body axes, same clock
     imu: ImuSeries | None = None
+    # the unit's own battery current readings that arrived meanwhile (A), once :meth:`CompensatesCurrent.
+    # measure_current_interference` asked for them; empty otherwise
+    current_a: NDArray = field(default_factory=lambda: np.empty(0))
 
 
 @runtime_checkable
@@ -299,6 +303,46 @@ class HasBootTimeout(Protocol):
     """How long the unit may take to boot after a power cycle (the operator's countdown shows it)."""
 
     boot_timeout_s: float
+
+
+@runtime_checkable
+class CompensatesCurrent(Protocol):
+    """A firmware that reports the current it draws and can cancel its compasses' current interference
+    (issue 46: ArduPilot's COMPASS_MOTCT = 2 with COMPASS_MOTn_*, PX4's CAL_MAG_COMP_TYP with
+    CAL_MAGn_xCOMP).
+
+    ``measure_current_interference(compensation=False)``: before a sweep — its battery current streamed
+    with :meth:`DutBackend.samples` (``SampleChunk.current_a``) and the firmware's compensation switched
+    off (what it corrects must not hide the field being measured; :meth:`DutBackend.restore` puts it back
+    unless the calibration's write replaced it); ``compensation=True`` (the proof after the power cycle)
+    leaves what the firmware holds on and reads whatever the stream needs anew.
+    ``left_per_amp_ut(device_id, stream_per_amp_ut)``: from the slope the proof sweep saw in the raw
+    stream (µT per amp of the unit's reading), what the firmware's *corrected* output still changes per
+    amp with the parameters it holds now (body axes) — ArduPilot streams its corrected field, PX4's
+    SCALED_IMU is the raw sensor, so only the backend knows which.
+    ``interference_params(device_id, per_amp_ut, fit)``: the parameters that cancel ``per_amp_ut`` — the
+    field change per amp of the firmware's *own* current reading, µT/A, in the frame the backend streams
+    its raw readings in — for a sensor calibrated with ``fit``, in the firmware's frame, units and sign;
+    raise :class:`DutError` naming what is missing when this firmware cannot hold it.
+    ``compensation_params()``: what switches the compensation on (written once with the
+    calibration)."""
+
+    def measure_current_interference(self, compensation: bool = False) -> None: ...
+
+    def interference_params(self, device_id: int, per_amp_ut: NDArray, fit: FitResult) -> dict[str, ParamValue]: ...
+
+    def compensation_params(self) -> dict[str, ParamValue]: ...
+
+    def left_per_amp_ut(self, device_id: int, stream_per_amp_ut: NDArray) -> NDArray: ...
+
+
+@runtime_checkable
+class RunsMotorTest(Protocol):
+    """``motor_test(throttle_pct, seconds)``: one motor spun at that throttle for that long (MAVLink
+    MAV_CMD_DO_MOTOR_TEST; props off — the station asks before every unit); raise :class:`DutError` when
+    the firmware refuses it."""
+
+    def motor_test(self, throttle_pct: float, seconds: float) -> None: ...
 
 
 @runtime_checkable

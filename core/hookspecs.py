@@ -109,6 +109,24 @@ def magline_register_power_controls(register: Register) -> None:
 
 
 @hookspec
+def magline_register_current_sources(register: Register) -> None:
+    """Add current sources (what draws the current of the interference sweep, issue 46) by name.
+    Called once at start-up.
+
+    :param register: call ``register(name, factory, options=Model)``; ``factory(config, station_dir,
+        options)`` receives the station's ``current_source`` entry, its folder and
+        ``current_source.options`` validated against ``Model``, and returns a
+        :class:`~magline.plugin.CurrentSource`: ``start(run)`` readies it for one unit (a motor test
+        checks the propellers are off here), ``set_level(fraction)`` draws that fraction of the
+        product's ``current_max_a`` (a motor test: of its throttle), ``measured_current_a()`` what it
+        measures itself (None when it cannot: the unit's own reading is the reference then),
+        ``stop()`` draws nothing again (always called, also after errors), ``close()`` at the end of
+        the batch.  The name is the station file's ``current_source.type``; ``plugins/current``
+        registers ``electronic-load`` and ``motor-test``.
+    """
+
+
+@hookspec
 def magline_register_motions(register: Register) -> None:
     """Add motions (what turns the units during acquisition) by name.  Called once at start-up.
 

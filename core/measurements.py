@@ -60,6 +60,16 @@ CATALOGUE: dict[str, tuple[str, str]] = {
     "inclination_error_deg": ("°", "field inclination the unit saw minus the reference's"),
     "heading_agreement_median_deg": ("°", "median heading difference between two calibrated magnetometers"),
     "heading_agreement_max_deg": ("°", "largest heading difference between two magnetometers (over the tumble)"),
+    "interference_pct_at_max": ("%", "field the power wiring's current adds at the compass at the product's "
+                                     "current_max_a, as a share of the local field (ArduPilot: < 30 fine, 30–60 "
+                                     "grey, > 60 move the compass)"),
+    "interference_ut_per_a": ("µT/A", "field change at the compass per amp of the unit's current (length)"),
+    "interference_sigma_ut_per_a": ("µT/A", "1σ uncertainty of the field change per amp"),
+    "interference_linearity_ut": ("µT", "largest departure of a sweep step from the straight line in the current"),
+    "interference_return_ut": ("µT", "field left changed once the current is back at zero (a magnetised part)"),
+    "interference_left_pct_at_max": ("%", "after compensation, proven after the power cycle: what the firmware's "
+                                          "corrected field still changes at current_max_a, as a share of the field"),
+    "current_sensor_error_pct": ("%", "the unit's own current reading against the load's measured current"),
 }
 # The values a measurement can take at all: a limit outside them is a station-file mistake (every unit
 # would fail, or the limit would never bite), caught by ``magline check``.
@@ -76,6 +86,10 @@ POSSIBLE: dict[str, tuple[float, float]] = {
     "time_skew_ms": (-float("inf"), float("inf")), "time_skew_sigma_ms": (0.0, float("inf")),
     "heading_agreement_median_deg": (0.0, 180.0), "heading_agreement_max_deg": (0.0, 180.0),
     "residual_ut.std": (0.0, float("inf")), "residual_ut.ptp": (0.0, float("inf")),
+    "interference_pct_at_max": (0.0, float("inf")), "interference_ut_per_a": (0.0, float("inf")),
+    "interference_sigma_ut_per_a": (0.0, float("inf")), "interference_linearity_ut": (0.0, float("inf")),
+    "interference_return_ut": (0.0, float("inf")), "interference_left_pct_at_max": (0.0, float("inf")),
+    "current_sensor_error_pct": (-100.0, float("inf")),
 }
 # Limits that apply when a station file declares none (the mounting and agreement checks of issue 26).
 DEFAULT_LIMITS: dict[str, dict[str, Any]] = {
@@ -83,6 +97,14 @@ DEFAULT_LIMITS: dict[str, dict[str, Any]] = {
     "inclination_error_deg": {"range": [-2.0, 2.0]},
     "heading_agreement_median_deg": {"le": 1.0},
     "heading_agreement_max_deg": {"le": 3.0},
+    # issue 46: ArduPilot's bands for the interference (> 60 % move the compass; 30–60 % grey: review), a
+    # power module's scale within 5 %, a magnetised part or a bent line of more than 1 µT, and what
+    # compensation leaves at the top current
+    "interference_pct_at_max": {"le": 60.0, "marginal": 30.0},
+    "current_sensor_error_pct": {"range": [-5.0, 5.0]},
+    "interference_return_ut": {"le": 1.0},
+    "interference_linearity_ut": {"le": 1.0},
+    "interference_left_pct_at_max": {"le": 5.0},
 }
 # ``mag2.hard_iron_x_ut``: compass 2's measurement; ``mag1-mag3.heading_agreement_max_deg``: a pair's.
 # The primary magnetometer's measurements carry no prefix (the names every station had before).

@@ -22,6 +22,7 @@ from magline.core.dut import (
 from magline.core.faults import StationFault
 from magline.core.fit import FitOptions, FitResult, fit_calibration
 from magline.core.fit.samples_csv import RawSamples
+from magline.core.interference import phase as interference
 from magline.core.measurements import Array, Json, Measurement, Numeric
 from magline.core.mounting import orientation_matrix
 from magline.core.plugins import hookimpl
@@ -82,8 +83,10 @@ def calibration_to_write(run: RunContext, fit: FitResult) -> dict[str, ParamValu
         return dict(dut.calibration_params(fit))
     fixes = run.orientation_fixes
     params: dict[str, ParamValue] = {}
+    compensation: dict[str, ParamValue] = {}
     for sensor in run.magnetometers:
         this = fit if sensor is run.magnetometers[0] else run.fits[sensor.device_id]
+        turn = None
         if sensor.device_id in fixes and sensor.readings_rotated:
             turn = orientation_matrix(fixes[sensor.device_id]) @ orientation_matrix(sensor.orientation).T
             this = replace(this, hard_iron_ut=turn @ this.hard_iron_ut, soft_iron=turn @ this.soft_iron @ turn.T)
@@ -91,7 +94,8 @@ def calibration_to_write(run: RunContext, fit: FitResult) -> dict[str, ParamValu
         if sensor.device_id in fixes:
             params |= dut.orientation_params(sensor.device_id, fixes[sensor.device_id])
         params |= run.rotation_writes.get(sensor.device_id, {})  # misalignment: write
-    return params
+        compensation |= interference.params_for(run, sensor, this, turn)  # interference: compensate
+    return params | compensation | interference.switch_on(run, compensation)
 
 
 @hookimpl(trylast=True)

@@ -33,7 +33,8 @@ class PluginError(RuntimeError):
 
 
 class Plugins:
-    """The loaded plugins and their registries (DUT backends, field sources, result sinks, power controls, motions)."""
+    """The loaded plugins and their registries (DUT backends, field sources, result sinks, power controls, motions,
+    current sources)."""
 
     def __init__(self, pm: pluggy.PluginManager, versions: dict[str, tuple[str, str]] | None = None) -> None:
         self.pm = pm
@@ -43,6 +44,7 @@ class Plugins:
         self.result_sinks: dict[str, Callable[..., Any]] = {}
         self.power_controls: dict[str, Callable[..., Any]] = {}
         self.motions: dict[str, Callable[..., Any]] = {}
+        self.current_sources: dict[str, Callable[..., Any]] = {}
         # options models a plugin declared at registration (``register(name, factory, options=Model)``),
         # so ``magline check`` validates a product's options before any unit is connected
         self.option_models: dict[tuple[str, str], type] = {}
@@ -54,6 +56,7 @@ class Plugins:
         self._collect("result sink", self.result_sinks, self.hook.magline_register_result_sinks)
         self._collect("power control", self.power_controls, self.hook.magline_register_power_controls)
         self._collect("motion", self.motions, self.hook.magline_register_motions)
+        self._collect("current source", self.current_sources, self.hook.magline_register_current_sources)
 
     def _collect(self, kind: str, registry: dict[str, Any], hook: Any) -> None:
         """Call each plugin's registration hook in pluggy's order (last registered first), knowing

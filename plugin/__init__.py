@@ -10,7 +10,8 @@ What is here, by role:
 
 * registration: :data:`hookimpl` (the hooks and their order: ``docs/plugins.md``) and the contracts
   a registered factory returns: :class:`DutBackend`, :class:`FieldSource`, :class:`Motion`,
-  :class:`PowerControl` (a power cut's new boot: :func:`await_boot_after_cut`), :class:`ResultSink`;
+  :class:`PowerControl` (a power cut's new boot: :func:`await_boot_after_cut`), :class:`ResultSink`,
+  :class:`CurrentSource` (the interference sweep's current; its errors :class:`CurrentSourceError`);
 * the DUT contract: :class:`DutBackend`, :class:`UnitInfo`, :class:`Magnetometer`, :class:`SampleChunk`,
   :data:`ParamValue`, its errors (:class:`DutError`, :class:`LinkError`, :class:`UnansweredRequest`,
   :class:`NotRestored`, :class:`StationFault`, :class:`PowerError`, :class:`FieldSourceError`) and the
@@ -20,7 +21,8 @@ What is here, by role:
 * optional capabilities a backend has by having the method (the core asks ``isinstance(dut, …)``):
   :class:`CalibratesSeveral`, :class:`ReportsSensorsPresent`, :class:`WritesOrientation`,
   :class:`WritesRotation`, :class:`ReportsUptime`, :class:`HasBootTimeout`, :class:`ReadsCalibratedField`,
-  :class:`ReadsCalibratedFields`, :class:`ReadsRawAndCalibrated` (answering a :class:`CalibratedBesideRaw`);
+  :class:`ReadsCalibratedFields`, :class:`ReadsRawAndCalibrated` (answering a :class:`CalibratedBesideRaw`),
+  :class:`CompensatesCurrent`, :class:`RunsMotorTest`;
 * links to hardware: :func:`get_listening`, :func:`stall_s`, :data:`SLICE_S` (reading a queue while
   the link may die), :class:`RepeatFilter`, :class:`SensorStreams`, :func:`untruncate_mg`,
   :data:`INT16_MG_RANGE_UT` (MAVLink's int16 milligauss), :class:`ScpiInstrument`, :class:`InstrumentError`,
@@ -30,7 +32,8 @@ What is here, by role:
 * frames: :func:`orientation_matrix` (a firmware orientation value's rotation), :func:`configured_rotation`
   (the rotation a firmware applies to a :class:`Magnetometer` now);
 * the run: :class:`RunContext`, :class:`Acquisition`, :class:`ImuSeries`, :class:`RawSamples`,
-  :func:`wait_or_abort`, the station's :class:`Station`, :class:`Product`, :class:`PowerConfig`;
+  :func:`wait_or_abort`, the station's :class:`Station`, :class:`Product`, :class:`PowerConfig`,
+  :class:`CurrentSourceConfig`;
 * fitting and stopping (field sources that run their own schedule): :class:`FitOptions`,
   :class:`FitResult`, :class:`FitRefused`, :func:`fit_affine`, :func:`fibonacci_sphere`,
   :class:`StopRule`, :func:`stop_rule`, :class:`Fluxgate`, :class:`ReferenceOptions`;
@@ -46,6 +49,7 @@ from magline.core.acquisition.tumble_stop import stop_rule
 from magline.core.dut import (
     CalibratedBesideRaw,
     CalibratesSeveral,
+    CompensatesCurrent,
     DutBackend,
     DutError,
     HasBootTimeout,
@@ -59,6 +63,7 @@ from magline.core.dut import (
     ReadsRawAndCalibrated,
     ReportsSensorsPresent,
     ReportsUptime,
+    RunsMotorTest,
     SampleChunk,
     UnansweredRequest,
     UnitInfo,
@@ -78,6 +83,7 @@ from magline.core.fit.coverage import fibonacci_sphere
 from magline.core.fit.result import FitRefused
 from magline.core.fit.running import StopRule
 from magline.core.fit.samples_csv import RawSamples
+from magline.core.interference.source import CurrentSource, CurrentSourceError
 from magline.core.links.listening import SLICE_S, get_listening, stall_s
 from magline.core.links.readings import INT16_MG_RANGE_UT, RepeatFilter, SensorStreams, untruncate_mg
 from magline.core.links.scpi import InstrumentError, ScpiInstrument
@@ -111,7 +117,7 @@ from magline.core.results.contract import (
 )
 from magline.core.sequencer.context import Acquisition, RunContext
 from magline.core.sequencer.rounds import wait_or_abort
-from magline.core.station.schema import PowerConfig, Product, Station
+from magline.core.station.schema import CurrentSourceConfig, PowerConfig, Product, Station
 
 __all__ = [
     "INT16_MG_RANGE_UT",
@@ -122,6 +128,10 @@ __all__ = [
     "CalibratedBesideRaw",
     "CalibratesSeveral",
     "ClaimsSlots",
+    "CompensatesCurrent",
+    "CurrentSource",
+    "CurrentSourceConfig",
+    "CurrentSourceError",
     "DutBackend",
     "DutError",
     "FieldSource",
@@ -165,6 +175,7 @@ __all__ = [
     "ResultSink",
     "RunContext",
     "RunRecord",
+    "RunsMotorTest",
     "SampleChunk",
     "SaysWhere",
     "ScpiInstrument",

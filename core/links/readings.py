@@ -100,6 +100,12 @@ class SensorStreams:
         self.times: dict[int, list[float]] = {d: [] for d in self.sensors}
         self.imu_t: list[float] = []
         self.imu_mg: list[tuple[float, float, float]] = []
+        self.current_a: list[float] = []
+
+    def current(self, centi_amps: float) -> None:
+        """The unit's own battery current reading (BATTERY_STATUS / SYS_STATUS: centi-amps; −1 = none)."""
+        if centi_amps >= 0:
+            self.current_a.append(centi_amps / 100.0)
 
     def accel(self, t_ms: float, x_mg: float, y_mg: float, z_mg: float) -> None:
         """An accelerometer reading (milli-g, body axes) at ``t_ms``."""
@@ -126,5 +132,6 @@ class SensorStreams:
         chunk.more = {d: readings(d) for d in self.sensors if d != self.primary}
         if self.imu_t:
             chunk.imu = ImuSeries(t_ms=np.array(self.imu_t), accel_mss=np.array(self.imu_mg, float) * MSS_PER_MG)
+        chunk.current_a = np.array(self.current_a, float)
         self._clear()
         return chunk

@@ -21,6 +21,7 @@ if TYPE_CHECKING:
     from magline.core.dut import DutBackend, Magnetometer, UnitInfo
     from magline.core.field import FieldSource
     from magline.core.fit import FitOptions, FitResult
+    from magline.core.interference.model import Interference
     from magline.core.mounting import ImuSeries
     from magline.core.plugins import Plugins
     from magline.core.power import PowerControl
@@ -104,6 +105,10 @@ class RunContext:
     orientation_fixes: dict[int, int] = field(default_factory=dict)
     rotation_writes: dict[int, dict[str, float]] = field(default_factory=dict)
     persisted: PersistReport | None = None  # what the persist phase wrote, for the verify phase
+    # the current interference (issue 46): what draws the sweep's current (opened by the interference
+    # phase, closed with the unit) and what the sweep found, for validate, persist and verify
+    current_source: Any = None
+    interference: Interference | None = None
     phase_started_at: float = 0.0  # time.monotonic() when the running phase began
     # the station's results stores (the sink contract, ``ResultSink``): what listeners read back — the
     # process's history for the in-run review, the stored record for a report

@@ -26,6 +26,7 @@ from magline.core.dut import CalibratesSeveral, DutError, LinkError, Magnetomete
 from magline.core.faults import StationFault, UnitAborted
 from magline.core.field import FieldSourceError
 from magline.core.fit import FitRefused, FitResult
+from magline.core.interference import phase as interference
 from magline.core.measurements import Json, Verdict, limit_for, prefixed, verdicts
 from magline.core.plugins import Plugins
 from magline.core.record import AttemptRecord, Outcome, PersistReport, PhaseResult, RunRecord, now_iso
@@ -48,7 +49,7 @@ from magline.core.serials import clean_serial, known_part
 from magline.core.station.schema import Slot, Station
 from magline.core.text import fmt, percent
 
-PHASES = ("identify", "connect", "acquire", "fit", "validate", "persist", "verify", "record")
+PHASES = ("identify", "connect", "acquire", "fit", "interference", "validate", "persist", "verify", "record")
 SHIELDED_PHASES = ("persist",)  # a half-written calibration is worse than a few seconds' wait
 RETEST = "re-test the unit"
 
@@ -130,6 +131,8 @@ class Sequencer:
             ("fit", self._fit), ("validate", self._validate), ("persist", self._persist),
             ("verify", self._verify),
         ]
+        if product.interference != "off":  # the current sweep, the unit still, once it is calibrated
+            steps.insert(4, ("interference", interference.measure))
         if self.stopped is not None:
             steps = [("identify", self._identify), ("connect", self._refuse_stopped_batch)]
         with ExitStack() as stack:
@@ -495,6 +498,7 @@ class Sequencer:
             raise PhaseFailed(f"{missing} missing after power cycle")
         if report.mismatches:
             raise PhaseFailed("calibration did not survive the power cycle: " + "; ".join(report.mismatches))
+        interference.prove(run)  # the current compensation written, proven by a second sweep
 
     def _record(self, run: RunContext) -> None:
         run.record.finished = now_iso()
@@ -505,8 +509,8 @@ class Sequencer:
 
     def _cleanup(self, run: RunContext) -> None:
         """Always: put the DUT back as it was, release it, then leave the fixture in its final state."""
-        steps = [(run.dut, "restore"), (run.dut, "close"), (run.power, "finish"), (run.power, "close"),
-                 (run.field_source, "finish_unit")]
+        steps = [(run.current_source, "stop"), (run.current_source, "close"), (run.dut, "restore"), (run.dut, "close"),
+                 (run.power, "finish"), (run.power, "close"), (run.field_source, "finish_unit")]
         for target, action in steps:
             if target is None:
                 continue

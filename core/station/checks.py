@@ -94,8 +94,13 @@ def _plugin_problems(data: dict, text: str, name: str, plugins: Plugins) -> list
         if sink not in plugins.result_sinks:
             unknown((*where, "sink"), "results sink", sink, plugins.result_sinks)
         out += _option_problems(plugins, ("result sink", sink), entry.get("options"), (*where, "options"), text, name)
+    current = data.get("current_source")
+    if isinstance(current, dict) and isinstance(current.get("type"), str):
+        out += _option_problems(plugins, ("current source", current["type"]), current.get("options"),
+                                ("current_source", "options"), text, name)
     for section, key, what, registry in (("field_source", "type", "field source", plugins.field_sources),
-                                         ("motion", "type", "motion", plugins.motions)):
+                                         ("motion", "type", "motion", plugins.motions),
+                                         ("current_source", "type", "current source", plugins.current_sources)):
         block = data.get(section)
         value = block.get(key) if isinstance(block, dict) else None
         if isinstance(value, str) and value not in registry:

@@ -128,6 +128,26 @@ class PowerConfig(_Strict):
     options: dict[str, Any] = Field(default_factory=dict)
 
 
+class CurrentSourceConfig(_Strict):
+    """What draws the current for the interference sweep (issue 46): ``electronic-load`` (SCPI, in the unit's
+    power path downstream of its current sensor) or ``motor-test`` (the unit's own motors, props off)."""
+
+    type: str
+    options: dict[str, Any] = Field(default_factory=dict)
+
+
+class InterferenceSettings(_Strict):
+    """How the current sweep is run: ``steps`` levels from 0 up to the product's ``current_max_a`` and as
+    many back down to 0 (the return to zero is judged), each held ``settle_s`` before ``readings``
+    readings of every compass are taken; the stream asks for ``rate_hz``."""
+
+    steps: Annotated[int, Field(ge=2, le=20)] = 4
+    settle_s: Annotated[float, Field(ge=0.0, le=30.0)] = 0.3
+    readings: Annotated[int, Field(ge=3, le=1000)] = 15
+    rate_hz: Annotated[float, Field(gt=0, le=400)] = 50.0
+    timeout_s: Annotated[float, Field(gt=0)] = 60.0  # the whole sweep
+
+
 class Product(_Strict):
     """What the station does for one part number."""
 
@@ -178,6 +198,19 @@ class Product(_Strict):
     options: dict[str, Any] = Field(default_factory=dict)
     power: PowerConfig = Field(default_factory=PowerConfig)
     limits: LimitSet = Field(default_factory=dict)
+    # the compasses' current interference (issue 46): ``off`` (default), ``measure`` (swept and judged) or
+    # ``compensate`` (also written as the firmware's current compensation and proven after the power cycle)
+    interference: Literal["off", "measure", "compensate"] = "off"
+    current_max_a: Annotated[float, Field(gt=0, le=500)] | None = None  # the sweep's top: the unit's hover current
+    # a motor test may spin this product's motors (props off) when the station's current source is motor-test
+    motor_test: bool = False
+
+    @model_validator(mode="after")
+    def _interference_has_a_current(self) -> Product:
+        if self.interference != "off" and self.current_max_a is None:
+            raise ValueError(f"interference: {self.interference} needs current_max_a (the current the sweep goes "
+                             "up to, in A: the unit's hover current)")
+        return self
 
 
 class FieldSource(_Strict):
@@ -258,7 +291,7 @@ class VerifySettings(_Strict):
 # (benchmarks/review_flags.py, 200 good units reviewed) these four drew 29 of the review's 54 flags,
 # every one for an uncertainty larger than the cluster and still inside its limit, which validate judges.
 NOT_PROCESS_FIGURES = ("attempts", "hard_iron_sigma_ut", "direction_sigma_deg", "mounting_sigma_deg",
-                       "drift_detectable_ut", "time_skew_sigma_ms")
+                       "drift_detectable_ut", "time_skew_sigma_ms", "interference_sigma_ut_per_a")
 
 
 class ReviewSettings(_Strict):
@@ -365,6 +398,22 @@ class Station(_Strict):
     prompts: Prompts = Field(default_factory=Prompts)
     motion: Motion = Field(default_factory=Motion)
     slots: list[Slot] = Field(default_factory=list)
+    current_source: CurrentSourceConfig | None = None
+    interference: InterferenceSettings = Field(default_factory=InterferenceSettings)
+
+    @model_validator(mode="after")
+    def _a_current_source_for_the_sweep(self) -> Station:
+        sweeping = [part for part, product in self.products.items() if product.interference != "off"]
+        if sweeping and self.current_source is None:
+            raise ValueError(f"products {', '.join(sweeping)} measure their current interference, but the station "
+                             "names no current_source (electronic-load or motor-test) to draw the current")
+        if self.current_source is not None and self.current_source.type == "motor-test":
+            refused = [part for part in sweeping if not self.products[part].motor_test]
+            if refused:
+                raise ValueError(f"the current source is motor-test, but products {', '.join(refused)} do not say "
+                                 "motor_test: true (a motor test never spins a product's motors unless its entry "
+                                 "allows it)")
+        return self
 
     @field_validator("default_part")
     @classmethod

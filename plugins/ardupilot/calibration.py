@@ -27,7 +27,8 @@ def set_names(suffix: str) -> dict[str, list[str]]:
     return {"OFS": [f"COMPASS_OFS{suffix}_{a}" for a in AXES], "DIA": [f"COMPASS_DIA{suffix}_{a}" for a in AXES],
             "ODI": [f"COMPASS_ODI{suffix}_{a}" for a in AXES], "SCALE": [f"COMPASS_SCALE{suffix}"],
             "DEV_ID": [f"COMPASS_DEV_ID{suffix}"], "ORIENT": [f"COMPASS_ORIENT{suffix}"],
-            "EXTERN": ["COMPASS_EXTERNAL" if suffix == "" else f"COMPASS_EXTERN{suffix}"]}
+            "EXTERN": ["COMPASS_EXTERNAL" if suffix == "" else f"COMPASS_EXTERN{suffix}"],
+            "MOT": [f"COMPASS_MOT{suffix}_{a}" for a in AXES]}
 
 
 def rename_for_set(name: str, old: str, new: str) -> str:

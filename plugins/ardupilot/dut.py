@@ -58,6 +58,8 @@ INT_PARAMS = ("COMPASS_DEV_ID", "COMPASS_PRIO", "COMPASS_LEARN", "COMPASS_OFFS_M
               "COMPASS_ORIENT", "COMPASS_EXTERN")
 
 CHUNK = 10
+BATTERY_RATE_HZ = 10.0  # BATTERY_STATUS during a current sweep
+MOT_RANGE_MG_PER_A = 1000.0  # COMPASS_MOTn_* @Range
 RESTORE_RECONNECT_S = 3.0  # a vehicle that does not answer by then is reported as not restored
 COMPASS_PREARM = "PreArm: Compass"
 
@@ -79,6 +81,8 @@ class ArduPilotDut:
         self.held: dict[int, HeldCalibration] = {}
         self.magnetometers: list[Magnetometer] = []
         self._saved_learn: int | None = None
+        self._saved_motct: int | None = None  # COMPASS_MOTCT switched off for the current sweep
+        self.stream_current = False  # the sweep asked for the unit's battery current with the readings
         self.system_id = 0  # the unit's MAVLink system id: another one answering later is another vehicle
         self.uid = 0  # the board's hardware UID (AUTOPILOT_VERSION), compared after the power cycle
 
@@ -162,6 +166,10 @@ class ArduPilotDut:
         if learn != 0:
             self.link.set("COMPASS_LEARN", 0)  # the firmware must not learn offsets during the test
             self._saved_learn = learn
+        self._read_held()
+
+    def _read_held(self) -> None:
+        """The calibration each chosen compass holds now: what the stream is undone with."""
         self.held = {}
         for device_id in self.chosen:
             suffix = self._suffix_of(device_id)
@@ -169,17 +177,22 @@ class ArduPilotDut:
             self.held[device_id] = HeldCalibration.from_params({n: self.link.get(n) for n in names}, suffix)
 
     def restore(self) -> None:
-        """COMPASS_LEARN back to what it was (ArduPilot stores every PARAM_SET at once, so the change
-        is in storage either way); after a closed link, one short reconnect is tried first."""
-        if self._saved_learn is None:
+        """COMPASS_LEARN (and COMPASS_MOTCT, switched off for a current sweep and not written since) back
+        to what they were (ArduPilot stores every PARAM_SET at once, so the change is in storage either
+        way); after a closed link, one short reconnect is tried first."""
+        saved = {name: value for name, value in (("COMPASS_LEARN", self._saved_learn),
+                                                 ("COMPASS_MOTCT", self._saved_motct)) if value is not None}
+        self.stream_current = False
+        if not saved:
             return
         try:
             if self.link.conn is None:
                 self.link.open(min(self.opts.connect_timeout_s, RESTORE_RECONNECT_S))
-            self.link.set("COMPASS_LEARN", self._saved_learn)
+            for name, value in saved.items():
+                self.link.set(name, value)
         except DutError as exc:
-            raise NotRestored(str(exc), {"COMPASS_LEARN": f"0 (was {self._saved_learn})"}) from exc
-        self._saved_learn = None
+            raise NotRestored(str(exc), {name: f"0 (was {value})" for name, value in saved.items()}) from exc
+        self._saved_learn = self._saved_motct = None
 
     # ------------------------------------------------------------------ data
     def samples(self, rate_hz: float) -> Iterator[SampleChunk]:
@@ -196,15 +209,22 @@ class ArduPilotDut:
         for kind in kinds:
             self.link.set_message_interval(ids[kind], rate_hz)
         streams = SensorStreams(self.device_id, self.chosen, lambda d, mg: self.held[d].raw_ut(mg))
+        wanted = [*kinds, "BATTERY_STATUS"] if self.stream_current else kinds
+        if self.stream_current:  # the primary battery monitor's current: what COMPASS_MOTCT = 2 multiplies by
+            self.link.set_message_interval(ML.MAVLINK_MSG_ID_BATTERY_STATUS, BATTERY_RATE_HZ)
         try:
             while True:
-                msg = self.link.recv(kinds, self.opts.stream_timeout_s)
+                msg = self.link.recv(wanted, self.opts.stream_timeout_s)
                 if msg is None:
                     self.link.require_alive(f"link lost during acquisition: no {'/'.join(kinds)} for "
                                             f"{self.opts.stream_timeout_s:g} s")
                     raise DutError(f"the vehicle answers but sent no {'/'.join(kinds)} for "
                                    f"{self.opts.stream_timeout_s:g} s: compass {self.device_id} delivers no readings")
                 kind = msg.get_type()
+                if kind == "BATTERY_STATUS":
+                    if msg.id == 0:
+                        streams.current(msg.current_battery)
+                    continue
                 t_ms = msg.time_usec / 1000.0 if kind == "RAW_IMU" else float(msg.time_boot_ms)
                 if kind == "RAW_IMU":
                     streams.accel(t_ms, msg.xacc, msg.yacc, msg.zacc)
@@ -216,6 +236,9 @@ class ArduPilotDut:
             for kind in kinds:
                 with contextlib.suppress(DutError):  # when the link is gone the stream stops with it
                     self.link.set_message_interval(ids[kind], 0)
+            if self.stream_current:
+                with contextlib.suppress(DutError):
+                    self.link.set_message_interval(ML.MAVLINK_MSG_ID_BATTERY_STATUS, 0)
 
     # ------------------------------------------------------------------ parameters
     def calibration_params(self, fit: FitResult, sensor: int | None = None) -> dict[str, ParamValue]:
@@ -250,7 +273,49 @@ class ArduPilotDut:
         return name
 
     def write_params(self, params: dict[str, ParamValue]) -> dict[str, ParamValue]:
+        if "COMPASS_MOTCT" in params:
+            self._saved_motct = None  # the calibration's own value now: restore must not put the old one back
         return {name: self.link.set(name, float(value)) for name, value in params.items()}
+
+    # ------------------------------------------------------------------ current interference (issue 46)
+    def measure_current_interference(self, compensation: bool = False) -> None:
+        """The primary battery monitor's current with the readings; for the measurement COMPASS_MOTCT off
+        (restored unless the calibration writes it), for the proof the calibration the unit now holds read
+        anew (the stream is undone with it)."""
+        self.stream_current = True
+        if compensation:
+            self._read_held()
+            return
+        motct = int(self.link.get("COMPASS_MOTCT"))
+        if motct != 0:
+            self.link.set("COMPASS_MOTCT", 0)
+            if self._saved_motct is None:
+                self._saved_motct = motct
+
+    def interference_params(self, device_id: int, per_amp_ut: np.ndarray, fit: FitResult) -> dict[str, ParamValue]:
+        """COMPASS_MOTn_X/Y/Z (mG/A): AP_Compass_Backend::correct_field *adds* MOT × current after the
+        offsets and the DIA/ODI matrix, in the rotated frame the readings stream in (reference §18,
+        checked in the source) — so MOT = −10·S·c for a raw field change c µT/A and the matrix S written
+        (SCALE = 1).  The firmware range is ±1000 mG/A."""
+        mot = -10.0 * np.asarray(fit.soft_iron, float) @ np.asarray(per_amp_ut, float)
+        names = set_names(self._suffix_of(device_id))["MOT"]
+        if np.any(np.abs(mot) > MOT_RANGE_MG_PER_A):
+            raise DutError(f"{', '.join(names)} would be {np.round(mot, 1).tolist()} mG/A, beyond the firmware's "
+                           f"±{MOT_RANGE_MG_PER_A:g}")
+        try:
+            self.link.get(names[0])
+        except DutError as exc:
+            raise DutError(f"this firmware has no {names[0]} ({exc})") from None
+        self.written_sets[device_id] = self._suffix_of(device_id)
+        return {name: round(float(v), 3) for name, v in zip(names, mot, strict=True)}
+
+    def compensation_params(self) -> dict[str, ParamValue]:
+        return {"COMPASS_MOTCT": 2}  # current (0 off, 1 throttle)
+
+    def left_per_amp_ut(self, device_id: int, stream_per_amp_ut: np.ndarray) -> np.ndarray:
+        """The stream is the firmware's corrected field undone with the held OFS/DIA/ODI only, so the
+        compensation's MOT·I is still in it: the corrected field's slope is the held matrix times it."""
+        return self.held[device_id].matrix() @ np.asarray(stream_per_amp_ut, float)
 
     def commit(self) -> None:
         """Save the device ids: without it the compass is 'not calibrated' after reboot (PR #16591)."""

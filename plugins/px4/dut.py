@@ -69,6 +69,8 @@ MG_PER_UT = 10.0
 
 log = logging.getLogger("magline.px4")
 CHUNK = 10
+MAVLINK_MSG_ID_BATTERY_STATUS = 147
+BATTERY_RATE_HZ = 10.0  # BATTERY_STATUS during a current sweep
 RESTORE_RECONNECT_S = 3.0  # a vehicle that does not answer by then is reported as not restored
 DEVICE_ID = re.compile(r"device_id:\s*(\d+)")
 EXTERNAL = re.compile(r"is_external:\s*(\w+)")
@@ -93,6 +95,8 @@ class Px4Dut:
         self.with_odiag = True
         self.with_euler = False
         self._saved_autocal: int | None = None
+        self._saved_comp_typ: int | None = None  # CAL_MAG_COMP_TYP switched off for the current sweep
+        self.stream_current = False  # the sweep asked for the unit's battery current with the readings
         self.system_id = 0
         self.uid = 0
         self._found: list[tuple[int, bool]] = []  # (device id, external) per sensor_mag instance, from the shell
@@ -220,18 +224,23 @@ class Px4Dut:
             self._saved_autocal = autocal
 
     def restore(self) -> None:
-        """SENS_MAG_AUTOCAL back, saved (else a power-off right after the station leaves it off);
-        after a closed link, one short reconnect is tried first."""
-        if self._saved_autocal is None:
+        """SENS_MAG_AUTOCAL (and CAL_MAG_COMP_TYP, switched off for a current sweep and not written since)
+        back, saved (else a power-off right after the station leaves them off); after a closed link, one
+        short reconnect is tried first."""
+        saved = {name: value for name, value in (("SENS_MAG_AUTOCAL", self._saved_autocal),
+                                                 ("CAL_MAG_COMP_TYP", self._saved_comp_typ)) if value is not None}
+        self.stream_current = False
+        if not saved:
             return
         try:
             if not self.link.is_open:
                 self.link.reopen(min(self.opts.connect_timeout_s, RESTORE_RECONNECT_S))
-            self.link.set("SENS_MAG_AUTOCAL", self._saved_autocal, True)
+            for name, value in saved.items():
+                self.link.set(name, value, True)
             self.commit()
         except DutError as exc:
-            raise NotRestored(str(exc), {"SENS_MAG_AUTOCAL": f"0 (was {self._saved_autocal})"}) from exc
-        self._saved_autocal = None
+            raise NotRestored(str(exc), {name: f"0 (was {value})" for name, value in saved.items()}) from exc
+        self._saved_autocal = self._saved_comp_typ = None
 
     # ------------------------------------------------------------------ data
     def samples(self, rate_hz: float) -> Iterator[SampleChunk]:
@@ -242,12 +251,16 @@ class Px4Dut:
         ids = dict(STREAMS)
         if self.link.port is not None:
             self.link.port.require_capacity({k: (mavlink2_frame_bytes(ids[k]), rate_hz) for k in kinds})
-        inbox, handles = self.link.subscribe_all(kinds)
+        listened = [*kinds, "BATTERY_STATUS"] if self.stream_current else kinds
+        inbox, handles = self.link.subscribe_all(listened)
         streams = SensorStreams(self.device_id, self.chosen, lambda _, mg: mg / MG_PER_UT)
         try:
             for kind in kinds:
                 self.link.require_accepted(MAV_CMD_SET_MESSAGE_INTERVAL, f"{kind} stream request", ids[kind],
                                            1e6 / rate_hz)
+            if self.stream_current:  # battery_status instance 0: what CAL_MAG_COMP_TYP = 2 multiplies by
+                self.link.require_accepted(MAV_CMD_SET_MESSAGE_INTERVAL, "BATTERY_STATUS stream request",
+                                           MAVLINK_MSG_ID_BATTERY_STATUS, 1e6 / BATTERY_RATE_HZ)
             while True:
                 try:
                     kind, msg = get_listening(inbox, self.opts.stream_timeout_s)
@@ -257,6 +270,10 @@ class Px4Dut:
                     raise DutError(f"the vehicle answers but sent no {'/'.join(kinds)} for "
                                    f"{self.opts.stream_timeout_s:g} s: magnetometer {self.device_id} delivers no "
                                    "readings") from None
+                if kind == "BATTERY_STATUS":
+                    if int(msg["id"]) == 0:
+                        streams.current(float(msg["current_battery"]))
+                    continue
                 if kind == STREAMS[0][0]:
                     streams.accel(float(msg["time_boot_ms"]), msg["xacc"], msg["yacc"], msg["zacc"])
                 # SCALED_IMU is sent whenever the IMU *or* the magnetometer updated, with the IMU's
@@ -269,6 +286,9 @@ class Px4Dut:
             for kind in kinds:
                 with contextlib.suppress(DutError):  # a lost link stops the stream by itself
                     self.link.command(MAV_CMD_SET_MESSAGE_INTERVAL, ids[kind], -1)
+            if self.stream_current:
+                with contextlib.suppress(DutError):
+                    self.link.command(MAV_CMD_SET_MESSAGE_INTERVAL, MAVLINK_MSG_ID_BATTERY_STATUS, -1)
             for handle in handles:
                 self.link.unsubscribe(handle)
 
@@ -284,6 +304,50 @@ class Px4Dut:
                 log.warning("misalignment of %.2f° not written: PX4 holds a custom rotation only for external "
                             "magnetometers from firmware 1.15", fit.extra.get("misalignment_deg", 0.0))
         return params
+
+    # ------------------------------------------------------------------ current interference (issue 46)
+    def measure_current_interference(self, compensation: bool = False) -> None:
+        """battery_status instance 0 with the readings; for the measurement CAL_MAG_COMP_TYP off
+        (restored unless the calibration writes it).  SCALED_IMU is the raw sensor either way."""
+        self.stream_current = True
+        if compensation:
+            return
+        comp_typ = int(self.link.get("CAL_MAG_COMP_TYP", True))
+        if comp_typ != 0:
+            self.link.set("CAL_MAG_COMP_TYP", 0, True)
+            if self._saved_comp_typ is None:
+                self._saved_comp_typ = comp_typ
+
+    def interference_params(self, device_id: int, per_amp_ut: np.ndarray, fit: FitResult) -> dict[str, ParamValue]:
+        """CAL_MAGn_X/Y/ZCOMP (G/kA = mG/A): Magnetometer::Correct adds power·COMP to the *raw* reading
+        before the offset, in the sensor's own axes (reference §18, checked in the source) — the frame
+        SCALED_IMU streams in — so COMP = −10·c for a raw field change c µT/A, whatever the calibration."""
+        slot = self.sensors[device_id]["slot"]
+        names = [f"CAL_MAG{slot}_{a}COMP" for a in "XYZ"]
+        if not self._has_param(names[0]):
+            raise DutError(f"this firmware has no {names[0]}")
+        comp = -10.0 * np.asarray(per_amp_ut, float)
+        return {name: round(float(v), 4) for name, v in zip(names, comp, strict=True)}
+
+    def compensation_params(self) -> dict[str, ParamValue]:
+        # 2: the current of battery_status instance 0, where a BATTERY_STATUS from the power module lands
+        return {"CAL_MAG_COMP_TYP": 2}
+
+    def left_per_amp_ut(self, device_id: int, stream_per_amp_ut: np.ndarray) -> np.ndarray:
+        """SCALED_IMU is the raw sensor_mag: the firmware's corrected slope is R·S·(c + COMP), with the
+        slot's parameters as the unit holds them now (read back) — 0 when the compensation is off."""
+        slot = self.sensors[device_id]["slot"]
+        p = f"CAL_MAG{slot}_"
+        comp_on = int(self.link.get("CAL_MAG_COMP_TYP", True)) in (2, 3)
+        comp = np.array([float(self.link.get(f"{p}{a}COMP", False)) for a in "XYZ"]) / 10.0 if comp_on else np.zeros(3)
+        scale = np.diag([float(self.link.get(f"{p}{a}SCALE", False)) for a in "XYZ"])
+        if self.with_odiag:
+            x, y, z = (float(self.link.get(f"{p}{a}ODIAG", False)) for a in "XYZ")
+            scale[0, 1] = scale[1, 0] = x
+            scale[0, 2] = scale[2, 0] = y
+            scale[1, 2] = scale[2, 1] = z
+        rotation = self.body_rotations([device_id])[device_id]
+        return rotation @ scale @ (np.asarray(stream_per_amp_ut, float) + comp)
 
     def orientation_params(self, device_id: int, value: int) -> dict[str, ParamValue]:
         """CAL_MAGn_ROT of the sensor's slot: how PX4 turns an external sensor into the body (its custom
@@ -307,6 +371,8 @@ class Px4Dut:
         return {n: self.link.get(n, is_int_param(n)) for n in names}
 
     def write_params(self, params: dict[str, ParamValue]) -> dict[str, ParamValue]:
+        if "CAL_MAG_COMP_TYP" in params:
+            self._saved_comp_typ = None  # the calibration's own value now: restore must not put the old one back
         return {n: self.link.set(n, v, is_int_param(n)) for n, v in params.items()}
 
     def commit(self) -> None:

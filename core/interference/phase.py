@@ -1,0 +1,129 @@
+"""The interference sweep as the sequencer runs it (issue 46): measured after the fit with the unit
+still, written with the calibration where the product says ``compensate``, and proven after the power
+cycle by a second sweep with the compensation the firmware now holds.
+
+Why after the fit: the field change is judged as a share of the calibrated field, in the frame the
+firmware will correct in; and for ArduPilot the compensation vector lives after the soft-iron matrix,
+so it is computed with the matrix being written.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from magline.core.dut import CompensatesCurrent, DutError, ParamValue
+from magline.core.faults import StationFault
+from magline.core.interference.model import analyse
+from magline.core.interference.source import open_current_source
+from magline.core.interference.sweep import run_sweep
+from magline.core.measurements import Numeric, Verdict
+
+if TYPE_CHECKING:
+    from magline.core.dut import Magnetometer
+    from magline.core.fit import FitResult
+    from magline.core.sequencer.context import RunContext
+
+SWEEP_PROMPT = "Set the unit down in the sweep fixture and keep it still: the current sweep runs"
+
+
+def _source(run: RunContext):
+    if run.current_source is None:
+        run.current_source = open_current_source(run.station, run.station_dir, run.plugins)
+    return run.current_source
+
+
+def measure(run: RunContext) -> None:
+    """The ``interference`` phase: sweep, then each compass's figures for the validate phase."""
+    dut = run.require_dut()
+    if not isinstance(dut, CompensatesCurrent):
+        raise StationFault(f"the {run.product.backend} backend cannot report the unit's current: its current "
+                           "interference cannot be measured (interference: off for this product)")
+    source = _source(run)
+    run.prompt(SWEEP_PROMPT)
+    source.start(run)
+    dut.measure_current_interference()
+    sweep = run_sweep(run, source, run.station.interference, [m.device_id for m in run.magnetometers])
+    fit = run.require_fit()
+    fits = {**run.fits, run.magnetometers[0].device_id: fit}
+    field = run.reference_field_ut or fit.field_ut
+    run.interference = analyse(sweep, fits, float(run.product.current_max_a or 0.0), field)
+    for sensor in run.magnetometers:
+        c = run.interference.compasses[sensor.device_id]
+        run.log(f"{run.sensor_label(sensor.device_id)}: {c.ut_per_a:.3f} ± {c.per_amp_sigma_ut:.3f} µT/A, "
+                f"{c.pct_at_max:.1f} % of the field at {run.product.current_max_a:g} A")
+    run.record.unit_info["interference"] = run.interference.to_dict()
+
+
+def params_for(run: RunContext, sensor: Magnetometer, fit: FitResult, turn: NDArray | None) -> dict[str, ParamValue]:
+    """The compensation parameters of one compass (``turn``: the orientation fix its fit was turned by),
+    for the persist phase; empty unless the product compensates.  A firmware without them: the unit is
+    measured and judged, and the note says it cannot be compensated on that firmware."""
+    if run.product.interference != "compensate" or run.interference is None:
+        return {}
+    dut = run.require_dut()
+    if not isinstance(dut, CompensatesCurrent):
+        return {}
+    per_amp = run.interference.compasses[sensor.device_id].per_amp_written_ut
+    if turn is not None:
+        per_amp = turn @ per_amp
+    try:
+        return dict(dut.interference_params(sensor.device_id, per_amp, fit))
+    except DutError as exc:
+        note = f"{run.sensor_label(sensor.device_id)}: current interference not compensated: {exc}"
+        run.log(note)
+        run.record.unit_info.setdefault("interference_notes", []).append(note)
+        return {}
+
+
+def switch_on(run: RunContext, written: dict[str, ParamValue]) -> dict[str, ParamValue]:
+    """The firmware's compensation switch, when a compass's compensation is being written."""
+    dut = run.dut
+    if not written or not isinstance(dut, CompensatesCurrent):
+        return {}
+    return dict(dut.compensation_params())
+
+
+def prove(run: RunContext) -> None:
+    """After the power cycle: sweep again with the compensation the firmware holds; what its corrected
+    field still changes at the top current is judged (``interference_left_pct_at_max``)."""
+    if run.product.interference != "compensate" or run.interference is None:
+        return
+    written = {n for n in (run.record.params_written or {}) if n in (run.record.params_read_back or {})}
+    dut = run.require_dut()
+    if not isinstance(dut, CompensatesCurrent) or not written:
+        return
+    source = _source(run)
+    run.prompt(SWEEP_PROMPT)
+    source.start(run)
+    dut.measure_current_interference(compensation=True)
+    sweep = run_sweep(run, source, run.station.interference, [m.device_id for m in run.magnetometers])
+    fit = run.require_fit()
+    fits = {**run.fits, run.magnetometers[0].device_id: fit}
+    identity = {d: _identity(f) for d, f in fits.items()}  # the stream's own frame: the firmware says the rest
+    again = analyse(sweep, identity, run.interference.current_max_a, run.interference.field_ut)
+    proof = {}
+    failed = []
+    for sensor in run.magnetometers:
+        stream_slope = again.compasses[sensor.device_id].per_amp_written_ut
+        left = np.asarray(dut.left_per_amp_ut(sensor.device_id, stream_slope), float)
+        pct = float(np.linalg.norm(left) * run.interference.current_max_a / run.interference.field_ut * 100.0)
+        measured = Numeric.of(run.sensor_prefix(sensor.device_id) + "interference_left_pct_at_max", pct, run.limits)
+        run.record.measurements.append(measured)
+        proof[str(sensor.device_id)] = {"left_per_amp_ut": left.tolist(), "left_pct_at_max": pct}
+        if measured.verdict is Verdict.FAIL:
+            failed.append(f"{run.sensor_label(sensor.device_id)}: the compensated field still changes {pct:.1f} % of "
+                          f"the field at {run.interference.current_max_a:g} A (limit {measured.high:g} %)")
+    run.record.unit_info.setdefault("interference", {})["proof"] = proof
+    if failed:
+        from magline.core.sequencer.sequencer import PhaseFailed  # on use: the sequencer imports this module
+
+        raise PhaseFailed("current compensation not proven after the power cycle: " + "; ".join(failed))
+
+
+def _identity(fit: FitResult) -> FitResult:
+    from dataclasses import replace
+
+    return replace(fit, hard_iron_ut=np.zeros(3), soft_iron=np.eye(3))

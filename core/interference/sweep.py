@@ -1,0 +1,121 @@
+"""The current sweep: the unit still, the current stepped from 0 to the product's ``current_max_a``
+and back to 0, every compass read at each step with the unit's own current reading.
+
+Why up *and* down: a part magnetised by the current (a screw, a shield) leaves a field once the
+current is off again, and a warming board drifts; either shows as a difference between the first
+and the last zero step — a finding, not noise (``interference_return_ut``).  Why the unit's own
+reading beside the source's: the firmware compensates with what *its* current sensor says, so the
+vector written is fitted against that, while the physical figure is fitted against the load's
+measurement, and the two disagreeing is a power module's wrong scale.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from magline.core.dut import CompensatesCurrent, DutError, SampleChunk
+from magline.core.faults import StationFault
+from magline.core.interference.source import CurrentSource
+
+if TYPE_CHECKING:
+    from magline.core.sequencer.context import RunContext
+    from magline.core.station.schema import InterferenceSettings
+
+
+NO_CURRENT_S = 3.0  # compasses read, and still no current reading from the unit: it has none
+
+
+@dataclass
+class SweepStep:
+    level: float  # fraction of the top
+    source_a: float | None = None  # what the source measured at the end of the step (None: it cannot)
+    firmware_a: list[float] = field(default_factory=list)  # the unit's own current readings after the settle
+    readings: dict[int, list[NDArray]] = field(default_factory=dict)  # device id → raw readings (µT)
+    accel: list[NDArray] = field(default_factory=list)  # accelerometer readings (m/s², body axes)
+
+    def fields(self, device_id: int) -> NDArray:
+        return np.array(self.readings.get(device_id, []), float).reshape(-1, 3)
+
+    @property
+    def firmware_mean_a(self) -> float | None:
+        return float(np.mean(self.firmware_a)) if self.firmware_a else None
+
+
+@dataclass
+class Sweep:
+    steps: list[SweepStep]
+    seconds: float
+    device_ids: list[int]
+
+
+def sweep_levels(steps: int) -> list[float]:
+    """0, 1/steps, …, 1 and back down to 0: ``2·steps + 1`` levels."""
+    up = [k / steps for k in range(steps + 1)]
+    return up + up[-2::-1]
+
+
+def run_sweep(run: RunContext, source: CurrentSource, settings: InterferenceSettings, device_ids: list[int]) -> Sweep:
+    """Step the source through :func:`sweep_levels`, reading every compass in ``device_ids`` (the
+    primary first) and the unit's current after each settle.  The source draws nothing again
+    afterwards, whatever happened."""
+    dut = run.require_dut()
+    if not isinstance(dut, CompensatesCurrent):
+        raise StationFault(f"the {run.product.backend} backend cannot report the unit's current, so its "
+                           "current interference cannot be measured")
+    started = time.monotonic()
+    deadline = started + settings.timeout_s
+    steps: list[SweepStep] = []
+    stream = dut.samples(settings.rate_hz)
+    try:
+        for level in sweep_levels(settings.steps):
+            run.abort.check()
+            source.set_level(level)
+            step = SweepStep(level=level)
+            _read_step(stream, step, time.monotonic() + settings.settle_s, settings.readings, device_ids, deadline)
+            step.source_a = source.measured_current_a()
+            steps.append(step)
+            run.log(f"sweep {level:.0%}: unit reads {_amps(step.firmware_mean_a)}, source {_amps(step.source_a)}")
+    finally:
+        stream.close()
+        source.stop()
+    return Sweep(steps=steps, seconds=time.monotonic() - started, device_ids=list(device_ids))
+
+
+def _amps(value: float | None) -> str:
+    return "—" if value is None else f"{value:.2f} A"
+
+
+def _read_step(stream, step: SweepStep, settled_at: float, wanted: int, device_ids: list[int],
+               deadline: float) -> None:
+    """Readings of one step: everything before ``settled_at`` is dropped (the current and the field
+    still moving), then ``wanted`` readings of every compass and at least one current reading."""
+    primary = device_ids[0]
+    while True:
+        if time.monotonic() > deadline:
+            have = ", ".join(f"{d}: {len(step.readings.get(d, []))}" for d in device_ids)
+            raise StationFault(f"the current sweep outlasted its timeout at the {step.level:.0%} step (readings "
+                               f"{have}; unit current readings {len(step.firmware_a)})")
+        try:
+            chunk: SampleChunk = next(stream)
+        except StopIteration:
+            raise DutError("the unit's stream ended during the current sweep") from None
+        if time.monotonic() < settled_at:
+            continue
+        step.readings.setdefault(primary, []).extend(np.asarray(chunk.mag_ut, float).reshape(-1, 3))
+        for device_id, more in chunk.more.items():
+            if device_id in device_ids:
+                step.readings.setdefault(device_id, []).extend(np.asarray(more.mag_ut, float).reshape(-1, 3))
+        step.firmware_a.extend(float(a) for a in np.asarray(chunk.current_a, float).ravel())
+        if chunk.imu is not None and len(chunk.imu.accel_mss):
+            step.accel.extend(np.asarray(chunk.imu.accel_mss, float).reshape(-1, 3))
+        compasses_done = all(len(step.readings.get(d, [])) >= wanted for d in device_ids)
+        if step.firmware_a and compasses_done:
+            return
+        if compasses_done and time.monotonic() > settled_at + NO_CURRENT_S:
+            raise StationFault(f"the unit reports no current (no BATTERY_STATUS for {NO_CURRENT_S:g} s at the "
+                               f"{step.level:.0%} step): no current sensor configured, or no battery monitor")

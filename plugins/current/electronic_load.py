@@ -1,0 +1,102 @@
+"""``electronic-load``: the interference sweep's current drawn by a programmable DC electronic load over
+SCPI, wired into the unit's power path downstream of its current sensor.
+
+Why the preferred source: the current is set, not guessed, the same on every unit, with the propellers
+nowhere near; and the load measures what it sinks, so the unit's own current sensor is checked
+against it (a power module's wrong scale FAILs, ``current_sensor_error_pct``).  Safety: the input goes
+on at 0 A and off at every end, also after errors; the set current never exceeds the product's
+``current_max_a`` nor the load's ``max_current_a``; an error in the load's queue is an ERROR.
+The commands are the common constant-current subset (``CURR``, ``INP``, ``MEAS:CURR?``); a load that
+spells them otherwise names its own in ``commands``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from magline.plugin import CurrentSourceConfig, CurrentSourceError, InstrumentError, RunContext, ScpiInstrument
+
+
+class LoadCommands(BaseModel):
+    model_config = ConfigDict(extra="forbid", strict=True)
+    set_current: str = "CURR {amps:.3f}"
+    input_on: str = "INP ON"
+    input_off: str = "INP OFF"
+    measure_current: str = "MEAS:CURR?"
+
+
+class ElectronicLoadOptions(BaseModel):
+    model_config = ConfigDict(extra="forbid", strict=True)
+    resource: str  # e.g. TCPIP0::192.168.10.30::5025::SOCKET
+    max_current_a: Annotated[float, Field(gt=0, le=1000)] = 60.0  # the load's rating: never asked for more
+    timeout_s: Annotated[float, Field(gt=0)] = 2.0
+    commands: LoadCommands = Field(default_factory=LoadCommands)
+
+
+class ElectronicLoad:
+    name = "electronic-load"
+
+    def __init__(self, options: ElectronicLoadOptions) -> None:
+        self.opts = options
+        self.inst: ScpiInstrument | None = None
+        self.top_a = 0.0
+
+    def _connected(self) -> ScpiInstrument:
+        if self.inst is None:
+            try:
+                self.inst = ScpiInstrument(self.opts.resource, self.opts.timeout_s)
+                self.identity = self.inst.query("*IDN?")
+                self.inst.errors()  # start from an empty queue: what was there belongs to someone else
+            except InstrumentError as exc:
+                raise CurrentSourceError(f"electronic load: {exc}") from exc
+        return self.inst
+
+    def _do(self, step: str, *commands: str) -> None:
+        inst = self._connected()
+        try:
+            for command in commands:
+                inst.write(command)
+            inst.check(step)
+        except InstrumentError as exc:
+            raise CurrentSourceError(f"electronic load, {step}: {exc}") from exc
+
+    def start(self, run: RunContext) -> None:
+        top = float(run.product.current_max_a or 0.0)
+        if top > self.opts.max_current_a:
+            raise CurrentSourceError(f"the product's current_max_a {top:g} A is beyond the load's rating "
+                                     f"({self.opts.max_current_a:g} A, current_source.options.max_current_a)")
+        self.top_a = top
+        c = self.opts.commands
+        self._do("input on at 0 A", c.set_current.format(amps=0.0), c.input_on)
+
+    def set_level(self, fraction: float) -> None:
+        amps = min(max(fraction, 0.0), 1.0) * self.top_a
+        self._do(f"setting {amps:.2f} A", self.opts.commands.set_current.format(amps=amps))
+
+    def measured_current_a(self) -> float | None:
+        inst = self._connected()
+        try:
+            value = inst.query_float(self.opts.commands.measure_current)
+            inst.check("current measurement")
+        except InstrumentError as exc:
+            raise CurrentSourceError(f"electronic load, current measurement: {exc}") from exc
+        return value
+
+    def stop(self) -> None:
+        if self.inst is None:
+            return
+        c = self.opts.commands
+        self._do("input off", c.set_current.format(amps=0.0), c.input_off)
+
+    def close(self) -> None:
+        if self.inst is not None:
+            self.inst.close()
+            self.inst = None
+
+
+def create_electronic_load(config: CurrentSourceConfig, station_dir: Path,
+                           options: ElectronicLoadOptions) -> ElectronicLoad:
+    return ElectronicLoad(options)
