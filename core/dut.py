@@ -169,6 +169,7 @@ class SampleChunk:
     # the unit's own battery current readings that arrived meanwhile (A), once :meth:`CompensatesCurrent.
     # measure_current_interference` asked for them; empty otherwise
     current_a: NDArray = field(default_factory=lambda: np.empty(0))
+    current_t_ms: NDArray = field(default_factory=lambda: np.empty(0))  # the stream's time when each arrived
 
 
 @runtime_checkable

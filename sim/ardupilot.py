@@ -210,7 +210,8 @@ class ArduPilotSim(SimulatedAutopilot):
             out = m @ out
         if int(v["COMPASS_MOTCT"]) == MOTCT_CURRENT:
             # AP_Compass_Backend::correct_field: after the matrix, in the rotated frame, MOT (mG/A) times the
-            # primary battery monitor's current is *added* (reference §18); no armed check in current mode
+            # primary battery monitor's current is *added* (docs/firmware.md, *Current interference*); no armed
+            # check in current mode
             out = out + np.array([v[x] for x in n["MOT"]]) * self.firmware_current_a()
         return out
 

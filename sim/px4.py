@@ -186,7 +186,8 @@ class Px4Sim(SimulatedAutopilot):
         """``power · CAL_MAGn_xCOMP`` of Magnetometer::Correct (G), added to the raw reading before the
         offset: with CAL_MAG_COMP_TYP 2 or 3, power is the battery current in kA.  A BATTERY_STATUS lands in
         instance 0 whatever its id, and type 3 without an instance 1 keeps compensating from instance 0
-        (reference §18): both read the board's one current.  Throttle mode (1) applies only when armed."""
+        (docs/firmware.md, *Current interference*): both read the board's one current.  Throttle mode (1)
+        applies only when armed."""
         v = self.table.values
         if int(v["CAL_MAG_COMP_TYP"]) not in (2, 3):
             return np.zeros(3)

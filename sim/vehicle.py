@@ -554,8 +554,8 @@ class SimulatedAutopilot(ABC):
             self._still = (self.attitude_at(now), now) if still and self._still is None else (
                 self._still if still else None)
 
-    # Motor current against throttle, one motor spinning (ArduCopter SITL, reference §18): 0 / 0.44 / 3.1 /
-    # 5.0 / 9.9 / 18 A at 0 / 20 / 40 / 50 / 70 / 100 %
+    # Motor current against throttle, one motor spinning (ArduCopter SITL, docs/firmware.md, *Current
+    # interference*): 0 / 0.44 / 3.1 / 5.0 / 9.9 / 18 A at 0 / 20 / 40 / 50 / 70 / 100 %
     MOTOR_CURVE = ((0.0, 0.0), (20.0, 0.44), (40.0, 3.1), (50.0, 5.0), (70.0, 9.9), (100.0, 18.0))
 
     def true_current_a(self, now: float) -> float:

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 from conftest import REPO, deep_update, demo_config
+from pydantic import BaseModel, ConfigDict
 
 from magline.core import hookspecs
 from magline.core.measurements import Numeric
@@ -130,6 +131,11 @@ def heard(tmp_path_factory) -> tuple[Listener, RunRecord]:
 
 
 # ----------------------------------------------------------------------------------- registration
+class HookCurrentOptions(BaseModel):
+    model_config = ConfigDict(extra="forbid", strict=True)
+    amps: float
+
+
 class Registers:
     @hookimpl
     def magline_register_dut_backends(self, register):
@@ -150,6 +156,11 @@ class Registers:
     @hookimpl
     def magline_register_motions(self, register):
         register("hook-motion", lambda station, folder, options: None)
+
+    @hookimpl
+    def magline_register_current_sources(self, register):
+        register("hook-current", lambda config, folder, options: ("made", config.type, folder, options),
+                 options=HookCurrentOptions)
 
 
 @pytest.fixture(scope="module")
@@ -175,6 +186,26 @@ def test_magline_register_power_controls(registered):
 
 def test_magline_register_motions(registered):
     assert "hook-motion" in registered.motions and "operator" in registered.motions
+
+
+def test_magline_register_current_sources(registered, tmp_path):
+    """The station's ``current_source`` is made by the registered factory with its options validated
+    against the declared model; a wrong option is refused naming the key."""
+    from magline.core.interference.source import open_current_source
+    from magline.core.station.schema import Station
+
+    assert "hook-current" in registered.current_sources and "electronic-load" in registered.current_sources
+
+    def station(options: dict) -> Station:
+        return Station.model_validate({"station": {"id": "s", "line": "L", "location": {"latitude_deg": 0.0,
+                                                                                      "longitude_deg": 0.0}},
+                                       "products": {"P": {"backend": "mock"}},
+                                       "current_source": {"type": "hook-current", "options": options}})
+
+    made = open_current_source(station({"amps": 3.0}), tmp_path, registered)
+    assert made[:3] == ("made", "hook-current", tmp_path) and made[3].amps == 3.0
+    with pytest.raises(Exception, match=r"current_source\.options"):
+        open_current_source(station({"amps": "lots"}), tmp_path, registered)
 
 
 def test_magline_add_commands(monkeypatch, capsys):

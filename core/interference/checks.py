@@ -6,17 +6,13 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+from magline.core.interference.model import zone_words
 from magline.core.measurements import Json, Measurement, Numeric, Verdict
 from magline.core.plugins import hookimpl
 
 if TYPE_CHECKING:
     from magline.core.fit import FitResult
     from magline.core.sequencer.context import RunContext
-
-
-def zone_words(pct: float) -> str:
-    """ArduPilot's bands in words: what the operator and the report say of a compass's interference."""
-    return "fine" if pct < 30.0 else "grey zone" if pct <= 60.0 else "move the compass"
 
 
 @hookimpl

@@ -32,6 +32,12 @@ REACHED_SHARE = 0.9
 MOVED_DEG = 2.0  # the accelerometer turning more than this during the sweep: the unit moved
 
 
+def zone_words(pct: float) -> str:
+    """ArduPilot's bands in words (< 30 % fine, 30–60 % grey, > 60 % move the compass): what the operator,
+    the screen and the report say of a compass's interference."""
+    return "fine" if pct < 30.0 else "grey zone" if pct <= 60.0 else "move the compass"
+
+
 @dataclass
 class CompassInterference:
     device_id: int
@@ -58,6 +64,7 @@ class Interference:
     moved_deg: float
     seconds: float
     steps: list[dict] = field(default_factory=list)  # level, source and unit current per step (the record)
+    compensated: set[int] = field(default_factory=set)  # device ids whose compensation the persist phase writes
 
     def to_dict(self) -> dict:
         return {"reference": self.reference, "current_max_a": self.current_max_a, "field_ut": self.field_ut,

@@ -59,6 +59,31 @@ def sweep_levels(steps: int) -> list[float]:
     return up + up[-2::-1]
 
 
+class UnitClock:
+    """The unit's stream time now, from the chunks as they arrive: its newest stamp plus the time since
+    that chunk came.  Why: a chunk gathers readings until it is full (a second at a 10 Hz compass), so
+    the readings of a step are told from the ones before it by their own stamps, not by when their chunk
+    arrived — dropping whole chunks after each change cost a second per step."""
+
+    def __init__(self) -> None:
+        self.stamp_ms: float | None = None
+        self.arrived = 0.0
+
+    def saw(self, chunk: SampleChunk) -> None:
+        stamps = [np.max(chunk.t_ms)] if len(chunk.t_ms) else []
+        stamps += [np.max(more.t_ms) for more in chunk.more.values() if len(more.t_ms)]
+        if chunk.imu is not None and len(chunk.imu.t_ms):
+            stamps.append(np.max(chunk.imu.t_ms))
+        if stamps:
+            self.stamp_ms, self.arrived = float(max(stamps)), time.monotonic()
+
+    def in_ms(self, seconds_from_now: float) -> float:
+        """The unit's stamp ``seconds_from_now`` from now (−∞ before the first chunk: take everything)."""
+        if self.stamp_ms is None:
+            return float("-inf")
+        return self.stamp_ms + (time.monotonic() - self.arrived + seconds_from_now) * 1000.0
+
+
 def run_sweep(run: RunContext, source: CurrentSource, settings: InterferenceSettings, device_ids: list[int]) -> Sweep:
     """Step the source through :func:`sweep_levels`, reading every compass in ``device_ids`` (the
     primary first) and the unit's current after each settle.  The source draws nothing again
@@ -70,13 +95,14 @@ def run_sweep(run: RunContext, source: CurrentSource, settings: InterferenceSett
     started = time.monotonic()
     deadline = started + settings.timeout_s
     steps: list[SweepStep] = []
+    clock = UnitClock()
     stream = dut.samples(settings.rate_hz)
     try:
         for level in sweep_levels(settings.steps):
             run.abort.check()
             source.set_level(level)
             step = SweepStep(level=level)
-            _read_step(stream, step, time.monotonic() + settings.settle_s, settings.readings, device_ids, deadline)
+            _read_step(stream, clock, step, clock.in_ms(settings.settle_s), settings.readings, device_ids, deadline)
             step.source_a = source.measured_current_a()
             steps.append(step)
             run.log(f"sweep {level:.0%}: unit reads {_amps(step.firmware_mean_a)}, source {_amps(step.source_a)}")
@@ -90,11 +116,13 @@ def _amps(value: float | None) -> str:
     return "—" if value is None else f"{value:.2f} A"
 
 
-def _read_step(stream, step: SweepStep, settled_at: float, wanted: int, device_ids: list[int],
+def _read_step(stream, clock: UnitClock, step: SweepStep, settled_ms: float, wanted: int, device_ids: list[int],
                deadline: float) -> None:
-    """Readings of one step: everything before ``settled_at`` is dropped (the current and the field
-    still moving), then ``wanted`` readings of every compass and at least one current reading."""
+    """Readings of one step: those stamped before ``settled_ms`` (the unit's clock) are dropped — the
+    current and the field still moving —, then ``wanted`` readings of every compass and at least one
+    current reading."""
     primary = device_ids[0]
+    settled_at = time.monotonic()
     while True:
         if time.monotonic() > deadline:
             have = ", ".join(f"{d}: {len(step.readings.get(d, []))}" for d in device_ids)
@@ -104,15 +132,19 @@ def _read_step(stream, step: SweepStep, settled_at: float, wanted: int, device_i
             chunk: SampleChunk = next(stream)
         except StopIteration:
             raise DutError("the unit's stream ended during the current sweep") from None
-        if time.monotonic() < settled_at:
-            continue
-        step.readings.setdefault(primary, []).extend(np.asarray(chunk.mag_ut, float).reshape(-1, 3))
-        for device_id, more in chunk.more.items():
+        clock.saw(chunk)
+        if settled_ms == float("-inf"):  # the first chunk of the sweep: the clock starts with it
+            settled_ms = clock.in_ms(0.0)
+        for device_id, readings in ((primary, chunk), *chunk.more.items()):
             if device_id in device_ids:
-                step.readings.setdefault(device_id, []).extend(np.asarray(more.mag_ut, float).reshape(-1, 3))
-        step.firmware_a.extend(float(a) for a in np.asarray(chunk.current_a, float).ravel())
+                keep = np.asarray(readings.t_ms, float) >= settled_ms
+                step.readings.setdefault(device_id, []).extend(np.asarray(readings.mag_ut, float).reshape(-1, 3)[keep])
+        currents = np.asarray(chunk.current_a, float).ravel()
+        stamps = np.asarray(chunk.current_t_ms, float).ravel()
+        step.firmware_a.extend(float(a) for a, t in zip(currents, stamps, strict=False) if t >= settled_ms)
         if chunk.imu is not None and len(chunk.imu.accel_mss):
-            step.accel.extend(np.asarray(chunk.imu.accel_mss, float).reshape(-1, 3))
+            keep = np.asarray(chunk.imu.t_ms, float) >= settled_ms
+            step.accel.extend(np.asarray(chunk.imu.accel_mss, float).reshape(-1, 3)[keep])
         compasses_done = all(len(step.readings.get(d, [])) >= wanted for d in device_ids)
         if step.firmware_a and compasses_done:
             return

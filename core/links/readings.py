@@ -16,6 +16,7 @@ soft-iron scale error against a reference).  :func:`untruncate_mg` undoes that o
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -93,6 +94,8 @@ class SensorStreams:
         self.sensors = list(dict.fromkeys([primary, *sensors]))
         self.to_ut = to_ut
         self.filters = {d: RepeatFilter(timed=True) for d in self.sensors}  # paired with gravity by time
+        self.latest_t_ms = float("-inf")  # the newest time stamp the stream carried so far
+        self.taken_at = time.monotonic()
         self._clear()
 
     def _clear(self) -> None:
@@ -101,25 +104,34 @@ class SensorStreams:
         self.imu_t: list[float] = []
         self.imu_mg: list[tuple[float, float, float]] = []
         self.current_a: list[float] = []
+        self.current_t: list[float] = []
 
     def current(self, centi_amps: float) -> None:
-        """The unit's own battery current reading (BATTERY_STATUS / SYS_STATUS: centi-amps; −1 = none)."""
+        """The unit's own battery current reading (BATTERY_STATUS / SYS_STATUS: centi-amps; −1 = none),
+        stamped with the latest time the stream carried (the message itself has none)."""
         if centi_amps >= 0:
             self.current_a.append(centi_amps / 100.0)
+            self.current_t.append(self.latest_t_ms)
 
     def accel(self, t_ms: float, x_mg: float, y_mg: float, z_mg: float) -> None:
         """An accelerometer reading (milli-g, body axes) at ``t_ms``."""
         self.imu_t.append(t_ms)
         self.imu_mg.append((x_mg, y_mg, z_mg))
+        self.latest_t_ms = max(self.latest_t_ms, t_ms)
 
     def mag(self, device_id: int, t_ms: float, x_mg: float, y_mg: float, z_mg: float) -> None:
         """A magnetometer field of a message (int16 mG); a repeat of the sensor's last reading is dropped."""
+        self.latest_t_ms = max(self.latest_t_ms, t_ms)
         if self.filters[device_id].accept(x_mg, y_mg, z_mg):
             self.rows[device_id].append((x_mg, y_mg, z_mg))
             self.times[device_id].append(t_ms)
 
-    def ready(self, chunk: int) -> bool:
-        return len(self.rows[self.primary]) >= chunk
+    def ready(self, chunk: int, within_s: float | None = None) -> bool:
+        """``chunk`` readings of the primary gathered — or, ``within_s``, any once that long has passed
+        since the last chunk: a 10 Hz compass fills ten readings in a second, and a current sweep waiting
+        on whole seconds took twice as long as its readings."""
+        have = len(self.rows[self.primary])
+        return have >= chunk or (within_s is not None and have > 0 and time.monotonic() - self.taken_at >= within_s)
 
     def take(self) -> SampleChunk:
         """What arrived since the last call, as one chunk."""
@@ -133,5 +145,7 @@ class SensorStreams:
         if self.imu_t:
             chunk.imu = ImuSeries(t_ms=np.array(self.imu_t), accel_mss=np.array(self.imu_mg, float) * MSS_PER_MG)
         chunk.current_a = np.array(self.current_a, float)
+        chunk.current_t_ms = np.array(self.current_t, float)
+        self.taken_at = time.monotonic()
         self._clear()
         return chunk

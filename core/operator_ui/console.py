@@ -16,13 +16,14 @@ from rich.text import Text
 
 from magline.core.measurements import Verdict, by_sensor, verdicts
 from magline.core.operator_ui.console_slots import STYLE, SlotBoard
-from magline.core.operator_ui.verdict_words import closing_line, sensor_cards, shown_verdict
+from magline.core.operator_ui.verdict_words import closing_line, interference_words, sensor_cards, shown_verdict
 from magline.core.plugins import hookimpl
 from magline.core.record import Outcome, PhaseResult, RunRecord
 from magline.core.sequencer.batch import Batch
 from magline.core.sequencer.context import RunContext
 from magline.core.text import fmt, percent, seconds, stop_line
 
+PHASE_WIDTH = 12  # "interference", the longest phase name: the names right-aligned in one column
 MARK = {Verdict.PASS: "✓", Verdict.FAIL: "✗", Verdict.REVIEW: "!", Verdict.INFO: "·"}
 WAIT_EVERY_S = 5  # plain-text consoles print a countdown line this often
 
@@ -49,7 +50,7 @@ class OperatorConsole:
         if run.slot is not None:
             return self.slots.phase_started(run, phase)
         if phase != "record":
-            self.console.print(f"[bold]{phase:>9}[/bold] …")
+            self.console.print(f"[bold]{phase:>{PHASE_WIDTH}}[/bold] …")
 
     @hookimpl
     def magline_phase_finished(self, run: RunContext, phase: str, result: PhaseResult) -> None:
@@ -59,7 +60,8 @@ class OperatorConsole:
         self._last_wait = -1
         if phase == "record" and result.outcome is Outcome.PASS:
             return
-        text = f"[{STYLE[result.outcome]}]{phase:>9} {result.outcome.upper()}[/] ({seconds(result.duration_s)})"
+        text = (f"[{STYLE[result.outcome]}]{phase:>{PHASE_WIDTH}} {result.outcome.upper()}[/] "
+                f"({seconds(result.duration_s)})")
         if result.message:
             text += f": {result.message}"
         self.console.print(text)
@@ -226,6 +228,8 @@ def verdict_lines(record: RunRecord) -> list[str]:
         cal = record.calibration
         h = ", ".join(fmt(v, digits=4) for v in cal["hard_iron_ut"])
         lines.append(f"  hard iron [{h}] µT, field {fmt(cal['field_ut'], 'µT')}, attempts {len(record.attempts)}")
+        if interference_words(record, ""):
+            lines.append(f"  current interference: {interference_words(record, '')}")
         for i, row in enumerate(cal["soft_iron"]):
             lines.append(f"  {'soft iron' if i == 0 else '':<9} [" + ", ".join(f"{v:8.4f}" for v in row) + "]")
         for name, other in (cal.get("magnetometers") or {}).items():

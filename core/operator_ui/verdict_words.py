@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from magline.core.interference.model import zone_words
 from magline.core.measurements import CATALOGUE, Verdict, base_name, by_sensor, verdicts
 from magline.core.record import RunRecord
 from magline.core.text import fmt
@@ -77,13 +78,26 @@ def sensor_cards(record: RunRecord) -> list[dict[str, Any]]:
             continue
         h = hard_iron.get(prefix)
         title = f"agreement {_pair_words(prefix)}" if pair else titles.get(prefix, prefix.rstrip("."))
+        detail = ("hard iron [" + ", ".join(fmt(v, digits=3) for v in h) + "] µT") if h else ""
+        current = interference_words(record, prefix)
         cards.append({"title": title,
                       "verdict": "fail" if failed else "review" if marginal else "pass",
-                      "detail": ("hard iron [" + ", ".join(fmt(v, digits=3) for v in h) + "] µT") if h else "",
+                      "detail": " · ".join(w for w in (detail, current) if w),
                       "items": verdict_items(record, measured, owner=False)})
     if agreeing:
         cards.append({"title": "agreement", "verdict": "pass", "detail": " · ".join(agreeing), "items": []})
     return cards
+
+
+def interference_words(record: RunRecord, prefix: str) -> str:
+    """A compass's current interference as the operator reads it: "38 % of the field at 40 A — grey
+    zone" (ArduPilot's bands); empty when it was not measured."""
+    pct = next((m.value for m in verdicts(record.measurements) if m.name == prefix + "interference_pct_at_max"),
+               None)
+    top = ((record.unit_info or {}).get("interference") or {}).get("current_max_a")
+    if pct is None or top is None:
+        return ""
+    return f"{pct:.0f} % of the field at {top:g} A — {zone_words(pct)}"
 
 
 def _pair_words(prefix: str) -> str:

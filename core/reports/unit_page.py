@@ -23,7 +23,14 @@ import plotly.graph_objects as go
 from magline.core.fit.coverage import bin_index, covered_bins, fibonacci_sphere
 from magline.core.fit.samples_csv import RawSamples
 from magline.core.reports.page import figure_html, table, write_page
-from magline.core.results.record_words import compass_rows, mounting_rows, persistence_rows, unit_facts, value_words
+from magline.core.results.record_words import (
+    compass_rows,
+    interference_rows,
+    mounting_rows,
+    persistence_rows,
+    unit_facts,
+    value_words,
+)
 from magline.core.text import fmt, percent, seconds
 
 MAX_POINTS = 3000  # per 3D trace: keeps the page small and the browser quick
@@ -92,9 +99,15 @@ def _residual_charts(run: dict[str, Any]) -> str:
 
 
 def _mounting(run: dict[str, Any]) -> str:
-    """Each sensor's mounting and each pair's agreement, as the validate phase judged them."""
+    """Each sensor's mounting and each pair's agreement, as the validate phase judged them; then each
+    compass's current interference where it was swept."""
     rows = mounting_rows(run.get("unit_info"))
-    return "<h2>Mounting</h2>" + table(["sensor / pair", "found", "misalignment", "inclination"], rows) if rows else ""
+    out = "<h2>Mounting</h2>" + table(["sensor / pair", "found", "misalignment", "inclination"], rows) if rows else ""
+    current = interference_rows(run.get("unit_info"))
+    if current:
+        out += "<h2>Current interference</h2>" + table(["compass", "field per amp", "at the top current",
+                                                         "linearity, return to zero"], current)
+    return out
 
 
 def _residual_chart(residual: list[float], title: str, name: str) -> str:

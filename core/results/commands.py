@@ -12,6 +12,7 @@ import sys
 from typing import Any, TextIO
 
 from magline.core.faults import StationFault
+from magline.core.measurements import base_name
 from magline.core.results.contract import ReadsInSql
 from magline.core.results.reading import (
     NUMERIC_NAMES,
@@ -23,7 +24,14 @@ from magline.core.results.reading import (
     measurement_names,
     run_attempts,
 )
-from magline.core.results.record_words import compass_rows, mounting_rows, persistence_rows, unit_facts, value_words
+from magline.core.results.record_words import (
+    compass_rows,
+    interference_rows,
+    mounting_rows,
+    persistence_rows,
+    unit_facts,
+    value_words,
+)
 from magline.core.text import fmt, seconds, stop_line
 
 
@@ -63,8 +71,15 @@ def show(store: Any, run: str, as_json: bool, out: TextIO | None = None) -> int:
         lines.append("mounting:")
         lines += [f"  {name:<10} {found}" + (f", {distance}" if distance else "")
                   + (f", inclination {incl}" if incl else "") for name, found, distance, incl in mounting]
+    interference = interference_rows(unit)
+    if interference:
+        sweep = unit["interference"]
+        lines.append(f"current interference (swept to {sweep['current_max_a']:g} A in {sweep['seconds']:.0f} s"
+                     + (f", the unit's current sensor {sweep['sensor_error_pct']:+.1f} % against the load"
+                        if sweep.get("sensor_error_pct") is not None else "") + "):")
+        lines += [f"  {name}: " + ", ".join(w for w in words if w) for name, *words in interference]
     lines.append("phases:")
-    lines += [f"  {p['name']:<9} {str(p['outcome']).upper():<8} {seconds(p['duration_s'] or 0.0):>7}"
+    lines += [f"  {p['name']:<12} {str(p['outcome']).upper():<8} {seconds(p['duration_s'] or 0.0):>7}"
               + (f"  {p['message']}" if p["message"] else "") for p in record["phases"]]
     lines.append("attempts:")
     lines += [f"  {a['attempt']}: " + ("accepted" if a["accepted"] else f"not used ({a['refused'] or 'superseded'})")
@@ -143,8 +158,7 @@ def export(store: Any, where: RunFilter, fmt_name: str, raw: bool, out: TextIO |
             return _done(count)
         held = measurement_names(conn, where)
         sensors = ["mag1", *(p for p in ("mag2", "mag3") if any(n.startswith(f"{p}.") for n in held))]
-        names = [n for n in NUMERIC_NAMES if _sensor_of(n) in sensors and (
-            "-" not in n.split(".")[0] or n in held)]  # a pair's columns where some unit has the pair
+        names = [n for n in NUMERIC_NAMES if _sensor_of(n) in sensors and (not _only_where_held(n) or n in held)]
         writer.writerow([*RUN_COLUMNS, "test", *names, *(f"{p}.{c}" if p != "mag1" else c for p in sensors
                                                           for c in SOFT_IRON_COLUMNS),
                          "failed", "review", "params_written"])
@@ -190,6 +204,13 @@ def _sensor_names(calibration: Any) -> dict[int, str]:
 
 # the soft-iron matrix written to the unit (the primary's), one named column per element
 SOFT_IRON_COLUMNS = tuple(f"soft_iron_{i}{j}" for i in (1, 2, 3) for j in (1, 2, 3))
+
+
+def _only_where_held(name: str) -> bool:
+    """Columns a station has only where its units have them: a pair's (two compasses), the current
+    interference's (products that sweep) — not a block of empty columns on every other export."""
+    base = base_name(name)
+    return "-" in name.split(".")[0] or base.startswith("interference_") or base == "current_sensor_error_pct"
 
 
 def _soft_iron(calibration: Any, sensor: str = "mag1") -> list[Any]:

@@ -14,7 +14,8 @@ from magline.core.text import fmt
 # a stored key's unit suffix → the unit a person reads (a figure named time_to_heartbeat_s is in s)
 UNIT_SUFFIXES = (("_ut", "µT"), ("_pct", "%"), ("_deg", "°"), ("_ms", "ms"), ("_s", "s"), ("_a", "A"),
                  ("_v", "V"), ("_hz", "Hz"))
-SHOWN_APART = ("magnetometers", "mounting", "sensors", "selected_sensor")  # tables of their own
+SHOWN_APART = ("magnetometers", "mounting", "sensors", "selected_sensor", "interference",
+               "interference_notes")  # tables of their own
 
 
 def key_words(key: str) -> tuple[str, str]:
@@ -104,4 +105,29 @@ def persistence_rows(persistence: dict[str, Any] | None) -> list[tuple[str, str]
         rows.append(("magnetometer after the power cycle", "present" if persistence["sensor_present"] else "MISSING"))
     mismatches = persistence.get("mismatches") or []
     rows.append(("read back", "as written" if not mismatches else "MISMATCH: " + "; ".join(map(str, mismatches))))
+    return rows
+
+
+def interference_rows(unit_info: dict[str, Any] | None) -> list[tuple[str, str, str, str]]:
+    """(compass, field per amp with σ, share of the field at the top current in words, linearity and
+    return to zero) per compass swept, then what compensation left after the power cycle; a note where a
+    compass could not be compensated."""
+    from magline.core.interference.model import zone_words
+
+    found = (unit_info or {}).get("interference")
+    if not isinstance(found, dict) or "compasses" not in found:
+        return []
+    names = {str(device): name for name, _, device, _ in compass_rows(unit_info)}
+    top = found.get("current_max_a")
+    rows = []
+    for device, c in found["compasses"].items():
+        per_amp = float(sum(v * v for v in c["per_amp_ut"]) ** 0.5)
+        left = (found.get("proof") or {}).get(device)
+        rows.append((f"{names.get(device, 'compass')} ({device})",
+                     f"{per_amp:.3f} ± {c['per_amp_sigma_ut']:.3f} µT/A",
+                     f"{c['pct_at_max']:.1f} % of the field at {top:g} A — {zone_words(c['pct_at_max'])}"
+                     + (f"; compensated: {left['left_pct_at_max']:.2f} % left after the power cycle" if left else ""),
+                     f"line within {c['linearity_ut']:.2f} µT, back at 0 A within {c['return_ut']:.2f} µT"))
+    for note in (unit_info or {}).get("interference_notes") or []:
+        rows.append(("note", value_words(note), "", ""))
     return rows

@@ -58,6 +58,7 @@ INT_PARAMS = ("COMPASS_DEV_ID", "COMPASS_PRIO", "COMPASS_LEARN", "COMPASS_OFFS_M
               "COMPASS_ORIENT", "COMPASS_EXTERN")
 
 CHUNK = 10
+CHUNK_WITHIN_S = 0.25  # a slow compass's readings handed on at least this often
 BATTERY_RATE_HZ = 10.0  # BATTERY_STATUS during a current sweep
 MOT_RANGE_MG_PER_A = 1000.0  # COMPASS_MOTn_* @Range
 RESTORE_RECONNECT_S = 3.0  # a vehicle that does not answer by then is reported as not restored
@@ -230,7 +231,7 @@ class ArduPilotDut:
                     streams.accel(t_ms, msg.xacc, msg.yacc, msg.zacc)
                 if kind in by_kind:  # the stream is faster than the compass: repeats are dropped
                     streams.mag(by_kind[kind], t_ms, msg.xmag, msg.ymag, msg.zmag)
-                if streams.ready(CHUNK):
+                if streams.ready(CHUNK, CHUNK_WITHIN_S):
                     yield streams.take()
         finally:
             for kind in kinds:
@@ -294,9 +295,9 @@ class ArduPilotDut:
 
     def interference_params(self, device_id: int, per_amp_ut: np.ndarray, fit: FitResult) -> dict[str, ParamValue]:
         """COMPASS_MOTn_X/Y/Z (mG/A): AP_Compass_Backend::correct_field *adds* MOT × current after the
-        offsets and the DIA/ODI matrix, in the rotated frame the readings stream in (reference §18,
-        checked in the source) — so MOT = −10·S·c for a raw field change c µT/A and the matrix S written
-        (SCALE = 1).  The firmware range is ±1000 mG/A."""
+        offsets and the DIA/ODI matrix, in the rotated frame the readings stream in (docs/firmware.md,
+        *Current interference*, checked in the source) — so MOT = −10·S·c for a raw field change c µT/A
+        and the matrix S written (SCALE = 1).  The firmware range is ±1000 mG/A."""
         mot = -10.0 * np.asarray(fit.soft_iron, float) @ np.asarray(per_amp_ut, float)
         names = set_names(self._suffix_of(device_id))["MOT"]
         if np.any(np.abs(mot) > MOT_RANGE_MG_PER_A):

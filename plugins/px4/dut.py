@@ -69,6 +69,7 @@ MG_PER_UT = 10.0
 
 log = logging.getLogger("magline.px4")
 CHUNK = 10
+CHUNK_WITHIN_S = 0.25  # a slow compass's readings handed on at least this often
 MAVLINK_MSG_ID_BATTERY_STATUS = 147
 BATTERY_RATE_HZ = 10.0  # BATTERY_STATUS during a current sweep
 RESTORE_RECONNECT_S = 3.0  # a vehicle that does not answer by then is reported as not restored
@@ -156,11 +157,15 @@ class Px4Dut:
         self.chosen = list(device_ids)
 
     def _has_param(self, name: str) -> bool:
-        try:
-            self.link.get(name, False)
-            return True
-        except DutError:
-            return False
+        """Whether this firmware has ``name`` (asked once per link: an unknown name costs the read's retries)."""
+        known = self.__dict__.setdefault("_param_known", {})
+        if name not in known:
+            try:
+                self.link.get(name, False)
+                known[name] = True
+            except DutError:
+                known[name] = False
+        return known[name]
 
     def _identify(self, slot_ids: list[int]) -> Identified:
         """The shell where it answers; otherwise parameters, streams and the station file."""
@@ -280,7 +285,7 @@ class Px4Dut:
                 # time: the same magnetometer reading repeats at the IMU's rate (dropped here)
                 if kind in by_kind:
                     streams.mag(by_kind[kind], float(msg["time_boot_ms"]), msg["xmag"], msg["ymag"], msg["zmag"])
-                if streams.ready(CHUNK):
+                if streams.ready(CHUNK, CHUNK_WITHIN_S):
                     yield streams.take()
         finally:
             for kind in kinds:
@@ -320,8 +325,9 @@ class Px4Dut:
 
     def interference_params(self, device_id: int, per_amp_ut: np.ndarray, fit: FitResult) -> dict[str, ParamValue]:
         """CAL_MAGn_X/Y/ZCOMP (G/kA = mG/A): Magnetometer::Correct adds power·COMP to the *raw* reading
-        before the offset, in the sensor's own axes (reference §18, checked in the source) — the frame
-        SCALED_IMU streams in — so COMP = −10·c for a raw field change c µT/A, whatever the calibration."""
+        before the offset, in the sensor's own axes (docs/firmware.md, *Current interference*, checked in
+        the source) — the frame SCALED_IMU streams in — so COMP = −10·c for a raw field change c µT/A,
+        whatever the calibration."""
         slot = self.sensors[device_id]["slot"]
         names = [f"CAL_MAG{slot}_{a}COMP" for a in "XYZ"]
         if not self._has_param(names[0]):

@@ -1,0 +1,188 @@
+"""Issue 46: the compasses' current interference, measured per unit and per compass by a current sweep
+(a simulated SCPI electronic load in the board's power path), judged, compensated in each firmware's
+own parameters and proven after the power cycle — against simulated boards that apply MOTCT/MOT and
+COMP_TYP/xCOMP as their firmware does (reference §18, checked in the sources)."""
+
+from __future__ import annotations
+
+import contextlib
+
+import numpy as np
+import pytest
+import yaml
+from conftest import REPO
+from simstation import FAST_SENSOR_HZ, run_unit, write_station
+
+from magline.core.measurements import Verdict
+from magline.core.record import Outcome
+from magline.core.station import StationError, load_station
+from magline.sim import SimFaults, create_sim
+from magline.sim.load import LoadSim
+
+AP_OPTIONS = {"connect_timeout_s": 5.0, "boot_timeout_s": 10.0, "prearm_wait_s": 0.3}
+PX4_OPTIONS = {"connect_timeout_s": 5.0, "boot_timeout_s": 10.0, "save_settle_s": 0.1}
+CURRENT_MAX_A = 40.0
+# a short sweep: 0, 20, 40, 20, 0 A, 10 readings of every compass per step after 0.1 s
+SWEEP = {"steps": 2, "settle_s": 0.1, "readings": 10}
+
+
+@contextlib.contextmanager
+def board_on_a_load(tmp_path, flavour: str, faults: str = "", load_fault: str | None = None, mode: str = "compensate"):
+    """A two-compass board with a load in its power path, and the station that sweeps it."""
+    (tmp_path / "fc").mkdir()
+    listen = "udp:127.0.0.1:0" if flavour == "px4" else "tcp:127.0.0.1:0"
+    injected = SimFaults.parse(faults.split()) if faults else None
+    sim = create_sim(flavour, listen, workdir=tmp_path / "fc", seed=11, boot_time_s=0.3, speed=5.0,
+                     mag_rate_hz=FAST_SENSOR_HZ, mag_count=2, faults=injected)
+    with sim, LoadSim("tcp:127.0.0.1:0", board=sim, fault=load_fault) as load:
+        host, port = sim.address.split(":")[1:]
+        address = f"udpout://{host}:{port}" if flavour == "px4" else sim.address
+        example = f"{flavour}-sim.yaml"
+        part = yaml.safe_load((REPO / "stations" / example).read_text(encoding="utf-8"))["default_part"]
+        station = write_station(example, tmp_path, address, PX4_OPTIONS if flavour == "px4" else AP_OPTIONS, {
+            "products": {part: {"interference": mode, "current_max_a": CURRENT_MAX_A}},
+            "current_source": {"type": "electronic-load", "options": {"resource": load.visa_resource}},
+            "interference": SWEEP})
+        yield sim, load, station
+
+
+def measured(record, name: str):
+    return next(m for m in record.measurements if getattr(m, "name", None) == name)
+
+
+def raw_change(sensor, per_amp_body) -> np.ndarray:
+    """What a field change in body axes does to the sensor's raw readings (its axes, its soft iron):
+    ``m = S⁻¹·R⁻¹·b + h``.  The simulators mount their sensors unrotated here, so ArduPilot's rotated
+    stream frame is the sensor's own."""
+    return np.linalg.solve(sensor.soft_iron, sensor.rotation.inv().apply(per_amp_body))
+
+
+def firmware_change(sim, index: int, amps: float) -> np.ndarray:
+    """How much the firmware's corrected output of compass ``index`` moves (µT) when ``amps`` flow, for
+    one noise-free field: what its compensation leaves."""
+    sensor = sim.magnetometers[index]
+    body = np.array([20.0, 5.0, 40.0])
+    rng = np.random.default_rng(0)
+    noise, sensor.truth.noise_ut = sensor.truth.noise_ut, 0.0
+    provider = sim.current_provider
+    out = []
+    try:
+        for current in (0.0, amps):
+            sim.current_provider = lambda current=current: current
+            raw = sensor.read_ut(body + current * sensor.interference_ut_per_a, rng)
+            out.append(sim.corrected_ut(sensor, raw) if sim.flavour == "px4" else sim.correct_mg(index, raw * 10) / 10)
+    finally:
+        sensor.truth.noise_ut, sim.current_provider = noise, provider
+    return out[1] - out[0]
+
+
+@pytest.mark.parametrize("flavour", ["ardupilot", "px4"])
+def test_the_interference_of_every_compass_is_measured_compensated_and_proven_after_the_power_cycle(tmp_path, flavour):
+    """Each compass's field per amp is found within its σ of the simulator's truth (in the calibrated
+    frame: the raw change through the fit), judged as a share of the field at 40 A, written in the
+    firmware's own parameters (ArduPilot: −10·S·c mG/A after the matrix, MOTCT 2; PX4: −10·c mG/A in the
+    raw sensor frame, COMP_TYP 2), read back after the power cycle, and a second sweep proves the
+    firmware's corrected field no longer follows the current — as the simulated firmware applies them."""
+    with board_on_a_load(tmp_path, flavour) as (sim, load, station):
+        record = run_unit(station, f"INT-{flavour}")
+        assert record.verdict is Outcome.PASS, record.cause
+        assert not load.input_on and sim.current_provider() == 0.0  # the load draws nothing after the unit
+        fits = {"": record.calibration, "mag2.": record.calibration["magnetometers"]["mag2"]}
+        for prefix, sensor in zip(("", "mag2."), sim.magnetometers, strict=True):
+            found = record.unit_info["interference"]["compasses"][str(sensor.device_id)]
+            truth = np.asarray(fits[prefix]["soft_iron"]) @ raw_change(sensor, sensor.interference_ut_per_a)
+            sigma = measured(record, prefix + "interference_sigma_ut_per_a").value
+            assert np.linalg.norm(np.asarray(found["per_amp_ut"]) - truth) < 4.0 * np.sqrt(3) * sigma, (
+                found["per_amp_ut"], truth, sigma)
+            pct = measured(record, prefix + "interference_pct_at_max")
+            assert pct.value == pytest.approx(np.linalg.norm(found["per_amp_ut"]) * CURRENT_MAX_A
+                                              / record.reference_field_ut * 100.0)
+            assert pct.verdict is Verdict.PASS  # the simulator's compasses: 6 % and 26 % of the field
+            left = measured(record, prefix + "interference_left_pct_at_max")
+            assert left.verdict is Verdict.PASS and left.value < 0.25 * pct.value
+        written, back = record.params_written, record.params_read_back
+        second = sim.magnetometers[1]
+        if flavour == "ardupilot":
+            assert written["COMPASS_MOTCT"] == 2 and back["COMPASS_MOTCT"] == 2
+            assert [back[f"COMPASS_MOT2_{a}"] for a in "XYZ"] == pytest.approx(
+                [written[f"COMPASS_MOT2_{a}"] for a in "XYZ"])
+        else:
+            assert written["CAL_MAG_COMP_TYP"] == 2 and back["CAL_MAG_COMP_TYP"] == 2
+            slot = sim.slot_of(second.device_id)
+            comp = np.array([written[f"CAL_MAG{slot}_{a}COMP"] for a in "XYZ"])
+            # truth: −1000·k G/kA for a raw field change of k G/A (reference §18): −10 × the µT/A change
+            truth = -10.0 * raw_change(second, second.interference_ut_per_a)
+            assert np.linalg.norm(comp - truth) < 0.05 * np.linalg.norm(truth)
+        # the firmware itself now cancels it: its corrected output hardly moves when 40 A flow
+        uncompensated = np.linalg.norm(CURRENT_MAX_A * second.interference_ut_per_a)
+        assert np.linalg.norm(firmware_change(sim, 1, CURRENT_MAX_A)) < 0.05 * uncompensated
+
+
+def test_a_current_sensor_reading_20_percent_low_fails_and_nothing_is_written(tmp_path):
+    """A power module's wrong scale: the unit's own current reading against the load's measurement."""
+    with board_on_a_load(tmp_path, "ardupilot", "current_sensor_pct=-20") as (sim, _, station):
+        record = run_unit(station, "INT-SCALE")
+        stored = sim.read_storage()
+    assert record.verdict is Outcome.FAIL
+    error = measured(record, "current_sensor_error_pct")
+    assert error.value == pytest.approx(-20.0, abs=0.5) and error.verdict is Verdict.FAIL
+    assert "current sensor reads -20.0 %" in record.cause and "BATT_AMP_PERVLT" in record.cause
+    assert record.params_written == {} and stored.get("COMPASS_MOTCT", 0) == 0
+
+
+def test_a_magnetised_part_that_does_not_return_to_zero_fails_the_compass(tmp_path):
+    with board_on_a_load(tmp_path, "ardupilot", "interference_remanence=2", mode="measure") as (_, _, station):
+        record = run_unit(station, "INT-REMANENT")
+    assert record.verdict is Outcome.FAIL
+    back = measured(record, "mag2.interference_return_ut")
+    assert back.value == pytest.approx(2.0, abs=0.5) and back.verdict is Verdict.FAIL
+    assert record.params_written == {}
+
+
+@pytest.mark.parametrize(("faults", "load_fault", "cause"), [
+    ("", "no_sink", "the current source reached only 0.00 A of the 40 A"),
+    ("moved_during_sweep=3", None, "the unit moved during the current sweep"),
+], ids=["load-does-not-sink", "unit-moved"])
+def test_a_sweep_that_cannot_be_judged_is_an_error_and_nothing_is_written(tmp_path, faults, load_fault, cause):
+    with board_on_a_load(tmp_path, "ardupilot", faults, load_fault) as (sim, load, station):
+        record = run_unit(station, "INT-ERR")
+        stored = sim.read_storage()
+    assert record.verdict is Outcome.ERROR and cause in record.cause, record.cause
+    assert record.params_written == {} and stored.get("COMPASS_MOTCT", 0) == 0
+    assert not load.input_on  # the load is switched off after an error too
+
+
+def test_a_firmware_without_the_compensation_parameters_is_measured_judged_and_says_so(tmp_path):
+    """PX4 builds without CAL_MAGn_xCOMP (checked in its parameter list): the interference is still
+    measured and judged, the calibration written, and the record says it could not be compensated."""
+    names = ",".join(f"CAL_MAG{n}_{a}COMP" for n in range(4) for a in "XYZ")
+    with board_on_a_load(tmp_path, "px4", f"unknown_params={names}") as (_, _, station):
+        record = run_unit(station, "INT-NOCOMP")
+    assert record.verdict is Outcome.PASS, record.cause
+    assert measured(record, "mag2.interference_pct_at_max").verdict is Verdict.PASS
+    assert not any("COMP" in name for name in record.params_written)
+    notes = record.unit_info["interference_notes"]
+    assert len(notes) == 2 and all("current interference not compensated: this firmware has no CAL_MAG" in n
+                                   for n in notes)
+
+
+def test_a_station_file_that_cannot_sweep_names_the_key(tmp_path):
+    base = yaml.safe_load((REPO / "stations" / "ardupilot-sim.yaml").read_text(encoding="utf-8"))
+    part = base["default_part"]
+    cases = [({"products": {part: {"interference": "measure"}}}, "needs current_max_a"),
+             ({"products": {part: {"interference": "measure", "current_max_a": 40}}},
+              "names no current_source (electronic-load or motor-test)"),
+             ({"products": {part: {"interference": "measure", "current_max_a": 40}},
+               "current_source": {"type": "motor-test"}}, "do not say motor_test: true")]
+    for change, said in cases:
+        doc = yaml.safe_load((REPO / "stations" / "ardupilot-sim.yaml").read_text(encoding="utf-8"))
+        for key, value in change.items():
+            if key == "products":
+                doc["products"][part].update(value[part])
+            else:
+                doc[key] = value
+        path = tmp_path / "station.yaml"
+        path.write_text(yaml.safe_dump(doc, sort_keys=False), encoding="utf-8")
+        with pytest.raises(StationError) as refused:
+            load_station(path)
+        assert said in str(refused.value) and str(path) in str(refused.value)
