@@ -53,13 +53,15 @@ class SimMagnetometer:
     # its readings are the body field turned by the inverse of that rotation
     mounting: int = 0
     # the field the board's power wiring adds at this sensor per amp (body axes, µT/A): None draws a plausible
-    # one from the device id (a compass on the board sees far more than one on a GPS mast)
+    # one (a compass on the board sees far more than one on a GPS mast)
     interference_ut_per_a: NDArray | None = None
     truth: SensorTruth = field(init=False)
 
     def __post_init__(self) -> None:
         if self.interference_ut_per_a is None:
-            own = np.random.default_rng(self.device_id)  # not the board's rng: its other draws stay as they were
+            # drawn from the sensor's own hard iron (a board's seed made it), not from the board's rng: every
+            # other draw of a seeded board stays what it was before the simulators learnt the current
+            own = np.random.default_rng(np.frombuffer(np.asarray(self.hard_iron_ut, float).tobytes(), np.uint32))
             size = own.uniform(0.02, 0.08) if self.external else own.uniform(0.2, 0.5)
             direction = own.normal(size=3)
             self.interference_ut_per_a = size * direction / np.linalg.norm(direction)

@@ -41,6 +41,7 @@ ACCEPTED, DENIED, UNSUPPORTED, FAILED = (
     mavlink.MAV_RESULT_ACCEPTED, mavlink.MAV_RESULT_DENIED,
     mavlink.MAV_RESULT_UNSUPPORTED, mavlink.MAV_RESULT_FAILED)
 MAX_STREAM_HZ = 1000.0
+MOTOR_CRADLE_S = 3.0  # motors quiet this long, a new stream is a tumble out of the cradle
 
 
 class Power(enum.Enum):
@@ -124,6 +125,8 @@ class SimulatedAutopilot(ABC):
         self._motor_test: tuple[float, float] | None = None  # (throttle %, until) while a motor test runs
         self._peak_current_a = 0.0  # the largest current seen since boot (fault ``interference_remanence``)
         self._still: tuple[Rotation, float] | None = None  # held still in a fixture: (attitude, since)
+        self._still_by_motors = False  # … strapped in the cradle for a motor test (not a load's fixture)
+        self._motors_commanded_at = 0.0
         self._status_streams: dict[int, list[float]] = {}  # BATTERY_STATUS / SYS_STATUS: [interval, due]
         self._latency_s = {self.magnetometers[index].device_id: seconds
                            for index, seconds in self.faults.latencies_s().items() if index < len(self.magnetometers)}
@@ -334,6 +337,8 @@ class SimulatedAutopilot(ABC):
             self.link.drop_peers()
 
     def _boot(self, now: float, first: bool = False) -> None:
+        if self._still_by_motors:
+            self._still, self._still_by_motors = None, False
         mags = list(self.magnetometers)
         if not first:
             if self.faults.mag_missing_after_reboot is not None:
@@ -690,9 +695,16 @@ class SimulatedAutopilot(ABC):
         the fault ``motor_test_refused`` (RC not calibrated, a safety switch on)."""
         if self.faults.motor_test_refused:
             return DENIED
-        if int(params[1]) != 0 or not 0.0 <= params[2] <= 100.0 or params[3] <= 0:
+        if int(params[1]) != 0 or not 0.0 <= params[2] <= 100.0 or params[3] < 0:
             return DENIED
+        # 0 %: the motor stops (a test at zero throttle ends the running one)
         self._motor_test = (float(params[2]), time.monotonic() + float(params[3])) if params[2] > 0 else None
+        # a motor test runs with the unit strapped in its cradle: it keeps its attitude from the first command
+        # until a tumble starts again (a stream after the motors were quiet a while) or it boots
+        self._motors_commanded_at = time.monotonic()
+        if self._still is None:
+            self._still = (self.attitude_at(self._motors_commanded_at), self._motors_commanded_at)
+            self._still_by_motors = True
         return ACCEPTED
 
     def after_ack(self, action: Callable[[], None]) -> None:
@@ -731,6 +743,8 @@ class SimulatedAutopilot(ABC):
             interval = max(interval_us / 1e6, 1.0 / MAX_STREAM_HZ)
             if not self._streams:
                 self._motion_index += 1  # the operator starts (another) tumble
+                if self._still_by_motors and time.monotonic() - self._motors_commanded_at > MOTOR_CRADLE_S:
+                    self._still, self._still_by_motors = None, False  # out of the cradle
                 self._mag_stream_started = time.monotonic()
             self._streams[msg_id] = [interval, time.monotonic()]
         if not self._streams:

@@ -97,7 +97,11 @@ def test_the_interference_of_every_compass_is_measured_compensated_and_proven_af
             pct = measured(record, prefix + "interference_pct_at_max")
             assert pct.value == pytest.approx(np.linalg.norm(found["per_amp_ut"]) * CURRENT_MAX_A
                                               / record.reference_field_ut * 100.0)
-            assert pct.verdict is Verdict.PASS  # the simulator's compasses: 6 % and 26 % of the field
+            if pct.value < 30.0:  # ArduPilot's bands: fine below 30 %, grey (a review) up to 60 %
+                assert pct.verdict is Verdict.PASS
+            else:
+                assert pct.verdict is Verdict.REVIEW
+                assert f"{pct.value:.0f} % of the field at 40 A — grey zone" in pct.note
             left = measured(record, prefix + "interference_left_pct_at_max")
             assert left.verdict is Verdict.PASS and left.value < 0.25 * pct.value
         written, back = record.params_written, record.params_read_back
@@ -159,7 +163,7 @@ def test_a_firmware_without_the_compensation_parameters_is_measured_judged_and_s
     with board_on_a_load(tmp_path, "px4", f"unknown_params={names}") as (_, _, station):
         record = run_unit(station, "INT-NOCOMP")
     assert record.verdict is Outcome.PASS, record.cause
-    assert measured(record, "mag2.interference_pct_at_max").verdict is Verdict.PASS
+    assert measured(record, "mag2.interference_pct_at_max").verdict in (Verdict.PASS, Verdict.REVIEW)  # judged
     assert not any("COMP" in name for name in record.params_written)
     notes = record.unit_info["interference_notes"]
     assert len(notes) == 2 and all("current interference not compensated: this firmware has no CAL_MAG" in n
@@ -186,3 +190,64 @@ def test_a_station_file_that_cannot_sweep_names_the_key(tmp_path):
         with pytest.raises(StationError) as refused:
             load_station(path)
         assert said in str(refused.value) and str(path) in str(refused.value)
+
+
+@contextlib.contextmanager
+def board_with_motors(tmp_path, interlock_exit: int, faults: str = ""):
+    """A board whose own motors draw the current (no load), behind a propeller interlock script."""
+    (tmp_path / "fc").mkdir()
+    injected = SimFaults.parse(faults.split()) if faults else None
+    sim = create_sim("ardupilot", "tcp:127.0.0.1:0", workdir=tmp_path / "fc", seed=11, boot_time_s=0.3, speed=5.0,
+                     mag_rate_hz=FAST_SENSOR_HZ, mag_count=2, faults=injected)
+    spins: list[tuple[float, float]] = []
+    real = sim._motor_test_command
+
+    def heard(params):
+        spins.append((params[2], params[3]))
+        return real(params)
+
+    sim._motor_test_command = heard
+    with sim:
+        part = yaml.safe_load((REPO / "stations" / "ardupilot-sim.yaml").read_text(encoding="utf-8"))["default_part"]
+        interlock = f"{__import__('sys').executable} -c 'import sys; sys.exit({interlock_exit})'"
+        station = write_station("ardupilot-sim.yaml", tmp_path, sim.address, AP_OPTIONS, {
+            "products": {part: {"interference": "measure", "current_max_a": CURRENT_MAX_A, "motor_test": True}},
+            "current_source": {"type": "motor-test", "options": {"interlock_command": interlock,
+                                                                  "throttle_max_pct": 70.0, "step_s": 5.0}},
+            "interference": SWEEP})
+        yield sim, spins, station
+
+
+def test_a_line_without_a_load_sweeps_with_the_units_own_motors_behind_the_propeller_interlock(tmp_path):
+    """Motor test (props off, the interlock says so): one motor spun at 0, 35, 70, 35, 0 % of throttle and
+    stopped; the field per amp fitted against the unit's own current reading, judged at current_max_a; no
+    current-sensor check without a load's own measurement."""
+    with board_with_motors(tmp_path, 0) as (sim, spins, station):
+        record = run_unit(station, "INT-MOTORS")
+        assert record.verdict is Outcome.PASS, record.cause
+        assert sim._motor_test is None  # stopped
+    throttles = [round(t) for t, _ in spins]
+    assert throttles[:5] == [0, 35, 70, 35, 0] and throttles[-1] == 0
+    found = record.unit_info["interference"]
+    assert found["reference"] == "unit" and found["sensor_error_pct"] is None
+    spinning = np.interp(70.0, *zip(*sim.MOTOR_CURVE, strict=True))  # one motor at 70 %: 9.9 A
+    assert max(s["unit_a"] for s in found["steps"]) == pytest.approx(spinning, abs=0.05)
+    second = sim.magnetometers[1]
+    truth = np.asarray(record.calibration["magnetometers"]["mag2"]["soft_iron"]) @ raw_change(
+        second, second.interference_ut_per_a)
+    per_amp = np.asarray(found["compasses"][str(second.device_id)]["per_amp_ut"])
+    assert np.linalg.norm(per_amp - truth) < 0.1 * np.linalg.norm(truth)  # 9.9 A of swing, not 40
+    assert not any(m.name == "current_sensor_error_pct" for m in record.measurements)
+
+
+@pytest.mark.parametrize(("interlock_exit", "faults", "cause"), [
+    (1, "", "the propeller interlock does not confirm the propellers are off"),
+    (0, "motor_test_refused", "ArduPilot refused the motor test"),
+], ids=["props-not-confirmed", "motor-test-refused"])
+def test_no_confirmed_props_off_or_a_refused_motor_test_is_an_error(tmp_path, interlock_exit, faults, cause):
+    with board_with_motors(tmp_path, interlock_exit, faults) as (_, spins, station):
+        record = run_unit(station, "INT-NOSPIN")
+    assert record.verdict is Outcome.ERROR and cause in record.cause, record.cause
+    if interlock_exit:
+        assert spins == []  # not one motor command without the interlock's word
+    assert record.params_written == {}

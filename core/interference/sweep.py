@@ -106,9 +106,16 @@ def run_sweep(run: RunContext, source: CurrentSource, settings: InterferenceSett
             step.source_a = source.measured_current_a()
             steps.append(step)
             run.log(f"sweep {level:.0%}: unit reads {_amps(step.firmware_mean_a)}, source {_amps(step.source_a)}")
-    finally:
-        stream.close()
-        source.stop()
+    except BaseException:
+        # draw nothing whatever happened; a source that fails to stop too must not hide why the sweep failed
+        try:
+            stream.close()
+            source.stop()
+        except Exception as exc:
+            run.log(f"after the failed sweep, stopping the current source failed too: {exc}")
+        raise
+    stream.close()
+    source.stop()
     return Sweep(steps=steps, seconds=time.monotonic() - started, device_ids=list(device_ids))
 
 

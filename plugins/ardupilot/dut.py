@@ -313,6 +313,13 @@ class ArduPilotDut:
     def compensation_params(self) -> dict[str, ParamValue]:
         return {"COMPASS_MOTCT": 2}  # current (0 off, 1 throttle)
 
+    def motor_test(self, throttle_pct: float, seconds: float) -> None:
+        """MAV_CMD_DO_MOTOR_TEST: motor 1, throttle in percent, for ``seconds`` (0 % stops it)."""
+        result = self.link.command(ML.MAV_CMD_DO_MOTOR_TEST, 1, 0, throttle_pct, seconds, 1)
+        if result != ML.MAV_RESULT_ACCEPTED:
+            raise DutError(f"ArduPilot refused the motor test (MAV_RESULT {result}: RC not calibrated, a safety "
+                           "switch on, or not landed)")
+
     def left_per_amp_ut(self, device_id: int, stream_per_amp_ut: np.ndarray) -> np.ndarray:
         """The stream is the firmware's corrected field undone with the held OFS/DIA/ODI only, so the
         compensation's MOT·I is still in it: the corrected field's slope is the held matrix times it."""

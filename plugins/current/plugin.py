@@ -1,11 +1,13 @@
-"""Registers the current sources of the interference sweep: ``electronic-load``."""
+"""Registers the current sources of the interference sweep: ``electronic-load`` and ``motor-test``."""
 
 from __future__ import annotations
 
 from magline.plugin import hookimpl
 from magline.plugins.current.electronic_load import ElectronicLoadOptions, create_electronic_load
+from magline.plugins.current.motor_test import MotorTestOptions, create_motor_test
 
 
 @hookimpl
 def magline_register_current_sources(register):
     register("electronic-load", create_electronic_load, options=ElectronicLoadOptions)
+    register("motor-test", create_motor_test, options=MotorTestOptions)

@@ -62,6 +62,7 @@ from magline.plugins.px4.options import Px4Options
 
 STREAMS = (("SCALED_IMU", 26), ("SCALED_IMU2", 116), ("SCALED_IMU3", 129))  # uORB sensor_mag instance 0/1/2
 MAV_CMD_SET_MESSAGE_INTERVAL, MAV_CMD_REQUEST_MESSAGE, MAV_CMD_PREFLIGHT_STORAGE = 511, 512, 245
+MAV_CMD_DO_MOTOR_TEST = 209
 SYSTEM_TIME = ("SYSTEM_TIME", 2)
 HIGHRES_IMU = ("HIGHRES_IMU", 105)  # the calibrated vehicle_magnetometer, Gauss
 UT_PER_GAUSS = 100.0
@@ -338,6 +339,12 @@ class Px4Dut:
     def compensation_params(self) -> dict[str, ParamValue]:
         # 2: the current of battery_status instance 0, where a BATTERY_STATUS from the power module lands
         return {"CAL_MAG_COMP_TYP": 2}
+
+    def motor_test(self, throttle_pct: float, seconds: float) -> None:
+        """MAV_CMD_DO_MOTOR_TEST: motor 1, throttle in percent, for ``seconds`` (0 % stops it)."""
+        result = self.link.command(MAV_CMD_DO_MOTOR_TEST, 1, 0, throttle_pct, seconds, 1)
+        if result != 0:
+            raise DutError(f"PX4 refused the motor test (MAV_RESULT {result}: a safety switch on, or not landed)")
 
     def left_per_amp_ut(self, device_id: int, stream_per_amp_ut: np.ndarray) -> np.ndarray:
         """SCALED_IMU is the raw sensor_mag: the firmware's corrected slope is R·S·(c + COMP), with the
