@@ -177,7 +177,10 @@ def test_a_station_file_that_cannot_sweep_names_the_key(tmp_path):
              ({"products": {part: {"interference": "measure", "current_max_a": 40}}},
               "names no current_source (electronic-load or motor-test)"),
              ({"products": {part: {"interference": "measure", "current_max_a": 40}},
-               "current_source": {"type": "motor-test"}}, "do not say motor_test: true")]
+               "current_source": {"type": "motor-test"}}, "do not say motor_test: true"),
+             ({"products": {part: {"interference": "measure", "current_max_a": 40}},
+               "current_source": {"type": "electronic-load", "options": {"resource": "TCPIP0::h::1::SOCKET"}},
+               "slots": [{"id": "A", "part": part}]}, "not on a station with slots")]
     for change, said in cases:
         doc = yaml.safe_load((REPO / "stations" / "ardupilot-sim.yaml").read_text(encoding="utf-8"))
         for key, value in change.items():

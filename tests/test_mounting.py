@@ -465,7 +465,8 @@ def test_misalignment_write_holds_an_external_px4_compass_misalignment_as_custom
 
     workdir = tmp_path / "fc"
     workdir.mkdir()
-    with create_sim("px4", "udp:127.0.0.1:0", mag_rate_hz=FAST_SENSOR_HZ, workdir=workdir, mag_count=2, seed=5,
+    # sensors at 200 Hz: the 1,500 readings the written estimate is known well from take 7.5 s, not 15
+    with create_sim("px4", "udp:127.0.0.1:0", mag_rate_hz=2 * FAST_SENSOR_HZ, workdir=workdir, mag_count=2, seed=5,
                     boot_time_s=0.3, speed=5.0) as sim:
         mast, board = sim.magnetometers
         assert mast.external and not board.external
@@ -480,7 +481,7 @@ def test_misalignment_write_holds_an_external_px4_compass_misalignment_as_custom
         changes = {"products": {"PX4-X500-100": {"misalignment": "write",
                                                  "limits": {"mounting_error_deg": {"le": 5.0},
                                                             "heading_agreement_median_deg": {"le": 2.0}}}},
-                   "acquisition": {"stop": "samples", "samples": 1500, "rate_hz": 100.0}}
+                   "acquisition": {"stop": "samples", "samples": 1500, "rate_hz": 200.0}}
         record = run_unit(write_station("px4-sim.yaml", tmp_path, f"udpout://{host}:{port}", PX4_OPTIONS, changes))
         assert record.verdict is Outcome.PASS, record.cause
         slot = sim.slot_of(mast.device_id)

@@ -50,6 +50,7 @@ from magline.core.station.schema import Slot, Station
 from magline.core.text import fmt, percent
 
 PHASES = ("identify", "connect", "acquire", "fit", "interference", "validate", "persist", "verify", "record")
+OPTIONAL_PHASES = ("interference",)  # run only for the products that ask for it (``interference`` not off)
 SHIELDED_PHASES = ("persist",)  # a half-written calibration is worse than a few seconds' wait
 RETEST = "re-test the unit"
 

@@ -406,6 +406,9 @@ class Station(_Strict):
     @model_validator(mode="after")
     def _a_current_source_for_the_sweep(self) -> Station:
         sweeping = [part for part, product in self.products.items() if product.interference != "off"]
+        if sweeping and self.slots:
+            raise ValueError(f"products {', '.join(sweeping)} measure their current interference, which needs each "
+                             "unit's own power path and current source: not on a station with slots")
         if sweeping and self.current_source is None:
             raise ValueError(f"products {', '.join(sweeping)} measure their current interference, but the station "
                              "names no current_source (electronic-load or motor-test) to draw the current")

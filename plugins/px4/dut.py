@@ -331,8 +331,8 @@ class Px4Dut:
         whatever the calibration."""
         slot = self.sensors[device_id]["slot"]
         names = [f"CAL_MAG{slot}_{a}COMP" for a in "XYZ"]
-        if not self._has_param(names[0]):
-            raise DutError(f"this firmware has no {names[0]}")
+        if not self._has_param("CAL_MAG0_XCOMP"):  # one look per firmware: a build has them for every slot or none
+            raise DutError("this firmware has no CAL_MAGn_XCOMP/YCOMP/ZCOMP (CAL_MAG0_XCOMP unknown)")
         comp = -10.0 * np.asarray(per_amp_ut, float)
         return {name: round(float(v), 4) for name, v in zip(names, comp, strict=True)}
 

@@ -22,7 +22,7 @@ from magline.core.operator_ui.verdict_words import sensor_cards, shown_verdict, 
 from magline.core.plugins import hookimpl
 from magline.core.record import PhaseResult, RunRecord
 from magline.core.sequencer.batch import Batch
-from magline.core.sequencer.sequencer import PHASES
+from magline.core.sequencer.sequencer import OPTIONAL_PHASES, PHASES
 from magline.core.text import stop_line
 
 RECENT = 12  # units listed on the screen
@@ -97,8 +97,18 @@ class ScreenState:
             self._changed()
 
     def _phase(self, run: Any, name: str) -> dict[str, Any] | None:
+        """The phase's row; a phase only some products run (the current sweep) gets its row in phase
+        order when it starts, so the others never show one pending forever."""
         current = self._run_of(run)
-        return next((p for p in current["phases"] if p["name"] == name), None) if current else None
+        if not current:
+            return None
+        found = next((p for p in current["phases"] if p["name"] == name), None)
+        if found is None and name in PHASES:
+            found = {"name": name, "state": "pending", "duration_s": None}
+            after = [p["name"] for p in current["phases"]]
+            at = next((i for i, p in enumerate(after) if PHASES.index(p) > PHASES.index(name)), len(after))
+            current["phases"].insert(at, found)
+        return found
 
     # ------------------------------------------------------------------ listener hooks
     @hookimpl
@@ -233,4 +243,5 @@ def _new_run(serial: str, part: str) -> dict[str, Any]:
     return {"serial": serial, "part": part, "attempt": 0, "prompt": "", "prompts": [], "samples": 0,
             "target_samples": None, "coverage": 0.0, "target": None, "bins": [], "n_bins": None, "missing": [],
             "turns_unit": True,
-            "waiting": None, "phases": [{"name": p, "state": "pending", "duration_s": None} for p in PHASES]}
+            "waiting": None, "phases": [{"name": p, "state": "pending", "duration_s": None} for p in PHASES
+                                        if p not in OPTIONAL_PHASES]}
