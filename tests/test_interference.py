@@ -22,6 +22,7 @@ from magline.sim.load import LoadSim
 AP_OPTIONS = {"connect_timeout_s": 5.0, "boot_timeout_s": 10.0, "prearm_wait_s": 0.3}
 PX4_OPTIONS = {"connect_timeout_s": 5.0, "boot_timeout_s": 10.0, "save_settle_s": 0.1}
 CURRENT_MAX_A = 40.0
+Z_NEVER = 5.0  # a normal error beyond 5σ: never, on any machine, in any number of runs
 # a short sweep: 0, 20, 40, 20, 0 A, 10 readings of every compass per step after 0.1 s
 SWEEP = {"steps": 2, "settle_s": 0.1, "readings": 10}
 
@@ -103,7 +104,11 @@ def test_the_interference_of_every_compass_is_measured_compensated_and_proven_af
                 assert pct.verdict is Verdict.REVIEW
                 assert f"{pct.value:.0f} % of the field at 40 A — grey zone" in pct.note
             left = measured(record, prefix + "interference_left_pct_at_max")
-            assert left.verdict is Verdict.PASS and left.value < 0.25 * pct.value
+            # what is left is the written slope's error and the proof sweep's own (a 0/top/0 sweep of the same
+            # readings: about the same σ), against the uncompensated share
+            left_sigma = np.sqrt(2.0) * sigma * CURRENT_MAX_A / record.reference_field_ut * 100.0
+            assert left.verdict is Verdict.PASS and left.value < 0.25 * pct.value + Z_NEVER * left_sigma, (
+                left.value, pct.value, left_sigma)
         written, back = record.params_written, record.params_read_back
         second = sim.magnetometers[1]
         if flavour == "ardupilot":

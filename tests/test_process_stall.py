@@ -55,7 +55,7 @@ def test_a_stall_of_the_station_process_is_not_a_lost_link(tmp_path, flavour):
         _, host, port = sim.address.split(":")
         address = sim.address if flavour == "ardupilot" else f"udpout://{host}:{port}"  # MAVSDK's own form
         # a slow stream: between messages the station waits with nothing in its socket, as on any compass
-        station = write_station(example, tmp_path, address, options, {"acquisition": {"rate_hz": 20.0}})
+        station = write_station(example, tmp_path, address, options, {"acquisition": {"rate_hz": 20.0, "samples": 200}})
         seq = Sequencer(load_station(station), load_plugins(extra=[stop]), tmp_path, sleep=lambda s: None)
         try:
             record = seq.run_unit(f"SN-STOP-{flavour}")
