@@ -127,6 +127,40 @@ def test_the_interference_of_every_compass_is_measured_compensated_and_proven_af
         assert np.linalg.norm(firmware_change(sim, 1, CURRENT_MAX_A)) < 0.05 * uncompensated
 
 
+def test_the_interference_reads_in_words_in_show_the_report_and_the_export(tmp_path, capsys):
+    """Per compass, as the operator and the quality engineer read it: its share of the field at the top
+    current with ArduPilot's band, the field per amp with σ, what compensation left; the export's columns
+    for it (present because this product sweeps)."""
+    import csv
+    import io
+
+    from sqlalchemy import create_engine
+
+    from magline.core.cli import main
+    from magline.core.reports.commands import write_report
+
+    with board_on_a_load(tmp_path, "ardupilot") as (_, _, station):
+        record = run_unit(station, "INT-WORDS")
+    assert record.verdict is Outcome.PASS, record.cause
+    capsys.readouterr()
+    assert main(["show", "INT-WORDS", "--station", str(station)]) == 0
+    shown = capsys.readouterr().out
+    pct = measured(record, "mag2.interference_pct_at_max").value
+    band = "fine" if pct < 30 else "grey zone"
+    assert "current interference (swept to 40 A in " in shown
+    assert f"{pct:.1f} % of the field at 40 A — {band}; compensated: " in shown
+    assert "% left after the power cycle" in shown
+    assert "  interference " in shown  # the phase, in the phases table
+    engine = create_engine(f"sqlite:///{tmp_path / 'results.sqlite'}")
+    page = write_report(engine, "INT-WORDS", None, tmp_path / "reports").read_text(encoding="utf-8")
+    engine.dispose()
+    assert "<h2>Current interference</h2>" in page and f"{pct:.1f} % of the field at 40 A — {band}" in page
+    assert main(["export", "--station", str(station)]) == 0
+    row = next(csv.DictReader(io.StringIO(capsys.readouterr().out)))
+    assert float(row["mag2.interference_pct_at_max"]) == pytest.approx(pct)
+    assert float(row["current_sensor_error_pct"]) == pytest.approx(measured(record, "current_sensor_error_pct").value)
+
+
 def test_a_current_sensor_reading_20_percent_low_fails_and_nothing_is_written(tmp_path):
     """A power module's wrong scale: the unit's own current reading against the load's measurement."""
     with board_on_a_load(tmp_path, "ardupilot", "current_sensor_pct=-20") as (sim, _, station):
