@@ -9,6 +9,7 @@ so it is computed with the matrix being written.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -126,6 +127,5 @@ def prove(run: RunContext) -> None:
 
 
 def _identity(fit: FitResult) -> FitResult:
-    from dataclasses import replace
-
+    """The proof reads the stream's own frame: what the firmware does with it is the backend's to say."""
     return replace(fit, hard_iron_ut=np.zeros(3), soft_iron=np.eye(3))
