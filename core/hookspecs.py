@@ -369,6 +369,18 @@ def magline_operator_prompt(run: RunContext, message: str) -> None:
     """Something the operator must do now (tumble, tumble again, scan)."""
 
 
+@hookspec(firstresult=True)
+def magline_operator_confirm(run: RunContext, question: str, timeout_s: float) -> bool | None:
+    """The station needs the operator's yes before something that could hurt — the propellers off
+    before a motor test spins them (issue 46).  Called on the unit's thread; an answerer blocks until
+    the operator answers or ``timeout_s`` has passed.
+
+    :returns: True (yes), False (no, or no answer in time: never a yes by default), or None when this
+        listener has no operator at it (a console without a terminal) — the next one is asked.  Nobody
+        answering at all is the caller's to refuse.
+    """
+
+
 @hookspec
 def magline_unit_judged(run: RunContext, measurements: list[Numeric]) -> None:
     """The validate phase found every measurement inside its limits (called before persist, never

@@ -421,3 +421,26 @@ def test_every_hook_has_a_test_named_for_it_and_its_signature_in_the_reference()
     reference = (REPO / "docs" / "plugins.md").read_text(encoding="utf-8")
     missing = [h for h in HOOKS if _signature(getattr(hookspecs, h)) not in reference]
     assert missing == []
+
+
+def test_magline_operator_confirm():
+    """``firstresult``: a listener with nobody to ask answers None and the next is asked; the first yes or
+    no is the answer; nobody at all answers None (the caller refuses: no motor test, issue 46)."""
+
+    class Nobody:
+        @hookimpl
+        def magline_operator_confirm(self, run, question, timeout_s):
+            return None
+
+    class Says:
+        def __init__(self, answer):
+            self.answer = answer
+
+        @hookimpl
+        def magline_operator_confirm(self, run, question, timeout_s):
+            return self.answer
+
+    ask = {"run": None, "question": "Are the propellers off?", "timeout_s": 1.0}
+    assert load_plugins(extra=[Says(False), Nobody()]).hook.magline_operator_confirm(**ask) is False
+    assert load_plugins(extra=[Says(True), Nobody()]).hook.magline_operator_confirm(**ask) is True
+    assert load_plugins(extra=[Nobody()]).hook.magline_operator_confirm(**ask) is None

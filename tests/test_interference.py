@@ -14,8 +14,11 @@ from conftest import REPO
 from simstation import FAST_SENSOR_HZ, run_unit, write_station
 
 from magline.core.measurements import Verdict
+from magline.core.plugins import hookimpl, load_plugins
 from magline.core.record import Outcome
+from magline.core.sequencer import Sequencer
 from magline.core.station import StationError, load_station
+from magline.plugins.current.motor_test import PROPS_QUESTION
 from magline.sim import SimFaults, create_sim
 from magline.sim.load import LoadSim
 
@@ -293,3 +296,91 @@ def test_no_confirmed_props_off_or_a_refused_motor_test_is_an_error(tmp_path, in
     if interlock_exit:
         assert spins == []  # not one motor command without the interlock's word
     assert record.params_written == {}
+
+
+class Answers:
+    """The operator at the station, answering the propellers question (None: nobody there to ask)."""
+
+    def __init__(self, answer: bool | None) -> None:
+        self.answer, self.asked = answer, []
+
+    @hookimpl
+    def magline_operator_confirm(self, run, question, timeout_s):
+        self.asked.append(question)
+        return self.answer
+
+
+@pytest.mark.parametrize(("answer", "verdict", "cause"), [
+    (True, Outcome.PASS, ""),
+    (False, Outcome.ERROR, "the operator did not confirm the propellers are off"),
+    (None, Outcome.ERROR, "nobody confirmed the propellers are off"),
+], ids=["yes", "no", "nobody"])
+def test_without_an_interlock_the_operator_confirms_the_props_are_off_every_unit(tmp_path, answer, verdict, cause):
+    """No fixture interlock: the operator is asked, every unit, before a motor spins; a no, or nobody at
+    the station to ask, is an ERROR with not one motor command."""
+    with board_with_motors(tmp_path, 0) as (_, spins, station):
+        doc = yaml.safe_load(station.read_text(encoding="utf-8"))
+        del doc["current_source"]["options"]["interlock_command"]
+        station.write_text(yaml.safe_dump(doc, sort_keys=False), encoding="utf-8")
+        operator = Answers(answer)
+        seq = Sequencer(load_station(station), load_plugins(extra=[operator]), station.parent, sleep=lambda s: None)
+        try:
+            record = seq.run_unit("INT-ASK")
+        finally:
+            seq.close()
+    assert record.verdict is verdict, record.cause
+    assert cause in record.cause and operator.asked == [PROPS_QUESTION]
+    assert (max(t for t, _ in spins) == 70.0) if answer else spins == []
+
+
+def test_the_operator_answers_at_the_terminal_or_on_the_station_screen(make_station, monkeypatch):
+    """The console asks at a terminal only (yes / y is a yes, anything else or no line in time a no; no
+    terminal: nobody to ask); the screen shows the question and takes the page's answer by its id."""
+    import json
+    import threading
+    import urllib.request
+
+    from test_station_screen import Served, free_port
+
+    from magline.core.operator_ui.console import OperatorConsole
+    from magline.core.operator_ui.screen.serve import build
+
+    console, run = OperatorConsole(), type("Run", (), {"slot": None})()
+    monkeypatch.setattr(console, "asks_operator", lambda: True)
+    for typed, meant in (("yes\n", True), ("Y\n", True), ("no\n", False), (None, False)):
+        monkeypatch.setattr(console, "read_answer", lambda timeout_s, typed=typed: typed)
+        assert console.magline_operator_confirm(run, PROPS_QUESTION, 1.0) is meant
+    monkeypatch.setattr(console, "asks_operator", lambda: False)
+    assert console.magline_operator_confirm(run, PROPS_QUESTION, 1.0) is None
+
+    path = make_station()
+    plugins = load_plugins()
+    app, runner = build(load_station(path), path.parent, plugins, None)
+    state = runner.state
+    served = Served(app, free_port())
+    try:
+        got = {}
+        asking = threading.Thread(
+            target=lambda: got.update(answer=state.magline_operator_confirm(run, "Props off?", 20)))
+        asking.start()
+        while state.state["question"] is None:
+            asking.join(0.01)
+        asked = state.state["question"]
+        assert asked["text"] == "Props off?"
+
+        def post(body):
+            request = urllib.request.Request(f"http://127.0.0.1:{served.port}/api/answer", json.dumps(body).encode(),
+                                             {"Content-Type": "application/json"})
+            try:
+                with urllib.request.urlopen(request, timeout=5) as response:
+                    return response.status
+            except urllib.error.HTTPError as exc:
+                return exc.code
+
+        assert post({"id": asked["id"] + 1, "yes": True}) == 409  # not the question asked
+        assert post({"id": asked["id"], "yes": True}) == 200
+        asking.join(10)
+        assert got["answer"] is True and state.state["question"] is None
+    finally:
+        served.stop()
+        runner.close()

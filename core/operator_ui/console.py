@@ -8,6 +8,9 @@ goes to the record's log (see :mod:`magline.core.sequencer.unit_log`), not here.
 
 from __future__ import annotations
 
+import select
+import sys
+
 from rich.console import Console
 from rich.live import Live
 from rich.panel import Panel
@@ -71,6 +74,25 @@ class OperatorConsole:
         if run.slot is not None:
             return self.slots.prompt(run, message)
         self.console.print(f"[bold yellow]>>> {message}[/]")
+
+    @hookimpl
+    def magline_operator_confirm(self, run: RunContext, question: str, timeout_s: float) -> bool | None:
+        """At a terminal: the question, then a line read from it (yes / y; anything else is a no).
+        Without a terminal (a pipe, a service) there is nobody to ask here: None."""
+        if not self.asks_operator():
+            return None
+        self._stop_live()
+        self.console.print(f"[bold yellow]??? {question} — type yes and Enter[/]")
+        answer = self.read_answer(timeout_s)
+        return answer is not None and answer.strip().lower() in ("y", "yes")
+
+    def asks_operator(self) -> bool:
+        return sys.stdin is not None and sys.stdin.isatty()
+
+    def read_answer(self, timeout_s: float) -> str | None:
+        """A line from the terminal, or None when none came within ``timeout_s``."""
+        ready, _, _ = select.select([sys.stdin], [], [], timeout_s)
+        return sys.stdin.readline() if ready else None
 
     @hookimpl
     def magline_waiting(self, run: RunContext, what: str, elapsed_s: float, limit_s: float | None) -> None:

@@ -145,6 +145,13 @@ class RunContext:
         self.log(f"operator: {message}")
         self.plugins.hook.magline_operator_prompt(run=self, message=message)
 
+    def confirm(self, question: str, timeout_s: float) -> bool | None:
+        """The operator's yes or no to ``question`` (None: nobody could be asked); logged either way."""
+        self.log(f"operator asked: {question}")
+        answer = self.plugins.hook.magline_operator_confirm(run=self, question=question, timeout_s=timeout_s)
+        self.log(f"operator answered: {'nobody' if answer is None else 'yes' if answer else 'no'}")
+        return answer
+
     @contextmanager
     def waiting(self, what: str, limit_s: float | None = None, tick_s: float = 1.0) -> Iterator[None]:
         """Around a long blocking wait: ``magline_waiting`` about every ``tick_s`` from a timer thread,

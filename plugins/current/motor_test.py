@@ -2,12 +2,14 @@
 MAV_CMD_DO_MOTOR_TEST), for lines without an electronic load.
 
 Safety first: a motor test never runs unless the product's entry says ``motor_test: true`` (the station
-file refuses the source otherwise) and, for every unit, the fixture's propeller interlock confirms the
-propellers are off: ``interlock_command`` is run before the first spin and must exit 0 (a switch the
-cradle closes only without props, read by a script).  The motors spin one at a time at a fraction of
-``throttle_max_pct``, each step re-issued so no step outlives its test, and are stopped at every end,
-also after errors.  The current is the unit's own reading: no independent measurement, so the unit's
-current sensor is not checked (``current_sensor_error_pct`` needs a load).
+file refuses the source otherwise) and, for every unit, something confirms the propellers are off: the
+fixture's interlock — ``interlock_command`` run before the first spin must exit 0 (a switch the cradle
+closes only without props, read by a script) — or, without one, the operator's yes at the terminal or
+the station screen (``magline_operator_confirm``; no answer in time is a no, nobody to ask an ERROR).
+The motors spin one at a time at a fraction of ``throttle_max_pct``, each step re-issued so no step
+outlives its test, and are stopped at every end, also after errors.  The current is the unit's own
+reading: no independent measurement, so the unit's current sensor is not checked
+(``current_sensor_error_pct`` needs a load).
 """
 
 from __future__ import annotations
@@ -24,9 +26,14 @@ from magline.plugin import CurrentSourceConfig, CurrentSourceError, DutError, Ru
 STOP_S = 1.0  # a 0 % test of this length stops a spinning motor
 
 
+PROPS_QUESTION = "Are the propellers off? The unit's motors will spin for the current sweep"
+
+
 class MotorTestOptions(BaseModel):
     model_config = ConfigDict(extra="forbid", strict=True)
-    interlock_command: str  # exits 0 only when the fixture says the propellers are off
+    # exits 0 only when the fixture says the propellers are off; none: the operator confirms, every unit
+    interlock_command: str | None = None
+    confirm_timeout_s: Annotated[float, Field(gt=0)] = 60.0
     throttle_max_pct: Annotated[float, Field(gt=0, le=100)] = 60.0
     step_s: Annotated[float, Field(gt=0, le=60)] = 5.0  # how long each step's spin is asked for
     interlock_timeout_s: Annotated[float, Field(gt=0)] = 10.0
@@ -46,8 +53,19 @@ class MotorTest:
         dut = run.require_dut()
         if not isinstance(dut, RunsMotorTest):
             raise CurrentSourceError(f"the {run.product.backend} backend cannot run a motor test")
-        self._interlock(run)
+        if self.opts.interlock_command is not None:
+            self._interlock(run)
+        else:
+            self._ask(run)
         self.dut = dut
+
+    def _ask(self, run: RunContext) -> None:
+        answer = run.confirm(PROPS_QUESTION, self.opts.confirm_timeout_s)
+        if answer is None:
+            raise CurrentSourceError("nobody confirmed the propellers are off (no operator at a terminal or the "
+                                     "station screen, and no interlock_command): no motor test")
+        if not answer:
+            raise CurrentSourceError("the operator did not confirm the propellers are off: no motor test")
 
     def _interlock(self, run: RunContext) -> None:
         try:

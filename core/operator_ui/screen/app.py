@@ -136,6 +136,18 @@ def create_app(state: ScreenState, runner: UnitRunner, token: str | None = None,
     def abort() -> JSONResponse:
         return JSONResponse({"aborting": runner.abort()})
 
+    @app.post("/api/answer")
+    async def answer(request: Request) -> JSONResponse:
+        """The operator's yes or no to the question on the screen (the propellers off before a motor test)."""
+        body = await request.json()
+        try:
+            question = int(body.get("id"))
+        except (TypeError, ValueError):
+            return JSONResponse({"error": "answer: which question (id) is missing"}, status_code=400)
+        if not state.answer(question, body.get("yes") is True):
+            return JSONResponse({"error": "that question is no longer asked"}, status_code=409)
+        return JSONResponse({"answered": question})
+
     @app.get("/reports/{name}")
     def report(name: str) -> Response:
         path = (reports / name) if reports is not None and "/" not in name else None

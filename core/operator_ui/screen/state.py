@@ -47,7 +47,11 @@ class ScreenState:
             # a station with slots: one run and one result per slot (the page draws one panel each)
             "slots": {}, "round": None,
             "field": {}, "store": {}, "sent_at_ms": 0.0,
+            # the operator's yes asked for (the propellers off before a motor test): {"id", "text"} or None
+            "question": None,
         }
+        self._answers: dict[int, bool] = {}
+        self._questions = 0
 
     # ------------------------------------------------------------------ reading
     def snapshot(self) -> tuple[int, dict[str, Any]]:
@@ -167,6 +171,31 @@ class ScreenState:
                 current["prompt"] = message
                 current["prompts"].append(message)
                 self._changed()
+
+    @hookimpl
+    def magline_operator_confirm(self, run: Any, question: str, timeout_s: float) -> bool | None:
+        """The question on the screen with a yes and a no; the unit's thread waits for the answer (no
+        answer in time is a no).  Several screens or slots ask one at a time."""
+        with self._lock:
+            self._questions += 1
+            asked = self._questions
+            self.state["question"] = {"id": asked, "text": question, "slot": getattr(run, "slot", None)}
+            self._changed()
+            self._lock.wait_for(lambda: asked in self._answers, timeout_s)
+            answer = self._answers.pop(asked, False)
+            self.state["question"] = None
+            self._changed()
+            return answer
+
+    def answer(self, question_id: int, yes: bool) -> bool:
+        """The operator's answer from the page; False when that question is no longer asked."""
+        with self._lock:
+            asked = self.state.get("question")
+            if not asked or asked["id"] != question_id:
+                return False
+            self._answers[question_id] = bool(yes)
+            self._changed()
+            return True
 
     @hookimpl
     def magline_waiting(self, run: Any, what: str, elapsed_s: float, limit_s: float | None) -> None:

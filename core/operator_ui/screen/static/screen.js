@@ -243,6 +243,11 @@ function render(s) {
   }
   // Start stays enabled while a unit runs: a second scan gets an answer, never silence
   $("abort").disabled = !s.busy;
+  // a question the unit waits on (the propellers off before a motor test): above everything, yes or no
+  const q = s.question;
+  $("question").hidden = !q;
+  $("question").dataset.id = q ? q.id : "";
+  $("question-text").textContent = q ? (q.slot ? `slot ${q.slot}: ` : "") + q.text : "";
 
   const sh = s.shift || {};
   const units = sh.units || 0;
@@ -363,6 +368,12 @@ $("start-form").addEventListener("submit", async (e) => {
   if (answer.ok || answer.busy) { field.value = ""; } else { field.select(); }
 });
 $("abort").addEventListener("click", () => { post("/api/abort"); $("serial").focus(); });
+for (const [button, yes] of [["question-yes", true], ["question-no", false]]) {
+  $(button).addEventListener("click", () => {
+    post("/api/answer", { id: Number($("question").dataset.id), yes });
+    $("serial").focus();
+  });
+}
 $("slot-form").addEventListener("submit", async (e) => {
   e.preventDefault();
   const inputs = [...document.querySelectorAll("#slot-inputs input")];
