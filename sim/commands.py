@@ -32,7 +32,7 @@ def add_sim_command(subparsers: argparse._SubParsersAction) -> None:
     """``magline sim FLAVOUR``: one sub-command per simulator, each listing its own options only."""
     sim = subparsers.add_parser("sim", help="run a simulator: a flight controller (MAVLink), a Helmholtz coil with "
                                             "its fluxgate or a gimbal (SCPI)")
-    flavours = sim.add_subparsers(dest="flavour", required=True, metavar="{px4,ardupilot,coil,gimbal}")
+    flavours = sim.add_subparsers(dest="flavour", required=True, metavar="{px4,ardupilot,coil,gimbal,load}")
     board = argparse.ArgumentParser(add_help=False)  # what both flight controllers take
     board.add_argument("--workdir", help="where the board keeps its parameter storage (default: a folder of its own "
                                          "under the system's temporary folder, named for the simulator and its "
@@ -99,6 +99,13 @@ def add_sim_command(subparsers: argparse._SubParsersAction) -> None:
     coil.add_argument("--seed", type=int, default=7, help="seed of the ambient field and the fluxgate's noise")
     gimbal = flavours.add_parser("gimbal", help="a motorised gimbal controller for slot stations (SCPI)")
     gimbal.add_argument("--listen", default="tcp:127.0.0.1:5030", help="its address (default tcp:127.0.0.1:5030)")
+    load = flavours.add_parser("load", help="a programmable DC electronic load on its own (SCPI): to try a station's "
+                                            "current_source wiring; for a sweep, run it with its board "
+                                            "(magline sim px4|ardupilot --load tcp:HOST:PORT), whose current sensor "
+                                            "its current must flow through")
+    load.add_argument("--listen", default="tcp:127.0.0.1:5040", help="its address (default tcp:127.0.0.1:5040)")
+    load.add_argument("--rating", type=float, default=60.0, metavar="A", help="its largest current (default 60 A)")
+    load.add_argument("--load-fault", choices=["no_sink"], help="the input reports on but nothing flows")
     sim.set_defaults(handler=run_sim)
 
 
@@ -164,6 +171,8 @@ def _serve(lines: list[str], wait: Callable[[], None], stop: Callable[[], None])
 def run_sim(args: argparse.Namespace) -> int:
     if args.flavour == "coil":
         return run_coil_sim(args)
+    if args.flavour == "load":
+        return run_load_sim(args)
     if args.flavour == "gimbal":
         return run_gimbal_sim(args)
     from magline.sim import SimFaults, create_sim
@@ -264,3 +273,17 @@ def run_gimbal_sim(args: argparse.Namespace) -> int:
              f"magline sim px4|ardupilot --gimbal {gimbal.address}"]
 
     return _serve(lines, gimbal.wait_stopped, gimbal.stop)
+
+
+def run_load_sim(args: argparse.Namespace) -> int:
+    from magline.sim.load import LoadSim
+
+    try:
+        load = LoadSim(args.listen, fault=args.load_fault, rating_a=args.rating).start()
+    except (ValueError, OSError) as exc:
+        print(f"magline sim: {exc}", file=sys.stderr)
+        return 2
+    lines = [f"listening on {load.address}",
+             f"electronic load (VISA {load.visa_resource}), input off, rated {load.rating_a:g} A, in no board's "
+             "power path: for a sweep run it with its board (magline sim px4|ardupilot --load ADDRESS)"]
+    return _serve(lines, load.wait_stopped, load.stop)

@@ -8,7 +8,8 @@ keeps the attitude it has until the input goes off, as an operator sets the unit
 
 SCPI subset (as on common electronic loads, constant-current mode): ``*IDN?``, ``*RST``, ``*CLS``,
 ``CURR <a>``/``CURR?`` (the set current), ``INP ON|OFF``/``INP?``, ``MEAS:CURR?``, ``MEAS:VOLT?``,
-``SYST:ERR?``.  A current beyond the load's rating is refused with ``-222,"Data out of range"``.
+``SYST:ERR?`` — and a supply's ``OUTP ON|OFF`` / ``VOLT <v>`` for the same, as a bench supply driving
+the current in constant-current mode.  A current beyond the load's rating is refused with ``-222,"Data out of range"``.
 Faults: ``no_sink`` (the input reports on but nothing flows: a lead not connected), ``rating_a=N``
 (a smaller load than the line needs).
 """
@@ -35,6 +36,7 @@ class LoadSim(ScpiServer):
         self.rating_a = rating_a
         self.setpoint_a = 0.0
         self.input_on = False
+        self.volts = 0.0
         if board is not None:
             board.current_provider = self.sinking_current
 
@@ -52,7 +54,7 @@ class LoadSim(ScpiServer):
             return None
         if head in ("CURR?", "CURRENT?", "CURR:LEV?"):
             return f"{self.setpoint_a:.3f}"
-        if head in ("INP?", "INPUT?", "INP:STAT?"):
+        if head in ("INP?", "INPUT?", "INP:STAT?", "OUTP?", "OUTPUT?"):
             return "1" if self.input_on else "0"
         if head in ("MEAS:CURR?", "MEASURE:CURRENT?"):
             return f"{self.sinking_current():.4f}"
@@ -69,7 +71,10 @@ class LoadSim(ScpiServer):
                 return None
             self.setpoint_a = value
             return None
-        if head in ("INP", "INPUT", "INP:STAT"):
+        if head in ("VOLT", "VOLTAGE"):  # a supply in constant-current mode: its compliance voltage
+            self.volts = float(arg)
+            return None
+        if head in ("INP", "INPUT", "INP:STAT", "OUTP", "OUTPUT"):
             state = arg.strip().upper()
             if state not in ("ON", "OFF", "1", "0"):
                 self.errors.append('-224,"Illegal parameter value"')

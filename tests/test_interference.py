@@ -384,3 +384,39 @@ def test_the_operator_answers_at_the_terminal_or_on_the_station_screen(make_stat
     finally:
         served.stop()
         runner.close()
+
+
+def test_a_bench_supply_in_constant_current_mode_draws_the_sweep(tmp_path):
+    """``bench-supply``: the same sweep spoken to as a supply — its compliance voltage, then its output."""
+    with board_on_a_load(tmp_path, "ardupilot", mode="measure") as (_, load, station):
+        doc = yaml.safe_load(station.read_text(encoding="utf-8"))
+        doc["current_source"] = {"type": "bench-supply", "options": {"resource": load.visa_resource, "volts": 5.0}}
+        station.write_text(yaml.safe_dump(doc, sort_keys=False), encoding="utf-8")
+        record = run_unit(station, "INT-SUPPLY")
+        said = [c for c in load.log if not c.startswith(("SYST:ERR", "*IDN", "MEAS:"))]  # what it was told
+    assert record.verdict is Outcome.PASS, record.cause
+    assert said[:3] == ["VOLT 5.000", "CURR 0.000", "OUTP ON"] and said[-2:] == ["CURR 0.000", "OUTP OFF"]
+    assert measured(record, "current_sensor_error_pct").value == pytest.approx(0.0, abs=0.5)
+
+
+def test_magline_sim_load_alone_speaks_scpi(tmp_path):
+    """``magline sim load``: the load on its own, to try a station's wiring (a sweep runs it with a board)."""
+    import socket
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen([sys.executable, "-m", "magline.core.cli", "sim", "load", "--listen", "tcp:127.0.0.1:0",
+                             "--rating", "20"], stdout=subprocess.PIPE, text=True)
+    try:
+        first = proc.stdout.readline().strip()
+        assert first.startswith("listening on tcp:127.0.0.1:")
+        port = int(first.rsplit(":", 1)[1])
+        with socket.create_connection(("127.0.0.1", port), timeout=5) as conn:
+            conn.sendall(b"CURR 25\nSYST:ERR?\nCURR 5\nINP ON\nMEAS:CURR?\n")
+            replies = b""
+            while replies.count(b"\n") < 2:
+                replies += conn.recv(1024)
+        assert replies.decode().splitlines() == ['-222,"Data out of range"', "5.0000"]  # beyond its rating: refused
+    finally:
+        proc.terminate()
+        proc.wait(10)

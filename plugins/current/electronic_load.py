@@ -7,7 +7,10 @@ against it (a power module's wrong scale FAILs, ``current_sensor_error_pct``).  
 on at 0 A and off at every end, also after errors; the set current never exceeds the product's
 ``current_max_a`` nor the load's ``max_current_a``; an error in the load's queue is an ERROR.
 The commands are the common constant-current subset (``CURR``, ``INP``, ``MEAS:CURR?``); a load that
-spells them otherwise names its own in ``commands``.
+spells them otherwise names its own in ``commands``.  ``bench-supply`` is the same source for a line
+whose programmable supply drives the current in constant-current mode through the unit's power path
+into a fixed resistor: ``VOLT`` (its compliance voltage, ``volts``), ``CURR``, ``OUTP ON|OFF``,
+``MEAS:CURR?`` — a supply that only powers the unit cannot set a current, and is not one.
 """
 
 from __future__ import annotations
@@ -22,10 +25,20 @@ from magline.plugin import CurrentSourceConfig, CurrentSourceError, InstrumentEr
 
 class LoadCommands(BaseModel):
     model_config = ConfigDict(extra="forbid", strict=True)
+    setup: list[str] = Field(default_factory=list)  # sent once per unit before the input goes on
     set_current: str = "CURR {amps:.3f}"
     input_on: str = "INP ON"
     input_off: str = "INP OFF"
     measure_current: str = "MEAS:CURR?"
+
+
+class SupplyCommands(LoadCommands):
+    """A programmable bench supply in constant-current mode, driving the current through the unit's power
+    path into a fixed resistor: its compliance voltage first, then its output."""
+
+    setup: list[str] = Field(default_factory=lambda: ["VOLT {volts:.3f}"])
+    input_on: str = "OUTP ON"
+    input_off: str = "OUTP OFF"
 
 
 class ElectronicLoadOptions(BaseModel):
@@ -33,13 +46,18 @@ class ElectronicLoadOptions(BaseModel):
     resource: str  # e.g. TCPIP0::192.168.10.30::5025::SOCKET
     max_current_a: Annotated[float, Field(gt=0, le=1000)] = 60.0  # the load's rating: never asked for more
     timeout_s: Annotated[float, Field(gt=0)] = 2.0
+    volts: Annotated[float, Field(gt=0, le=100)] = 12.0  # a supply's compliance voltage ({volts} in setup)
     commands: LoadCommands = Field(default_factory=LoadCommands)
+
+
+class BenchSupplyOptions(ElectronicLoadOptions):
+    commands: SupplyCommands = Field(default_factory=SupplyCommands)
 
 
 class ElectronicLoad:
     name = "electronic-load"
 
-    def __init__(self, options: ElectronicLoadOptions) -> None:
+    def __init__(self, options: ElectronicLoadOptions | BenchSupplyOptions) -> None:
         self.opts = options
         self.inst: ScpiInstrument | None = None
         self.top_a = 0.0
@@ -70,6 +88,7 @@ class ElectronicLoad:
                                      f"({self.opts.max_current_a:g} A, current_source.options.max_current_a)")
         self.top_a = top
         c = self.opts.commands
+        self._do("setup", *(command.format(volts=self.opts.volts) for command in c.setup))
         self._do("input on at 0 A", c.set_current.format(amps=0.0), c.input_on)
 
     def set_level(self, fraction: float) -> None:
@@ -100,3 +119,10 @@ class ElectronicLoad:
 def create_electronic_load(config: CurrentSourceConfig, station_dir: Path,
                            options: ElectronicLoadOptions) -> ElectronicLoad:
     return ElectronicLoad(options)
+
+
+def create_bench_supply(config: CurrentSourceConfig, station_dir: Path, options: BenchSupplyOptions) -> ElectronicLoad:
+    """``bench-supply``: the same source spoken to as a programmable supply in constant-current mode."""
+    source = ElectronicLoad(options)
+    source.name = "bench-supply"
+    return source
