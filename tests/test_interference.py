@@ -136,10 +136,12 @@ def test_the_interference_reads_in_words_in_show_the_report_and_the_export(tmp_p
     for it (present because this product sweeps)."""
     import csv
     import io
+    import json
 
     from sqlalchemy import create_engine
 
     from magline.core.cli import main
+    from magline.core.operator_ui.verdict_words import sensor_cards
     from magline.core.reports.commands import write_report
 
     with board_on_a_load(tmp_path, "ardupilot") as (_, _, station):
@@ -162,6 +164,15 @@ def test_the_interference_reads_in_words_in_show_the_report_and_the_export(tmp_p
     row = next(csv.DictReader(io.StringIO(capsys.readouterr().out)))
     assert float(row["mag2.interference_pct_at_max"]) == pytest.approx(pct)
     assert float(row["current_sensor_error_pct"]) == pytest.approx(measured(record, "current_sensor_error_pct").value)
+    # the screen's and the console's card per compass (the same words on both)
+    cards = {card["title"]: card["detail"] for card in sensor_cards(record)}
+    second = next(detail for title, detail in cards.items() if "458786" in title or "compass 2" in title)
+    assert second.endswith(f"· {pct:.0f} % of the field at 40 A — {band}")
+    # spc reads the figures as the product characteristics they are (one unit: charted as a constant)
+    assert main(["spc", "--station", str(station), "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    seen = {m["name"] for m in report["measurements"]} | {c["name"] for c in report["constants"]}
+    assert {"interference_pct_at_max", "mag2.interference_pct_at_max", "current_sensor_error_pct"} <= seen
 
 
 def test_a_current_sensor_reading_20_percent_low_fails_and_nothing_is_written(tmp_path):

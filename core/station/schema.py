@@ -140,12 +140,12 @@ class InterferenceSettings(_Strict):
     """How the current sweep is run: ``steps`` levels from 0 up to the product's ``current_max_a`` and as
     many back down to 0 (the return to zero is judged), each held ``settle_s`` before ``readings``
     readings of every compass are taken; the stream asks for ``rate_hz``.  The defaults (0, ½, 1, ½, 0
-    of the top, 10 readings) take about 8 s at ArduPilot's 10 Hz compasses.  The proof after the power
+    of the top, 8 readings) take about 6 s at ArduPilot's 10 Hz compasses.  The proof after the power
     cycle needs only the slope: 0, 1, 0."""
 
     steps: Annotated[int, Field(ge=2, le=20)] = 2
     settle_s: Annotated[float, Field(ge=0.0, le=30.0)] = 0.3
-    readings: Annotated[int, Field(ge=3, le=1000)] = 10
+    readings: Annotated[int, Field(ge=3, le=1000)] = 8
     rate_hz: Annotated[float, Field(gt=0, le=400)] = 50.0
     timeout_s: Annotated[float, Field(gt=0)] = 60.0  # the whole sweep
 
