@@ -1,0 +1,243 @@
+"""MSP, the MultiWii Serial Protocol INAV speaks: v1 and v2 framing with their checksums, and a small
+request/response client over TCP or a serial port.
+
+Why written here: no maintained Python MSP library exists (yamspy's last release is from 2021,
+msp-python3's from 2020), and the protocol is small.  Frames (INAV's ``msp_serial.c``):
+
+* v1: ``$M<`` (request) / ``$M>`` (reply) / ``$M!`` (error reply), size (u8), command (u8), payload,
+  checksum = XOR of size, command and payload;
+* v2: ``$X<`` / ``$X>`` / ``$X!``, flag (u8), function (u16 LE), size (u16 LE), payload, checksum =
+  CRC-8/DVB-S2 (polynomial 0xD5) of everything from the flag to the payload's end.
+
+An error reply (``!``) is the firmware saying no to that command — :class:`MspRefused`, with its
+number; a reply that never comes is :class:`MspTimeout`; a frame whose checksum is wrong is dropped and
+counted, as the firmware does with the station's.
+"""
+
+from __future__ import annotations
+
+import socket
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+from magline.plugin import DutError, LinkError, SerialAddress
+
+V1_MAX_PAYLOAD = 254  # 255 announces a jumbo frame, which no command here needs
+V1_MAX_COMMAND = 255  # a v1 command is one byte; INAV's settings (0x1003 …) are v2 functions
+REQUEST, REPLY, ERROR = b"<", b">", b"!"
+
+
+class MspRefused(DutError):
+    """The firmware answered a command with an error reply."""
+
+    def __init__(self, command: int) -> None:
+        super().__init__(f"the firmware refused MSP command {command}")
+        self.command = command
+
+
+class MspTimeout(LinkError):
+    """No reply in time: the link, not the unit (the station could not judge it)."""
+
+
+def crc8_dvb_s2(data: bytes, crc: int = 0) -> int:
+    """CRC-8/DVB-S2 (polynomial 0xD5, initial 0, no reflection), as MSP v2 checks its frames."""
+    for byte in data:
+        crc ^= byte
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0xD5) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
+    return crc
+
+
+def encode_v1(command: int, payload: bytes = b"", direction: bytes = REQUEST) -> bytes:
+    if not 0 <= command <= 255:
+        raise ValueError(f"MSP v1 carries commands 0–255, not {command}: use v2")
+    if len(payload) > V1_MAX_PAYLOAD:
+        raise ValueError(f"MSP v1 carries at most {V1_MAX_PAYLOAD} payload bytes, not {len(payload)}")
+    checksum = len(payload) ^ command
+    for byte in payload:
+        checksum ^= byte
+    return b"$M" + direction + bytes([len(payload), command]) + payload + bytes([checksum])
+
+
+def encode_v2(function: int, payload: bytes = b"", direction: bytes = REQUEST, flag: int = 0) -> bytes:
+    if not 0 <= function <= 0xFFFF:
+        raise ValueError(f"MSP v2 functions are 16-bit, not {function}")
+    body = bytes([flag]) + function.to_bytes(2, "little") + len(payload).to_bytes(2, "little") + payload
+    return b"$X" + direction + body + bytes([crc8_dvb_s2(body)])
+
+
+@dataclass(frozen=True)
+class Frame:
+    version: int  # 1 or 2
+    direction: bytes  # REQUEST, REPLY or ERROR
+    command: int
+    payload: bytes
+
+
+class MspParser:
+    """Bytes in, frames out: any split across reads, noise between frames skipped, a frame with a wrong
+    checksum dropped (``bad_frames`` counts them)."""
+
+    def __init__(self) -> None:
+        self.buffer = bytearray()
+        self.bad_frames = 0
+
+    def feed(self, data: bytes) -> Iterator[Frame]:
+        self.buffer += data
+        while True:
+            start = self.buffer.find(b"$")
+            if start < 0:
+                self.buffer.clear()
+                return
+            del self.buffer[:start]
+            if len(self.buffer) < 3:
+                return
+            kind, direction = self.buffer[1:2], bytes(self.buffer[2:3])
+            if kind not in (b"M", b"X") or direction not in (REQUEST, REPLY, ERROR):
+                del self.buffer[:1]  # a "$" that starts no frame
+                continue
+            frame, used = (self._v1 if kind == b"M" else self._v2)(direction)
+            if used == 0:
+                return  # incomplete: wait for more
+            del self.buffer[:used]
+            if frame is not None:
+                yield frame
+
+    def _v1(self, direction: bytes) -> tuple[Frame | None, int]:
+        if len(self.buffer) < 5:
+            return None, 0
+        size, command = self.buffer[3], self.buffer[4]
+        end = 5 + size
+        if len(self.buffer) < end + 1:
+            return None, 0
+        payload = bytes(self.buffer[5:end])
+        checksum = size ^ command
+        for byte in payload:
+            checksum ^= byte
+        if checksum != self.buffer[end]:
+            self.bad_frames += 1
+            return None, end + 1
+        return Frame(1, direction, command, payload), end + 1
+
+    def _v2(self, direction: bytes) -> tuple[Frame | None, int]:
+        if len(self.buffer) < 8:
+            return None, 0
+        function = int.from_bytes(self.buffer[4:6], "little")
+        size = int.from_bytes(self.buffer[6:8], "little")
+        end = 8 + size
+        if len(self.buffer) < end + 1:
+            return None, 0
+        if crc8_dvb_s2(bytes(self.buffer[3:end])) != self.buffer[end]:
+            self.bad_frames += 1
+            return None, end + 1
+        return Frame(2, direction, function, bytes(self.buffer[8:end])), end + 1
+
+
+class MspClient:
+    """Request / reply over one byte stream (``tcp:HOST:PORT`` or ``serial:DEV[:BAUD]``).  Commands above
+    255 go as v2 (INAV's settings live there); the rest as v1 unless ``v2`` is asked for."""
+
+    def __init__(self, transport, timeout_s: float = 1.0) -> None:
+        self.transport = transport
+        self.timeout_s = timeout_s
+        self.parser = MspParser()
+
+    @classmethod
+    def tcp(cls, host: str, port: int, timeout_s: float = 1.0, connect_timeout_s: float = 5.0) -> MspClient:
+        try:
+            sock = socket.create_connection((host, port), timeout=connect_timeout_s)
+        except OSError as exc:
+            raise LinkError(f"nothing answers MSP on tcp:{host}:{port} ({exc})") from exc
+        return cls(_SocketStream(sock), timeout_s)
+
+    @classmethod
+    def connect(cls, address: str, timeout_s: float = 1.0, connect_timeout_s: float = 5.0) -> MspClient:
+        """``tcp:HOST:PORT`` or ``serial:DEV[:BAUD]`` (115200 when not said; a USB CDC port ignores it)."""
+        if address.startswith("tcp:"):
+            host, _, port = address.removeprefix("tcp:").rpartition(":")
+            if not host or not port.isdigit():
+                raise ValueError(f"{address!r} is not tcp:HOST:PORT")
+            return cls.tcp(host, int(port), timeout_s, connect_timeout_s)
+        if address.startswith("serial:"):
+            where = SerialAddress.parse(address)  # SerialAddressError (a ValueError) names what is wrong
+            return cls(_SerialStream(where.path, where.baud), timeout_s)
+        raise ValueError(f"{address!r}: an MSP connection is tcp:HOST:PORT or serial:DEV[:BAUD]")
+
+    def request(self, command: int, payload: bytes = b"", v2: bool | None = None,
+                timeout_s: float | None = None) -> bytes:
+        """The reply's payload to ``command``; :class:`MspRefused` on an error reply, :class:`MspTimeout`
+        when none comes in time."""
+        use_v2 = command > V1_MAX_COMMAND if v2 is None else v2
+        self.transport.write(encode_v2(command, payload) if use_v2 else encode_v1(command, payload))
+        deadline = time.monotonic() + (self.timeout_s if timeout_s is None else timeout_s)
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise MspTimeout(f"no reply to MSP command {command} within "
+                                 f"{self.timeout_s if timeout_s is None else timeout_s:g} s")
+            for frame in self.parser.feed(self.transport.read(left)):
+                if frame.command != command or frame.direction == REQUEST:
+                    continue  # a late reply to an earlier request, or our own echo on a shared line
+                if frame.direction == ERROR:
+                    raise MspRefused(command)
+                return frame.payload
+
+    def close(self) -> None:
+        self.transport.close()
+
+
+class _SocketStream:
+    """A TCP socket as the client's byte stream: ``read`` returns what arrived within the time given."""
+
+    def __init__(self, sock: socket.socket) -> None:
+        self.sock = sock
+
+    def write(self, data: bytes) -> None:
+        try:
+            self.sock.sendall(data)
+        except OSError as exc:
+            raise LinkError(f"MSP link lost ({exc})") from exc
+
+    def read(self, timeout_s: float) -> bytes:
+        self.sock.settimeout(max(timeout_s, 0.001))
+        try:
+            data = self.sock.recv(4096)
+        except TimeoutError:
+            return b""
+        except OSError as exc:
+            raise LinkError(f"MSP link lost ({exc})") from exc
+        if not data:
+            raise LinkError("MSP link closed by the flight controller")
+        return data
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+class _SerialStream:
+    """A serial port (pyserial) as the client's byte stream."""
+
+    def __init__(self, device: str, baud: int) -> None:
+        import serial  # on use: a TCP link needs no serial stack
+
+        try:
+            self.port = serial.Serial(device, baud, timeout=0)
+        except (OSError, serial.SerialException) as exc:
+            raise LinkError(f"cannot open {device} for MSP ({exc})") from exc
+
+    def write(self, data: bytes) -> None:
+        try:
+            self.port.write(data)
+        except OSError as exc:
+            raise LinkError(f"MSP link lost ({exc})") from exc
+
+    def read(self, timeout_s: float) -> bytes:
+        self.port.timeout = max(timeout_s, 0.001)
+        try:
+            return self.port.read(max(self.port.in_waiting, 1))
+        except OSError as exc:
+            raise LinkError(f"MSP link lost ({exc})") from exc
+
+    def close(self) -> None:
+        self.port.close()
