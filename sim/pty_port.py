@@ -60,6 +60,10 @@ class PtyServerLink:
         self._paced_at = time.monotonic()
         self.tx_dropped = 0  # messages the transmit buffer had no room for
         self.garbled_bytes = 0  # bytes exchanged at a baud other than the port's
+        # … of them, once the line had been right: a station that opens the port and sets its baud a moment
+        # later misframes what crosses in that moment, as on a real UART; after that, nothing may be
+        self.garbled_after_framed = 0
+        self._framed = False
         for link in self.links:
             link.parent.mkdir(parents=True, exist_ok=True)
         self._plug()
@@ -121,7 +125,7 @@ class PtyServerLink:
             self._connected = False
             return []
         if self._misframed():
-            self.garbled_bytes += len(data)
+            self._count_garbled(len(data))
             data = garbled(data)
         return [("serial", data)] if up and data else []
 
@@ -132,10 +136,15 @@ class PtyServerLink:
             self.tx_dropped += 1
             return
         if self._misframed():
-            self.garbled_bytes += len(data)
+            self._count_garbled(len(data))
             data = garbled(data)
         self._out += data
         self._flush()
+
+    def _count_garbled(self, size: int) -> None:
+        self.garbled_bytes += size
+        if self._framed:
+            self.garbled_after_framed += size
 
     def _misframed(self) -> bool:
         """The station opened a UART at another baud than the board's."""
@@ -145,7 +154,9 @@ class PtyServerLink:
             speed = termios.tcgetattr(self.master)[4]
         except termios.error:
             return False
-        return BAUDS.get(speed) != self.baud
+        wrong = BAUDS.get(speed) != self.baud
+        self._framed = self._framed or (not wrong and self._connected)
+        return wrong
 
     def _flush(self) -> None:
         if not self._out or self.master is None:

@@ -288,10 +288,13 @@ def test_a_uart_too_slow_for_the_asked_stream_is_said_before_the_tumble(tmp_path
 
 @pytest.mark.parametrize("flavour", ["px4", "ardupilot"])
 def test_a_whole_unit_runs_over_a_uart_at_921600_baud(tmp_path, flavour):
+    """The station opens the port at the board's baud: nothing is misframed once the line is set.  What
+    crosses in the moment between the port's opening and its baud being set is misframed, as on a real
+    UART (a CI run saw 21 such bytes of a heartbeat), and the station shrugs it off."""
     by_path, _ = usb_names(tmp_path)
     with sim(flavour, tmp_path, f"serial:{by_path}:921600") as board:
         record = run_unit(station(flavour, tmp_path, f"serial:{by_path}:921600"))
-        garbled = board.link.garbled_bytes
+        garbled = board.link.garbled_after_framed
     assert record.verdict is Outcome.PASS, record.cause
     assert garbled == 0 and record.params_read_back
 
