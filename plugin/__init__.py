@@ -26,6 +26,8 @@ What is here, by role:
 * links to hardware: :func:`get_listening`, :func:`stall_s`, :data:`SLICE_S` (reading a queue while
   the link may die), :class:`RepeatFilter`, :class:`SensorStreams`, :func:`untruncate_mg`,
   :data:`INT16_MG_RANGE_UT` (MAVLink's int16 milligauss), :class:`ScpiInstrument`, :class:`InstrumentError`,
+  MSP (INAV's protocol): :class:`MspClient`, :class:`MspParser`, :class:`MspFrame`, :func:`encode_msp_v1`,
+  :func:`encode_msp_v2`, :func:`crc8_dvb_s2`, :class:`MspRefused`, :class:`MspTimeout`,
   a board on a serial port: :class:`SerialAddress`, :class:`SerialPortWatch` (present, permitted, not held,
   the same board after its reboot), :class:`UsbIdentity`, :func:`list_ports`, :data:`SERIAL_HINT`,
   :func:`mavlink2_frame_bytes` (a stream's bytes against what a UART carries);
@@ -85,6 +87,16 @@ from magline.core.fit.running import StopRule
 from magline.core.fit.samples_csv import RawSamples
 from magline.core.interference.source import CurrentSource, CurrentSourceError
 from magline.core.links.listening import SLICE_S, get_listening, stall_s
+from magline.core.links.msp import (
+    MspClient,
+    MspFrame,
+    MspParser,
+    MspRefused,
+    MspTimeout,
+    crc8_dvb_s2,
+    encode_msp_v1,
+    encode_msp_v2,
+)
 from magline.core.links.readings import INT16_MG_RANGE_UT, RepeatFilter, SensorStreams, untruncate_mg
 from magline.core.links.scpi import InstrumentError, ScpiInstrument
 from magline.core.links.serial_port import (
@@ -153,6 +165,11 @@ __all__ = [
     "Magnetometer",
     "Measurement",
     "Motion",
+    "MspClient",
+    "MspFrame",
+    "MspParser",
+    "MspRefused",
+    "MspTimeout",
     "NotRestored",
     "Numeric",
     "OldBootRunning",
@@ -195,6 +212,9 @@ __all__ = [
     "await_boot_after_cut",
     "await_new_boot",
     "configured_rotation",
+    "crc8_dvb_s2",
+    "encode_msp_v1",
+    "encode_msp_v2",
     "fibonacci_sphere",
     "fit_affine",
     "float32_equal",

@@ -8,17 +8,10 @@ import threading
 
 import pytest
 
-from magline.plugins.inav.msp import (
-    ERROR,
-    REPLY,
-    MspClient,
-    MspParser,
-    MspRefused,
-    MspTimeout,
-    crc8_dvb_s2,
-    encode_v1,
-    encode_v2,
-)
+from magline.core.links.msp import ERROR, REPLY
+from magline.plugin import MspClient, MspParser, MspRefused, MspTimeout, crc8_dvb_s2
+from magline.plugin import encode_msp_v1 as encode_v1
+from magline.plugin import encode_msp_v2 as encode_v2
 
 
 def test_the_checksums_are_the_protocols():

@@ -1,5 +1,6 @@
 """MSP, the MultiWii Serial Protocol INAV speaks: v1 and v2 framing with their checksums, and a small
-request/response client over TCP or a serial port.
+request/response client over TCP or a serial port.  Here, beside SCPI and MAVLink's helpers, because both
+sides use it: the INAV backend (issue 47, through :mod:`magline.plugin`) and the INAV simulator.
 
 Why written here: no maintained Python MSP library exists (yamspy's last release is from 2021,
 msp-python3's from 2020), and the protocol is small.  Frames (INAV's ``msp_serial.c``):
@@ -21,7 +22,8 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 
-from magline.plugin import DutError, LinkError, SerialAddress
+from magline.core.dut import DutError, LinkError
+from magline.core.links.serial_port import SerialAddress
 
 V1_MAX_PAYLOAD = 254  # 255 announces a jumbo frame, which no command here needs
 V1_MAX_COMMAND = 255  # a v1 command is one byte; INAV's settings (0x1003 …) are v2 functions
@@ -49,7 +51,7 @@ def crc8_dvb_s2(data: bytes, crc: int = 0) -> int:
     return crc
 
 
-def encode_v1(command: int, payload: bytes = b"", direction: bytes = REQUEST) -> bytes:
+def encode_msp_v1(command: int, payload: bytes = b"", direction: bytes = REQUEST) -> bytes:
     if not 0 <= command <= 255:
         raise ValueError(f"MSP v1 carries commands 0–255, not {command}: use v2")
     if len(payload) > V1_MAX_PAYLOAD:
@@ -60,7 +62,7 @@ def encode_v1(command: int, payload: bytes = b"", direction: bytes = REQUEST) ->
     return b"$M" + direction + bytes([len(payload), command]) + payload + bytes([checksum])
 
 
-def encode_v2(function: int, payload: bytes = b"", direction: bytes = REQUEST, flag: int = 0) -> bytes:
+def encode_msp_v2(function: int, payload: bytes = b"", direction: bytes = REQUEST, flag: int = 0) -> bytes:
     if not 0 <= function <= 0xFFFF:
         raise ValueError(f"MSP v2 functions are 16-bit, not {function}")
     body = bytes([flag]) + function.to_bytes(2, "little") + len(payload).to_bytes(2, "little") + payload
@@ -68,7 +70,7 @@ def encode_v2(function: int, payload: bytes = b"", direction: bytes = REQUEST, f
 
 
 @dataclass(frozen=True)
-class Frame:
+class MspFrame:
     version: int  # 1 or 2
     direction: bytes  # REQUEST, REPLY or ERROR
     command: int
@@ -83,7 +85,7 @@ class MspParser:
         self.buffer = bytearray()
         self.bad_frames = 0
 
-    def feed(self, data: bytes) -> Iterator[Frame]:
+    def feed(self, data: bytes) -> Iterator[MspFrame]:
         self.buffer += data
         while True:
             start = self.buffer.find(b"$")
@@ -104,7 +106,7 @@ class MspParser:
             if frame is not None:
                 yield frame
 
-    def _v1(self, direction: bytes) -> tuple[Frame | None, int]:
+    def _v1(self, direction: bytes) -> tuple[MspFrame | None, int]:
         if len(self.buffer) < 5:
             return None, 0
         size, command = self.buffer[3], self.buffer[4]
@@ -118,9 +120,9 @@ class MspParser:
         if checksum != self.buffer[end]:
             self.bad_frames += 1
             return None, end + 1
-        return Frame(1, direction, command, payload), end + 1
+        return MspFrame(1, direction, command, payload), end + 1
 
-    def _v2(self, direction: bytes) -> tuple[Frame | None, int]:
+    def _v2(self, direction: bytes) -> tuple[MspFrame | None, int]:
         if len(self.buffer) < 8:
             return None, 0
         function = int.from_bytes(self.buffer[4:6], "little")
@@ -131,7 +133,7 @@ class MspParser:
         if crc8_dvb_s2(bytes(self.buffer[3:end])) != self.buffer[end]:
             self.bad_frames += 1
             return None, end + 1
-        return Frame(2, direction, function, bytes(self.buffer[8:end])), end + 1
+        return MspFrame(2, direction, function, bytes(self.buffer[8:end])), end + 1
 
 
 class MspClient:
@@ -169,7 +171,7 @@ class MspClient:
         """The reply's payload to ``command``; :class:`MspRefused` on an error reply, :class:`MspTimeout`
         when none comes in time."""
         use_v2 = command > V1_MAX_COMMAND if v2 is None else v2
-        self.transport.write(encode_v2(command, payload) if use_v2 else encode_v1(command, payload))
+        self.transport.write(encode_msp_v2(command, payload) if use_v2 else encode_msp_v1(command, payload))
         deadline = time.monotonic() + (self.timeout_s if timeout_s is None else timeout_s)
         while True:
             left = deadline - time.monotonic()
