@@ -42,14 +42,8 @@ def measure(run: RunContext) -> None:
     if not isinstance(dut, CompensatesCurrent):
         raise StationFault(f"the {run.product.backend} backend cannot report the unit's current: its current "
                            "interference cannot be measured (interference: off for this product)")
-    source = _source(run)
-    run.prompt(SWEEP_PROMPT)
-    source.start(run)
-    dut.measure_current_interference()
-    sweep = run_sweep(run, source, run.station.interference, [m.device_id for m in run.magnetometers])
-    fit = run.require_fit()
-    fits = {**run.fits, run.magnetometers[0].device_id: fit}
-    field = run.reference_field_ut or fit.field_ut
+    sweep, fits = _sweep(run, dut, compensation=False)
+    field = run.reference_field_ut or run.require_fit().field_ut
     run.interference = analyse(sweep, fits, float(run.product.current_max_a or 0.0), field)
     for sensor in run.magnetometers:
         c = run.interference.compasses[sensor.device_id]
@@ -97,14 +91,7 @@ def prove(run: RunContext) -> None:
     dut = run.require_dut()
     if not isinstance(dut, CompensatesCurrent) or not run.interference.compensated:
         return  # nothing compensated (a firmware without the parameters): measured and judged only
-    source = _source(run)
-    run.prompt(SWEEP_PROMPT)
-    source.start(run)
-    dut.measure_current_interference(compensation=True)
-    slope_only = run.station.interference.model_copy(update={"steps": 1})  # 0, top, 0: what is left per amp
-    sweep = run_sweep(run, source, slope_only, [m.device_id for m in run.magnetometers])
-    fit = run.require_fit()
-    fits = {**run.fits, run.magnetometers[0].device_id: fit}
+    sweep, fits = _sweep(run, dut, compensation=True)
     identity = {d: _identity(f) for d, f in fits.items()}  # the stream's own frame: the firmware says the rest
     again = analyse(sweep, identity, run.interference.current_max_a, run.interference.field_ut)
     proof = {}
@@ -124,6 +111,20 @@ def prove(run: RunContext) -> None:
     run.record.unit_info.setdefault("interference", {})["proof"] = proof
     if failed:  # the unit does not hold what was written: its FAIL, as a calibration that did not survive
         raise DutError("current compensation not proven after the power cycle: " + "; ".join(failed))
+
+
+def _sweep(run: RunContext, dut: CompensatesCurrent, compensation: bool) -> tuple:
+    """One sweep with the unit set down: the measurement (compensation off, the station's levels) or the
+    proof (what the firmware holds on, 0 / top / 0: only the slope left matters); with every compass's fit."""
+    source = _source(run)
+    run.prompt(SWEEP_PROMPT)
+    source.start(run)
+    dut.measure_current_interference(compensation=compensation)
+    settings = run.station.interference
+    if compensation:
+        settings = settings.model_copy(update={"steps": 1})
+    sweep = run_sweep(run, source, settings, [m.device_id for m in run.magnetometers])
+    return sweep, {**run.fits, run.magnetometers[0].device_id: run.require_fit()}
 
 
 def _identity(fit: FitResult) -> FitResult:

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from magline.core.dut import CompensatesCurrent, DutError, SampleChunk
+from magline.core.dut import DutError, SampleChunk
 from magline.core.faults import StationFault
 from magline.core.interference.source import CurrentSource
 
@@ -88,10 +88,7 @@ def run_sweep(run: RunContext, source: CurrentSource, settings: InterferenceSett
     """Step the source through :func:`sweep_levels`, reading every compass in ``device_ids`` (the
     primary first) and the unit's current after each settle.  The source draws nothing again
     afterwards, whatever happened."""
-    dut = run.require_dut()
-    if not isinstance(dut, CompensatesCurrent):
-        raise StationFault(f"the {run.product.backend} backend cannot report the unit's current, so its "
-                           "current interference cannot be measured")
+    dut = run.require_dut()  # a CompensatesCurrent: the interference phase checked it
     started = time.monotonic()
     deadline = started + settings.timeout_s
     steps: list[SweepStep] = []

@@ -249,7 +249,7 @@ def _trend_lines(report: SpcReport) -> list[str]:
     t = report.trends
     if t is None or not t.periods:
         return []
-    (points,) = t.fpy["all"].values() if t.fpy.get("all") else ([],)
+    points = next(iter(t.fpy.get("all", {}).values()), [])
     period = "shift" if report.by_shift else "day"
     lines = ["", f"first-pass yield per {period} (latest {min(len(points), TREND_PERIODS_SHOWN)}; failure causes of "
                  "that period):"]

@@ -98,6 +98,7 @@ class Px4Dut:
         self.with_euler = False
         self._saved_autocal: int | None = None
         self._saved_comp_typ: int | None = None  # CAL_MAG_COMP_TYP switched off for the current sweep
+        self._param_known: dict[str, bool] = {}  # whether this firmware has a name, asked once
         self.stream_current = False  # the sweep asked for the unit's battery current with the readings
         self.system_id = 0
         self.uid = 0
@@ -159,7 +160,7 @@ class Px4Dut:
 
     def _has_param(self, name: str) -> bool:
         """Whether this firmware has ``name`` (asked once per link: an unknown name costs the read's retries)."""
-        known = self.__dict__.setdefault("_param_known", {})
+        known = self._param_known
         if name not in known:
             try:
                 self.link.get(name, False)
