@@ -60,8 +60,9 @@ class PtyServerLink:
         self._paced_at = time.monotonic()
         self.tx_dropped = 0  # messages the transmit buffer had no room for
         self.garbled_bytes = 0  # bytes exchanged at a baud other than the port's
-        # … of them, once the line had been right: a station that opens the port and sets its baud a moment
-        # later misframes what crosses in that moment, as on a real UART; after that, nothing may be
+        # … of them, once this node's line had been right: a station that opens the port and sets its baud a
+        # moment later misframes what crosses in that moment, as on a real UART (at every node, so after each
+        # reboot's re-enumeration too); after that, nothing may be
         self.garbled_after_framed = 0
         self._framed = False
         for link in self.links:
@@ -82,6 +83,7 @@ class PtyServerLink:
         self._spare = None
         self.devices.append(self.device)
         self._connected, self._out = False, bytearray()
+        self._framed = False  # a new node starts at the kernel's default speed: its opening has its moment too
         for link in [*self.links[1:], self.links[0]]:  # the station's name last, its other names ready then
             staged = link.with_name(link.name + ".new")
             with contextlib.suppress(FileNotFoundError):

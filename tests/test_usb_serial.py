@@ -9,6 +9,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import termios
 from pathlib import Path
 
 import pytest
@@ -494,3 +495,54 @@ def test_a_node_that_vanishes_between_the_look_and_the_opening_is_looked_for_aga
             assert link.is_open and len(looks) == 2
         finally:
             link.close()
+
+
+def test_each_opening_of_a_uart_after_a_reboot_has_its_own_moment_before_the_baud_is_set(tmp_path):
+    """A CI run counted 21 bytes (one heartbeat) misframed 'after the line was right': they crossed while
+    the station reopened the board's new node after the reboot, before it set the baud — the same moment
+    as at the first opening.  The new node starts at the kernel's default speed, so each opening has it;
+    what counts as a fault is a wrong baud within one opening that had been right."""
+    from magline.sim.pty_port import PtyServerLink
+
+    port = PtyServerLink(str(tmp_path / "ttyFC"), 921600)
+
+    def open_at(baud: int | None) -> int:
+        fd = os.open(tmp_path / "ttyFC", os.O_RDWR | os.O_NOCTTY)
+        if baud is not None:
+            attrs = termios.tcgetattr(fd)
+            attrs[4] = attrs[5] = getattr(termios, f"B{baud}")
+            termios.tcsetattr(fd, termios.TCSANOW, attrs)
+        return fd
+
+    def exchange(fd: int) -> None:
+        port.poll(0.01, up=True)
+        port.send(b"\xfd" * 21)
+        port.poll(0.01, up=True)
+        os.read(fd, 4096)
+
+    try:
+        first = open_at(None)  # opened; the baud not set yet
+        exchange(first)
+        assert port.garbled_bytes > 0 and port.garbled_after_framed == 0
+        attrs = termios.tcgetattr(first)
+        attrs[4] = attrs[5] = termios.B921600
+        termios.tcsetattr(first, termios.TCSANOW, attrs)
+        exchange(first)
+        port.drop_peers()  # the reboot: the node goes, a new one comes at the kernel's default speed
+        os.close(first)
+        port.poll(0.01, up=True)
+        again = open_at(None)
+        before = port.garbled_bytes
+        exchange(again)
+        assert port.garbled_bytes > before and port.garbled_after_framed == 0
+        attrs = termios.tcgetattr(again)
+        attrs[4] = attrs[5] = termios.B921600
+        termios.tcsetattr(again, termios.TCSANOW, attrs)
+        exchange(again)
+        attrs[4] = attrs[5] = termios.B57600  # a wrong baud within an opening that was right: a fault
+        termios.tcsetattr(again, termios.TCSANOW, attrs)
+        exchange(again)
+        assert port.garbled_after_framed > 0
+        os.close(again)
+    finally:
+        port.close()
