@@ -27,7 +27,10 @@ What is here, by role:
   the link may die), :class:`RepeatFilter`, :class:`SensorStreams`, :func:`untruncate_mg`,
   :data:`INT16_MG_RANGE_UT` (MAVLink's int16 milligauss), :class:`ScpiInstrument`, :class:`InstrumentError`,
   MSP (INAV's protocol): :class:`MspClient`, :class:`MspParser`, :class:`MspFrame`, :func:`encode_msp_v1`,
-  :func:`encode_msp_v2`, :func:`crc8_dvb_s2`, :class:`MspRefused`, :class:`MspTimeout`,
+  :func:`encode_msp_v2`, :func:`crc8_dvb_s2`, :class:`MspRefused`, :class:`MspTimeout`, the command numbers
+  :class:`Msp`, a setting's description :class:`SettingInfo` (:func:`parse_setting_info`,
+  :func:`encode_setting_info`), :data:`INAV_ARMED_FLAG` and INAV's sensor alignments
+  (:data:`INAV_ALIGNMENTS`, :data:`INAV_ALIGNMENT_NAMES`, :data:`INAV_COMPASS_DEFAULT_ALIGNMENT`),
   a board on a serial port: :class:`SerialAddress`, :class:`SerialPortWatch` (present, permitted, not held,
   the same board after its reboot), :class:`UsbIdentity`, :func:`list_ports`, :data:`SERIAL_HINT`,
   :func:`mavlink2_frame_bytes` (a stream's bytes against what a UART carries);
@@ -88,14 +91,22 @@ from magline.core.fit.samples_csv import RawSamples
 from magline.core.interference.source import CurrentSource, CurrentSourceError
 from magline.core.links.listening import SLICE_S, get_listening, stall_s
 from magline.core.links.msp import (
+    INAV_ALIGNMENT_NAMES,
+    INAV_ALIGNMENTS,
+    INAV_ARMED_FLAG,
+    INAV_COMPASS_DEFAULT_ALIGNMENT,
+    Msp,
     MspClient,
     MspFrame,
     MspParser,
     MspRefused,
     MspTimeout,
+    SettingInfo,
     crc8_dvb_s2,
     encode_msp_v1,
     encode_msp_v2,
+    encode_setting_info,
+    parse_setting_info,
 )
 from magline.core.links.readings import INT16_MG_RANGE_UT, RepeatFilter, SensorStreams, untruncate_mg
 from magline.core.links.scpi import InstrumentError, ScpiInstrument
@@ -132,6 +143,10 @@ from magline.core.sequencer.rounds import wait_or_abort
 from magline.core.station.schema import CurrentSourceConfig, PowerConfig, Product, Station
 
 __all__ = [
+    "INAV_ALIGNMENTS",
+    "INAV_ALIGNMENT_NAMES",
+    "INAV_ARMED_FLAG",
+    "INAV_COMPASS_DEFAULT_ALIGNMENT",
     "INT16_MG_RANGE_UT",
     "SERIAL_HINT",
     "SLICE_S",
@@ -165,6 +180,7 @@ __all__ = [
     "Magnetometer",
     "Measurement",
     "Motion",
+    "Msp",
     "MspClient",
     "MspFrame",
     "MspParser",
@@ -200,6 +216,7 @@ __all__ = [
     "SerialAddress",
     "SerialAddressError",
     "SerialPortWatch",
+    "SettingInfo",
     "Station",
     "StationFault",
     "StopRule",
@@ -215,6 +232,7 @@ __all__ = [
     "crc8_dvb_s2",
     "encode_msp_v1",
     "encode_msp_v2",
+    "encode_setting_info",
     "fibonacci_sphere",
     "fit_affine",
     "float32_equal",
@@ -223,6 +241,7 @@ __all__ = [
     "list_ports",
     "mavlink2_frame_bytes",
     "orientation_matrix",
+    "parse_setting_info",
     "prove_unechoed_write",
     "require_same_vehicle",
     "stall_s",

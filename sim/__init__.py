@@ -1,4 +1,5 @@
-"""Simulated flight controllers that speak real MAVLink on a real socket: ``magline sim px4|ardupilot``.
+"""Simulated flight controllers that speak their firmware's own protocol on a real socket: ``magline sim
+px4|ardupilot`` (MAVLink), ``magline sim inav`` (MSP).
 
 The px4 and ardupilot backends are tested against these, never against mocks of their own code.
 Start one from Python with port 0 and read the chosen address::
@@ -19,12 +20,14 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     from magline.sim.ardupilot import ArduPilotSim
     from magline.sim.faults import SimFaults
+    from magline.sim.inav import InavSim
     from magline.sim.magnetometers import SimMagnetometer, device_id
     from magline.sim.px4 import Px4Sim
     from magline.sim.vehicle import Power, SimulatedAutopilot
 
-_WHERE = {"ArduPilotSim": "ardupilot", "Px4Sim": "px4", "SimFaults": "faults", "SimMagnetometer": "magnetometers",
-          "device_id": "magnetometers", "Power": "vehicle", "SimulatedAutopilot": "vehicle"}
+_WHERE = {"ArduPilotSim": "ardupilot", "Px4Sim": "px4", "InavSim": "inav", "SimFaults": "faults",
+          "SimMagnetometer": "magnetometers", "device_id": "magnetometers", "Power": "vehicle",
+          "SimulatedAutopilot": "vehicle"}
 
 
 def __getattr__(name: str) -> Any:
@@ -38,9 +41,10 @@ def __getattr__(name: str) -> Any:
 def flavours() -> dict[str, type[SimulatedAutopilot]]:
     """The flight-controller simulators by the name ``magline sim`` and ``create_sim`` know them by."""
     from magline.sim.ardupilot import ArduPilotSim
+    from magline.sim.inav import InavSim
     from magline.sim.px4 import Px4Sim
 
-    return {"px4": Px4Sim, "ardupilot": ArduPilotSim}
+    return {"px4": Px4Sim, "ardupilot": ArduPilotSim, "inav": InavSim}
 
 
 def create_sim(flavour: str, listen: str | None = None, **options: Any) -> SimulatedAutopilot:
@@ -53,5 +57,5 @@ def create_sim(flavour: str, listen: str | None = None, **options: Any) -> Simul
     return cls(listen, **options)
 
 
-__all__ = ["FLAVOURS", "ArduPilotSim", "Power", "Px4Sim", "SimFaults", "SimMagnetometer", "SimulatedAutopilot",
-           "create_sim", "device_id"]
+__all__ = ["FLAVOURS", "ArduPilotSim", "InavSim", "Power", "Px4Sim", "SimFaults", "SimMagnetometer",
+           "SimulatedAutopilot", "create_sim", "device_id"]

@@ -1,4 +1,4 @@
-"""``magline sim px4|ardupilot|coil|gimbal``: run a simulator on a real socket until Ctrl-C / SIGTERM.
+"""``magline sim px4|ardupilot|inav|coil|gimbal|load``: run a simulator on a real socket until Ctrl-C / SIGTERM.
 
 The first line printed names the address it listens on, so a script (or a person in another
 terminal) knows where to point the station.  The simulator itself is imported only when the
@@ -32,12 +32,12 @@ def add_sim_command(subparsers: argparse._SubParsersAction) -> None:
     """``magline sim FLAVOUR``: one sub-command per simulator, each listing its own options only."""
     sim = subparsers.add_parser("sim", help="run a simulator: a flight controller (MAVLink), a Helmholtz coil with "
                                             "its fluxgate or a gimbal (SCPI)")
-    flavours = sim.add_subparsers(dest="flavour", required=True, metavar="{px4,ardupilot,coil,gimbal,load}")
+    flavours = sim.add_subparsers(dest="flavour", required=True, metavar="{px4,ardupilot,inav,coil,gimbal,load}")
     board = argparse.ArgumentParser(add_help=False)  # what both flight controllers take
     board.add_argument("--workdir", help="where the board keeps its parameter storage (default: a folder of its own "
                                          "under the system's temporary folder, named for the simulator and its "
                                          "address; the storage file is said when it starts)")
-    board.add_argument("--mags", type=int, default=1, choices=[1, 2, 3], help="number of magnetometers")
+    board.add_argument("--mags", type=int, default=1, choices=[1, 2, 3], help="number of magnetometers (inav: 1)")
     board.add_argument("--boot-time", type=float, default=2.0, help="seconds silent after a reboot (default 2)")
     board.add_argument("--motion",
                        help="comma list, one per acquisition (tumble, single_axis, gimbal, still, shared); last "
@@ -49,7 +49,8 @@ def add_sim_command(subparsers: argparse._SubParsersAction) -> None:
     board.add_argument("--inclination-deg", type=float, default=62.0)
     board.add_argument("--noise-ut", type=float, default=0.3)
     board.add_argument("--mag-rate", type=float, metavar="HZ",
-                       help="how often the sensors publish a new reading (default: ardupilot 10 Hz, px4 per driver); "
+                       help="how often the sensors publish a new reading (default: ardupilot and inav 10 Hz, px4 per "
+                            "driver); "
                             "a faster stream repeats readings, as real vehicles do")
     board.add_argument("--seed", type=int, default=7, help="seed of the sensors' distortion and noise")
     board.add_argument("--fault", action="append", default=[], metavar="NAME[=VALUE]",
@@ -90,6 +91,11 @@ def add_sim_command(subparsers: argparse._SubParsersAction) -> None:
                            help="tcp:HOST:PORT, udp:HOST:PORT (default tcp:127.0.0.1:5760; port 0 picks a free one) "
                                 "or serial:PATH[:BAUD] (a pseudo-terminal linked at PATH: USB without a baud, a UART "
                                 "at BAUD)")
+    inav = flavours.add_parser("inav", parents=[board], help="a simulated INAV flight controller (MSP): one compass, "
+                                                             "calibrated and aligned in MSP_RAW_IMU (10 Hz)")
+    inav.add_argument("--listen", default="tcp:127.0.0.1:5760",
+                      help="tcp:HOST:PORT (default tcp:127.0.0.1:5760, as INAV's SITL; port 0 picks a free one) or "
+                           "serial:PATH[:BAUD] (a pseudo-terminal linked at PATH)")
     coil = flavours.add_parser("coil", help="a 3-axis Helmholtz coil current source with a fluxgate DAQ at its "
                                             "centre (SCPI)")
     coil.add_argument("--listen", default="tcp:127.0.0.1:5026", help="the coil's address (default tcp:127.0.0.1:5026)")
@@ -183,6 +189,8 @@ def run_sim(args: argparse.Namespace) -> int:
     try:
         if unknown:
             raise ValueError(f"unknown motion {unknown[0]!r}; choose from {', '.join(MOTIONS)}")
+        if args.flavour == "inav" and args.mags != 1:
+            raise ValueError("INAV uses one compass: --mags 1")
         workdir = args.workdir or default_workdir(args.flavour, args.listen)
         options: dict[str, Any] = {"workdir": workdir, "mag_count": args.mags, "boot_time_s": args.boot_time,
                                    "motions": motions, "speed": args.speed, "field_ut": args.field_ut,

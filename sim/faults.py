@@ -57,6 +57,12 @@ class SimFaults:
     # milligauss, "slot" applies the next slot's calibration to each compass, "none" stores the
     # calibration and never applies it.  The read-back of every parameter still matches.
     cal_applied: str = ""
+    # INAV over MSP: another firmware answers (its MSP_FC_VARIANT, "BTFL" for Betaflight); the unit is armed
+    # (INAV refuses MSP_EEPROM_WRITE then, and ignores MSP_REBOOT); the board after the next reboot has
+    # another MCU unique id (another board put in the cradle)
+    msp_variant: str = ""
+    armed: bool = False
+    uid_changes_at_reboot: bool = False
 
     CAL_APPLIED = ("sign", "unit", "slot", "none")
 

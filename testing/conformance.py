@@ -149,7 +149,7 @@ def _check_more_and_imu(info: Any, t_ms: np.ndarray, field_ut: float, accelerome
         assert times[0] < t_ms[-1] and times[-1] > t_ms[0], (
             f"magnetometer {device_id}'s time stamps do not overlap the primary's: one clock for every sensor")
         try:
-            fit = fit_calibration(mag, FitOptions(field_ut=field_ut, coverage_bins=40))
+            fit = fit_calibration(mag, FitOptions(field_ut=field_ut, coverage_bins=40, model=info.soft_iron_model))
         except FitRefused as exc:
             raise AssertionError(f"magnetometer {device_id}'s readings do not determine a calibration "
                                  f"({exc.message})") from None
@@ -225,7 +225,7 @@ def check_dut_backend(open_dut: Callable[[], Any], field_ut: float, *, samples: 
         assert wall >= 0.5 * span_s, (f"{samples} readings spanning {span_s:.1f} s of the device's clock arrived in "
                                       f"{wall:.1f} s: samples() must follow the sensor, not run ahead of it")
         try:
-            fit = fit_calibration(mag, FitOptions(field_ut=field_ut, coverage_bins=40))
+            fit = fit_calibration(mag, FitOptions(field_ut=field_ut, coverage_bins=40, model=info.soft_iron_model))
         except FitRefused as exc:
             raise AssertionError(f"the readings do not determine a calibration ({exc.message}): is the device "
                                  "being tumbled through all orientations?") from None

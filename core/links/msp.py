@@ -18,9 +18,11 @@ counted, as the firmware does with the station's.
 from __future__ import annotations
 
 import socket
+import struct
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
+from enum import IntEnum
 
 from magline.core.dut import DutError, LinkError
 from magline.core.links.serial_port import SerialAddress
@@ -28,6 +30,120 @@ from magline.core.links.serial_port import SerialAddress
 V1_MAX_PAYLOAD = 254  # 255 announces a jumbo frame, which no command here needs
 V1_MAX_COMMAND = 255  # a v1 command is one byte; INAV's settings (0x1003 …) are v2 functions
 REQUEST, REPLY, ERROR = b"<", b">", b"!"
+
+
+class Msp(IntEnum):
+    """The commands a calibration needs, numbered as INAV's ``msp_protocol.h`` and
+    ``msp_protocol_v2_common.h`` / ``msp_protocol_v2_inav.h`` number them (``docs/firmware.md``, *INAV*)."""
+
+    API_VERSION = 1  # protocol version, API major, API minor (u8 each)
+    FC_VARIANT = 2  # four letters: "INAV" (Betaflight: "BTFL")
+    FC_VERSION = 3  # major, minor, patch (u8 each)
+    BOARD_INFO = 4  # board identifier (4 letters), hardware revision (u16), …, target name
+    REBOOT = 68  # ignored while armed (ACKed, nothing happens)
+    RAW_IMU = 102  # 9 × int16: accelerometer (g · 512), gyro (°/s), magnetometer (calibrated, aligned)
+    UID = 160  # 3 × u32: the MCU's unique id
+    EEPROM_WRITE = 250  # save every setting; an error reply while armed
+    COMMON_SETTING = 0x1003  # a setting's value by name (NUL-terminated) or by 0 + u16 index
+    COMMON_SET_SETTING = 0x1004  # name, NUL, the value in the setting's own type
+    COMMON_SETTING_INFO = 0x1007  # type, range, index … of a setting (:func:`parse_setting_info`)
+    INAV_STATUS = 0x2000  # …, arming flags (u32 at byte 9)
+    INAV_MISC2 = 0x203A  # uptime (u32 s), flight time (u32 s), throttle, auto throttle
+
+
+# INAV's setting types (``fc/settings.h``: the low bits of a setting's packed type) and their wire format
+SETTING_FORMATS = {0: "<B", 1: "<b", 2: "<H", 3: "<h", 4: "<I", 5: "<f"}
+SETTING_TYPE_NAMES = {0: "uint8", 1: "int8", 2: "uint16", 3: "int16", 4: "uint32", 5: "float"}
+MODE_LOOKUP = 0x40  # a setting whose values are names (``align_mag``: DEFAULT, CW0, …)
+INAV_ARMED_FLAG = 1 << 2  # INAV's arming flag ``ARMED`` (``fc/runtime_config.h``)
+
+
+# INAV's sensor alignments, ``align_mag``'s values in its ``alignment`` table, each as the rotation
+# ``applySensorAlignment`` applies (``v_body = R·v_sensor``, rows).  DEFAULT (0) means CW270FLIP for the
+# compass (``compassInit``; ``validateAndFixConfig`` also rewrites the stored 0 to 8).  The compass takes
+# its alignment at boot only: a written ``align_mag`` is used from the next boot.
+INAV_ALIGNMENT_NAMES = ("DEFAULT", "CW0", "CW90", "CW180", "CW270", "CW0FLIP", "CW90FLIP", "CW180FLIP", "CW270FLIP")
+INAV_ALIGNMENTS: dict[int, tuple[tuple[int, int, int], ...]] = {
+    1: ((1, 0, 0), (0, 1, 0), (0, 0, 1)),
+    2: ((0, 1, 0), (-1, 0, 0), (0, 0, 1)),
+    3: ((-1, 0, 0), (0, -1, 0), (0, 0, 1)),
+    4: ((0, -1, 0), (1, 0, 0), (0, 0, 1)),
+    5: ((-1, 0, 0), (0, 1, 0), (0, 0, -1)),
+    6: ((0, 1, 0), (1, 0, 0), (0, 0, -1)),
+    7: ((1, 0, 0), (0, -1, 0), (0, 0, -1)),
+    8: ((0, -1, 0), (-1, 0, 0), (0, 0, -1)),
+}
+INAV_COMPASS_DEFAULT_ALIGNMENT = 8  # what DEFAULT means for the compass
+
+
+@dataclass(frozen=True)
+class SettingInfo:
+    """What ``MSP2_COMMON_SETTING_INFO`` says of a setting (INAV's ``mspSettingInfoCommand``): its name, the
+    parameter group, the type (a key of :data:`SETTING_FORMATS`), section and mode bytes, the range,
+    the setting's index, for a lookup setting its value names, and its value."""
+
+    name: str
+    group: int
+    type: int
+    section: int
+    mode: int
+    minimum: int
+    maximum: int
+    index: int
+    names: tuple[str, ...]
+    value: int | float
+
+    @property
+    def format(self) -> str:
+        return SETTING_FORMATS[self.type]
+
+    def encode(self, value: int | float) -> bytes:
+        """``value`` in this setting's own width — what ``MSP2_COMMON_SET_SETTING`` must carry: INAV reads
+        as many bytes as its type has and ignores the rest (a 4-byte 40000 for an int16 is stored as −25536)."""
+        return struct.pack(self.format, value)
+
+    def decode(self, payload: bytes) -> int | float:
+        return struct.unpack(self.format, payload[:struct.calcsize(self.format)])[0]
+
+
+def encode_setting_info(info: SettingInfo) -> bytes:
+    """The reply's layout, field by field as ``mspSettingInfoCommand`` writes it (the simulator's side): the
+    name and a NUL first (as INAV 9.1 writes it), then the fixed part."""
+    out = info.name.encode() + b"\0" + struct.pack("<HBBBiIH", info.group, info.type, info.section, info.mode,
+                                                   info.minimum, info.maximum & 0xFFFFFFFF, info.index)
+    out += bytes([0, 0])  # profile, profile count (master)
+    if info.mode == MODE_LOOKUP:
+        out += b"".join(n.encode() + b"\0" for n in info.names)
+    return out + struct.pack(SETTING_FORMATS[info.type], info.value)
+
+
+def parse_setting_info(name: str, payload: bytes) -> SettingInfo:
+    """The station's side of :func:`encode_setting_info`; a reply too short for its own layout, or one that
+    describes another setting, is a :class:`ValueError` naming the setting."""
+    end = payload.find(b"\0")
+    described = payload[:end].decode("ascii", "replace") if end >= 0 else ""
+    if end < 0 or described != name:
+        raise ValueError(f"the description asked for {name} names {described or 'no setting'}")
+    payload = payload[end + 1:]
+    head = struct.calcsize("<HBBBiIH") + 2
+    if len(payload) < head:
+        raise ValueError(f"the description of setting {name} is {len(payload)} bytes, shorter than its layout")
+    group, kind, section, mode, low, high, index = struct.unpack_from("<HBBBiIH", payload)
+    if kind not in SETTING_FORMATS:
+        raise ValueError(f"setting {name} has type {kind}, which is no number (a string setting?)")
+    rest, names = payload[head:], []
+    if mode == MODE_LOOKUP:
+        for _ in range(high - low + 1):
+            end = rest.find(b"\0")
+            if end < 0:
+                raise ValueError(f"the value names of setting {name} are cut short")
+            names.append(rest[:end].decode("ascii", "replace"))
+            rest = rest[end + 1:]
+    size = struct.calcsize(SETTING_FORMATS[kind])
+    if len(rest) < size:
+        raise ValueError(f"the description of setting {name} lacks its value")
+    value = struct.unpack(SETTING_FORMATS[kind], rest[:size])[0]
+    return SettingInfo(name, group, kind, section, mode, low, high, index, tuple(names), value)
 
 
 class MspRefused(DutError):

@@ -1,0 +1,85 @@
+"""INAV's compass calibration in its own terms (``docs/firmware.md``, *INAV*).
+
+INAV applies, per axis in the sensor's axes, ``out = (raw − magzero)·1024 / maggain`` (counts), then turns
+the result by its alignment.  Its own calibration makes the field 1024 counts long (each gain the largest
+deviation from the offset on its axis), the size its attitude estimator weights the compass by.  magline's
+fit puts ``S·(m − h)`` on a sphere of ``B`` µT with ``S`` diagonal (INAV holds no off-diagonal term), so
+with ``c`` counts per µT: ``magzero = c·h``, ``maggain = c·B / S_ii``, and INAV's output is
+``1024·S·(m − h) / B`` — back in µT as ``out · B / 1024``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from magline.plugin import (
+    INAV_ALIGNMENT_NAMES,
+    INAV_ALIGNMENTS,
+    INAV_COMPASS_DEFAULT_ALIGNMENT,
+    DutError,
+    FitResult,
+    orientation_matrix,
+)
+
+OFFSETS = ("magzero_x", "magzero_y", "magzero_z")
+GAINS = ("maggain_x", "maggain_y", "maggain_z")
+UNITY_GAIN = 1024  # the gain of an uncalibrated axis, and the length INAV's calibration gives the field
+NEUTRAL: dict[str, int] = {**dict.fromkeys(OFFSETS, 0), **dict.fromkeys(GAINS, UNITY_GAIN)}
+INT16 = (-32768, 32767)
+MAX_ORIENTATION = 101  # MAV_SENSOR_ORIENTATION values are below this
+
+
+def fit_to_settings(fit: FitResult, counts_per_ut: float) -> dict[str, int]:
+    """The settings that make INAV's output ``1024·S·(m − h)/B``; a fit INAV cannot hold is a
+    :class:`DutError` saying why (an off-diagonal term, a value outside int16)."""
+    s = np.asarray(fit.soft_iron, float)
+    off = float(np.abs(s - np.diag(np.diag(s))).max())
+    if off > 1e-9:
+        raise DutError(f"INAV holds no off-diagonal soft iron (the fit has up to {off:.4f}): fit the diagonal model")
+    diag = np.diag(s)
+    if np.any(diag <= 0):
+        raise DutError(f"the fit's soft iron has a non-positive diagonal {diag.round(4).tolist()}: no INAV gain is it")
+    zero = np.round(np.asarray(fit.hard_iron_ut, float) * counts_per_ut).astype(int)
+    gain = np.round(counts_per_ut * float(fit.field_ut) / diag).astype(int)
+    settings = dict(zip(OFFSETS, map(int, zero), strict=True)) | dict(zip(GAINS, map(int, gain), strict=True))
+    wide = {k: v for k, v in settings.items() if not INT16[0] <= v <= INT16[1] or (k in GAINS and v == 0)}
+    if wide:
+        raise DutError(f"INAV holds int16 offsets and non-zero gains; the calibration needs "
+                       f"{', '.join(f'{k} = {v}' for k, v in wide.items())}: not written")
+    return settings
+
+
+def output_to_ut(counts: NDArray, field_ut: float) -> NDArray:
+    """INAV's calibrated output (counts, radius 1024 in the field it was calibrated in) in µT."""
+    return np.asarray(counts, float) * field_ut / UNITY_GAIN
+
+
+def alignment_matrix(value: int) -> NDArray:
+    """``v_body = R·v_sensor`` for an ``align_mag`` value (DEFAULT is CW270FLIP for the compass)."""
+    return np.array(INAV_ALIGNMENTS[int(value) or INAV_COMPASS_DEFAULT_ALIGNMENT], float)
+
+
+def alignment_name(value: int) -> str:
+    return INAV_ALIGNMENT_NAMES[int(value)] if 0 <= int(value) < len(INAV_ALIGNMENT_NAMES) else str(value)
+
+
+def _orientations() -> dict[int, NDArray]:
+    known = {}
+    for value in range(MAX_ORIENTATION):
+        try:
+            known[value] = orientation_matrix(value)
+        except ValueError:
+            continue
+    return known
+
+
+def mav_orientation(matrix: NDArray) -> int:
+    """The MAV_SENSOR_ORIENTATION value of a right-angle rotation (what the mounting check speaks)."""
+    return next(v for v, m in _orientations().items() if np.allclose(m, matrix))
+
+
+def alignment_for(orientation: int) -> int | None:
+    """The ``align_mag`` value that holds MAV orientation ``orientation``; None when none of INAV's eight does."""
+    wanted = orientation_matrix(orientation)
+    return next((v for v, m in INAV_ALIGNMENTS.items() if np.allclose(np.array(m, float), wanted)), None)

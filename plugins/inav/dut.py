@@ -1,0 +1,259 @@
+"""The INAV backend: a unit over MSP, calibrated through its settings (see the package docstring)."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+
+import numpy as np
+
+from magline.plugin import (
+    DutError,
+    FitResult,
+    ImuSeries,
+    LinkError,
+    Magnetometer,
+    NotRestored,
+    ParamValue,
+    Product,
+    RepeatFilter,
+    SampleChunk,
+    StationFault,
+    UnitInfo,
+    await_new_boot,
+)
+from magline.plugins.inav.calibration import (
+    GAINS,
+    NEUTRAL,
+    OFFSETS,
+    alignment_for,
+    alignment_matrix,
+    alignment_name,
+    fit_to_settings,
+    mav_orientation,
+    output_to_ut,
+)
+from magline.plugins.inav.link import Identity, InavLink
+from magline.plugins.inav.options import InavOptions
+
+COMPASS = 1  # INAV uses one compass and gives it no device id: magline calls it 1
+EXTERNAL_ANGLES = ("align_mag_roll", "align_mag_pitch", "align_mag_yaw")
+CHUNK_S = 0.1  # readings are handed on every tenth of a second
+COMPASS_NOT_CALIBRATED = 1 << 12  # INAV's ARMING_DISABLED_COMPASS_NOT_CALIBRATED
+
+
+class ExternalAlignment(DutError, StationFault):
+    """A compass turned by ``align_mag_roll/pitch/yaw``: the station does not undo that rotation yet."""
+
+
+class InavDut:
+    def __init__(self, product: Product, options: InavOptions) -> None:
+        self.product = product
+        self.opts = options
+        self.link = InavLink(product.connection, options.reply_timeout_s)
+        self.counts_per_ut = options.counts_per_gauss / 100.0
+        self.boot_timeout_s = options.boot_timeout_s
+        self.identity: Identity | None = None
+        self.alignment = 0
+        self.to_body = alignment_matrix(0)
+        self._previous: dict[str, ParamValue] | None = None  # the calibration prepare() made neutral
+        self._wrote_calibration = False  # write_params() since the last save wrote offsets or gains
+        self._calibration_saved = False  # a calibration of the station's own is saved: nothing to restore
+        self._field_ut: float | None = None  # the field the written gains map to 1024 counts
+        self.present = True
+
+    # ------------------------------------------------------------------ link
+    def connect(self) -> UnitInfo:
+        self.link.open(self.opts.connect_timeout_s)
+        self.identity = self.link.identify()
+        for name in (*OFFSETS, *GAINS, "align_mag"):
+            self.link.info(name)  # a firmware without one cannot hold the calibration: DutError names it
+        turned = {n: self.link.read(n) for n in EXTERNAL_ANGLES if self._has(n)}
+        if any(turned.values()):
+            raise ExternalAlignment("the compass is turned by " + ", ".join(f"{k} = {v}" for k, v in turned.items())
+                                    + " (an external compass's custom alignment): this station does not undo that "
+                                      "rotation yet, so it cannot calibrate the unit")
+        self._read_alignment()
+        identity = self.identity
+        return UnitInfo(autopilot="INAV", firmware=identity.version, sensors=[COMPASS], selected_sensor=COMPASS,
+                        soft_iron_model="diagonal",
+                        extra={"uid": identity.uid, "board": identity.board, "msp_api": identity.api,
+                               "align_mag": alignment_name(self.alignment),
+                               "counts_per_gauss": self.opts.counts_per_gauss,
+                               "soft_iron_model_why": "INAV holds per-axis gains (maggain_x/y/z) only"},
+                        magnetometers=[self._magnetometer()])
+
+    def _has(self, name: str) -> bool:
+        try:
+            self.link.info(name)
+        except DutError:
+            return False
+        return True
+
+    def _read_alignment(self) -> None:
+        """The alignment the compass uses: ``align_mag`` as it booted (DEFAULT means CW270FLIP)."""
+        self.alignment = int(self.link.read("align_mag"))
+        self.to_body = alignment_matrix(self.alignment)
+
+    def _magnetometer(self) -> Magnetometer:
+        """The readings are turned back into the sensor's axes here; INAV turns them into the body by
+        ``align_mag``, the setting a mounting fix is written to."""
+        return Magnetometer(device_id=COMPASS, label="compass", external=None,
+                            orientation=mav_orientation(self.to_body), readings_rotated=False,
+                            fix_params=["align_mag"], range_ut=32767 / self.counts_per_ut)
+
+    def use_magnetometers(self, device_ids: list[int]) -> None:
+        if list(device_ids) != [COMPASS]:
+            raise DutError(f"INAV uses one compass (magline's id {COMPASS}), not {device_ids}")
+
+    def close(self) -> None:
+        self.link.close()
+
+    # ------------------------------------------------------------------ neutral calibration
+    def prepare(self) -> None:
+        """INAV streams its compass calibrated: the station writes a neutral calibration (offsets 0, gains
+        1024) and saves it, so the readings are the sensor's own counts; the unit's previous values are kept
+        for :meth:`restore`."""
+        self.link.require_disarmed("the neutral calibration before the tumble")
+        if self._previous is None:
+            self._previous = {name: self.link.read(name) for name in NEUTRAL}
+        self._calibration_saved = False
+        for name, value in NEUTRAL.items():
+            self.link.write(name, value)
+        self.link.save()
+
+    def restore(self) -> None:
+        """Put the unit's previous calibration back (RAM and storage) unless the station's own was saved."""
+        if self._previous is None or self._calibration_saved:
+            return
+        previous, self._previous = self._previous, None
+        try:
+            self.link.require_disarmed("restoring the unit's previous calibration")
+            for name, value in previous.items():
+                self.link.write(name, value)
+            self.link.save()
+        except DutError as exc:
+            self._previous = previous
+            raise NotRestored(str(exc), {n: f"{NEUTRAL[n]} (was {v})" for n, v in previous.items()
+                                         if v != NEUTRAL[n]}) from exc
+
+    # ------------------------------------------------------------------ readings
+    def _sensor_ut(self, counts: np.ndarray) -> np.ndarray:
+        """INAV's aligned counts back into the sensor's axes, in µT (under the neutral calibration)."""
+        return (self.to_body.T @ counts) / self.counts_per_ut
+
+    def samples(self, rate_hz: float) -> Iterator[SampleChunk]:
+        """``MSP_RAW_IMU`` polled at ``rate_hz``: a compass reading is passed once (INAV updates it at
+        10 Hz; the copies between are dropped and counted), the accelerometer at every poll, both on the
+        station's clock at the middle of each request's round trip."""
+        period = 1.0 / rate_hz
+        repeats = RepeatFilter(timed=True)
+        start = due = handed = time.monotonic()
+        told = 0
+        mags: list[np.ndarray] = []
+        times: list[float] = []
+        accel: list[np.ndarray] = []
+        accel_t: list[float] = []
+        while True:
+            now = time.monotonic()
+            if now < due:
+                time.sleep(due - now)
+            due = max(due + period, time.monotonic() - period)
+            asked = time.monotonic()
+            reading = self.link.imu()
+            answered = time.monotonic()
+            t_ms = ((asked + answered) / 2.0 - start) * 1000.0
+            accel.append(reading.accel_mss)
+            accel_t.append(t_ms)
+            if repeats.accept(*reading.mag_counts):
+                mags.append(self._sensor_ut(reading.mag_counts))
+                times.append(t_ms)
+            if answered - handed >= CHUNK_S:
+                yield SampleChunk(mag_ut=np.array(mags, float).reshape(-1, 3), t_ms=np.array(times, float),
+                                  repeats=repeats.repeats - told,
+                                  imu=ImuSeries(t_ms=np.array(accel_t, float), accel_mss=np.array(accel, float)))
+                told, handed = repeats.repeats, answered
+                mags, times, accel, accel_t = [], [], [], []
+
+    # ------------------------------------------------------------------ calibration
+    def calibration_params(self, fit: FitResult, sensor: int | None = None) -> dict[str, ParamValue]:
+        settings = fit_to_settings(fit, self.counts_per_ut)
+        self._field_ut = float(fit.field_ut)
+        return dict(settings)
+
+    def orientation_params(self, device_id: int, value: int) -> dict[str, ParamValue]:
+        alignment = alignment_for(value)
+        if alignment is None:
+            raise DutError(f"none of INAV's eight align_mag values holds MAV orientation {value}: remount the compass")
+        return {"align_mag": alignment}
+
+    def read_params(self, names: list[str]) -> dict[str, ParamValue]:
+        return {name: self.link.read(name) for name in names}
+
+    def write_params(self, params: dict[str, ParamValue]) -> dict[str, ParamValue]:
+        """Each setting in its own type, after every value was checked against its range and the unit found
+        disarmed; the echo is each setting read back (INAV's write reply carries no value)."""
+        self.link.require_disarmed("writing the calibration")
+        for name, value in params.items():
+            self.link.check(name, value)
+        for name, value in params.items():
+            self.link.write(name, value)
+        self._wrote_calibration = self._wrote_calibration or any(n in NEUTRAL for n in params)
+        return self.read_params(list(params))
+
+    def commit(self) -> None:
+        self.link.require_disarmed("saving the calibration")
+        self.link.save()
+        if self._wrote_calibration:
+            self._calibration_saved, self._wrote_calibration = True, False
+
+    # ------------------------------------------------------------------ power cycle and proof
+    def reboot(self) -> None:
+        self.link.require_disarmed("the reboot")  # INAV ACKs MSP_REBOOT while armed and does not reboot
+        self.link.reboot()
+        self.link.close()
+
+    def release_link(self) -> None:
+        self.link.close()
+
+    def await_boot(self, since: float) -> dict[str, float]:
+        def reconnect(remaining_s: float) -> None:
+            self.link.close()
+            self.link.open(remaining_s)
+
+        reconnected, uptime = await_new_boot(reconnect, self.link.uptime_s, since, self.opts.boot_timeout_s)
+        before, now = self.identity, self.link.identify()
+        if before is not None and now.uid != before.uid:
+            raise LinkError(f"after the power cycle the board on {self.product.connection} has MCU UID {now.uid}, "
+                            f"not the unit under test's ({before.uid}): another board; the unit's calibration is "
+                            "not proven")
+        self._read_alignment()  # a written align_mag is the compass's from this boot
+        self.present = bool(np.any(self.link.imu().mag_counts != 0))  # INAV's compassIsHealthy
+        return {"time_to_heartbeat_s": reconnected, "uptime_at_reconnect_s": uptime}
+
+    def uptime_s(self) -> float | None:
+        return self.link.uptime_s()
+
+    def selected_sensor_present(self) -> bool:
+        return self.present
+
+    def persistence_problems(self) -> list[str]:
+        flags = self.link.arming_flags()
+        return ["INAV says the compass is not calibrated (arming disabled: COMPASS_NOT_CALIBRATED)"
+                ] if flags & COMPASS_NOT_CALIBRATED else []
+
+    def calibrated_field_ut(self, count: int, sensor: int | None = None) -> np.ndarray | None:
+        """``count`` of INAV's calibrated readings (body axes) in µT: its output is 1024 counts long in the
+        field the written gains were made for; None when this run wrote none."""
+        if self._field_ut is None:
+            return None
+        repeats, rows = RepeatFilter(), []
+        deadline = time.monotonic() + 2.0 + count * 0.2  # a 10 Hz compass, twice over
+        while len(rows) < count:
+            if time.monotonic() > deadline:
+                raise LinkError(f"INAV's compass gave {len(rows)} distinct readings of the {count} asked")
+            counts = self.link.imu().mag_counts
+            if repeats.accept(*counts):
+                rows.append(output_to_ut(counts, self._field_ut))
+            time.sleep(0.01)
+        return np.array(rows)

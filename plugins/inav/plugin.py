@@ -1,0 +1,22 @@
+"""Registers the ``inav`` DUT backend."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from magline.plugin import Product, hookimpl
+from magline.plugins.inav.options import InavOptions
+
+if TYPE_CHECKING:
+    from magline.plugins.inav.dut import InavDut
+
+
+def create_inav_dut(product: Product, options: InavOptions) -> InavDut:
+    from magline.plugins.inav.dut import InavDut
+
+    return InavDut(product, options)
+
+
+@hookimpl
+def magline_register_dut_backends(register):
+    register("inav", create_inav_dut, options=InavOptions)

@@ -1,0 +1,251 @@
+"""The INAV backend (issue 47) against the INAV simulator over MSP on a real loopback socket: a whole unit
+calibrated through INAV's own settings and proven after its reboot; what INAV does that a station must
+handle (a calibrated-and-aligned stream, settings in their own widths, arming, another firmware, a save
+that did not persist, another board after the reboot, a mounting only ``align_mag`` can fix)."""
+
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+from simstation import FAST_SENSOR_HZ, run_unit, write_station
+
+from magline.core.links.msp import Msp, MspClient, SettingInfo, encode_setting_info, parse_setting_info
+from magline.core.plugins import load_plugins
+from magline.core.record import Outcome
+from magline.core.station import load_station
+from magline.plugin import orientation_matrix
+from magline.plugins.inav.calibration import alignment_for, fit_to_settings, mav_orientation
+from magline.sim import SimFaults, create_sim
+from magline.sim.inav import COUNTS_PER_GAUSS, SETTINGS
+from magline.sim.magnetometers import SimMagnetometer
+from magline.testing import check_dut_backend
+
+OPTIONS = {"connect_timeout_s": 4.0, "boot_timeout_s": 8.0}
+COUNTS_PER_UT = COUNTS_PER_GAUSS / 100.0
+
+
+def board(tmp_path: Path, faults: SimFaults | None = None, **options):
+    return create_sim("inav", "tcp:127.0.0.1:0", workdir=tmp_path / "fc", seed=11, boot_time_s=0.3, speed=5.0,
+                      mag_rate_hz=FAST_SENSOR_HZ, faults=faults, **options)
+
+
+def station(tmp_path: Path, address: str, **changes) -> Path:
+    return write_station("inav-sim.yaml", tmp_path, address, {**OPTIONS, **changes.pop("options", {})}, changes)
+
+
+def measured(record, name: str) -> float:
+    return next(m.value for m in record.measurements if m.name == name)
+
+
+def stored(sim) -> dict:
+    return sim.read_storage()
+
+
+def test_a_setting_s_description_reads_as_inav_lays_it_out():
+    """``mspSettingInfoCommand``: the name and a NUL, group, type, section, mode, min (i32), max (u32), index,
+    two profile bytes, the value names of a lookup setting, then the value in the setting's own width."""
+    align = SettingInfo("align_mag", 7, 0, 0, 0x40, 0, 8, 12, ("DEFAULT", "CW0", "CW90", "CW180", "CW270", "CW0FLIP",
+                                                             "CW90FLIP", "CW180FLIP", "CW270FLIP"), 8)
+    gain = SettingInfo("maggain_x", 7, 3, 0, 0, -32768, 32767, 5, (), 1024)
+    for info in (align, gain):
+        assert parse_setting_info(info.name, encode_setting_info(info)) == info
+    assert encode_setting_info(gain)[:12] == b"maggain_x\0" + struct.pack("<H", 7)
+    assert len(encode_setting_info(gain)) == 10 + 19
+    with pytest.raises(ValueError, match="asked for maggain_y names maggain_x"):
+        parse_setting_info("maggain_y", encode_setting_info(gain))
+    assert gain.encode(-25536) == struct.pack("<h", -25536) and len(gain.encode(1024)) == 2
+    with pytest.raises(ValueError, match="maggain_x"):
+        parse_setting_info("maggain_x", encode_setting_info(gain)[:10])
+
+
+def test_the_simulator_is_true_to_inav_over_msp(tmp_path):
+    """Identity, a value sent wider than its setting stored truncated (seen on SITL), a write used at once
+    and lost at a reboot unless saved, DEFAULT alignment reading back as CW270FLIP, the uptime of the new
+    boot, and the compass calibrated and aligned in MSP_RAW_IMU."""
+    with board(tmp_path) as sim:
+        client = MspClient.connect(sim.address)
+        assert client.request(Msp.FC_VARIANT) == b"INAV" and list(client.request(Msp.FC_VERSION)) == [9, 1, 0]
+        info = parse_setting_info("align_mag", client.request(Msp.COMMON_SETTING_INFO, b"align_mag\0"))
+        assert info.value == 8 and info.names[8] == "CW270FLIP"
+        client.request(Msp.COMMON_SET_SETTING, b"maggain_x\0" + struct.pack("<i", 40000))
+        assert struct.unpack("<h", client.request(Msp.COMMON_SETTING, b"maggain_x\0"))[0] == -25536
+        client.request(Msp.COMMON_SET_SETTING, b"magzero_y\0" + struct.pack("<h", 321))
+        sensor = sim.detected[0]
+        raw = sim.raw_counts(sensor.read_ut(np.array([20.0, -10.0, 40.0]), np.random.default_rng(1)))
+        expected_x = int((raw[0] - 0) * 1024 / -25536)  # C division: toward zero
+        out = sim.magnetometer_out(raw)
+        assert out[1] == -expected_x  # CW270FLIP: body y = −sensor x
+        assert out[0] == -int((raw[1] - 321) * 1024 / 1024)
+        client.request(Msp.REBOOT)
+        client.close()
+        client = reconnect(sim)
+        assert struct.unpack("<h", client.request(Msp.COMMON_SETTING, b"magzero_y\0"))[0] == 0  # never saved
+        assert struct.unpack_from("<I", client.request(Msp.INAV_MISC2))[0] <= 1
+        client.request(Msp.COMMON_SET_SETTING, b"magzero_y\0" + struct.pack("<h", 321))
+        client.request(Msp.EEPROM_WRITE)
+        assert stored(sim)["magzero_y"] == 321 and sim.boots == 2
+        imu = struct.unpack("<9h", client.request(Msp.RAW_IMU))
+        assert 450 < np.linalg.norm(imu[0:3]) < 575  # 1 g = 512
+        client.close()
+
+
+def reconnect(sim, timeout_s: float = 5.0) -> MspClient:
+    import time
+
+    deadline = time.monotonic() + timeout_s
+    while True:
+        time.sleep(0.1)
+        try:
+            client = MspClient.connect(sim.address, connect_timeout_s=0.5)
+            client.request(Msp.API_VERSION)
+            return client
+        except Exception:
+            if time.monotonic() > deadline:
+                raise
+
+
+def test_the_simulator_refuses_a_save_while_armed_and_ignores_a_reboot(tmp_path):
+    with board(tmp_path, SimFaults(armed=True)) as sim:
+        client = MspClient.connect(sim.address)
+        client.request(Msp.COMMON_SET_SETTING, b"magzero_x\0" + struct.pack("<h", 5))  # accepted while armed
+        from magline.core.links.msp import MspRefused
+
+        with pytest.raises(MspRefused):
+            client.request(Msp.EEPROM_WRITE)
+        assert client.request(Msp.REBOOT) == b""
+        import time
+
+        time.sleep(0.6)
+        assert sim.boots == 1 and client.request(Msp.FC_VARIANT) == b"INAV"
+        client.close()
+
+
+def test_a_whole_inav_unit_is_calibrated_saved_rebooted_and_proven(tmp_path):
+    """The offsets and gains written are the sensor's truth in INAV's terms (the fit's own σ decides how
+    close), INAV's calibrated output after the reboot reads the reference, and INAV itself no longer says
+    the compass is uncalibrated."""
+    with board(tmp_path) as sim:
+        record = run_unit(station(tmp_path, sim.address))
+        truth = sim.magnetometers[0]
+        values = stored(sim)
+    assert record.verdict is Outcome.PASS, record.cause
+    assert record.unit_info["autopilot"] == "INAV" and record.unit_info["soft_iron_model"] == "diagonal"
+    assert record.params_read_back == record.params_written
+    sigma = np.asarray(record.calibration["hard_iron_sigma_ut"], float)
+    zero = np.array([values[f"magzero_{a}"] for a in "xyz"])
+    assert np.all(np.abs(zero - truth.hard_iron_ut * COUNTS_PER_UT) <= 4 * sigma * COUNTS_PER_UT + 1)
+    gains = np.array([values[f"maggain_{a}"] for a in "xyz"])
+    true_gains = COUNTS_PER_UT * record.calibration["field_ut"] / np.diag(truth.soft_iron)
+    assert np.all(np.abs(gains / true_gains - 1) < 0.01)
+    assert measured(record, "field_error_pct") == pytest.approx(0.0, abs=5.0)
+
+
+def test_an_armed_unit_is_an_error_that_says_to_disarm_and_nothing_is_written(tmp_path):
+    with board(tmp_path, SimFaults(armed=True)) as sim:
+        before = dict(sim.table.values)
+        record = run_unit(station(tmp_path, sim.address))
+        after = dict(sim.table.values)
+    assert record.verdict is Outcome.ERROR and "disarm" in record.cause
+    assert after == before and not record.params_written
+
+
+def test_betaflight_answering_is_an_error_naming_it(tmp_path):
+    with board(tmp_path, SimFaults(msp_variant="BTFL")) as sim:
+        record = run_unit(station(tmp_path, sim.address))
+    assert record.verdict is Outcome.ERROR and "'BTFL' (Betaflight), not INAV" in record.cause
+
+
+def test_a_save_that_did_not_persist_fails_the_unit_naming_the_setting(tmp_path):
+    with board(tmp_path, SimFaults(no_persist=["magzero_x"])) as sim:
+        record = run_unit(station(tmp_path, sim.address))
+    assert record.verdict is Outcome.FAIL and "magzero_x" in record.cause
+
+
+def test_another_board_after_the_reboot_is_an_error(tmp_path):
+    with board(tmp_path, SimFaults(uid_changes_at_reboot=True)) as sim:
+        record = run_unit(station(tmp_path, sim.address))
+    assert record.verdict is Outcome.ERROR and "MCU UID" in record.cause and "another board" in record.cause
+
+
+def test_a_unit_that_fails_validation_gets_its_previous_calibration_back_in_ram_and_storage(tmp_path):
+    """The neutral calibration written for the tumble is undone: INAV holds what it held before."""
+    with board(tmp_path) as sim:
+        previous = {"magzero_x": 120, "magzero_y": -80, "magzero_z": 15, "maggain_x": 1500, "maggain_y": 1480,
+                    "maggain_z": 1530}
+        sim.write_storage({**sim.table.values, **previous})
+        sim.load_from_storage(sim.read_storage())
+        record = run_unit(station(tmp_path, sim.address,
+                                  products={"INAV-WING-300": {"limits": {"hard_iron_norm_ut": {"le": 1.0}}}}))
+        ram = {k: sim.table.values[k] for k in previous}
+        kept = {k: stored(sim)[k] for k in previous}
+    assert record.verdict is Outcome.FAIL and not record.params_written
+    assert ram == previous and kept == previous
+
+
+def test_a_compass_mounted_otherwise_is_named_in_inav_s_terms_and_fixed_with_align_mag(tmp_path):
+    cw90flip = mav_orientation(np.array([[0, 1, 0], [1, 0, 0], [0, 0, -1]], float))
+    assert alignment_for(cw90flip) == 6
+    assert np.allclose(orientation_matrix(cw90flip), [[0, 1, 0], [1, 0, 0], [0, 0, -1]])
+    with board(tmp_path, SimFaults(mag_mounting=[f"1:{cw90flip}"])) as sim:
+        record = run_unit(station(tmp_path, sim.address))
+    assert record.verdict is Outcome.FAIL and "set align_mag = 6" in record.cause
+    with board(tmp_path / "fix", SimFaults(mag_mounting=[f"1:{cw90flip}"])) as sim:
+        record = run_unit(station(tmp_path / "fix", sim.address, products={"INAV-WING-300": {"orientation": "fix"}}))
+        held = stored(sim)["align_mag"]
+    assert record.verdict is Outcome.PASS, record.cause
+    assert record.params_written["align_mag"] == 6 and held == 6
+
+
+def test_a_value_inav_cannot_hold_is_refused_before_anything_is_written(tmp_path):
+    with board(tmp_path) as sim:
+        dut = backend(station(tmp_path, sim.address))
+        dut.connect()
+        before = dict(sim.table.values)
+        with pytest.raises(Exception, match=r"maggain_x = 40000 is outside INAV's range \[-32768, 32767\]"):
+            dut.write_params({"magzero_x": 10, "maggain_x": 40000})
+        assert dict(sim.table.values) == before
+        dut.close()
+
+
+def test_a_soft_iron_inav_cannot_hold_is_named_by_the_misfit(tmp_path):
+    """Cross terms of 0.08: the diagonal model INAV holds misfits the unit, and the record says by how much."""
+    soft = np.array([[1.0, 0.08, 0.0], [0.08, 1.02, 0.05], [0.0, 0.05, 0.97]])
+    compass = SimMagnetometer(device_id=1, hard_iron_ut=np.array([20.0, -15.0, 8.0]), soft_iron=soft)
+    with board(tmp_path, magnetometers=[compass]) as sim:
+        record = run_unit(station(tmp_path, sim.address))
+    misfit = measured(record, "model_misfit_deg")
+    assert misfit > 3.0
+
+
+def test_the_inav_backend_meets_the_contract_on_its_simulator(tmp_path):
+    with board(tmp_path) as sim:
+        path = station(tmp_path, sim.address)
+        figures = check_dut_backend(lambda: backend(path), sim.field_ut, rate_hz=200.0,
+                                    hard_iron_ut=sim.magnetometers[0].hard_iron_ut, unsaved_writes="lost")
+    assert figures["fit"].residual_rms_ut < 1.0
+
+
+def test_inav_s_settings_are_written_in_their_own_widths_from_a_fit():
+    from magline.core.fit import FitOptions, fit_calibration
+
+    rng = np.random.default_rng(3)
+    v = rng.normal(size=(600, 3))
+    v = v / np.linalg.norm(v, axis=1, keepdims=True) * 48.0
+    soft = np.diag([1.02, 0.97, 1.01])
+    raw = (np.linalg.inv(soft) @ v.T).T + np.array([30.0, -12.0, 5.0])
+    fit = fit_calibration(raw, FitOptions(field_ut=48.0, model="diagonal", coverage_bins=40))
+    settings = fit_to_settings(fit, COUNTS_PER_UT)
+    assert settings["magzero_x"] == 900 and settings["magzero_y"] == -360 and settings["magzero_z"] == 150
+    assert settings["maggain_x"] == round(COUNTS_PER_UT * 48.0 / 1.02)
+    assert all(isinstance(v, int) for v in settings.values())
+    assert {s.name for s in SETTINGS} >= set(settings)
+
+
+def backend(path: Path):
+    st, plugins = load_station(path), load_plugins()
+    product = st.products[st.default_part]
+    options = plugins.options("dut backend", product.backend, product.options, "products.x.options")
+    return plugins.dut_backends[product.backend](product, options)
