@@ -40,6 +40,16 @@ def measured(record, name: str) -> float:
     return next(m.value for m in record.measurements if m.name == name)
 
 
+PREVIOUS = {"magzero_x": 120, "magzero_y": -80, "magzero_z": 15, "maggain_x": 1500, "maggain_y": 1480,
+            "maggain_z": 1530}
+
+
+def calibrated_before(sim, previous: dict = PREVIOUS) -> None:
+    """The unit holds a calibration of its own (a re-test, or INAV's own calibration from a bench)."""
+    sim.write_storage({**sim.table.values, **previous})
+    sim.load_from_storage(sim.read_storage())
+
+
 def stored(sim) -> dict:
     return sim.read_storage()
 
@@ -173,10 +183,8 @@ def test_another_board_after_the_reboot_is_an_error(tmp_path):
 def test_a_unit_that_fails_validation_gets_its_previous_calibration_back_in_ram_and_storage(tmp_path):
     """The neutral calibration written for the tumble is undone: INAV holds what it held before."""
     with board(tmp_path) as sim:
-        previous = {"magzero_x": 120, "magzero_y": -80, "magzero_z": 15, "maggain_x": 1500, "maggain_y": 1480,
-                    "maggain_z": 1530}
-        sim.write_storage({**sim.table.values, **previous})
-        sim.load_from_storage(sim.read_storage())
+        previous = PREVIOUS
+        calibrated_before(sim)
         record = run_unit(station(tmp_path, sim.address,
                                   products={"INAV-WING-300": {"limits": {"hard_iron_norm_ut": {"le": 1.0}}}}))
         ram = {k: sim.table.values[k] for k in previous}
@@ -249,3 +257,32 @@ def backend(path: Path):
     product = st.products[st.default_part]
     options = plugins.options("dut backend", product.backend, product.options, "products.x.options")
     return plugins.dut_backends[product.backend](product, options)
+
+
+def test_a_whole_inav_unit_runs_over_a_serial_port_across_its_reboot(tmp_path):
+    """INAV on USB: the MSP client on a serial port (a pseudo-terminal behind a udev-style name that goes and
+    comes back at the reboot, as a board re-enumerating does)."""
+    port = tmp_path / "dev" / "serial" / "by-id" / "usb-INAV_SITL-if00"
+    with create_sim("inav", f"serial:{port}", workdir=tmp_path / "fc", seed=11, boot_time_s=0.3, speed=5.0,
+                    mag_rate_hz=FAST_SENSOR_HZ) as sim:
+        record = run_unit(station(tmp_path, f"serial:{port}"))
+        nodes = list(sim.link.devices)
+    assert record.verdict is Outcome.PASS, record.cause
+    assert len(nodes) == 2 and nodes[0] != nodes[1]
+
+
+def test_the_link_lost_mid_tumble_is_an_error_with_the_raw_data_kept_and_the_unit_told_to_be_retested(tmp_path):
+    with board(tmp_path, SimFaults(link_loss_after_s=1.0)) as sim:
+        calibrated_before(sim)
+        record = run_unit(station(tmp_path, sim.address))
+    assert record.verdict is Outcome.ERROR and "MSP" in record.cause
+    assert record.attempts and record.attempts[0].samples > 0
+    # the neutral calibration written for the tumble could not be undone: each setting named with its value
+    assert record.left_changed == {n: f"{1024 if n.startswith('maggain') else 0} (was {v})" for n, v in PREVIOUS.items()}
+
+
+def test_a_reboot_that_never_comes_back_is_an_error_and_nothing_is_claimed(tmp_path):
+    with board(tmp_path, SimFaults(reboot_fails=True)) as sim:
+        record = run_unit(station(tmp_path, sim.address, options={"boot_timeout_s": 2.0}))
+    assert record.verdict is Outcome.ERROR and "did not come back" in record.cause
+    assert not record.params_read_back
