@@ -466,8 +466,18 @@ class Sequencer:
             prefix = run.sensor_prefix(sensor.device_id)
             for contribution in self.plugins.hook.magline_validate(run=run, fit=run.fits[sensor.device_id]):
                 run.record.measurements.extend(prefixed(contribution, prefix, run.limits))
-        for contribution in self.plugins.hook.magline_validate_unit(run=run, fits=dict(run.fits)):
-            run.record.measurements.extend(contribution)
+        judged_bad = any(m.verdict is Verdict.FAIL for m in verdicts(run.record.measurements))
+        try:
+            for contribution in self.plugins.hook.magline_validate_unit(run=run, fits=dict(run.fits)):
+                run.record.measurements.extend(contribution)
+        except StationFault as exc:
+            if not judged_bad:
+                raise
+            # The unit FAILs on its own figures already (a fit its firmware cannot hold leaves residuals the
+            # mounting cannot be proven through): what the station could not prove beside them does not
+            # make it unjudged — ERROR is for a unit the station could not judge, and yield counts on it.
+            run.record.unit_info["not_judged"] = str(exc)
+            run.log(f"beside the failed figures, not judged: {exc}")
         failed = [m for m in verdicts(run.record.measurements) if m.verdict is Verdict.FAIL]
         review = [m for m in verdicts(run.record.measurements) if m.verdict is Verdict.REVIEW]
         for m in review:
