@@ -11,7 +11,7 @@ What a DUT, field-source, motion or results-sink author needs without reading ma
   :func:`motion_directions` (the sensor model and operator motions magline's own accuracy
   benchmarks use);
 * simulated flight controllers: :func:`px4_sim`, :func:`ardupilot_sim` (real MAVLink on a free
-  loopback port) and the connection string a station uses for them;
+  loopback port), :func:`inav_sim` (INAV's MSP) and the connection string a station uses for them;
 * replay: :func:`mavlink_replay` plays the vehicle of a unit recorded on the line with
   ``magline run --record-mavlink FILE`` to your backend (a bug seen on the line becomes a test);
 * conformance: :func:`check_dut_backend` runs the DUT-backend contract against your backend and
@@ -20,7 +20,7 @@ What a DUT, field-source, motion or results-sink author needs without reading ma
 
 With magline installed, pytest loads :mod:`magline.testing.plugin` (entry point ``pytest11``):
 its fixtures (``magline_station``, ``magline_run``, ``magline_px4``, ``magline_ardupilot``,
-``magline_mock_dut``, ``magline_results``) are
+``magline_inav``, ``magline_mock_dut``, ``magline_results``) are
 there for any test that names them, and do nothing otherwise.
 """
 
@@ -28,7 +28,7 @@ from magline.sim.truth import SensorTruth, earth_field_ned, gravity_body, motion
 from magline.testing.builders import make_fit, make_record
 from magline.testing.conformance import check_dut_backend, check_field_source, check_power_control, check_result_sink
 from magline.testing.replay import mavlink_replay, read_tlog
-from magline.testing.sims import SimulatedVehicle, ardupilot_sim, px4_sim
+from magline.testing.sims import SimulatedVehicle, ardupilot_sim, inav_sim, px4_sim
 from magline.testing.stations import Problem, check_station, deep_update, run_unit, station_file
 
 __all__ = [
@@ -44,6 +44,7 @@ __all__ = [
            "deep_update",
            "earth_field_ned",
            "gravity_body",
+           "inav_sim",
            "make_fit",
            "make_record",
            "mavlink_replay",

@@ -57,6 +57,16 @@ def magline_ardupilot(tmp_path: Path) -> Iterator[Callable[..., Any]]:
 
 
 @pytest.fixture
+def magline_inav(tmp_path: Path) -> Iterator[Callable[..., Any]]:
+    """``magline_inav(**options)``: a simulated INAV (MSP) on a free TCP port, stopped after the test."""
+    from magline.testing.sims import inav_sim
+
+    with ExitStack() as stack:
+        count = iter(range(1000))
+        yield lambda **options: stack.enter_context(inav_sim(tmp_path / f"inav-{next(count)}", **options))
+
+
+@pytest.fixture
 def magline_mock_dut(tmp_path: Path) -> Iterator[Callable[..., Any]]:
     """``magline_mock_dut(**options)``: the in-process mock DUT (``MockOptions``; its storage in the
     test's tmp dir unless given), closed after the test."""

@@ -1,4 +1,5 @@
-"""Simulated flight controllers for tests: real MAVLink on a free loopback port, short boots.
+"""Simulated flight controllers for tests: their firmware's own protocol (MAVLink, INAV's MSP) on a free
+loopback port, short boots.
 
 Why here: a DUT plugin for another autopilot, a power control or a field source is best tested
 against a vehicle that speaks the protocol, not against a mock of one's own code.
@@ -46,3 +47,9 @@ def px4_sim(workdir: str | Path, **options: Any) -> Any:
 def ardupilot_sim(workdir: str | Path, **options: Any) -> Any:
     """A simulated ArduPilot on TCP (``with ardupilot_sim(tmp_path) as fc: … fc.connection``)."""
     return _vehicle("ardupilot", "tcp:127.0.0.1:0", "tcp:{host}:{port}", workdir, **options)
+
+
+def inav_sim(workdir: str | Path, **options: Any) -> Any:
+    """A simulated INAV speaking MSP on TCP (``with inav_sim(tmp_path) as fc: … fc.connection``); ``options``
+    as ``magline sim inav`` takes them (``faults``, ``magnetometers``, ``counts_per_gauss`` …)."""
+    return _vehicle("inav", "tcp:127.0.0.1:0", "tcp:{host}:{port}", workdir, **options)

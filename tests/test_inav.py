@@ -231,11 +231,12 @@ def test_a_soft_iron_inav_cannot_hold_is_named_by_the_misfit(tmp_path):
     assert record.verdict is Outcome.FAIL and "model_misfit_deg" in record.cause and not record.params_written
 
 
-def test_the_inav_backend_meets_the_contract_on_its_simulator(tmp_path):
-    with board(tmp_path) as sim:
-        path = station(tmp_path, sim.address)
-        figures = check_dut_backend(lambda: backend(path), sim.field_ut, rate_hz=200.0,
-                                    hard_iron_ut=sim.magnetometers[0].hard_iron_ut, unsaved_writes="lost")
+def test_the_inav_backend_meets_the_contract_on_its_simulator(magline_inav, tmp_path):
+    """As a plugin author tests a backend: the testing kit's simulated INAV and its conformance suite."""
+    fc = magline_inav(seed=11)
+    path = station(tmp_path, fc.connection)
+    figures = check_dut_backend(lambda: backend(path), fc.sim.field_ut, rate_hz=200.0,
+                                hard_iron_ut=fc.sim.magnetometers[0].hard_iron_ut, unsaved_writes="lost")
     assert figures["fit"].residual_rms_ut < 1.0
 
 
@@ -281,7 +282,8 @@ def test_the_link_lost_mid_tumble_is_an_error_with_the_raw_data_kept_and_the_uni
     assert record.verdict is Outcome.ERROR and "MSP" in record.cause
     assert record.attempts and record.attempts[0].samples > 0
     # the neutral calibration written for the tumble could not be undone: each setting named with its value
-    assert record.left_changed == {n: f"{1024 if n.startswith('maggain') else 0} (was {v})" for n, v in PREVIOUS.items()}
+    neutral = {n: 1024 if n.startswith("maggain") else 0 for n in PREVIOUS}
+    assert record.left_changed == {n: f"{neutral[n]} (was {v})" for n, v in PREVIOUS.items()}
 
 
 def test_a_reboot_that_never_comes_back_is_an_error_and_nothing_is_claimed(tmp_path):
