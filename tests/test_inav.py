@@ -291,3 +291,13 @@ def test_a_reboot_that_never_comes_back_is_an_error_and_nothing_is_claimed(tmp_p
         record = run_unit(station(tmp_path, sim.address, options={"boot_timeout_s": 2.0}))
     assert record.verdict is Outcome.ERROR and "did not come back" in record.cause
     assert not record.params_read_back
+
+
+def test_a_firmware_without_a_calibration_setting_fails_the_unit_naming_it(tmp_path):
+    """An INAV build without ``maggain_z`` (a target built without it, an old release) cannot hold the
+    calibration: the firmware answers the setting's description with an error reply, and the unit FAILs."""
+    with board(tmp_path) as sim:
+        del sim.settings["maggain_z"]
+        record = run_unit(station(tmp_path, sim.address))
+    assert record.verdict is Outcome.FAIL and "this INAV has no setting maggain_z" in record.cause
+    assert not record.params_written
