@@ -28,6 +28,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from magline.core.links.msp import (
     ERROR,
@@ -128,9 +129,7 @@ class InavSim(SimulatedAutopilot):
             seed = kwargs.get("seed")
             kwargs["magnetometers"] = [inav_compass(np.random.default_rng(None if seed is None else seed + 4700))]
         super().__init__(*args, **kwargs)
-        from magline.sim.vehicle import mavlink  # the engine's MAVLink side, silenced on this port
-
-        self.mav = mavlink.MAVLink(_NoMavlink(), srcSystem=self.system_id)
+        self.mav = mavlink.MAVLink(_NoMavlink(), srcSystem=self.system_id)  # the engine's MAVLink side, silenced
         mounted = self.faults.mountings()
         for index, mag in enumerate(self.magnetometers):  # mounted as INAV's DEFAULT expects, unless a fault says
             if index not in mounted or mounted[index][0] == 0:
