@@ -5,8 +5,9 @@ in INAV's own terms, and what a unit costs against the MAVLink backends.
    simulator's own): the written ``magzero_*`` against the
    truth ``counts·h`` (goal ≤ 1 raw count) and each ``maggain_*`` against ``counts·B/S_ii`` (goal ≤ 0.1 %),
    over MSP on loopback, the compass sped up to 50 Hz and the tumble ×3 (the accuracy depends on the
-   readings, not on how fast they come): at the shipped station's 300 readings and at 1,200, and what of
-   the error is the conversion (rounding to INAV's integers) and what the fit's own statistical error.
+   readings, not on how fast they come): at the shipped station (stop as soon as the calibration is
+   determined) and at 2,400 readings, and what of the error is the conversion (rounding to INAV's
+   integers) and what the fit's own statistical error.
 2. Cycle time (``--cycles`` units per backend) at the shipped station files and the simulators' shipped
    defaults (boot 2 s; INAV's compass at its 10 Hz), INAV against PX4 and ArduPilot.
 
@@ -42,8 +43,8 @@ CONNECTION = {"inav": "{}", "px4": "udpout://{}", "ardupilot": "tcp:{}"}
 def station(flavour: str, folder: Path, address: str, samples: int | None = None) -> Path:
     example, _ = EXAMPLES[flavour]
     cfg = yaml.safe_load((REPO / "stations" / example).read_text(encoding="utf-8"))
-    if samples is not None:
-        cfg["acquisition"]["samples"] = samples
+    if samples is not None:  # that many readings, not "as soon as determined" (the shipped station's stop rule)
+        cfg["acquisition"] |= {"samples": samples, "stop": "samples", "timeout_s": samples / 10.0}
     part = cfg["default_part"]
     target = address if flavour == "inav" else CONNECTION[flavour].format(address.split(":", 1)[1])
     cfg["products"][part]["connection"] = target
@@ -72,10 +73,12 @@ def compass(seed: int, cross: bool) -> SimMagnetometer:
     return sensor
 
 
-def accuracy(units: int, seed: int, cross: bool, samples: int) -> None:
+def accuracy(units: int, seed: int, cross: bool, samples: int | None) -> None:
     what = "the simulator's compasses (cross terms up to ±0.004)" if cross else "compasses without cross terms"
-    print(f"1. accuracy over MSP, {units} simulated INAV units, {what}, {samples} readings each "
+    readings = f"{samples} readings each" if samples else "the shipped station (stop: determined)"
+    print(f"1. accuracy over MSP, {units} simulated INAV units, {what}, {readings} "
           "(goals: offset ≤ 1 raw count, gain ≤ 0.1 %)")
+    taken = []
     offsets, gains, verdicts, rounding, z_scores, sigma_counts = [], [], [], [], [], []
     for n in range(units):
         with tempfile.TemporaryDirectory() as tmp:
@@ -90,6 +93,7 @@ def accuracy(units: int, seed: int, cross: bool, samples: int) -> None:
         if record.verdict is not Outcome.PASS:
             print(f"   unit {n}: {record.verdict} ({record.cause})")
             continue
+        taken.append(sum(a.samples for a in record.attempts if a.accepted))
         field = float(record.calibration["field_ut"])
         fitted = np.asarray(record.calibration["hard_iron_ut"], float)
         sigma = np.asarray(record.calibration["hard_iron_sigma_ut"], float)
@@ -100,7 +104,8 @@ def accuracy(units: int, seed: int, cross: bool, samples: int) -> None:
         gains += [abs(stored[f"maggain_{a}"] / (counts * field / s) - 1) * 100
                   for a, s in zip("xyz", np.diag(truth.soft_iron), strict=True)]
     if offsets:
-        print(f"   passed {verdicts.count('pass')} of {units}; per axis over the passed units:")
+        print(f"   passed {verdicts.count('pass')} of {units}, median {statistics.median(taken):.0f} readings; "
+              "per axis over the passed units:")
         print(f"   offset error, raw counts: median {statistics.median(offsets):.2f}, p95 "
               f"{np.percentile(offsets, 95):.2f}, max {max(offsets):.2f} (1 count = {1 / counts:.3f} µT)")
         print(f"   gain error, %: median {statistics.median(gains):.3f}, p95 {np.percentile(gains, 95):.3f}, "
@@ -137,8 +142,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cycles", type=int, default=2)
     parser.add_argument("--seed", type=int, default=47)
     args = parser.parse_args(argv)
-    for cross, samples in ((False, 300), (False, 1200), (True, 300)):
-        accuracy(args.units, args.seed, cross, samples)
+    for cross, samples, units in ((False, None, args.units), (True, None, args.units),
+                                  (False, 2400, max(args.units // 2, 1))):
+        accuracy(units, args.seed, cross, samples)
     cycle_times(args.cycles, args.seed)
     return 0
 
