@@ -365,6 +365,16 @@ def magline_motion_stopped(round: int, slots: list[str], motion: str) -> None:
 
 
 @hookspec
+def magline_tilt_guidance(run: RunContext, guidance: dict) -> None:
+    """On a turntable (a motion that ``TurnsForTilts``), each time what the station asks of the cradle
+    changes: ``guidance`` holds ``state`` (``tilt``: waiting for the operator, ``turning``, ``stalled``),
+    ``asked`` (the tilt in words), ``pitch_deg`` and ``roll_deg`` (for a picture of the cradle), ``step``
+    (the how-many-th tilt of the round), ``found`` (the tilt the accelerometer sees instead, in words, or
+    None) and ``why`` (what stalled).  For outputs (the console, the screen); the words to the operator
+    come as :func:`magline_operator_prompt` too."""
+
+
+@hookspec
 def magline_operator_prompt(run: RunContext, message: str) -> None:
     """Something the operator must do now (tumble, tumble again, scan)."""
 

@@ -10,7 +10,8 @@ What is here, by role:
 
 * registration: :data:`hookimpl` (the hooks and their order: ``docs/plugins.md``) and the contracts
   a registered factory returns: :class:`DutBackend`, :class:`FieldSource`, :class:`Motion`,
-  :class:`PowerControl` (a power cut's new boot: :func:`await_boot_after_cut`), :class:`ResultSink`,
+  :class:`PowerControl` (a power cut's new boot: :func:`await_boot_after_cut`), a turntable's
+  :class:`TurnsForTilts` with its cradle's :class:`Tilt` (:func:`tilt_words`), :class:`ResultSink`,
   :class:`CurrentSource` (the interference sweep's current; its errors :class:`CurrentSourceError`);
 * the DUT contract: :class:`DutBackend`, :class:`UnitInfo`, :class:`Magnetometer`, :class:`SampleChunk`,
   :data:`ParamValue`, its errors (:class:`DutError`, :class:`LinkError`, :class:`UnansweredRequest`,
@@ -120,7 +121,8 @@ from magline.core.links.serial_port import (
     mavlink2_frame_bytes,
 )
 from magline.core.measurements import Measurement, Numeric, Verdict
-from magline.core.motion import Motion
+from magline.core.motion import Motion, TurnsForTilts
+from magline.core.motion.tilts import Tilt, tilt_words
 from magline.core.mounting import ImuSeries, orientation_matrix
 from magline.core.mounting.checks import configured_rotation
 from magline.core.plugins import hookimpl
@@ -220,6 +222,8 @@ __all__ = [
     "Station",
     "StationFault",
     "StopRule",
+    "Tilt",
+    "TurnsForTilts",
     "UnansweredRequest",
     "UnitInfo",
     "UsbIdentity",
@@ -246,6 +250,7 @@ __all__ = [
     "require_same_vehicle",
     "stall_s",
     "stop_rule",
+    "tilt_words",
     "untruncate_mg",
     "wait_or_abort",
 ]

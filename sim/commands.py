@@ -1,4 +1,5 @@
-"""``magline sim px4|ardupilot|inav|coil|gimbal|load``: run a simulator on a real socket until Ctrl-C / SIGTERM.
+"""``magline sim px4|ardupilot|inav|coil|gimbal|turntable|load``: run a simulator on a real socket until
+Ctrl-C / SIGTERM.
 
 The first line printed names the address it listens on, so a script (or a person in another
 terminal) knows where to point the station.  The simulator itself is imported only when the
@@ -32,7 +33,8 @@ def add_sim_command(subparsers: argparse._SubParsersAction) -> None:
     """``magline sim FLAVOUR``: one sub-command per simulator, each listing its own options only."""
     sim = subparsers.add_parser("sim", help="run a simulator: a flight controller (MAVLink), a Helmholtz coil with "
                                             "its fluxgate or a gimbal (SCPI)")
-    flavours = sim.add_subparsers(dest="flavour", required=True, metavar="{px4,ardupilot,inav,coil,gimbal,load}")
+    flavours = sim.add_subparsers(dest="flavour", required=True,
+                                  metavar="{px4,ardupilot,inav,coil,gimbal,turntable,load}")
     board = argparse.ArgumentParser(add_help=False)  # what both flight controllers take
     board.add_argument("--workdir", help="where the board keeps its parameter storage (default: a folder of its own "
                                          "under the system's temporary folder, named for the simulator and its "
@@ -44,6 +46,9 @@ def add_sim_command(subparsers: argparse._SubParsersAction) -> None:
                             "repeats (default: tumble, or shared with --gimbal)")
     board.add_argument("--gimbal", metavar="tcp:HOST:PORT",
                        help="the board is mounted on this gimbal simulator and moves with it (motion 'shared')")
+    board.add_argument("--turntable", metavar="tcp:HOST:PORT",
+                       help="the board sits in the cradle of this turntable simulator and moves with it (motion "
+                            "'shared')")
     board.add_argument("--speed", type=float, default=1.0, help="tumble speed factor")
     board.add_argument("--field-ut", type=float, default=48.0, help="local field magnitude (µT)")
     board.add_argument("--inclination-deg", type=float, default=62.0)
@@ -105,6 +110,15 @@ def add_sim_command(subparsers: argparse._SubParsersAction) -> None:
     coil.add_argument("--seed", type=int, default=7, help="seed of the ambient field and the fluxgate's noise")
     gimbal = flavours.add_parser("gimbal", help="a motorised gimbal controller for slot stations (SCPI)")
     gimbal.add_argument("--listen", default="tcp:127.0.0.1:5030", help="its address (default tcp:127.0.0.1:5030)")
+    table = flavours.add_parser("turntable", help="a turntable rig (SCPI stage controller) under a cradle, with a "
+                                                  "simulated operator who tilts the cradle as its pendant asks")
+    table.add_argument("--listen", default="tcp:127.0.0.1:5050", help="its address (default tcp:127.0.0.1:5050)")
+    table.add_argument("--operator", default="follow", choices=["follow", "wrong", "never"],
+                       help="follow: sets each tilt asked; wrong: first sets a wrong tilt and corrects it when the "
+                            "pendant names it; never: never tilts (default follow)")
+    table.add_argument("--reaction", type=float, default=0.5, metavar="S",
+                       help="seconds the operator takes to react to the pendant (default 0.5)")
+    table.add_argument("--table-fault", choices=["not_homed", "stalled", "lost_link"])
     load = flavours.add_parser("load", help="a programmable DC electronic load on its own (SCPI): to try a station's "
                                             "current_source wiring; for a sweep, run it with its board "
                                             "(magline sim px4|ardupilot --load tcp:HOST:PORT), whose current sensor "
@@ -181,6 +195,8 @@ def run_sim(args: argparse.Namespace) -> int:
         return run_load_sim(args)
     if args.flavour == "gimbal":
         return run_gimbal_sim(args)
+    if args.flavour == "turntable":
+        return run_turntable_sim(args)
     from magline.sim import SimFaults, create_sim
     from magline.sim.magnetometers import MOTIONS
 
@@ -196,7 +212,8 @@ def run_sim(args: argparse.Namespace) -> int:
                                    "motions": motions, "speed": args.speed, "field_ut": args.field_ut,
                                    "inclination_deg": args.inclination_deg, "seed": args.seed,
                                    "faults": SimFaults.parse(args.fault), "mag_rate_hz": args.mag_rate,
-                                   "motion_source": args.gimbal, "usb_aliases": tuple(args.usb_alias),
+                                   "motion_source": args.gimbal or args.turntable,
+                                   "usb_aliases": tuple(args.usb_alias),
                                    "usb_powered": args.usb_powered}
         if args.flavour == "px4":
             options.update(firmware=args.firmware, shell=not args.no_shell, preset_ids=args.preset_ids,
@@ -281,6 +298,22 @@ def run_gimbal_sim(args: argparse.Namespace) -> int:
              f"magline sim px4|ardupilot --gimbal {gimbal.address}"]
 
     return _serve(lines, gimbal.wait_stopped, gimbal.stop)
+
+
+def run_turntable_sim(args: argparse.Namespace) -> int:
+    from magline.sim.turntable import TurntableSim
+
+    try:
+        table = TurntableSim(args.listen, operator=args.operator, reaction_s=args.reaction,
+                             fault=args.table_fault).start()
+    except (ValueError, OSError) as exc:
+        print(f"magline sim: {exc}", file=sys.stderr)
+        return 2
+    lines = [f"listening on {table.address}",
+             f"turntable controller (VISA {table.visa_resource}), not homed yet; a simulated operator who "
+             f"{'sets each tilt its pendant asks' if args.operator == 'follow' else args.operator + ' tilts'}; "
+             f"put simulated boards in its cradle with magline sim px4|ardupilot|inav --turntable {table.address}"]
+    return _serve(lines, table.wait_stopped, table.stop)
 
 
 def run_load_sim(args: argparse.Namespace) -> int:

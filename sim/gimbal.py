@@ -66,14 +66,18 @@ class GimbalSim(ScpiServer):
 
 
 class MotionFollower:
-    """A board's view of the gimbal it is mounted on: polls ``PATT?`` and computes the attitude
-    locally, so a board reads its sensors at its own rate without a round trip per reading."""
+    """A board's view of the fixture it is mounted on — a gimbal (``PATT?``) or a turntable with its
+    cradle (``ATT?``, :mod:`magline.sim.turntable`), told apart by ``*IDN?`` — polled every ``FOLLOW_S``;
+    the attitude is computed locally, so a board reads its sensors at its own rate without a round trip
+    per reading."""
 
     def __init__(self, address: str) -> None:
         _, host, port = address.split(":")
         self.address = (host, int(port))
         self._pattern: tuple[str, float, float] | None = None
         self._held = Rotation.identity()
+        # a turntable: the turn (t0, angle0, °/s, until; wall-clock times) and the cradle's tilt
+        self._turn: tuple[float, float, float, float, Rotation] | None = None
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._wall_minus_monotonic = time.time() - time.monotonic()  # the pattern's t0 is wall-clock time
@@ -87,18 +91,22 @@ class MotionFollower:
         Why an instant: a board stamps a message's magnetometer and accelerometer with one time, so
         both must be the attitude of that instant — evaluated at two call times instead, they were
         a fraction of a millisecond apart, which a fast pattern turned into a 2° false mounting error."""
+        wall = time.time() if at is None else at + self._wall_minus_monotonic
         with self._lock:
+            if self._turn is not None:
+                t0, angle0, speed, until, cradle = self._turn
+                angle = angle0 + speed * (min(wall, until) - t0) if until > t0 else angle0
+                return Rotation.from_euler("Z", angle, degrees=True) * cradle
             if self._pattern is None:
                 return self._held
             name, speed, t0 = self._pattern
-        wall = time.time() if at is None else at + self._wall_minus_monotonic
         return attitude(name.lower(), wall - t0, speed)
 
     @property
     def speed(self) -> float:
         """The pattern's speed (1 while the gimbal holds still)."""
         with self._lock:
-            return 1.0 if self._pattern is None else self._pattern[1]
+            return 1.0 if self._pattern is None else self._pattern[1]  # a turntable turns in real time
 
     def stop(self) -> None:
         self._stop.set()
@@ -109,8 +117,11 @@ class MotionFollower:
                 with socket.create_connection(self.address, timeout=2.0) as link, \
                         link.makefile("rw", encoding="ascii", newline="\n") as wire:
                     self.error = None
+                    wire.write("*IDN?\n")
+                    wire.flush()
+                    query = "ATT?" if "TURNTABLE" in wire.readline().upper() else "PATT?"
                     while not self._stop.wait(FOLLOW_S):
-                        wire.write("PATT?\n")
+                        wire.write(query + "\n")
                         wire.flush()
                         self._update(wire.readline().strip())
             except (OSError, ValueError) as exc:
@@ -122,7 +133,10 @@ class MotionFollower:
         if not answer:
             raise ValueError("no answer")
         with self._lock:
-            if parts[0] == "IDLE":
+            if parts[0] == "TURN":
+                t0, angle0, speed, until = (float(v) for v in parts[1:5])
+                self._turn = (t0, angle0, speed, until, Rotation.from_quat([float(v) for v in parts[5:9]]))
+            elif parts[0] == "IDLE":
                 self._pattern = None
                 self._held = Rotation.from_quat(np.array([float(v) for v in parts[1:5]]))
             else:

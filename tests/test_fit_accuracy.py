@@ -229,3 +229,19 @@ def test_same_samples_give_same_calibration(rng):
     _, _, m = draw(rng, motion="hemisphere")
     a, b = fit_calibration(m), fit_calibration(m)
     assert np.array_equal(a.hard_iron_ut, b.hard_iron_ut)
+
+
+def test_a_unit_held_still_covers_nothing_until_it_turns(rng):
+    """Readings of a unit that has not moved are a cluster of noise: binned about its own centre they lit
+    the whole sphere (a turntable's unit waiting for its first tilt: the live bar full before any turn).
+    A "sphere" smaller than any field covers nothing; the first real turn then counts."""
+    from magline.core.fit.coverage import CoverageTracker, coverage_of
+
+    still = np.array([30.0, -12.0, 40.0]) + rng.normal(scale=0.3, size=(200, 3))
+    assert coverage_of(still, 40) == 0.0
+    tracker = CoverageTracker(40)
+    assert tracker.add(still) == 0.0
+    field = earth_field_ned(48.0, 62.0)
+    directions = motion_directions("full_sphere", 400, rng, field / np.linalg.norm(field))
+    turned = directions * 48.0 + np.array([30.0, -12.0, 40.0]) + rng.normal(scale=0.3, size=(400, 3))
+    assert tracker.add(turned) > 0.6

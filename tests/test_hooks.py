@@ -444,3 +444,43 @@ def test_magline_operator_confirm():
     assert load_plugins(extra=[Says(False), Nobody()]).hook.magline_operator_confirm(**ask) is False
     assert load_plugins(extra=[Says(True), Nobody()]).hook.magline_operator_confirm(**ask) is True
     assert load_plugins(extra=[Nobody()]).hook.magline_operator_confirm(**ask) is None
+
+
+def test_magline_tilt_guidance(tmp_path):
+    """A turntable's guidance, heard by a listener: a motion that ``TurnsForTilts`` (here a table that
+    turns at once) makes the acquisition ask for tilts; the mock unit in the operator's hands never holds
+    still, so the first tilt (level) is asked, with its picture's angles, and never taken."""
+    from magline.plugin import Tilt
+
+    shown: list[str] = []
+    heard: list[dict] = []
+
+    class Table:
+        type = "hook-table"
+        tolerance_deg, settle_s, tilt_timeout_s = 15.0, 0.2, 30.0
+
+        def __init__(self):
+            self.tilts = [Tilt(0.0, 0.0), Tilt(-45.0, 0.0, "nose down")]
+
+        def start(self, round, slots): ...
+        def stop(self): ...
+        def close(self): ...
+        def show(self, words, tilt): shown.append(words)
+        def turn(self): ...
+        def turning(self): return False
+
+    class Plugin:
+        @hookimpl
+        def magline_register_motions(self, register):
+            register("hook-table", lambda station, folder, options: Table())
+
+        @hookimpl
+        def magline_tilt_guidance(self, run, guidance):
+            heard.append(guidance)
+
+    record = run_with(tmp_path, Plugin(), changes={"motion": {"type": "hook-table"}})
+    assert record.attempts and heard
+    first = heard[0]
+    assert first["state"] == "tilt" and first["asked"] == "level" and first["step"] == 1
+    assert (first["pitch_deg"], first["roll_deg"]) == (0.0, 0.0) and first["found"] is None
+    assert shown[0] == "Tilt the cradle: level"

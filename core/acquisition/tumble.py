@@ -14,6 +14,7 @@ from contextlib import closing, nullcontext
 
 import numpy as np
 
+from magline.core.acquisition.guiding import Guiding, tilt_guide
 from magline.core.acquisition.tumble_stop import Stall, running_fit
 from magline.core.dut import (
     DutError,
@@ -23,6 +24,7 @@ from magline.core.faults import StationFault, UnitAborted
 from magline.core.fit import CoverageTracker, coverage_of
 from magline.core.fit.coverage import bin_index, covered_bins, sphere_centre
 from magline.core.fit.samples_csv import RawSamples
+from magline.core.motion import TurnsForTilts
 from magline.core.mounting import ImuSeries
 from magline.core.plugins import hookimpl
 from magline.core.sequencer.context import Acquisition, AcquisitionAborted, RunContext
@@ -46,7 +48,9 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
     coverage shown and judged is the worst sensor's."""
     cfg = run.station.acquisition
     dut = run.require_dut()
-    run.prompt(run.station.prompts.tumble if attempt == 1 else run.retry_advice or run.station.prompts.retry)
+    if attempt > 1 or not isinstance(getattr(run.rounds, "motion", None), TurnsForTilts):
+        # (a turntable's operator is told each tilt instead of a tumble; a retry still says why first)
+        run.prompt(run.station.prompts.tumble if attempt == 1 else run.retry_advice or run.station.prompts.retry)
     tracker = CoverageTracker(cfg.coverage_bins)
     others: dict[int, CoverageTracker] = {}
     got = _Readings(run.unit.selected_sensor if run.unit is not None else 0)
@@ -54,10 +58,13 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
     reason, tumble_s = "stream ended", 0.0
     stall = Stall(cfg.min_samples, cfg.coverage_target)
     final = None  # the determination of every reading the tumble ends with
+    advice = None  # why the tumble stalled, in the operator's words, when the motion knows
     try:
-        with run.shared_motion(), closing(dut.samples(cfg.rate_hz)) as stream, running or nullcontext():
+        with run.shared_motion() as number, closing(dut.samples(cfg.rate_hz)) as stream, running or nullcontext():
             started = time.monotonic()  # the fixture moves from here (a slot may have waited for the others)
             deadline, checkpoint = started + cfg.timeout_s, cfg.min_samples
+            guide = tilt_guide(run, number, cfg.coverage_bins)
+            guiding = Guiding(run, guide) if guide is not None else None
             for chunk in stream:
                 taken = got.add(chunk, room=cfg.samples - got.count)
                 seen = got.seen  # readings received: the checkpoints' clock (thinning never turns it back)
@@ -69,6 +76,12 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
                 run.progress(attempt, got.count, coverage, cfg.coverage_target, bins, cfg.coverage_bins)
                 now = time.monotonic()
                 tumble_s = now - started
+                if guiding is not None:  # a turntable: the operator tilts the cradle between the table's turns
+                    guidance = guiding.step(chunk, len(taken), tracker.bins)
+                    if guidance.state == "stalled":
+                        reason, advice = "stalled", f"{guidance.why[:1].upper()}{guidance.why[1:]} — tilt the " \
+                                                    f"cradle {guidance.tilt.words} when the station asks"
+                        break
                 if got.count >= cfg.samples:
                     if running is None or (coverage >= running.rule.coverage_target
                                            and not running.awaits_drift_test(got.snapshot(run))):
@@ -81,7 +94,8 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
                     # back): ended there, a warm-up would be bent into the soft iron unseen
                     got.thin(cfg.coverage_bins)
                 if running is not None:
-                    if stall.stalled(seen, coverage):
+                    # on a turntable the readings while the operator tilts are not a stall: only the turns count
+                    if stall.stalled(seen if guiding is None else guiding.turning_seen, coverage):
                         reason = "stalled"
                         break
                     if running.determined is not None:  # a snapshot was: are all the readings?
@@ -110,7 +124,7 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
     if got.count == 0:
         raise DutError("the DUT sent no samples")
     result = got.acquisition(attempt, cfg.coverage_bins, cfg.coverage_target)
-    result.stopped, result.tumble_s = reason, tumble_s
+    result.stopped, result.tumble_s, result.advice = reason, tumble_s, advice
     if reason == "determined" and final is not None:
         result.predicted = final.predicted
     worst = min(result.coverages, key=result.coverages.get) if result.coverages else None

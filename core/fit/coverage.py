@@ -25,6 +25,10 @@ from numpy.typing import NDArray
 
 CHECK_EVERY = 25  # samples between checkpoints of the centre estimate
 RECENTRE_TOL = 0.01  # re-bin every sample when the centre moved by more than this share of the radius
+# A "sphere" smaller than this is no field's: readings of a unit held still are a cluster whose noise,
+# binned about its own centre, lit the whole sphere before the unit had turned at all (a turntable's
+# unit waiting for its first tilt).  Earth's field is 22–67 µT; a coil's is of that size too.
+MIN_RADIUS_UT = 10.0
 
 
 @lru_cache(maxsize=16)
@@ -80,14 +84,21 @@ def covered_bins(samples_ut: NDArray, n_bins: int, *, final: bool = True) -> NDA
     if not checkpoints:
         return np.empty(0, dtype=int)
     centres, radii = _prefix_sphere_centres(x, np.array(checkpoints))
-    best, centre, end = np.empty(0, dtype=int), None, 0
+    best, centre, radius, end = np.empty(0, dtype=int), None, 0.0, 0
     for k, c, r in zip(checkpoints, centres.tolist(), radii.tolist(), strict=True):
         if centre is None or math.dist(c, centre) > RECENTRE_TOL * r:
             if centre is not None:
-                best = _more(best, np.unique(bin_index(x[:end] - centre, n_bins)))
-            centre = c
+                best = _more(best, _binned(x[:end], centre, radius, n_bins))
+            centre, radius = c, r
         end = k
-    return _more(best, np.unique(bin_index(x[:end] - np.asarray(centre), n_bins)))
+    return _more(best, _binned(x[:end], centre, radius, n_bins))
+
+
+def _binned(x: NDArray, centre, radius: float, n_bins: int) -> NDArray:
+    """The bins of ``x``'s directions about ``centre``; none about a "sphere" too small to be a field's."""
+    if radius < MIN_RADIUS_UT:
+        return np.empty(0, dtype=int)
+    return np.unique(bin_index(x - np.asarray(centre), n_bins))
 
 
 def _more(a: NDArray, b: NDArray) -> NDArray:

@@ -19,6 +19,7 @@ from rich.text import Text
 
 from magline.core.measurements import Verdict, by_sensor, verdicts
 from magline.core.operator_ui.console_slots import STYLE, SlotBoard
+from magline.core.operator_ui.cradle import cradle_text
 from magline.core.operator_ui.verdict_words import closing_line, interference_words, sensor_cards, shown_verdict
 from magline.core.plugins import hookimpl
 from magline.core.record import Outcome, PhaseResult, RunRecord
@@ -74,6 +75,16 @@ class OperatorConsole:
         if run.slot is not None:
             return self.slots.prompt(run, message)
         self.console.print(f"[bold yellow]>>> {message}[/]")
+
+    @hookimpl
+    def magline_tilt_guidance(self, run: RunContext, guidance: dict) -> None:
+        """The cradle asked for, drawn after the prompt that asks for it (the leader's words name the tilt;
+        a slot's board shows the prompt only)."""
+        if run.slot is not None or guidance["state"] != "tilt":
+            return
+        self._stop_progress()
+        self.console.print(f"    cradle {guidance['step']}: {guidance['asked']} — "
+                           f"{cradle_text(guidance['pitch_deg'], guidance['roll_deg'])}")
 
     @hookimpl
     def magline_operator_confirm(self, run: RunContext, question: str, timeout_s: float) -> bool | None:

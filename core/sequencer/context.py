@@ -55,6 +55,7 @@ class Acquisition:
     stopped: str | None = None
     tumble_s: float | None = None
     predicted: dict[str, dict[str, float]] = field(default_factory=dict)
+    advice: str | None = None  # what the operator is told before the next attempt, when the tumble knows why
 
     @property
     def sufficient(self) -> bool:

@@ -52,6 +52,7 @@ class MotionRounds:
         self._members: list[str] = []  # the slots of the running round
         self._moving = False
         self._failure: BaseException | None = None  # the motion would not start: said to the round's slots
+        self._guide: tuple[int, object] | None = None  # (round, what guides its operator), made by the first slot
         self._started, self._stopped = started, stopped
         self._cond = threading.Condition()
 
@@ -89,6 +90,14 @@ class MotionRounds:
         (a coil's schedule) lines up."""
         with self._cond:
             return list(self._members)
+
+    def guide(self, number: int, make: Callable[[list[str]], object]) -> object:
+        """What guides the operator through round ``number`` (a turntable's tilts): made once, by the first
+        slot that asks, from the round's members; every slot of the round shares it."""
+        with self._cond:
+            if self._guide is None or self._guide[0] != number:
+                self._guide = (number, make(list(self._members)))
+            return self._guide[1]
 
     def leave(self, slot: str) -> None:
         """The slot needs no more samples (accepted, or its unit ended): never wait for it again."""

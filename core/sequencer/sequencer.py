@@ -359,7 +359,7 @@ class Sequencer:
             run.log(f"attempt {attempt}: {_readings_line(result)}, coverage {percent(result.coverage)} "
                     f"(target {percent(result.target)})")
             if not result.sufficient:
-                run.retry_advice, refusal = None, None
+                run.retry_advice, refusal = result.advice, None
                 stored.refused = f"coverage {percent(result.coverage)} below the target {percent(result.target)}"
                 if len(result.coverages) > 1:  # the retry is for the worst sensor: say which
                     worst = min(result.coverages, key=result.coverages.get)

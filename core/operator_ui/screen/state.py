@@ -17,6 +17,7 @@ import time
 from typing import Any
 
 from magline.core.measurements import verdicts
+from magline.core.operator_ui.cradle import cradle_svg
 from magline.core.operator_ui.screen.sides import MISSING_WORDS, SIDES, missing_sides
 from magline.core.operator_ui.verdict_words import sensor_cards, shown_verdict, verdict_items
 from magline.core.plugins import hookimpl
@@ -164,6 +165,16 @@ class ScreenState:
                 self._changed()
 
     @hookimpl
+    def magline_tilt_guidance(self, run: Any, guidance: dict) -> None:
+        """A turntable's cradle: the tilt asked for in words and drawn (side and rear views)."""
+        with self._lock:
+            current = self._run_of(run)
+            if current is not None:
+                current["tilt"] = {**guidance, "svg": cradle_svg(guidance["pitch_deg"], guidance["roll_deg"],
+                                                                 guidance["asked"])}
+                self._changed()
+
+    @hookimpl
     def magline_operator_prompt(self, run: Any, message: str) -> None:
         with self._lock:
             current = self._run_of(run)
@@ -269,7 +280,7 @@ def bin_centres(n_bins: int) -> list[list[float]]:
 
 
 def _new_run(serial: str, part: str) -> dict[str, Any]:
-    return {"serial": serial, "part": part, "attempt": 0, "prompt": "", "prompts": [], "samples": 0,
+    return {"serial": serial, "part": part, "attempt": 0, "prompt": "", "prompts": [], "tilt": None, "samples": 0,
             "target_samples": None, "coverage": 0.0, "target": None, "bins": [], "n_bins": None, "missing": [],
             "turns_unit": True,
             "waiting": None, "phases": [{"name": p, "state": "pending", "duration_s": None} for p in PHASES

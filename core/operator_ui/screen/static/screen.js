@@ -270,6 +270,11 @@ function render(s) {
   $("idle-last").className = last ? last.verdict : "";
   $("unit").textContent = run ? `${run.serial} · ${run.part}` : "";
   $("prompt").textContent = promptOf(run);
+  // a turntable: the cradle's tilt asked for, drawn (side and rear views), while the operator sets it
+  const tilt = run && run.tilt && !stoppedNow(run) && run.tilt.state !== "stalled" ? run.tilt : null;
+  $("tilt").hidden = !tilt;
+  if (tilt && $("tilt").dataset.shown !== tilt.svg) { $("tilt").innerHTML = tilt.svg; $("tilt").dataset.shown = tilt.svg; }
+  $("tilt").classList.toggle("turning", Boolean(tilt && tilt.state === "turning"));
   $("attempt").textContent = run && run.attempt ? `attempt ${run.attempt}` : "";
   const fraction = progressFraction(run);
   $("progress-bar").style.width = `${fraction * 100}%`;

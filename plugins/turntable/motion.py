@@ -1,0 +1,143 @@
+"""A motorised turntable (rotary stage) driven over SCPI — a TCP socket or a serial line, through the
+face's :class:`~magline.plugin.ScpiInstrument` (pyvisa) — under a cradle the operator tilts.
+
+The station turns the table one revolution at a time and asks for the cradle's tilt between the turns
+(:class:`~magline.plugin.TurnsForTilts`; the core proves each tilt with the units' accelerometers).
+Commands (the stage controller's line protocol; ``magline sim turntable`` speaks it):
+
+* ``HOME`` finds the home switch, ``HOME?`` answers 1 once homed;
+* ``ROT:SPE <°/s>``, ``ROT:DIR CW|CCW``, ``ROT:TURN <revolutions>`` starts turning, ``ROT:STOP`` halts;
+* ``ROT:STAT?`` answers ``MOVING,<angle °>,<speed °/s>`` or ``IDLE,<angle °>,0``;
+* ``DISP:TEXT "<words>"`` and ``DISP:TILT <pitch>,<roll>``: the rig's pendant shows the tilt asked for;
+* ``SYST:ERR?`` the error queue, checked after every command that changes something.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+from pathlib import Path
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from magline.plugin import InstrumentError, ScpiInstrument, Station, Tilt
+
+REACHED = 0.9  # a table turning at this share of the asked speed has reached it
+
+
+class TiltStep(BaseModel):
+    """One tilt the station file names: the cradle's pitch (nose up +) and roll (right side down +), and
+    the words the operator reads (made from the angles when left out)."""
+
+    model_config = ConfigDict(extra="forbid", strict=True)
+    pitch_deg: Annotated[float, Field(ge=-90, le=90)] = 0.0
+    roll_deg: Annotated[float, Field(ge=-180, le=180)] = 0.0
+    say: str = ""
+
+
+class TurntableOptions(BaseModel):
+    model_config = ConfigDict(extra="forbid", strict=True)
+    resource: str  # e.g. TCPIP0::10.0.0.14::5050::SOCKET or ASRL/dev/ttyUSB0::INSTR
+    speed_dps: Annotated[float, Field(gt=0, le=720)] = 60.0  # the table's speed during a revolution
+    direction: Literal["cw", "ccw"] = "cw"
+    # the tilts in order; "coverage": the station chooses each next tilt to cover what the sphere still lacks
+    tilts: list[TiltStep] | Literal["coverage"] = "coverage"
+    tolerance_deg: Annotated[float, Field(gt=0, le=45)] = 15.0  # the accelerometer against the asked tilt
+    settle_s: Annotated[float, Field(ge=0)] = 1.0  # a tilt held this long is taken (a wrong one named)
+    tilt_timeout_s: Annotated[float, Field(gt=0)] = 60.0  # no tilt made by then: the tumble stalls
+    spin_up_s: Annotated[float, Field(gt=0)] = 2.0  # the table reaches its speed within this
+    home_timeout_s: Annotated[float, Field(gt=0)] = 30.0
+    timeout_s: Annotated[float, Field(gt=0)] = 2.0  # one SCPI reply
+
+
+class TurntableMotion:
+    type = "turntable"
+
+    def __init__(self, options: TurntableOptions) -> None:
+        self.opts = options
+        self.tilts = None if options.tilts == "coverage" else [Tilt(t.pitch_deg, t.roll_deg, t.say)
+                                                               for t in options.tilts]
+        self.tolerance_deg, self.settle_s = options.tolerance_deg, options.settle_s
+        self.tilt_timeout_s = options.tilt_timeout_s
+        self.turns = 0
+        self._turn_started = 0.0
+        self._moved = False
+        self.instrument = ScpiInstrument(options.resource, options.timeout_s)
+        self.instrument.write("*CLS")
+        self.instrument.write("ROT:STOP")  # a batch starts from a table at rest
+        self.instrument.check("stopping the turntable at start-up")
+        self._home()
+
+    def _home(self) -> None:
+        """Before any unit is touched: a table that does not home is named, not turned blind."""
+        if self.instrument.query("HOME?").strip() == "1":
+            return
+        self.instrument.write("HOME")
+        self.instrument.check("homing the turntable")
+        deadline = time.monotonic() + self.opts.home_timeout_s
+        while self.instrument.query("HOME?").strip() != "1":
+            if time.monotonic() > deadline:
+                raise InstrumentError(f"{self.opts.resource}: the turntable did not home within "
+                                      f"{self.opts.home_timeout_s:g} s (check its home switch and that nothing "
+                                      "blocks the table)")
+            time.sleep(0.1)
+
+    # ------------------------------------------------------------------ Motion
+    def start(self, round: int, slots: list[str]) -> None:
+        """A round begins with the table at rest: the first tilt is asked before the first turn."""
+        self.instrument.write("ROT:STOP")
+        self.instrument.check("readying the turntable")
+
+    def stop(self) -> None:
+        self.instrument.write("ROT:STOP")
+        self.instrument.check("stopping the turntable")
+
+    def close(self) -> None:
+        with contextlib.suppress(InstrumentError):  # after a lost controller: nothing left to stop
+            self.instrument.write("ROT:STOP")
+        self.instrument.close()
+
+    # ------------------------------------------------------------------ TurnsForTilts
+    def show(self, words: str, tilt: Tilt) -> None:
+        """The rig's pendant shows what the operator is asked (its own words and the target angles), in
+        the ASCII an SCPI line carries ("45 deg" for 45°)."""
+        text = words.replace("°", " deg").replace('"', "'").encode("ascii", "replace").decode("ascii")
+        self.instrument.write(f'DISP:TEXT "{text}"')
+        self.instrument.write(f"DISP:TILT {tilt.pitch_deg:g},{tilt.roll_deg:g}")
+        self.instrument.check("showing the tilt on the pendant")
+
+    def turn(self) -> None:
+        self.instrument.write(f"ROT:SPE {self.opts.speed_dps:g}")
+        self.instrument.write(f"ROT:DIR {self.opts.direction.upper()}")
+        self.instrument.write("ROT:TURN 1")
+        self.instrument.check("starting a revolution")
+        self.turns += 1
+        self._turn_started, self._moved = time.monotonic(), False
+
+    def turning(self) -> bool:
+        """Whether the revolution is still under way; a table that does not reach its speed in
+        ``spin_up_s`` is stalled (an InstrumentError naming it: the station's fault, not the unit's)."""
+        state, angle, speed = self._status()
+        if abs(speed) >= REACHED * self.opts.speed_dps:
+            self._moved = True
+        if self._moved:
+            return state != "IDLE"  # at rest again: the revolution is done
+        if time.monotonic() - self._turn_started <= self.opts.spin_up_s:
+            return True  # starting
+        raise InstrumentError(f"{self.opts.resource}: the turntable did not reach {self.opts.speed_dps:g} °/s "
+                              f"within {self.opts.spin_up_s:g} s (it reports {state.lower()} at {speed:g} °/s, "
+                              f"{angle:g}°): stalled — check that nothing blocks the table")
+
+    def _status(self) -> tuple[str, float, float]:
+        answer = self.instrument.query("ROT:STAT?").strip()
+        parts = answer.split(",")
+        try:
+            return parts[0].upper(), float(parts[1]), float(parts[2])
+        except (IndexError, ValueError):
+            raise InstrumentError(f"{self.opts.resource}: ROT:STAT? answered {answer!r}, not STATE,angle,speed") \
+                from None
+
+
+def create_turntable_motion(station: Station, station_dir: Path, options: TurntableOptions) -> TurntableMotion:
+    return TurntableMotion(options)

@@ -1,0 +1,11 @@
+"""Registers the ``turntable`` motion (``motion: {type: turntable, options: {resource: …}}``)."""
+
+from __future__ import annotations
+
+from magline.plugin import hookimpl
+from magline.plugins.turntable.motion import TurntableOptions, create_turntable_motion
+
+
+@hookimpl
+def magline_register_motions(register):
+    register("turntable", create_turntable_motion, options=TurntableOptions)
