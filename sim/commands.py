@@ -118,7 +118,7 @@ def add_sim_command(subparsers: argparse._SubParsersAction) -> None:
                             "pendant names it; never: never tilts (default follow)")
     table.add_argument("--reaction", type=float, default=0.5, metavar="S",
                        help="seconds the operator takes to react to the pendant (default 0.5)")
-    table.add_argument("--table-fault", choices=["not_homed", "stalled", "lost_link"])
+    table.add_argument("--table-fault", choices=["not_homed", "not_turning", "stalls", "lost_link"])
     load = flavours.add_parser("load", help="a programmable DC electronic load on its own (SCPI): to try a station's "
                                             "current_source wiring; for a sweep, run it with its board "
                                             "(magline sim px4|ardupilot --load tcp:HOST:PORT), whose current sensor "

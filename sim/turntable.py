@@ -9,8 +9,9 @@ mounted on it (``magline sim px4|ardupilot|inav --turntable ADDRESS``) ask ``ATT
 The simulated operator reads the tilt asked on the pendant (``DISP:TILT``) and sets it after a reaction
 time, moving the cradle for ``MOVE_S``; ``operator="wrong"`` first sets a wrong tilt (nose and tail
 swapped) and corrects it once the pendant names it, ``"never"`` never touches the cradle.  Faults:
-``not_homed`` (the home switch is never found), ``stalled`` (the table is asked to turn and does not),
-``lost_link`` (the controller stops answering once the first revolution began).
+``not_homed`` (the home switch is never found), ``not_turning`` (the table is asked to turn and never
+does), ``stalls`` (it turns once, then stalls: something blocks it mid-batch), ``lost_link`` (the
+controller stops answering once the second turn began: the first is the station's spin check).
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from scipy.spatial.transform import Rotation, Slerp
 from magline.sim.scpi_server import ScpiServer
 
 OPERATORS = ("follow", "wrong", "never")
-FAULTS = ("not_homed", "stalled", "lost_link")
+FAULTS = ("not_homed", "not_turning", "stalls", "lost_link")
 MOVE_S = 0.4  # the operator's hands moving the cradle from one tilt to the next
 HOME_S = 0.3  # the stage's homing run
 
@@ -73,8 +74,11 @@ class TurntableSim(ScpiServer):
             return self.angle0 + self.direction * self.speed_dps * (min(wall, self.until) - self.t0) \
                 if self.until > self.t0 else self.angle0
 
+    def stalled(self) -> bool:
+        return self.fault == "not_turning" or (self.fault == "stalls" and self.turns > 1)
+
     def moving(self, wall: float) -> bool:
-        return self.until > wall and self.fault != "stalled"
+        return self.until > wall and not self.stalled()
 
     def cradle(self, wall: float) -> Rotation:
         with self.lock:
@@ -123,20 +127,21 @@ class TurntableSim(ScpiServer):
                 return None
             revolutions = float(arg or 1)
             self.angle0, self.t0 = self.angle_at(now), now
-            self.until = now + 360.0 * revolutions / self.speed_dps if self.fault != "stalled" else now
             self.turns += 1
-            if self.fault == "lost_link":
+            self.until = now if self.stalled() else now + 360.0 * revolutions / self.speed_dps
+            if self.fault == "lost_link" and self.turns > 1:
                 self.silent = True  # the controller stops answering mid-turn (its cable pulled)
             return None
         if head == "ROT:STOP":
             self.angle0, self.t0, self.until = self.angle_at(now), now, now
             return None
         if head == "ROT:STAT?":
-            if self.fault == "stalled" and self.turns:
-                return f"MOVING,{self.angle_at(now) % 360.0:.2f},0"
+            # the position is the stage's own count, cumulative (not taken modulo a revolution)
+            if self.stalled():
+                return f"MOVING,{self.angle_at(now):.2f},0"
             moving = self.moving(now)
-            return (f"MOVING,{self.angle_at(now) % 360.0:.2f},{self.speed_dps:g}" if moving
-                    else f"IDLE,{self.angle_at(now) % 360.0:.2f},0")
+            return (f"MOVING,{self.angle_at(now):.2f},{self.speed_dps:g}" if moving
+                    else f"IDLE,{self.angle_at(now):.2f},0")
         if head == "DISP:TEXT":
             self.display = arg.strip().strip('"')
             return None

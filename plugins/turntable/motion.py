@@ -7,7 +7,8 @@ Commands (the stage controller's line protocol; ``magline sim turntable`` speaks
 
 * ``HOME`` finds the home switch, ``HOME?`` answers 1 once homed;
 * ``ROT:SPE <°/s>``, ``ROT:DIR CW|CCW``, ``ROT:TURN <revolutions>`` starts turning, ``ROT:STOP`` halts;
-* ``ROT:STAT?`` answers ``MOVING,<angle °>,<speed °/s>`` or ``IDLE,<angle °>,0``;
+* ``ROT:STAT?`` answers ``MOVING,<position °>,<speed °/s>`` or ``IDLE,<position °>,0`` (the position
+  cumulative, as the stage counts it: a revolution adds 360);
 * ``DISP:TEXT "<words>"`` and ``DISP:TILT <pitch>,<roll>``: the rig's pendant shows the tilt asked for;
 * ``SYST:ERR?`` the error queue, checked after every command that changes something.
 """
@@ -63,25 +64,40 @@ class TurntableMotion:
         self.turns = 0
         self._turn_started = 0.0
         self._moved = False
+        self._asked_deg, self._from_deg = 360.0, 0.0
         self.instrument = ScpiInstrument(options.resource, options.timeout_s)
         self.instrument.write("*CLS")
         self.instrument.write("ROT:STOP")  # a batch starts from a table at rest
         self.instrument.check("stopping the turntable at start-up")
         self._home()
+        self._spin_check()
 
     def _home(self) -> None:
         """Before any unit is touched: a table that does not home is named, not turned blind."""
         if self.instrument.query("HOME?").strip() == "1":
             return
+        advice = "check its home switch and that nothing blocks the table"
         self.instrument.write("HOME")
-        self.instrument.check("homing the turntable")
+        try:
+            self.instrument.check("homing the turntable")
+        except InstrumentError as exc:
+            raise InstrumentError(f"the turntable did not home ({exc}): {advice}") from None
         deadline = time.monotonic() + self.opts.home_timeout_s
         while self.instrument.query("HOME?").strip() != "1":
             if time.monotonic() > deadline:
                 raise InstrumentError(f"{self.opts.resource}: the turntable did not home within "
-                                      f"{self.opts.home_timeout_s:g} s (check its home switch and that nothing "
-                                      "blocks the table)")
+                                      f"{self.opts.home_timeout_s:g} s: {advice}")
             time.sleep(0.1)
+
+    def _spin_check(self) -> None:
+        """Before any unit is touched: a quarter turn at the station's speed, which it must make."""
+        self.turn(revolutions=0.25)
+        try:
+            while self.turning():
+                time.sleep(0.05)
+        finally:
+            self.instrument.write("ROT:STOP")
+        self.turns = 0
 
     # ------------------------------------------------------------------ Motion
     def start(self, round: int, slots: list[str]) -> None:
@@ -107,27 +123,35 @@ class TurntableMotion:
         self.instrument.write(f"DISP:TILT {tilt.pitch_deg:g},{tilt.roll_deg:g}")
         self.instrument.check("showing the tilt on the pendant")
 
-    def turn(self) -> None:
+    def turn(self, revolutions: float = 1.0) -> None:
         self.instrument.write(f"ROT:SPE {self.opts.speed_dps:g}")
         self.instrument.write(f"ROT:DIR {self.opts.direction.upper()}")
-        self.instrument.write("ROT:TURN 1")
+        self.instrument.write(f"ROT:TURN {revolutions:g}")
         self.instrument.check("starting a revolution")
         self.turns += 1
         self._turn_started, self._moved = time.monotonic(), False
+        self._asked_deg = 360.0 * revolutions
+        self._from_deg = self._status()[1]
 
     def turning(self) -> bool:
-        """Whether the revolution is still under way; a table that does not reach its speed in
-        ``spin_up_s`` is stalled (an InstrumentError naming it: the station's fault, not the unit's)."""
-        state, angle, speed = self._status()
-        if abs(speed) >= REACHED * self.opts.speed_dps:
-            self._moved = True
+        """Whether the turn is still under way, judged by the stage's own position (how often it is asked
+        does not matter); a table that does not reach its speed in ``spin_up_s``, or stops short, is
+        stalled (an InstrumentError naming it: the station's fault, not the unit's)."""
+        state, position, speed = self._status()
+        turned = abs(position - self._from_deg)
+        if turned >= REACHED * self._asked_deg and state == "IDLE":
+            return False  # the turn is done
+        self._moved = self._moved or abs(speed) >= REACHED * self.opts.speed_dps or turned > 0.05 * self._asked_deg
+        if self._moved and state != "IDLE":
+            return True
         if self._moved:
-            return state != "IDLE"  # at rest again: the revolution is done
+            raise InstrumentError(f"{self.opts.resource}: the turntable stopped after {turned:.0f}° of "
+                                  f"{self._asked_deg:g}°: check that nothing blocks the table")
         if time.monotonic() - self._turn_started <= self.opts.spin_up_s:
             return True  # starting
         raise InstrumentError(f"{self.opts.resource}: the turntable did not reach {self.opts.speed_dps:g} °/s "
                               f"within {self.opts.spin_up_s:g} s (it reports {state.lower()} at {speed:g} °/s, "
-                              f"{angle:g}°): stalled — check that nothing blocks the table")
+                              f"{turned:.0f}° turned): stalled — check that nothing blocks the table")
 
     def _status(self) -> tuple[str, float, float]:
         answer = self.instrument.query("ROT:STAT?").strip()

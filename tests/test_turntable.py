@@ -1,0 +1,241 @@
+"""The turntable rig (issue 49): the station turns the table, the operator tilts the cradle when asked.
+
+Against ``magline sim turntable`` (its SCPI controller and a simulated operator) with simulated flight
+controllers in its cradle over real MAVLink: the tilts chosen by the coverage or named by the station, a
+wrong tilt named and asked again, an operator who never tilts, a table that does not home, stalls or is
+lost, and two units sharing the turns on a slot station.  The guide's rules are also tested on their own
+with a fake table and clock (what is asked, when the table turns, when a tilt is named wrong)."""
+
+from __future__ import annotations
+
+import contextlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from simstation import FAST_SENSOR_HZ, run_unit, write_station
+
+from magline.core.motion.guided import TiltGuide
+from magline.core.motion.tilts import (
+    COVERAGE_TILTS,
+    Tilt,
+    best_tilt,
+    off_by_deg,
+    ring_bins,
+    tilt_of_gravity,
+    tilt_words,
+)
+from magline.core.operator_ui.cradle import cradle_svg, cradle_text
+from magline.core.record import Outcome
+from magline.sim import create_sim
+from magline.sim.turntable import TurntableSim
+
+FAST_TABLE = {"speed_dps": 720.0, "settle_s": 0.2, "tilt_timeout_s": 8.0, "spin_up_s": 1.0}
+PX4_OPTIONS = {"connect_timeout_s": 5.0, "boot_timeout_s": 10.0}
+
+
+@contextlib.contextmanager
+def rig(tmp_path: Path, boards: int = 1, **table_options):
+    """A turntable with a simulated operator and ``boards`` simulated PX4 boards in its cradle."""
+    table = TurntableSim("tcp:127.0.0.1:0", reaction_s=0.1, **table_options).start()
+    sims = []
+    try:
+        for n in range(boards):
+            sims.append(create_sim("px4", "udp:127.0.0.1:0", workdir=tmp_path / f"fc{n}", seed=21 + n,
+                                   boot_time_s=0.3, mag_rate_hz=FAST_SENSOR_HZ,
+                                   motion_source=table.address).start())
+        yield table, sims
+    finally:
+        for sim in sims:
+            sim.stop()
+        table.stop()
+
+
+def station(tmp_path: Path, table: TurntableSim, board, motion: dict | None = None, **changes) -> Path:
+    address = board.address.replace("udp:", "udpout://")
+    changes = {"motion": {"type": "turntable", "options": {"resource": table.visa_resource, **FAST_TABLE,
+                                                            **(motion or {})}}, **changes}
+    return write_station("turntable-sim.yaml", tmp_path, address, PX4_OPTIONS, changes)
+
+
+def log_of(record, phase: str = "acquire") -> list[str]:
+    return next(p for p in record.phases if p.name == phase).log
+
+
+# ---------------------------------------------------------------------------------------------- the tilts
+def test_a_tilt_s_words_gravity_and_picture_agree():
+    for tilt in COVERAGE_TILTS:
+        assert abs(np.linalg.norm(tilt.gravity_body()) - 9.80665) < 1e-9
+        assert tilt_of_gravity(tilt.gravity_body()).words == tilt.words
+        assert off_by_deg(tilt.gravity_body(), tilt) < 1e-6
+    assert tilt_words(0, 0) == "level" and tilt_words(-45, 0) == "nose down 45°"
+    assert tilt_words(0, -90) == "on its left side" and tilt_words(0, 180) == "upside down"
+    assert np.allclose(Tilt(-45.0, 0.0).gravity_body(), [-6.934, 0.0, -6.934], atol=1e-3)  # nose down: −x sees g
+    assert off_by_deg(Tilt(45.0, 0.0).gravity_body(), Tilt(-45.0, 0.0)) == pytest.approx(90.0)
+    assert cradle_text(-45.0, 0.0) == "side ↘ · rear ─" and cradle_text(0.0, 180.0) == "side → · rear ─ ▼"
+    assert 'aria-label="cradle: nose down 45°"' in cradle_svg(-45.0, 0.0, "nose down 45°")
+
+
+def test_the_next_tilt_is_the_one_whose_revolution_covers_most_of_what_is_missing():
+    """A unit that has seen the level ring and the upside-down one gets a tilt that adds new bins; once the
+    candidates' rings are all seen, none is chosen."""
+    seen = ring_bins(Tilt(0.0, 0.0), 62.0, np.eye(3), 40) | ring_bins(Tilt(0.0, 180.0), 62.0, np.eye(3), 40)
+    tilt, gain = best_tilt(COVERAGE_TILTS, [seen], 62.0, [np.eye(3)], 40)
+    assert tilt not in (Tilt(0.0, 0.0), Tilt(0.0, 180.0)) and gain > 0
+    assert not ring_bins(tilt, 62.0, np.eye(3), 40) <= seen
+    everything = set().union(*(ring_bins(t, 62.0, np.eye(3), 40) for t in COVERAGE_TILTS))
+    assert best_tilt(COVERAGE_TILTS, [everything], 62.0, [np.eye(3)], 40) == (None, 0)
+
+
+class FakeTable:
+    def __init__(self, tilts=None, settle_s=0.5, tilt_timeout_s=10.0):
+        self.tilts, self.tolerance_deg, self.settle_s, self.tilt_timeout_s = tilts, 15.0, settle_s, tilt_timeout_s
+        self.turned, self.shown, self.busy = 0, [], False
+
+    def show(self, words, tilt):
+        self.shown.append(words)
+
+    def turn(self):
+        self.turned += 1
+        self.busy = True
+
+    def turning(self):
+        return self.busy
+
+
+class Clock:
+    def __init__(self):
+        self.now = 100.0
+
+    def __call__(self):
+        return self.now
+
+
+def test_the_guide_turns_only_on_the_tilt_asked_and_names_a_wrong_one_held_still():
+    clock, table = Clock(), FakeTable(tilts=[Tilt(0.0, 0.0), Tilt(-45.0, 0.0)])
+    guide = TiltGuide(table, [""], 40, 62.0, clock=clock)
+    level, nose_down, nose_up = (Tilt(p, 0.0).gravity_body() for p in (0.0, -45.0, 45.0))
+    assert guide.step("", level, True, set(), np.eye(3)).prompt == "Tilt the cradle: level"
+    clock.now += 0.6
+    assert guide.step("", level, True, set(), np.eye(3)).state == "turning" and table.turned == 1
+    table.busy = False
+    clock.now += 0.2
+    asked = guide.step("", level, True, set(), np.eye(3))
+    assert asked.state == "tilt" and asked.tilt == Tilt(-45.0, 0.0) and asked.prompt == "Tilt the cradle: nose down 45°"
+    for _ in range(3):  # the operator moves the cradle: not still, neither taken nor named
+        clock.now += 0.3
+        moving = guide.step("", nose_up + np.random.default_rng(1).normal(size=3) * 3, False, set(), np.eye(3))
+        assert moving.found is None and table.turned == 1
+    clock.now += 0.1
+    guide.step("", nose_up, True, set(), np.eye(3))
+    clock.now += 0.6
+    wrong = guide.step("", nose_up, True, set(), np.eye(3))
+    assert wrong.found == Tilt(45.0, 0.0) and table.turned == 1
+    assert wrong.prompt == "The cradle is nose up 45°, not nose down 45°: tilt it nose down 45°"
+    assert table.shown[-1] == wrong.prompt  # the rig's pendant says it too
+    guide.step("", nose_down, True, set(), np.eye(3))
+    clock.now += 0.6
+    assert guide.step("", nose_down, True, set(), np.eye(3)).state == "turning" and table.turned == 2
+
+
+def test_a_tilt_never_made_stalls_the_round_naming_it_and_slots_turn_only_when_every_unit_agrees():
+    clock, table = Clock(), FakeTable(tilts=[Tilt(0.0, 90.0)], tilt_timeout_s=5.0)
+    guide = TiltGuide(table, ["A", "B"], 40, 62.0, clock=clock)
+    side, level = Tilt(0.0, 90.0).gravity_body(), Tilt(0.0, 0.0).gravity_body()
+    guide.step("A", side, True, set(), np.eye(3))
+    guide.step("B", level, True, set(), np.eye(3))  # B's unit is not in the cradle as asked
+    clock.now += 1.0
+    assert guide.step("A", side, True, set(), np.eye(3)).state == "tilt" and table.turned == 0
+    assert guide.step("B", level, True, set(), np.eye(3)).prompt is None  # A speaks for the cradle
+    clock.now += 5.0
+    guide.step("B", level, True, set(), np.eye(3))
+    stalled = guide.step("A", side, True, set(), np.eye(3))
+    assert stalled.state == "stalled" and "never tilted on its right side" in stalled.why
+
+
+# ---------------------------------------------------------------------------------------------- whole units
+def test_a_unit_on_the_turntable_is_calibrated_with_the_tilts_its_coverage_asks_for(tmp_path):
+    with rig(tmp_path) as (table, (board,)):
+        record = run_unit(station(tmp_path, table, board))
+        turns, made = table.turns, list(table.tilts_set)
+    assert record.verdict is Outcome.PASS, record.cause
+    log = log_of(record)
+    asked = [line.removeprefix("operator: Tilt the cradle: ") for line in log if "Tilt the cradle:" in line]
+    assert asked[0] == "level" and len(asked) >= 2 and turns >= 2
+    assert [tilt_words(*m) for m in made] == asked[1:len(made) + 1]  # the operator made each tilt asked
+    assert any(line.startswith("determined after") for line in log)
+
+
+def test_the_tilts_a_station_names_are_asked_in_order_then_a_wrong_one_is_named_and_asked_again(tmp_path):
+    named = [{"pitch_deg": 0.0, "roll_deg": 0.0, "say": "level on the cradle"},
+             {"pitch_deg": -45.0, "roll_deg": 0.0}, {"pitch_deg": 0.0, "roll_deg": 180.0}]
+    with rig(tmp_path, operator="wrong") as (table, (board,)):
+        record = run_unit(station(tmp_path, table, board, {"tilts": named}))
+        made = list(table.tilts_set)
+    assert record.verdict is Outcome.PASS, record.cause
+    log = log_of(record)
+    assert "operator: Tilt the cradle: level on the cradle" in log
+    assert "operator: Tilt the cradle: nose down 45°" in log
+    assert "operator: The cradle is nose up 45°, not nose down 45°: tilt it nose down 45°" in log
+    assert made[:2] == [(45.0, 0.0), (-45.0, 0.0)]  # the wrong tilt, then the one asked: not turned between
+
+
+def test_an_operator_who_never_tilts_stalls_the_tumble_and_is_told_which_tilt_is_missing(tmp_path):
+    with rig(tmp_path, operator="never") as (table, (board,)):
+        record = run_unit(station(tmp_path, table, board, {"tilt_timeout_s": 1.5},
+                                  acquisition={"retries": 1, "coverage_target": 0.6}))
+    assert record.verdict is Outcome.FAIL and "coverage" in record.cause
+    assert len(record.attempts) == 2 and all(not a.accepted for a in record.attempts)
+    log = log_of(record)
+    told = [line for line in log if line.startswith("operator: The cradle was never tilted")]
+    assert told and any(line.endswith("— tilt the cradle upside down when the station asks") for line in told)
+
+
+@pytest.mark.parametrize(("fault", "words"), [("stalls", "did not reach 720 °/s"),
+                                               ("lost_link", "TCPIP0")])
+def test_a_table_that_stalls_or_is_lost_is_an_error_naming_it_with_the_raw_data_kept(tmp_path, fault, words):
+    with rig(tmp_path, fault=fault) as (table, (board,)):
+        record = run_unit(station(tmp_path, table, board, {"timeout_s": 0.5}))
+    assert record.verdict is Outcome.ERROR and words in record.cause
+    assert record.attempts and len(record.attempts[0].raw.mag_ut) > 0
+
+
+@pytest.mark.parametrize(("fault", "words"), [("not_homed", "the turntable did not home"),
+                                               ("not_turning", "the turntable did not reach 720 °/s")])
+def test_a_table_that_does_not_home_or_turn_stops_the_station_before_any_unit(tmp_path, capsys, fault, words):
+    from magline.core.cli import main
+
+    with rig(tmp_path, boards=1, fault=fault) as (table, (board,)):
+        path = station(tmp_path, table, board, {"home_timeout_s": 0.5})
+        code = main(["run", str(path), "--serial", "TT-1"])
+    out = capsys.readouterr()
+    said = out.out + out.err
+    assert code == 2 and words in said, said
+    results = tmp_path / "results.sqlite"
+    assert not results.exists() or b"TT-1" not in results.read_bytes()  # no unit was touched or recorded
+
+
+def test_two_units_on_one_turntable_share_its_turns(tmp_path):
+    from magline.core.plugins import load_plugins
+    from magline.core.sequencer import Sequencer
+    from magline.core.sequencer.slots import SlotRunner
+    from magline.core.station import load_station
+
+    with rig(tmp_path, boards=2) as (table, (a, b)):
+        path = station(tmp_path, table, a)
+        cfg = yaml.safe_load(path.read_text(encoding="utf-8"))
+        part = cfg["default_part"]
+        cfg["slots"] = [{"id": "A", "part": part, "connection": a.address.replace("udp:", "udpout://")},
+                        {"id": "B", "part": part, "connection": b.address.replace("udp:", "udpout://")}]
+        path.write_text(yaml.safe_dump(cfg, sort_keys=False), encoding="utf-8")
+        seq = Sequencer(load_station(path), load_plugins(), tmp_path, sleep=lambda s: None)
+        try:
+            records = {r.slot: r for r in SlotRunner(seq).run({"A": "TT-A1", "B": "TT-B1"})}
+        finally:
+            seq.close()
+        turns = table.turns
+    assert [r.verdict for r in records.values()] == [Outcome.PASS, Outcome.PASS], [r.cause for r in records.values()]
+    tilts_a = [line for line in log_of(records["A"]) if "Tilt the cradle" in line]
+    assert tilts_a and not [line for line in log_of(records["B"]) if "Tilt the cradle" in line]  # A speaks
+    assert turns <= len(tilts_a) + 1  # one turn per tilt for both units, not one each
