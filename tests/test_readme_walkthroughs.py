@@ -17,7 +17,7 @@ from conftest import REPO
 
 MAGLINE = [str(Path(sys.executable).with_name("magline"))]
 DEFAULT_LISTEN = {"px4": "udp:127.0.0.1:14550", "ardupilot": "tcp:127.0.0.1:5760", "coil": "tcp:127.0.0.1:5026",
-                  "gimbal": "tcp:127.0.0.1:5030", "inav": "tcp:127.0.0.1:5760"}
+                  "gimbal": "tcp:127.0.0.1:5030", "inav": "tcp:127.0.0.1:5760", "turntable": "tcp:127.0.0.1:5050"}
 PORT = re.compile(r"127\.0\.0\.1(:|::)(\d{4,5})")
 USB_ROOT = "/tmp/magline-usb"  # where the walkthroughs' simulated boards lay out their udev-style names
 
