@@ -613,3 +613,45 @@ def test_a_second_screen_on_a_busy_station_shows_a_refusal_not_a_verdict(screen,
         serials = [r[0] for r in conn.exec_driver_sql("SELECT serial FROM runs ORDER BY id")]
     engine.dispose()
     assert serials == ["BUSY-1"]
+
+
+def test_a_turntable_s_tilt_is_drawn_under_the_prompt_and_dimmed_while_the_table_turns(screen, browser, tmp_path):
+    """The cradle asked for, as the operator sees it: the words in the prompt, a side and a rear view drawn
+    under it (pixels of the cradle's colour and of its yellow nose in the picture), dimmed while the table
+    turns, gone once the tumble stalled (the words then say what is missing)."""
+    import base64
+
+    from magline.core.motion.tilts import Tilt
+    from magline.core.operator_ui.cradle import cradle_svg
+
+    served, _ = screen()
+    opened = open_page(browser, served.url)
+    page = opened.page
+    page.wait_for_selector("#station-name:not(:empty)")
+    tilt = Tilt(-45.0, 0.0)
+    shown = {"state": "tilt", "asked": tilt.words, **tilt.picture(), "step": 2, "found": None, "why": "",
+             "svg": cradle_svg(-45.0, 0.0, tilt.words)}
+    draw = """(tilt) => fetch('/api/state').then((r) => r.json()).then((s) => {
+        s.run = {serial: "TT-1", part: "MOCK-100", attempt: 1, phases: [], prompt: "Tilt the cradle: " + tilt.asked,
+                 prompts: [], tilt: tilt, samples: 10, n_bins: 40, bins: [], coverage: 0.1, target: 0.6,
+                 missing: [], turns_unit: true, stopped: null};
+        s.result = null; render(s); return document.getElementById('tilt').hidden; })"""
+    assert page.evaluate(draw, shown) is False
+    assert page.inner_text("#prompt") == "Tilt the cradle: nose down 45°"
+    assert page.get_attribute("#tilt svg", "aria-label") == "cradle: nose down 45°"
+    shot = base64.b64encode(page.locator("#tilt").screenshot(path=str(tmp_path / "tilt.png"))).decode()
+    # the screenshot's pixels, decoded by the browser itself: the cradle's colour and its yellow nose
+    cradle, nose = page.evaluate("""async (png) => { const img = new Image(); img.src = "data:image/png;base64," + png;
+        await img.decode(); const c = document.createElement("canvas"); c.width = img.width; c.height = img.height;
+        const g = c.getContext("2d"); g.drawImage(img, 0, 0); const d = g.getImageData(0, 0, c.width, c.height).data;
+        const near = (i, r, gr, b) => Math.abs(d[i] - r) < 40 && Math.abs(d[i + 1] - gr) < 40
+            && Math.abs(d[i + 2] - b) < 40;
+        let cradle = 0, nose = 0;
+        for (let i = 0; i < d.length; i += 4) {
+            cradle += near(i, 0x1b, 0x3a, 0x5c); nose += near(i, 0xe0, 0xa0, 0x00); }
+        return [cradle, nose]; }""", shot)
+    assert cradle > 500 and nose > 50, (cradle, nose)
+    assert page.evaluate(draw, {**shown, "state": "turning"}) is False
+    assert page.evaluate("getComputedStyle(document.getElementById('tilt')).opacity") == "0.45"
+    assert page.evaluate(draw, {**shown, "state": "stalled", "why": "the cradle was never tilted"}) is True
+    assert [line for line in opened.console if line.startswith("error")] == []
