@@ -553,7 +553,9 @@ def test_a_scanner_typing_into_a_busy_screen_never_joins_two_scans(screen, brows
     calibrated a unit "APP-0002APP-0003" and kept the red refusal under the PASS.  Typed like a scanner
     (keystrokes, then Enter) into whatever field has the focus, on a PASS and on a FAIL station."""
     limits = {"hard_iron_norm_ut": {"le": 1.0}} if verdict == "fail" else {}
-    served, _ = screen({**REALTIME, "products": {"MOCK-100": {"options": {"realtime": True}, "limits": limits}}})
+    # one tumble per unit (no spin-then-retry: that is another test's), the second unit aborted once started
+    served, _ = screen({**REALTIME, "products": {"MOCK-100": {"options": {"realtime": True, "motions": ["hand_tumble"]},
+                                                              "limits": limits}}})
     page = open_page(browser, served.url).page
     page.wait_for_selector("#station-name:has-text('demo-01')")
     page.keyboard.type("APP-0001")
@@ -570,7 +572,9 @@ def test_a_scanner_typing_into_a_busy_screen_never_joins_two_scans(screen, brows
     page.wait_for_function("document.getElementById('form-error').textContent === ''")  # old news once judged
     page.keyboard.type("APP-0003")
     page.keyboard.press("Enter")
-    page.wait_for_selector("#unit:has-text('APP-0003')")
+    page.wait_for_selector("#unit:has-text('APP-0003')")  # started as typed, not joined to the early scan
+    page.wait_for_selector("#attempt:has-text('attempt 1')")
+    page.click("#abort")  # what it goes on to is the other tests': the scan is what this one judges
     page.wait_for_selector("#verdict:not([hidden])", timeout=60_000)
     assert page.inner_text("#verdict-serial") == "APP-0003" and page.inner_text("#form-error") == ""
     screenshot(page, tmp_path / f"scans-{verdict}.png")

@@ -123,6 +123,9 @@ def test_the_guide_turns_only_on_the_tilt_asked_and_names_a_wrong_one_held_still
     clock.now += 0.2
     asked = guide.step("", level, True, set(), np.eye(3))
     assert asked.state == "tilt" and asked.tilt == Tilt(-45.0, 0.0) and asked.prompt == "Tilt the cradle: nose down 45°"
+    for _ in range(3):  # the cradle still level, not yet touched: waited for, not called wrong
+        clock.now += 0.4
+        assert guide.step("", level, True, set(), np.eye(3)).found is None
     for _ in range(3):  # the operator moves the cradle: not still, neither taken nor named
         clock.now += 0.3
         moving = guide.step("", nose_up + np.random.default_rng(1).normal(size=3) * 3, False, set(), np.eye(3))
@@ -155,18 +158,6 @@ def test_a_tilt_never_made_stalls_the_round_naming_it_and_slots_turn_only_when_e
 
 
 # ---------------------------------------------------------------------------------------------- whole units
-def test_a_unit_on_the_turntable_is_calibrated_with_the_tilts_its_coverage_asks_for(tmp_path):
-    with rig(tmp_path) as (table, (board,)):
-        record = run_unit(station(tmp_path, table, board))
-        turns, made = table.turns, list(table.tilts_set)
-    assert record.verdict is Outcome.PASS, record.cause
-    log = log_of(record)
-    asked = [line.removeprefix("operator: Tilt the cradle: ") for line in log if "Tilt the cradle:" in line]
-    assert asked[0] == "level" and len(asked) >= 2 and turns >= 2
-    assert [tilt_words(*m) for m in made] == asked[1:len(made) + 1]  # the operator made each tilt asked
-    assert any(line.startswith("determined after") for line in log)
-
-
 def test_the_tilts_a_station_names_are_asked_in_order_then_a_wrong_one_is_named_and_asked_again(tmp_path):
     named = [{"pitch_deg": 0.0, "roll_deg": 0.0, "say": "level on the cradle"},
              {"pitch_deg": -45.0, "roll_deg": 0.0}, {"pitch_deg": 0.0, "roll_deg": 180.0}]
@@ -216,7 +207,10 @@ def test_a_table_that_does_not_home_or_turn_stops_the_station_before_any_unit(tm
     assert not results.exists() or b"TT-1" not in results.read_bytes()  # no unit was touched or recorded
 
 
-def test_two_units_on_one_turntable_share_its_turns(tmp_path):
+def test_two_units_on_one_turntable_share_its_turns_with_the_tilts_their_coverage_asks_for(tmp_path):
+    """Two units in one cradle, the tilts chosen by the coverage (level first: the units are loaded so):
+    the first slot speaks for the cradle, the operator makes each tilt asked, the table turns once per
+    tilt for both, and the stop rule ends the tumble."""
     from magline.core.plugins import load_plugins
     from magline.core.sequencer import Sequencer
     from magline.core.sequencer.slots import SlotRunner
@@ -234,8 +228,12 @@ def test_two_units_on_one_turntable_share_its_turns(tmp_path):
             records = {r.slot: r for r in SlotRunner(seq).run({"A": "TT-A1", "B": "TT-B1"})}
         finally:
             seq.close()
-        turns = table.turns
+        turns, made = table.turns, list(table.tilts_set)
     assert [r.verdict for r in records.values()] == [Outcome.PASS, Outcome.PASS], [r.cause for r in records.values()]
-    tilts_a = [line for line in log_of(records["A"]) if "Tilt the cradle" in line]
-    assert tilts_a and not [line for line in log_of(records["B"]) if "Tilt the cradle" in line]  # A speaks
-    assert turns <= len(tilts_a) + 1  # one turn per tilt for both units, not one each
+    log = log_of(records["A"])
+    asked = [line.removeprefix("operator: Tilt the cradle: ") for line in log if "Tilt the cradle:" in line]
+    assert asked[0] == "level" and len(asked) >= 2
+    assert not [line for line in log_of(records["B"]) if "Tilt the cradle" in line]  # A speaks for the cradle
+    assert [tilt_words(*m) for m in made] == asked[1:len(made) + 1]  # the operator made each tilt asked
+    assert 2 <= turns <= len(asked) + 1  # one turn per tilt for both units (and the spin check), not one each
+    assert any(line.startswith("determined after") for line in log)

@@ -50,6 +50,12 @@ class _Seen:
     steady: bool = False
     covered: set[int] = field(default_factory=set)
     sensor_to_body: NDArray = field(default_factory=lambda: np.eye(3))
+    at_ask: NDArray | None = None  # the gravity when the tilt was asked: a cradle not moved since is not "wrong"
+
+
+def _apart_deg(a: NDArray, b: NDArray) -> float:
+    cos = float(a @ b / max(np.linalg.norm(a) * np.linalg.norm(b), 1e-12))
+    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
 
 
 class TiltGuide:
@@ -122,6 +128,8 @@ class TiltGuide:
         self._tilt, self._state, self._asked_at = tilt, "tilt", now
         self._agree_since = self._wrong_since = None
         self._found = None
+        for seen in self._seen.values():
+            seen.at_ask = seen.gravity
         self.motion.show(self._words(), tilt)
 
     def _check_tilt(self, now: float) -> None:
@@ -139,8 +147,10 @@ class TiltGuide:
             return
         self._agree_since = None
         worst = max(zip(off, fresh, strict=True), key=lambda pair: pair[0])[1]
-        if worst.steady and max(off) > self.tolerance_deg:
-            # held still in another tilt: named once it has been held for the settle time
+        moved = worst.at_ask is None or _apart_deg(worst.gravity, worst.at_ask) > self.tolerance_deg
+        if worst.steady and moved and max(off) > self.tolerance_deg:
+            # moved since the ask and held still in another tilt: named once held for the settle time (a cradle
+            # not yet touched is waited for, not called wrong before the operator had a chance)
             self._wrong_since = self._wrong_since if self._wrong_since is not None else now
             if now - self._wrong_since >= self.settle_s:
                 found = tilt_of_gravity(worst.gravity)
