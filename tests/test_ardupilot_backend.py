@@ -143,7 +143,9 @@ def test_a_parameter_this_firmware_does_not_have_is_an_error_not_a_fail(tmp_path
     """ArduPilot answers an unknown name with silence, and so does a link that loses the answers: the
     two cannot be told apart, so the unit is not judged (ERROR), and nothing is written to it."""
     with start_sim(tmp_path, faults=SimFaults(unknown_params=["COMPASS_ODI_Y"])) as sim:
-        record = run_unit(write_station("ardupilot-sim.yaml", tmp_path, sim.address, OPTIONS), "SN-OLD")
+        # each read's wait shortened (5 tries over 15 × param_timeout_s): the classification is what is judged
+        options = {**OPTIONS, "param_timeout_s": 0.25}
+        record = run_unit(write_station("ardupilot-sim.yaml", tmp_path, sim.address, options), "SN-OLD")
         assert record.verdict is Outcome.ERROR, record.cause
         assert ("parameter COMPASS_ODI_Y could not be read: 5 requests went unanswered while the vehicle otherwise "
                 "answers") in record.cause and "the unit is not judged" in record.cause

@@ -140,7 +140,10 @@ def test_two_demo_runs_in_two_folders_both_run_and_one_station_file_twice_is_ref
     one.mkdir()
     two.mkdir()
     hold = HoldTheTumble()
-    first = Sequencer(station, load_plugins(extra=[hold]), one, sleep=lambda s: None)
+    # the held unit need not tumble at a sensor's pace once released: what it holds is the station
+    held_station = station.model_copy(deep=True)
+    held_station.products["MOCK-100"].options["realtime"] = False
+    first = Sequencer(held_station, load_plugins(extra=[hold]), one, sleep=lambda s: None)
     worker, done = held_unit(first, "DEMO-A", hold)
     try:
         monkeypatch.chdir(two)  # the embedded demo keeps its files where magline runs
