@@ -236,4 +236,28 @@ def test_two_units_on_one_turntable_share_its_turns_with_the_tilts_their_coverag
     assert not [line for line in log_of(records["B"]) if "Tilt the cradle" in line]  # A speaks for the cradle
     assert [tilt_words(*m) for m in made] == asked[1:len(made) + 1]  # the operator made each tilt asked
     assert 2 <= turns <= len(asked) + 1  # one turn per tilt for both units (and the spin check), not one each
-    assert any(line.startswith("determined after") for line in log)
+    assert not [line for line in log if "never tilted" in line]  # ended by the stop rule or the count, no stall
+
+
+def test_the_console_draws_the_tilt_asked_with_the_sides_still_to_face_the_floor():
+    """At 80 columns on a pipe: the words, the side and rear glyph, and what the coverage still lacks."""
+    import io
+    from types import SimpleNamespace
+
+    from rich.console import Console
+
+    from magline.core.operator_ui.console import OperatorConsole
+
+    out = io.StringIO()
+    console = OperatorConsole(Console(file=out, width=80, force_terminal=False, soft_wrap=True))
+    run = SimpleNamespace(slot=None)
+    console.magline_acquisition_progress(run, 1, 120, 0.3, 0.6, bins=[0, 1, 2], n_bins=40)
+    tilt = Tilt(-45.0, 0.0)
+    console.magline_tilt_guidance(run, {"state": "tilt", "asked": tilt.words, **tilt.picture(), "step": 3,
+                                        "found": None, "why": ""})
+    console.magline_tilt_guidance(run, {"state": "turning", "asked": tilt.words, **tilt.picture(), "step": 3,
+                                        "found": None, "why": ""})  # nothing more while the table turns
+    lines = out.getvalue().splitlines()
+    drawn = [line for line in lines if line.startswith("    cradle 3:")]
+    assert len(drawn) == 1 and drawn[0].startswith("    cradle 3: nose down 45° — side ↘ · rear ─ (still to face")
+    assert "nose" in drawn[0].split("floor:")[1]

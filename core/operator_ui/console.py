@@ -20,6 +20,7 @@ from rich.text import Text
 from magline.core.measurements import Verdict, by_sensor, verdicts
 from magline.core.operator_ui.console_slots import STYLE, SlotBoard
 from magline.core.operator_ui.cradle import cradle_text
+from magline.core.operator_ui.screen.sides import MISSING_WORDS, missing_sides
 from magline.core.operator_ui.verdict_words import closing_line, interference_words, sensor_cards, shown_verdict
 from magline.core.plugins import hookimpl
 from magline.core.record import Outcome, PhaseResult, RunRecord
@@ -45,6 +46,7 @@ class OperatorConsole:
         self._last_wait = -1
         self._wait_line: Live | None = None  # a terminal's countdown: one line rewritten in place
         self.slots = SlotBoard(self.console, self.live)  # units of a station with slots, one panel each
+        self._bins: tuple[list[int], int | None] = ([], None)  # the coverage's bins, for a turntable's tilt line
 
     def note(self, text: str) -> None:
         self.console.print(text)
@@ -83,8 +85,11 @@ class OperatorConsole:
         if run.slot is not None or guidance["state"] != "tilt":
             return
         self._stop_progress()
+        bins, n_bins = self._bins
+        missing = missing_sides(bins, n_bins) if n_bins else []
+        still = f" ({MISSING_WORDS}: {', '.join(missing)})" if missing else ""
         self.console.print(f"    cradle {guidance['step']}: {guidance['asked']} — "
-                           f"{cradle_text(guidance['pitch_deg'], guidance['roll_deg'])}")
+                           f"{cradle_text(guidance['pitch_deg'], guidance['roll_deg'])}{still}")
 
     @hookimpl
     def magline_operator_confirm(self, run: RunContext, question: str, timeout_s: float) -> bool | None:
@@ -138,7 +143,8 @@ class OperatorConsole:
 
     @hookimpl
     def magline_acquisition_progress(self, run: RunContext, attempt: int, samples: int, coverage: float,
-                                     target: float) -> None:
+                                     target: float, bins: list[int] | None = None, n_bins: int | None = None) -> None:
+        self._bins = (list(bins or []), n_bins)  # what a turntable's next tilt line names as still to cover
         if run.slot is not None:
             return self.slots.progress(run, attempt, samples, coverage, target)
         pct = int(coverage * 100)
