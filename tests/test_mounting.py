@@ -73,6 +73,26 @@ def test_a_small_misalignment_and_the_inclination_are_recovered(rng):
     assert estimate.inclination_deg == pytest.approx(62.0, abs=0.3)
 
 
+def test_the_inclination_is_the_field_s_dip_whichever_branch_the_solver_ends_on(rng, monkeypatch):
+    """The residuals hold the inclination through its sine, so 62° and 118° fit alike: a turntable's few
+    tilts once let the solver end on 118° and a good unit FAILed on a 56° inclination error.  Made to end
+    on the other branch, the estimate still says 62°."""
+    import scipy.optimize
+
+    solve = scipy.optimize.least_squares
+
+    def other_branch(*args, **kwargs):
+        fit = solve(*args, **kwargs)
+        fit.x[3] = np.pi - fit.x[3]  # the same sine
+        return fit
+
+    monkeypatch.setattr(scipy.optimize, "least_squares", other_branch)
+    mag, t_ms, imu = hand_tumble(np.eye(3), rng)
+    estimate = estimate_mounting(mag, t_ms, imu)
+    assert estimate.inclination_deg == pytest.approx(62.0, abs=0.3)
+    assert rotation_angle_deg(estimate.data_to_body, np.eye(3)) < 0.3
+
+
 def test_the_mountings_sigma_covers_its_error_and_one_reading_far_off_does_not_move_it(rng):
     """The σ is what the stop waits for and the record states: over many tumbles the error stays within
     it as a rotation's does (median error/σ at most a Maxwell median, 1.54, whose axes each have 1σ

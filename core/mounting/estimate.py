@@ -173,7 +173,10 @@ def estimate_mounting(mag_cal: NDArray, t_mag_ms: NDArray, imu: ImuSeries | None
                         x_scale=np.array([0.01, 0.01, 0.01, 0.01, 1.0]),
                         bounds=([-np.inf] * 4 + [-reach], [np.inf] * 4 + [reach]))
     rotation = Rotation.from_rotvec(fit.x[:3]).as_matrix() @ start
-    inclination, skew = float(fit.x[3]), float(fit.x[4])
+    # the residuals hold the inclination through its sine: I and 180° − I fit alike, and a turntable's few
+    # tilts once let the solver wander to 118° for a 62° field (a good unit FAILed at 56° "error"); the
+    # field's dip is in [−90°, 90°], the same sine there
+    inclination, skew = float(np.arcsin(np.clip(np.sin(fit.x[3]), -1.0, 1.0))), float(fit.x[4])
     variance = residual_variance(fit.fun, len(fit.x))
     try:
         cov = variance * np.linalg.inv(fit.jac.T @ fit.jac)

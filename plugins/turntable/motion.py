@@ -124,6 +124,9 @@ class TurntableMotion:
         self.instrument.check("showing the tilt on the pendant")
 
     def turn(self, revolutions: float = 1.0) -> None:
+        # where the stage is before it moves: read after the command, a loaded station saw it 76° into the
+        # turn and called the finished turn "stopped after 284° of 360°"
+        self._from_deg = self._status()[1]
         self.instrument.write(f"ROT:SPE {self.opts.speed_dps:g}")
         self.instrument.write(f"ROT:DIR {self.opts.direction.upper()}")
         self.instrument.write(f"ROT:TURN {revolutions:g}")
@@ -131,7 +134,6 @@ class TurntableMotion:
         self.turns += 1
         self._turn_started, self._moved = time.monotonic(), False
         self._asked_deg = 360.0 * revolutions
-        self._from_deg = self._status()[1]
 
     def turning(self) -> bool:
         """Whether the turn is still under way, judged by the stage's own position (how often it is asked
