@@ -20,16 +20,13 @@ import argparse
 import statistics
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 import yaml
+from timed_unit import timed_unit
 
-from magline.core.plugins import load_plugins
-from magline.core.record import Outcome, RunRecord
-from magline.core.sequencer import Sequencer
-from magline.core.station import load_station
+from magline.core.record import Outcome
 from magline.sim import create_sim
 from magline.sim.inav import inav_compass
 from magline.sim.magnetometers import SimMagnetometer
@@ -54,14 +51,6 @@ def station(flavour: str, folder: Path, address: str, samples: int | None = None
     return path
 
 
-def run(path: Path, serial: str) -> tuple[RunRecord, float]:
-    seq = Sequencer(load_station(path), load_plugins(), path.parent, sleep=time.sleep)
-    started = time.monotonic()
-    try:
-        return seq.run_unit(serial), time.monotonic() - started
-    finally:
-        seq.close()
-
 
 def compass(seed: int, cross: bool) -> SimMagnetometer:
     """The simulator's compass for ``seed``; without its small cross terms when ``cross`` is False (what
@@ -85,7 +74,7 @@ def accuracy(units: int, seed: int, cross: bool, samples: int | None) -> None:
             folder = Path(tmp)
             with create_sim("inav", "tcp:127.0.0.1:0", workdir=folder / "fc", seed=seed + n, boot_time_s=0.3,
                             speed=3.0, mag_rate_hz=50.0, magnetometers=[compass(seed + n, cross)]) as sim:
-                record, _ = run(station("inav", folder, sim.address, samples), f"INAV-{n:04d}")
+                record, _ = timed_unit(station("inav", folder, sim.address, samples), f"INAV-{n:04d}")
                 stored = sim.read_storage()
                 truth = sim.magnetometers[0]
                 counts = sim.counts_per_ut
@@ -125,7 +114,7 @@ def cycle_times(cycles: int, seed: int) -> None:
                 folder = Path(tmp)
                 _, listen = EXAMPLES[flavour]
                 with create_sim(flavour, listen, workdir=folder / "fc", seed=seed + n) as sim:
-                    record, wall = run(station(flavour, folder, sim.address), f"{flavour}-{n}")
+                    record, wall = timed_unit(station(flavour, folder, sim.address), f"{flavour}-{n}")
             if record.verdict is not Outcome.PASS:
                 print(f"   {flavour} unit {n}: {record.verdict} ({record.cause})")
             walls.append(wall)

@@ -19,16 +19,13 @@ import argparse
 import statistics
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 import yaml
+from timed_unit import timed_unit
 
-from magline.core.plugins import load_plugins
 from magline.core.record import Outcome, RunRecord
-from magline.core.sequencer import Sequencer
-from magline.core.station import load_station
 from magline.sim import create_sim
 from magline.sim.gimbal import GimbalSim
 from magline.sim.turntable import TurntableSim
@@ -49,14 +46,6 @@ def station(folder: Path, board_address: str, motion: dict | None) -> Path:
     path.write_text(yaml.safe_dump(cfg, sort_keys=False), encoding="utf-8")
     return path
 
-
-def run(path: Path, serial: str) -> tuple[RunRecord, float]:
-    seq = Sequencer(load_station(path), load_plugins(), path.parent, sleep=time.sleep)
-    started = time.monotonic()
-    try:
-        return seq.run_unit(serial), time.monotonic() - started
-    finally:
-        seq.close()
 
 
 def tilts_asked(record: RunRecord) -> int:
@@ -80,7 +69,7 @@ def rig_units(rig: str, units: int, seed: int, reaction_s: float) -> tuple[list[
             options = {"motion_source": fixture.address} if fixture is not None else {"motions": ("tumble",)}
             try:
                 with create_sim("px4", "udp:127.0.0.1:0", workdir=folder / "fc", seed=seed + n, **options) as board:
-                    record, wall = run(station(folder, board.address, motion), f"{rig}-{n}")
+                    record, wall = timed_unit(station(folder, board.address, motion), f"{rig}-{n}")
             finally:
                 if fixture is not None:
                     fixture.stop()
