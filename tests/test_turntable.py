@@ -264,3 +264,17 @@ def test_the_console_draws_the_tilt_asked_with_the_sides_still_to_face_the_floor
     drawn = [line for line in lines if line.startswith("    cradle 3:")]
     assert len(drawn) == 1 and drawn[0].startswith("    cradle 3: nose down 45° — side ↘ · rear ─ (still to face")
     assert "nose" in drawn[0].split("floor:")[1]
+
+
+def test_when_the_speaking_slot_s_tumble_ends_the_next_slot_still_reading_speaks_for_the_cradle():
+    clock, table = Clock(), FakeTable(tilts=[Tilt(0.0, 0.0), Tilt(0.0, 90.0)], settle_s=0.5)
+    guide = TiltGuide(table, ["A", "B"], 40, 62.0, clock=clock)
+    level = Tilt(0.0, 0.0).gravity_body()
+    assert guide.step("A", level, True, set(), np.eye(3)).prompt == "Tilt the cradle: level"
+    assert guide.step("B", level, True, set(), np.eye(3)).prompt is None
+    clock.now += 0.6
+    guide.step("A", level, True, set(), np.eye(3))
+    assert guide.step("B", level, True, set(), np.eye(3)).state == "turning"
+    table.busy = False
+    clock.now += 2.0  # A's tumble was determined meanwhile: only B still hands its readings over
+    assert guide.step("B", level, True, set(), np.eye(3)).prompt == "Tilt the cradle: on its right side"

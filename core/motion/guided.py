@@ -51,6 +51,7 @@ class _Seen:
     covered: set[int] = field(default_factory=set)
     sensor_to_body: NDArray = field(default_factory=lambda: np.eye(3))
     at_ask: NDArray | None = None  # the gravity when the tilt was asked: a cradle not moved since is not "wrong"
+    stepped: float = 0.0  # when the slot last handed its readings over (a slot whose tumble ended stops)
 
 
 def _apart_deg(a: NDArray, b: NDArray) -> float:
@@ -94,7 +95,7 @@ class TiltGuide:
         now = self.clock()
         with self._lock:
             seen = self._seen.setdefault(slot, _Seen())
-            seen.covered, seen.sensor_to_body = set(covered), np.asarray(sensor_to_body, float)
+            seen.covered, seen.sensor_to_body, seen.stepped = set(covered), np.asarray(sensor_to_body, float), now
             if gravity_mss is not None:
                 seen.gravity, seen.at, seen.steady = np.asarray(gravity_mss, float), now, steady
             if self._tilt is None:
@@ -111,7 +112,7 @@ class TiltGuide:
                                     "no direction left to show: the coverage target cannot be reached")
                     else:
                         self._ask(following, now)
-            return self._guidance(slot)
+            return self._guidance(slot, now)
 
     # ------------------------------------------------------------------ under the lock
     def _next_tilt(self) -> Tilt | None:
@@ -165,8 +166,10 @@ class TiltGuide:
     def _stall(self, why: str) -> None:
         self._state, self._why = "stalled", why
 
-    def _guidance(self, slot: str) -> Guidance:
-        leader = self.members[0] if self.members else ""
+    def _guidance(self, slot: str, now: float) -> Guidance:
+        # the first member still reading speaks for the cradle (one whose tumble ended hands it on)
+        reading = [m for m in self.members if m in self._seen and now - self._seen[m].stepped < 1.0]
+        leader = reading[0] if reading else slot
         words = self._words()
         prompt = None
         if slot == leader and words != self._said:
