@@ -31,7 +31,8 @@ What is here, by role:
   :func:`encode_msp_v2`, :func:`crc8_dvb_s2`, :class:`MspRefused`, :class:`MspTimeout`, the command numbers
   :class:`Msp`, a setting's description :class:`SettingInfo` (:func:`parse_setting_info`,
   :func:`encode_setting_info`), :data:`INAV_ARMED_FLAG` and INAV's sensor alignments
-  (:data:`INAV_ALIGNMENTS`, :data:`INAV_ALIGNMENT_NAMES`, :data:`INAV_COMPASS_DEFAULT_ALIGNMENT`),
+  (:data:`INAV_ALIGNMENTS`, :data:`INAV_ALIGNMENT_NAMES`, :data:`INAV_COMPASS_DEFAULT_ALIGNMENT`,
+  an external compass's :func:`inav_external_rotation` and :func:`inav_external_angles`),
   a board on a serial port: :class:`SerialAddress`, :class:`SerialPortWatch` (present, permitted, not held,
   the same board after its reboot), :class:`UsbIdentity`, :func:`list_ports`, :data:`SERIAL_HINT`,
   :func:`mavlink2_frame_bytes` (a stream's bytes against what a UART carries);
@@ -107,6 +108,8 @@ from magline.core.links.msp import (
     encode_msp_v1,
     encode_msp_v2,
     encode_setting_info,
+    inav_external_angles,
+    inav_external_rotation,
     parse_setting_info,
 )
 from magline.core.links.readings import INT16_MG_RANGE_UT, RepeatFilter, SensorStreams, untruncate_mg
@@ -242,6 +245,8 @@ __all__ = [
     "float32_equal",
     "get_listening",
     "hookimpl",
+    "inav_external_angles",
+    "inav_external_rotation",
     "list_ports",
     "mavlink2_frame_bytes",
     "orientation_matrix",

@@ -4,7 +4,8 @@ What it reproduces, because each is a trap for a station that calibrates over MS
 
 - no raw magnetometer: ``MSP_RAW_IMU`` carries the field *calibrated and aligned*, per axis
   ``(raw − magzero)·1024/maggain`` in the sensor's counts (C integer division, truncating), then turned by
-  ``align_mag`` — which the compass takes at boot only, DEFAULT meaning CW270FLIP — and sent as int16;
+  ``align_mag`` — which the compass takes at boot only, DEFAULT meaning CW270FLIP — or, when any of
+  ``align_mag_roll/pitch/yaw`` is set, by those angles instead (an external compass), and sent as int16;
   the accelerometer beside it in g·512 (+512 on Z when level);
 - settings by name with their own types and ranges (``MSP2_COMMON_SETTING_INFO``); a value is read in
   its setting's width, so one sent wider is stored truncated; out of range: an error reply;
@@ -45,6 +46,7 @@ from magline.core.links.msp import (
     encode_msp_v1,
     encode_msp_v2,
     encode_setting_info,
+    inav_external_rotation,
 )
 from magline.sim.magnetometers import SimMagnetometer
 from magline.sim.params import INT16, UINT8, ParamSpec, ParamValue
@@ -161,8 +163,13 @@ class InavSim(SimulatedAutopilot):
         super()._boot(now, first)
         if not first and self.faults.uid_changes_at_reboot:
             self.boot_uid = self.uid ^ 0x5A5A5A
-        self._alignment = np.array(INAV_ALIGNMENTS[int(self.table.values["align_mag"]) or
-                                                   INAV_COMPASS_DEFAULT_ALIGNMENT], float)
+        values = self.table.values
+        external = [values[f"align_mag_{a}"] for a in ("roll", "pitch", "yaw")]
+        if any(external):  # an external compass's custom angles replace align_mag (compassInit)
+            self._alignment = inav_external_rotation(*external)
+        else:
+            self._alignment = np.array(INAV_ALIGNMENTS[int(values["align_mag"]) or INAV_COMPASS_DEFAULT_ALIGNMENT],
+                                       float)
         self._next_heartbeat = float("inf")
         self._parsers_msp.clear()
 

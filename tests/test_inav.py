@@ -301,3 +301,31 @@ def test_a_firmware_without_a_calibration_setting_fails_the_unit_naming_it(tmp_p
         record = run_unit(station(tmp_path, sim.address))
     assert record.verdict is Outcome.FAIL and "this INAV has no setting maggain_z" in record.cause
     assert not record.params_written
+
+
+def test_an_external_compass_turned_by_its_angles_is_checked_and_fixed_in_those_angles(tmp_path):
+    """``align_mag_roll/pitch/yaw`` (0.1°) replace ``align_mag`` for an external compass (INAV's
+    ``rotationMatrixFromAngles``, applied transposed): a compass on a mast turned 45° in yaw and set so
+    passes, its readings turned back by those angles; one turned 135° while the angles still say 45° fails
+    naming the angles to set, in INAV's 0.1° units."""
+    from scipy.spatial.transform import Rotation
+
+    from magline.plugin import inav_external_rotation
+
+    def mast(folder: Path, turned_dd: int):
+        """A board whose stored angles say 45° and whose compass is turned ``turned_dd`` (the compass takes
+        its alignment at boot: stored before the board starts)."""
+        sim = board(folder)
+        sim.workdir.mkdir(parents=True, exist_ok=True)
+        sim.write_storage({"align_mag_yaw": 450})
+        sim.magnetometers[0].rotation = Rotation.from_matrix(inav_external_rotation(0, 0, turned_dd))
+        return sim
+
+    with mast(tmp_path, 450) as sim:
+        record = run_unit(station(tmp_path, sim.address))
+    assert record.verdict is Outcome.PASS, record.cause
+    assert measured(record, "mounting_error_deg") < 3.0
+    with mast(tmp_path / "wrong", 1350) as sim:
+        record = run_unit(station(tmp_path / "wrong", sim.address))
+    assert record.verdict is Outcome.FAIL
+    assert "set align_mag_roll = 0, align_mag_pitch = 0, align_mag_yaw = 900" in record.cause, record.cause

@@ -76,6 +76,27 @@ INAV_ALIGNMENTS: dict[int, tuple[tuple[int, int, int], ...]] = {
 INAV_COMPASS_DEFAULT_ALIGNMENT = 8  # what DEFAULT means for the compass
 
 
+def inav_external_rotation(roll_dd: float, pitch_dd: float, yaw_dd: float):
+    """``v_body = R·v_sensor`` for an external compass's ``align_mag_roll/pitch/yaw`` (0.1°): INAV's
+    ``rotationMatrixFromAngles`` builds ``M = Rx(roll)·Ry(pitch)·Rz(yaw)`` (Tait–Bryan X1 Y2 Z3,
+    ``common/maths.c``) and ``rotationMatrixRotateVector`` applies its transpose, so ``R = Mᵀ``.  Any
+    non-zero angle replaces ``align_mag`` (and the board alignment) for the compass (``compassInit``)."""
+    from scipy.spatial.transform import Rotation  # on use: scipy costs every command start
+
+    m = Rotation.from_euler("XYZ", [roll_dd / 10.0, pitch_dd / 10.0, yaw_dd / 10.0], degrees=True).as_matrix()
+    return m.T
+
+
+def inav_external_angles(rotation) -> tuple[int, int, int]:
+    """The ``align_mag_roll/pitch/yaw`` (0.1°, in INAV's ranges) whose :func:`inav_external_rotation` is
+    ``rotation`` (``v_body = R·v_sensor``), to the 0.1° INAV holds."""
+    import numpy as np
+    from scipy.spatial.transform import Rotation
+
+    roll, pitch, yaw = Rotation.from_matrix(np.asarray(rotation, float).T).as_euler("XYZ", degrees=True)
+    return tuple(round(float(a) * 10.0) for a in (roll, pitch, yaw))  # type: ignore[return-value]
+
+
 @dataclass(frozen=True)
 class SettingInfo:
     """What ``MSP2_COMMON_SETTING_INFO`` says of a setting (INAV's ``mspSettingInfoCommand``): its name, the

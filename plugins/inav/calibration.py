@@ -75,8 +75,9 @@ def _orientations() -> dict[int, NDArray]:
 
 
 def mav_orientation(matrix: NDArray) -> int:
-    """The MAV_SENSOR_ORIENTATION value of a right-angle rotation (what the mounting check speaks)."""
-    return next(v for v, m in _orientations().items() if np.allclose(m, matrix))
+    """The MAV_SENSOR_ORIENTATION value nearest a rotation (exactly it for INAV's eight alignments): what
+    the mounting check speaks."""
+    return min(_orientations().items(), key=lambda item: -float(np.trace(item[1] @ np.asarray(matrix).T)))[0]
 
 
 def alignment_for(orientation: int) -> int | None:

@@ -18,9 +18,11 @@ from magline.plugin import (
     Product,
     RepeatFilter,
     SampleChunk,
-    StationFault,
     UnitInfo,
     await_new_boot,
+    inav_external_angles,
+    inav_external_rotation,
+    orientation_matrix,
 )
 from magline.plugins.inav.calibration import (
     GAINS,
@@ -42,10 +44,6 @@ CHUNK_S = 0.1  # readings are handed on every tenth of a second
 COMPASS_NOT_CALIBRATED = 1 << 12  # INAV's ARMING_DISABLED_COMPASS_NOT_CALIBRATED
 
 
-class ExternalAlignment(DutError, StationFault):
-    """A compass turned by ``align_mag_roll/pitch/yaw``: the station does not undo that rotation yet."""
-
-
 class InavDut:
     def __init__(self, product: Product, options: InavOptions) -> None:
         self.product = product
@@ -55,6 +53,9 @@ class InavDut:
         self.boot_timeout_s = options.boot_timeout_s
         self.identity: Identity | None = None
         self.alignment = 0
+        self.angles: tuple[int, ...] = (0, 0, 0)  # align_mag_roll/pitch/yaw (0.1°): any non-zero: external
+        self.external = False
+        self.has_external = False
         self.to_body = alignment_matrix(0)
         self._previous: dict[str, ParamValue] | None = None  # the calibration prepare() made neutral
         self._wrote_calibration = False  # write_params() since the last save wrote offsets or gains
@@ -68,11 +69,7 @@ class InavDut:
         self.identity = self.link.identify()
         for name in (*OFFSETS, *GAINS, "align_mag"):
             self.link.info(name)  # a firmware without one cannot hold the calibration: DutError names it
-        turned = {n: self.link.read(n) for n in EXTERNAL_ANGLES if self._has(n)}
-        if any(turned.values()):
-            raise ExternalAlignment("the compass is turned by " + ", ".join(f"{k} = {v}" for k, v in turned.items())
-                                    + " (an external compass's custom alignment): this station does not undo that "
-                                      "rotation yet, so it cannot calibrate the unit")
+        self.has_external = all(self._has(n) for n in EXTERNAL_ANGLES)
         self._read_alignment()
         identity = self.identity
         return UnitInfo(autopilot="INAV", firmware=identity.version, sensors=[COMPASS], selected_sensor=COMPASS,
@@ -91,16 +88,21 @@ class InavDut:
         return True
 
     def _read_alignment(self) -> None:
-        """The alignment the compass uses: ``align_mag`` as it booted (DEFAULT means CW270FLIP)."""
+        """The alignment the compass uses, as it booted: ``align_mag_roll/pitch/yaw`` when any is set (an
+        external compass), else ``align_mag`` (DEFAULT means CW270FLIP)."""
         self.alignment = int(self.link.read("align_mag"))
-        self.to_body = alignment_matrix(self.alignment)
+        self.angles = tuple(int(self.link.read(n)) for n in EXTERNAL_ANGLES) if self.has_external else (0, 0, 0)
+        self.external = any(self.angles)
+        self.to_body = inav_external_rotation(*self.angles) if self.external else alignment_matrix(self.alignment)
 
     def _magnetometer(self) -> Magnetometer:
         """The readings are turned back into the sensor's axes here; INAV turns them into the body by
         ``align_mag``, the setting a mounting fix is written to."""
-        return Magnetometer(device_id=COMPASS, label="compass", external=None,
+        return Magnetometer(device_id=COMPASS, label="compass", external=self.external or None,
                             orientation=mav_orientation(self.to_body), readings_rotated=False,
-                            fix_params=["align_mag"], range_ut=32767 / self.counts_per_ut)
+                            fix_params=list(EXTERNAL_ANGLES) if self.external else ["align_mag"],
+                            range_ut=32767 / self.counts_per_ut,
+                            rotation=self.to_body.tolist() if self.external else None)
 
     def use_magnetometers(self, device_ids: list[int]) -> None:
         if list(device_ids) != [COMPASS]:
@@ -182,6 +184,14 @@ class InavDut:
         return dict(settings)
 
     def orientation_params(self, device_id: int, value: int) -> dict[str, ParamValue]:
+        """The settings that make INAV take the compass as mounted in MAV orientation ``value``: for an
+        external compass its three angles (all zero would hand it back to align_mag: CW0 then), else
+        ``align_mag`` when one of its eight holds it."""
+        if self.external:
+            roll, pitch, yaw = inav_external_angles(orientation_matrix(value))
+            if not (roll or pitch or yaw):
+                return {"align_mag": 1, **dict.fromkeys(EXTERNAL_ANGLES, 0)}
+            return dict(zip(EXTERNAL_ANGLES, (roll, pitch, yaw), strict=True))
         alignment = alignment_for(value)
         if alignment is None:
             raise DutError(f"none of INAV's eight align_mag values holds MAV orientation {value}: remount the compass")
