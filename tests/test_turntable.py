@@ -278,3 +278,32 @@ def test_when_the_speaking_slot_s_tumble_ends_the_next_slot_still_reading_speaks
     table.busy = False
     clock.now += 2.0  # A's tumble was determined meanwhile: only B still hands its readings over
     assert guide.step("B", level, True, set(), np.eye(3)).prompt == "Tilt the cradle: on its right side"
+
+
+def test_a_turn_is_judged_from_where_the_table_stood_before_it_was_commanded():
+    """A loaded station read the start position after commanding the turn, some way into it, and called
+    the finished revolution "stopped after 284° of 360°".  A controller answering as if the station had
+    read 0.3 s late (the table already 216° into its turn) must not make a whole turn look short."""
+    import time
+
+    from magline.plugins.turntable.motion import TurntableMotion, TurntableOptions
+
+    class LateReader(TurntableSim):
+        def command(self, head, arg):
+            answer = super().command(head, arg)
+            if head == "ROT:TURN" and self.until > self.t0:
+                self.t0 -= 0.3
+                self.until -= 0.3
+            return answer
+
+    with LateReader("tcp:127.0.0.1:0", homed=True) as table:
+        motion = TurntableMotion(TurntableOptions(resource=table.visa_resource, speed_dps=720.0, spin_up_s=1.0))
+        try:
+            motion.turn()
+            deadline = time.monotonic() + 5.0
+            while motion.turning():
+                assert time.monotonic() < deadline
+                time.sleep(0.05)
+        finally:
+            motion.close()
+    assert table.turns == 2  # the spin check and the revolution, both judged whole
