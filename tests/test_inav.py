@@ -306,8 +306,9 @@ def test_a_firmware_without_a_calibration_setting_fails_the_unit_naming_it(tmp_p
 def test_an_external_compass_turned_by_its_angles_is_checked_and_fixed_in_those_angles(tmp_path):
     """``align_mag_roll/pitch/yaw`` (0.1°) replace ``align_mag`` for an external compass (INAV's
     ``rotationMatrixFromAngles``, applied transposed): a compass on a mast turned 45° in yaw and set so
-    passes, its readings turned back by those angles; one turned 135° while the angles still say 45° fails
-    naming the angles to set, in INAV's 0.1° units."""
+    passes, its readings turned back by those angles; one turned 100° while the angles still say 45° fails
+    naming the angles of the right-angle mounting nearest it (90°), in INAV's 0.1° units.  (135°, half-way
+    between two right angles, once named 180° instead: a test must not sit on the fence it judges.)"""
     from scipy.spatial.transform import Rotation
 
     from magline.plugin import inav_external_rotation
@@ -325,7 +326,7 @@ def test_an_external_compass_turned_by_its_angles_is_checked_and_fixed_in_those_
         record = run_unit(station(tmp_path, sim.address))
     assert record.verdict is Outcome.PASS, record.cause
     assert measured(record, "mounting_error_deg") < 3.0
-    with mast(tmp_path / "wrong", 1350) as sim:
+    with mast(tmp_path / "wrong", 1000) as sim:
         record = run_unit(station(tmp_path / "wrong", sim.address))
     assert record.verdict is Outcome.FAIL
     assert "set align_mag_roll = 0, align_mag_pitch = 0, align_mag_yaw = 900" in record.cause, record.cause

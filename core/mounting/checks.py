@@ -113,6 +113,11 @@ def magline_validate_unit(run: RunContext, fits: dict[int, FitResult]) -> list[M
         configured = configured_rotation(sensor)
         expected = sensor.orientation if sensor.rotation is None else nearest_right_angle(configured)[0]
         right = rotation_angle_deg(orientation_matrix(found), orientation_matrix(expected)) < 1e-6
+        if sensor.rotation is not None:
+            # a custom rotation is right when it explains the mounting at least as well as the nearest right
+            # angle does: one half-way between two right angles (INAV's align_mag_yaw = 45°) had its nearest
+            # right angle decided by noise, and a unit mounted exactly as configured FAILed 1 run in 4
+            right = rotation_angle_deg(mounted, configured) <= rotation_angle_deg(mounted, orientation_matrix(found))
         final = orientation_matrix(found)  # the agreement is judged as the sensor will be held once right
         if right and sensor.rotation is not None:  # a custom rotation held already: what it leaves
             final, error_deg = configured, rotation_angle_deg(mounted, configured)
