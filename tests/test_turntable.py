@@ -307,3 +307,12 @@ def test_a_turn_is_judged_from_where_the_table_stood_before_it_was_commanded():
         finally:
             motion.close()
     assert table.turns == 2  # the spin check and the revolution, both judged whole
+
+
+def test_the_first_slot_speaks_for_the_cradle_even_when_another_slot_steps_first():
+    """A CI run's slot B handed its readings over before slot A's first chunk and took the first words."""
+    clock, table = Clock(), FakeTable(tilts=[Tilt(0.0, 0.0)])
+    guide = TiltGuide(table, ["A", "B"], 40, 62.0, clock=clock)
+    level = Tilt(0.0, 0.0).gravity_body()
+    assert guide.step("B", level, True, set(), np.eye(3)).prompt is None
+    assert guide.step("A", level, True, set(), np.eye(3)).prompt == "Tilt the cradle: level"

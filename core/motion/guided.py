@@ -167,8 +167,10 @@ class TiltGuide:
         self._state, self._why = "stalled", why
 
     def _guidance(self, slot: str, now: float) -> Guidance:
-        # the first member still reading speaks for the cradle (one whose tumble ended hands it on)
-        reading = [m for m in self.members if m in self._seen and now - self._seen[m].stepped < 1.0]
+        # the first member still reading speaks for the cradle: one whose tumble ended (it stepped, then stopped)
+        # hands it on; one that has not stepped yet is about to (a CI run's second slot stepped first and took
+        # the first words from the first)
+        reading = [m for m in self.members if m not in self._seen or now - self._seen[m].stepped < 1.0]
         leader = reading[0] if reading else slot
         words = self._words()
         prompt = None
