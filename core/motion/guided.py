@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from magline.core.motion.tilts import COVERAGE_TILTS, Tilt, best_tilt, off_by_deg, tilt_of_gravity
+from magline.core.motion.tilts import COVERAGE_TILTS, Tilt, best_tilt, off_by_deg, tilt_of_gravity, vector_angle_deg
 
 DEFAULT_INCLINATION_DEG = 60.0  # where no field reference says: the ring's placement is a heuristic
 POLL_S = 0.1  # how often the table is asked whether its revolution is done (not at every chunk)
@@ -52,11 +52,6 @@ class _Seen:
     sensor_to_body: NDArray = field(default_factory=lambda: np.eye(3))
     at_ask: NDArray | None = None  # the gravity when the tilt was asked: a cradle not moved since is not "wrong"
     stepped: float = 0.0  # when the slot last handed its readings over (a slot whose tumble ended stops)
-
-
-def _apart_deg(a: NDArray, b: NDArray) -> float:
-    cos = float(a @ b / max(np.linalg.norm(a) * np.linalg.norm(b), 1e-12))
-    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
 
 
 class TiltGuide:
@@ -148,7 +143,7 @@ class TiltGuide:
             return
         self._agree_since = None
         worst = max(zip(off, fresh, strict=True), key=lambda pair: pair[0])[1]
-        moved = worst.at_ask is None or _apart_deg(worst.gravity, worst.at_ask) > self.tolerance_deg
+        moved = worst.at_ask is None or vector_angle_deg(worst.gravity, worst.at_ask) > self.tolerance_deg
         if worst.steady and moved and max(off) > self.tolerance_deg:
             # moved since the ask and held still in another tilt: named once held for the settle time (a cradle
             # not yet touched is waited for, not called wrong before the operator had a chance)

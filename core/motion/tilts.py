@@ -79,11 +79,16 @@ def tilt_of_gravity(gravity_mss: NDArray) -> Tilt:
     return Tilt(5.0 * round(pitch / 5.0), 5.0 * round(roll / 5.0))
 
 
-def off_by_deg(gravity_mss: NDArray, tilt: Tilt) -> float:
-    """The angle between what the accelerometer reads and what ``tilt`` would make it read."""
-    a, b = np.asarray(gravity_mss, float), tilt.gravity_body()
+def vector_angle_deg(a: NDArray, b: NDArray) -> float:
+    """The angle between two vectors (degrees)."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
     cos = float(a @ b / max(np.linalg.norm(a) * np.linalg.norm(b), 1e-12))
     return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+
+
+def off_by_deg(gravity_mss: NDArray, tilt: Tilt) -> float:
+    """The angle between what the accelerometer reads and what ``tilt`` would make it read."""
+    return vector_angle_deg(gravity_mss, tilt.gravity_body())
 
 
 # What a station without named tilts chooses from: level, nose down and up, on each side, upside down and

@@ -144,7 +144,7 @@ class OperatorConsole:
     @hookimpl
     def magline_acquisition_progress(self, run: RunContext, attempt: int, samples: int, coverage: float,
                                      target: float, bins: list[int] | None = None, n_bins: int | None = None) -> None:
-        self._bins = (list(bins or []), n_bins)  # what a turntable's next tilt line names as still to cover
+        self._bins = (bins or [], n_bins)  # what a turntable's next tilt line names as still to cover
         if run.slot is not None:
             return self.slots.progress(run, attempt, samples, coverage, target)
         pct = int(coverage * 100)
