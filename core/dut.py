@@ -170,6 +170,9 @@ class SampleChunk:
     # measure_current_interference` asked for them; empty otherwise
     current_a: NDArray = field(default_factory=lambda: np.empty(0))
     current_t_ms: NDArray = field(default_factory=lambda: np.empty(0))  # the stream's time when each arrived
+    # current reports meanwhile that said the unit measures no current (MAVLink's −1, PX4's −1 A): a battery
+    # monitor without a current sensor, which no sweep can be fitted against
+    current_unmeasured: int = 0
 
 
 @runtime_checkable

@@ -37,6 +37,11 @@ class SimFaults:
     mag_latency: list[str] = field(default_factory=list)
     # the board's current sensor reads this many % off (−20: 20 % low, a power module's wrong scale)
     current_sensor_pct: float = 0.0
+    # the board's battery monitor: "none" measures no current (a voltage-only monitor: BATTERY_STATUS and
+    # SYS_STATUS say "not measured", ArduPilot's −1 cA, PX4's −1 A), "bypassed" measures a path the sweep's
+    # current does not flow through (the wrong monitor primary, the load upstream of it): the board's own
+    # draw only, while the compasses see the whole current
+    current_sensor: str = ""
     # µT a magnetised part keeps adding at every compass (along its interference) once a current has flowed
     interference_remanence: float = 0.0
     # °/s the unit turns about its Z axis while it is held still for the current sweep (it slips in its fixture)
@@ -65,10 +70,14 @@ class SimFaults:
     uid_changes_at_reboot: bool = False
 
     CAL_APPLIED = ("sign", "unit", "slot", "none")
+    CURRENT_SENSOR = ("none", "bypassed")
 
     def __post_init__(self) -> None:
         if self.cal_applied and self.cal_applied not in self.CAL_APPLIED:
             raise ValueError(f"cal_applied must be one of {', '.join(self.CAL_APPLIED)}, not {self.cal_applied!r}")
+        if self.current_sensor and self.current_sensor not in self.CURRENT_SENSOR:
+            raise ValueError(f"current_sensor must be one of {', '.join(self.CURRENT_SENSOR)}, "
+                             f"not {self.current_sensor!r}")
 
     @classmethod
     def parse(cls, items: list[str]) -> SimFaults:

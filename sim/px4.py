@@ -56,6 +56,9 @@ def slot_params(n: int, with_odiag: bool, with_euler: bool = False) -> list[Para
 
 class Px4Sim(SimulatedAutopilot):
     flavour = "px4"
+    # a battery without a current sensor: PX4's battery_status current_a is −1 A, and its BATTERY_STATUS
+    # stream sends current × 100 (its SITL battery reads −1 A)
+    CURRENT_NOT_MEASURED_CA = -100
     autopilot = mavlink.MAV_AUTOPILOT_PX4
     capabilities = (mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
                     | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT

@@ -580,8 +580,20 @@ class SimulatedAutopilot(ABC):
         return current
 
     def firmware_current_a(self, now: float | None = None) -> float:
-        """What the board's own current sensor reports (its scale error applied)."""
+        """What the board's own current sensor reports (its scale error applied) — 0 where it has none
+        (fault ``current_sensor=none``: nothing to compensate with), its own draw alone where the sweep's
+        current bypasses the monitor the firmware reads (``current_sensor=bypassed``)."""
+        sensor = self.faults.current_sensor
+        if sensor == "none":
+            return 0.0
+        if sensor == "bypassed":
+            self.true_current_a(time.monotonic() if now is None else now)  # the compasses still see it all
+            return self.idle_current_a * self.current_scale if self.power is Power.UP else 0.0
         return self.true_current_a(time.monotonic() if now is None else now) * self.current_scale
+
+    # BATTERY_STATUS / SYS_STATUS current_battery (cA) of a battery monitor that measures no current:
+    # MAVLink's "not measured" −1 (ArduPilot); PX4 sends its battery's current_a of −1 A × 100
+    CURRENT_NOT_MEASURED_CA = -1
 
     def interference_ut(self, sensor: SimMagnetometer, now: float) -> NDArray:
         """The field the power wiring's current adds at this compass (body axes, µT): its own vector per
@@ -716,7 +728,8 @@ class SimulatedAutopilot(ABC):
     def send_status(self, msg_id: int, now: float) -> None:
         """BATTERY_STATUS (battery 0, the primary monitor) and SYS_STATUS with the board's measured
         current, in the messages' centi-amps as both firmwares send it."""
-        centi = round(self.firmware_current_a(now) * 100.0)
+        measured = self.faults.current_sensor != "none"
+        centi = round(self.firmware_current_a(now) * 100.0) if measured else self.CURRENT_NOT_MEASURED_CA
         if msg_id == mavlink.MAVLINK_MSG_ID_BATTERY_STATUS:
             self.mav.battery_status_send(0, mavlink.MAV_BATTERY_FUNCTION_ALL, mavlink.MAV_BATTERY_TYPE_LIPO, 2500,
                                          [16800, 65535, 65535, 65535, 65535, 65535, 65535, 65535, 65535, 65535],

@@ -196,16 +196,23 @@ def test_a_magnetised_part_that_does_not_return_to_zero_fails_the_compass(tmp_pa
     assert record.params_written == {}
 
 
-@pytest.mark.parametrize(("faults", "load_fault", "cause"), [
-    ("", "no_sink", "the current source reached only 0.00 A of the 40 A"),
-    ("moved_during_sweep=3", None, "the unit moved during the current sweep"),
-], ids=["load-does-not-sink", "unit-moved"])
-def test_a_sweep_that_cannot_be_judged_is_an_error_and_nothing_is_written(tmp_path, faults, load_fault, cause):
-    with board_on_a_load(tmp_path, "ardupilot", faults, load_fault) as (sim, load, station):
+@pytest.mark.parametrize(("flavour", "faults", "load_fault", "cause"), [
+    ("ardupilot", "", "no_sink", "the current source reached only 0.00 A of the 40 A"),
+    ("ardupilot", "moved_during_sweep=3", None, "the unit moved during the current sweep"),
+    ("ardupilot", "current_sensor=none", None, "the unit does not measure its current"),
+    ("px4", "current_sensor=none", None, "the unit does not measure its current"),
+    ("ardupilot", "current_sensor=bypassed", None, "the unit's own current reading did not follow the source"),
+], ids=["load-does-not-sink", "unit-moved", "no-current-sensor", "px4-no-current-sensor", "monitor-bypassed"])
+def test_a_sweep_that_cannot_be_judged_is_an_error_and_nothing_is_written(tmp_path, flavour, faults, load_fault, cause):
+    """A sweep the station cannot judge is its ERROR, never the unit's FAIL: a load that draws nothing, a
+    unit that turned, a firmware whose current never moves — no current sensor (it says "not measured"),
+    or a monitor the load's current bypasses (it reads the board's own draw) — and nothing is written."""
+    with board_on_a_load(tmp_path, flavour, faults, load_fault) as (sim, load, station):
         record = run_unit(station, "INT-ERR")
         stored = sim.read_storage()
     assert record.verdict is Outcome.ERROR and cause in record.cause, record.cause
-    assert record.params_written == {} and stored.get("COMPASS_MOTCT", 0) == 0
+    assert record.params_written == {}
+    assert stored.get("COMPASS_MOTCT" if flavour == "ardupilot" else "CAL_MAG_COMP_TYP", 0) == 0
     assert not load.input_on  # the load is switched off after an error too
 
 

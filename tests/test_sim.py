@@ -519,3 +519,26 @@ def test_dropped_packets_fault_loses_a_share_of_the_frames(tmp_path):
         assert dropped + sent >= 250
         assert 0.3 < dropped / (dropped + sent) < 0.5, (dropped, sent)  # 40 % lost
         assert len(got) <= sent
+
+
+@pytest.mark.parametrize(("flavour", "sensor", "drawn", "reported"), [
+    ("ardupilot", "", 12.0, 1200), ("px4", "", 12.0, 1200),
+    ("ardupilot", "none", 12.0, -1), ("px4", "none", 12.0, -100),
+    ("ardupilot", "bypassed", 12.0, 0),
+])
+def test_the_board_reports_its_current_as_its_battery_monitor_measures_it(tmp_path, flavour, sensor, drawn, reported):
+    """BATTERY_STATUS and SYS_STATUS carry the primary monitor's current in cA: a monitor without a current
+    sensor says "not measured" as each firmware does (ArduPilot −1, MAVLink's own; PX4 its battery's
+    −1 A × 100), a monitor the load's current bypasses reads the board's own draw (none here)."""
+    faults = SimFaults.parse([f"current_sensor={sensor}"]) if sensor else None
+    with create_sim(flavour, f"{'udp' if flavour == 'px4' else 'tcp'}:127.0.0.1:0", workdir=tmp_path, seed=5,
+                    boot_time_s=0.3, faults=faults) as sim:
+        sim.current_provider = lambda: drawn
+        gcs = Gcs(sim.address)
+        for msg_id, kind in ((ML.MAVLINK_MSG_ID_BATTERY_STATUS, "BATTERY_STATUS"), (ML.MAVLINK_MSG_ID_SYS_STATUS,
+                                                                                     "SYS_STATUS")):
+            assert gcs.command(ML.MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, 50_000).result == ML.MAV_RESULT_ACCEPTED
+            assert gcs.recv(kind).current_battery == reported
+        # the compasses see the whole current whatever the monitor reads
+        assert sim.interference_ut(sim.magnetometers[0], time.monotonic()) == pytest.approx(
+            drawn * sim.magnetometers[0].interference_ut_per_a)

@@ -127,6 +127,7 @@ def _read_step(stream, clock: UnitClock, step: SweepStep, settled_ms: float, wan
     current reading."""
     primary = device_ids[0]
     settled_at = time.monotonic()
+    unmeasured = 0  # current reports saying "not measured"
     while True:
         if time.monotonic() > deadline:
             have = ", ".join(f"{d}: {len(step.readings.get(d, []))}" for d in device_ids)
@@ -146,12 +147,17 @@ def _read_step(stream, clock: UnitClock, step: SweepStep, settled_ms: float, wan
         currents = np.asarray(chunk.current_a, float).ravel()
         stamps = np.asarray(chunk.current_t_ms, float).ravel()
         step.firmware_a.extend(float(a) for a, t in zip(currents, stamps, strict=False) if t >= settled_ms)
+        unmeasured += chunk.current_unmeasured
         if chunk.imu is not None and len(chunk.imu.accel_mss):
             keep = np.asarray(chunk.imu.t_ms, float) >= settled_ms
             step.accel.extend(np.asarray(chunk.imu.accel_mss, float).reshape(-1, 3)[keep])
         compasses_done = all(len(step.readings.get(d, [])) >= wanted for d in device_ids)
         if step.firmware_a and compasses_done:
             return
+        if unmeasured and not step.firmware_a and compasses_done:
+            raise StationFault(f"the unit does not measure its current: its battery monitor reports the current as "
+                               f"not measured ({unmeasured} reports at the {step.level:.0%} step) — no current "
+                               "sensor configured on the primary battery monitor (a voltage-only monitor)")
         if compasses_done and time.monotonic() > settled_at + NO_CURRENT_S:
             raise StationFault(f"the unit reports no current (no BATTERY_STATUS for {NO_CURRENT_S:g} s at the "
                                f"{step.level:.0%} step): no current sensor configured, or no battery monitor")

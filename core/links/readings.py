@@ -105,13 +105,17 @@ class SensorStreams:
         self.imu_mg: list[tuple[float, float, float]] = []
         self.current_a: list[float] = []
         self.current_t: list[float] = []
+        self.current_unmeasured = 0
 
     def current(self, centi_amps: float) -> None:
-        """The unit's own battery current reading (BATTERY_STATUS / SYS_STATUS: centi-amps; −1 = none),
-        stamped with the latest time the stream carried (the message itself has none)."""
+        """The unit's own battery current reading (BATTERY_STATUS / SYS_STATUS: centi-amps), stamped with
+        the latest time the stream carried (the message itself has none).  A negative value is "not
+        measured" (MAVLink's −1; PX4 sends its battery's −1 A as −100), counted, not taken as a current."""
         if centi_amps >= 0:
             self.current_a.append(centi_amps / 100.0)
             self.current_t.append(self.latest_t_ms)
+        else:
+            self.current_unmeasured += 1
 
     def accel(self, t_ms: float, x_mg: float, y_mg: float, z_mg: float) -> None:
         """An accelerometer reading (milli-g, body axes) at ``t_ms``."""
@@ -146,6 +150,7 @@ class SensorStreams:
             chunk.imu = ImuSeries(t_ms=np.array(self.imu_t), accel_mss=np.array(self.imu_mg, float) * MSS_PER_MG)
         chunk.current_a = np.array(self.current_a, float)
         chunk.current_t_ms = np.array(self.current_t, float)
+        chunk.current_unmeasured = self.current_unmeasured
         self.taken_at = time.monotonic()
         self._clear()
         return chunk
