@@ -595,6 +595,25 @@ class SimulatedAutopilot(ABC):
     # MAVLink's "not measured" −1 (ArduPilot); PX4 sends its battery's current_a of −1 A × 100
     CURRENT_NOT_MEASURED_CA = -1
 
+    def corrected_change_ut(self, index: int, amps: float, body_ut: NDArray | None = None) -> NDArray:
+        """How far the firmware's corrected output of compass ``index`` moves (µT) when ``amps`` flow, for
+        one field and without noise: what its current compensation leaves of the interference — the
+        simulator's truth, for tests and benchmarks to hold a measured figure against."""
+        sensor = self.magnetometers[index]
+        body = np.array([20.0, 5.0, 40.0]) if body_ut is None else np.asarray(body_ut, float)
+        noise, sensor.truth.noise_ut = sensor.truth.noise_ut, 0.0
+        provider = self.current_provider
+        rng = np.random.default_rng(0)
+        out = []
+        try:
+            for current in (0.0, amps):
+                self.current_provider = lambda current=current: current
+                raw = sensor.read_ut(body + current * sensor.interference_ut_per_a, rng)
+                out.append(self.corrected_ut(sensor, raw))
+        finally:
+            sensor.truth.noise_ut, self.current_provider = noise, provider
+        return out[1] - out[0]
+
     def interference_ut(self, sensor: SimMagnetometer, now: float) -> NDArray:
         """The field the power wiring's current adds at this compass (body axes, µT): its own vector per
         amp, and — fault ``interference_remanence`` — a part magnetised by the largest current so far."""

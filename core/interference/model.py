@@ -64,12 +64,13 @@ class Interference:
     moved_deg: float
     seconds: float
     steps: list[dict] = field(default_factory=list)  # level, source and unit current per step (the record)
+    readings_per_step: int = 0  # readings of every compass at each step (as the noise at 0 A asked)
     compensated: set[int] = field(default_factory=set)  # device ids whose compensation the persist phase writes
 
     def to_dict(self) -> dict:
         return {"reference": self.reference, "current_max_a": self.current_max_a, "field_ut": self.field_ut,
                 "sensor_error_pct": self.sensor_error_pct, "moved_deg": self.moved_deg, "seconds": self.seconds,
-                "steps": self.steps,
+                "steps": self.steps, "readings_per_step": self.readings_per_step,
                 "compasses": {str(d): {"per_amp_ut": c.per_amp_ut.tolist(), "per_amp_sigma_ut": c.per_amp_sigma_ut,
                                        "per_amp_written_ut": c.per_amp_written_ut.tolist(),
                                        "linearity_ut": c.linearity_ut, "return_ut": c.return_ut,
@@ -158,7 +159,7 @@ def analyse(sweep: Sweep, fits: dict[int, FitResult], current_max_a: float, fiel
     table = [{"level": s.level, "source_a": s.source_a, "unit_a": s.firmware_mean_a} for s in steps]
     return Interference(compasses=compasses, reference="source" if has_source else "unit", current_max_a=current_max_a,
                         field_ut=field_ut, sensor_error_pct=sensor_error, moved_deg=moved, seconds=sweep.seconds,
-                        steps=table)
+                        steps=table, readings_per_step=sweep.readings_per_step)
 
 
 def _moved_deg(steps) -> float:

@@ -51,6 +51,7 @@ class Sweep:
     steps: list[SweepStep]
     seconds: float
     device_ids: list[int]
+    readings_per_step: int = 0  # what the noise at 0 A asked for (the station's ``readings`` at least)
 
 
 def sweep_levels(steps: int) -> list[float]:
@@ -94,12 +95,24 @@ def run_sweep(run: RunContext, source: CurrentSource, settings: InterferenceSett
     steps: list[SweepStep] = []
     clock = UnitClock()
     stream = dut.samples(settings.rate_hz)
+    levels = sweep_levels(settings.steps)
+    wanted = settings.readings
     try:
-        for level in sweep_levels(settings.steps):
+        for index, level in enumerate(levels):
             run.abort.check()
             source.set_level(level)
             step = SweepStep(level=level)
-            _read_step(stream, clock, step, clock.in_ms(settings.settle_s), settings.readings, device_ids, deadline)
+            settled_ms = clock.in_ms(settings.settle_s)
+            _read_step(stream, clock, step, settled_ms, wanted, device_ids, deadline)
+            while index == 0:  # the compasses' noise at 0 A decides how many readings every step needs,
+                # estimated again from each larger set until the readings in hand are enough
+                needed = readings_for_target(step, device_ids, levels, run.product.current_max_a or 0.0, settings)
+                if needed <= wanted:
+                    break
+                wanted = needed
+                run.log(f"sweep: {wanted} readings a step bring the field per amp to ±"
+                        f"{settings.target_sigma_ut_per_a:g} µT/A (the compasses' noise at 0 A)")
+                _read_step(stream, clock, step, settled_ms, wanted, device_ids, deadline)
             step.source_a = source.measured_current_a()
             steps.append(step)
             run.log(f"sweep {level:.0%}: unit reads {_amps(step.firmware_mean_a)}, source {_amps(step.source_a)}")
@@ -113,7 +126,25 @@ def run_sweep(run: RunContext, source: CurrentSource, settings: InterferenceSett
         raise
     stream.close()
     source.stop()
-    return Sweep(steps=steps, seconds=time.monotonic() - started, device_ids=list(device_ids))
+    return Sweep(steps=steps, seconds=time.monotonic() - started, device_ids=list(device_ids), readings_per_step=wanted)
+
+
+def readings_for_target(step: SweepStep, device_ids: list[int], levels: list[float], top_a: float,
+                        settings: InterferenceSettings) -> int:
+    """Readings a step that bring the slope's 1σ per axis to ``target_sigma_ut_per_a`` for the noisiest
+    compass: a line through ``n`` readings at each current ``L·top`` has ``σ_c = σ / (top·√(n·Σ(L − L̄)²))``.
+    The noise is each compass's scatter at this (0 A) step, pooled over its three axes, as the fit pools
+    the residuals; between ``readings`` and ``readings_max``."""
+    if top_a <= 0:
+        return settings.readings
+    spread = float(np.sum((np.asarray(levels) - np.mean(levels)) ** 2))
+    noise = 0.0
+    for device_id in device_ids:
+        fields = step.fields(device_id)
+        if len(fields) >= 2:
+            noise = max(noise, float(np.sqrt(np.sum(np.var(fields, axis=0, ddof=1)) / 3.0)))
+    needed = (noise / (top_a * settings.target_sigma_ut_per_a)) ** 2 / spread
+    return int(min(max(settings.readings, np.ceil(needed)), settings.readings_max))
 
 
 def _amps(value: float | None) -> str:

@@ -141,11 +141,20 @@ class InterferenceSettings(_Strict):
     many back down to 0 (the return to zero is judged), each held ``settle_s`` before ``readings``
     readings of every compass are taken; the stream asks for ``rate_hz``.  The defaults (0, ½, 1, ½, 0
     of the top, 8 readings) take about 6 s at ArduPilot's 10 Hz compasses.  The proof after the power
-    cycle needs only the slope: 0, 1, 0."""
+    cycle needs only the slope: 0, 1, 0.
+
+    Why ``target_sigma_ut_per_a``: the field per amp is only as good as the compasses' noise over the
+    current swept — 8 readings a step hold it to 2 % + 0.01 µT/A at 0.3 µT of noise and 40 A, not at
+    1 µT or 10 A.  So the first (0 A) step measures each compass's noise, and every step then reads as
+    many readings as bring the slope's 1σ per axis to the target (``readings`` the least,
+    ``readings_max`` the most: a noisier compass is given more time, never an imprecise figure
+    silently)."""
 
     steps: Annotated[int, Field(ge=2, le=20)] = 2
     settle_s: Annotated[float, Field(ge=0.0, le=30.0)] = 0.3
     readings: Annotated[int, Field(ge=3, le=1000)] = 8
+    target_sigma_ut_per_a: Annotated[float, Field(gt=0)] = 0.005
+    readings_max: Annotated[int, Field(ge=3, le=5000)] = 200
     rate_hz: Annotated[float, Field(gt=0, le=400)] = 50.0
     timeout_s: Annotated[float, Field(gt=0)] = 60.0  # the whole sweep
 
