@@ -159,6 +159,7 @@ def test_the_interference_reads_in_words_in_show_the_report_and_the_export(tmp_p
     pct = measured(record, "mag2.interference_pct_at_max").value
     band = "fine" if pct < 30 else "grey zone"
     assert "current interference (swept to 40 A in " in shown
+    assert f", {record.unit_info['interference']['readings_per_step']} readings a step" in shown
     assert f"{pct:.1f} % of the field at 40 A — {band}; compensated: " in shown
     assert "% left after the power cycle" in shown
     assert "  interference " in shown  # the phase, in the phases table
