@@ -4,6 +4,7 @@ nothing of the network."""
 
 from __future__ import annotations
 
+import base64
 import shutil
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -69,6 +70,24 @@ def drawn_points(page: Any) -> dict[str, int]:
     what a person sees, not the data the page carries."""
     return page.evaluate("""() => Object.fromEntries([...document.querySelectorAll('.js-plotly-plot')].map(
         e => [e.id, e.querySelectorAll('.scatterlayer .point').length]))""")
+
+
+def colour_pixels(page: Any, selector: str, colours: dict[str, str], within: int = 40,
+                  path: Path | None = None) -> dict[str, int]:
+    """How many pixels of the element's screenshot lie within ``within`` (per channel) of each colour
+    (``#rrggbb``), the PNG decoded by the browser itself: what a person sees, not what the page carries."""
+    shot = base64.b64encode(page.locator(selector).screenshot(path=None if path is None else str(path))).decode()
+    wanted = {name: [int(c[i:i + 2], 16) for i in (1, 3, 5)] for name, c in colours.items()}
+    return page.evaluate("""async ([png, wanted, within]) => {
+        const img = new Image(); img.src = "data:image/png;base64," + png; await img.decode();
+        const c = document.createElement("canvas"); c.width = img.width; c.height = img.height;
+        const g = c.getContext("2d"); g.drawImage(img, 0, 0); const d = g.getImageData(0, 0, c.width, c.height).data;
+        const out = Object.fromEntries(Object.keys(wanted).map(k => [k, 0]));
+        for (let i = 0; i < d.length; i += 4)
+            for (const [k, [r, gr, b]] of Object.entries(wanted))
+                if (Math.abs(d[i] - r) < within && Math.abs(d[i + 1] - gr) < within && Math.abs(d[i + 2] - b) < within)
+                    out[k] += 1;
+        return out; }""", [shot, wanted, within])
 
 
 def screenshot(page: Any, path: Path) -> Path:

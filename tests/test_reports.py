@@ -6,11 +6,12 @@ from __future__ import annotations
 import io
 
 import pytest
-from browser import drawn_points, open_page, plots_with_data, screenshot
+from browser import colour_pixels, drawn_points, open_page, plots_with_data, screenshot
 from rich.console import Console
 from simstation import attempt_rows
 
 from magline.core.cli import main
+from magline.core.reports.capability_figures import BAR_COLOUR, LINE_COLOUR, UNIT_COLOUR
 
 OFFLINE = ("file://", "data:", "blob:", "about:")
 
@@ -159,6 +160,14 @@ def test_the_batch_report_reads_like_a_capability_study_and_a_point_opens_its_un
     bars = opened.page.evaluate("""() => document.getElementById('shape-hard_iron_norm_ut')
         .querySelectorAll('.barlayer .point').length""")
     assert shape_points == 5 and bars >= 1 and drawn["chart-hard_iron_norm_ut"] >= 5
+    # and by its pixels: the histogram's bars, the probability plot's five unit markers (each ~6 px across),
+    # the fitted curve and the normal line in blue
+    seen = colour_pixels(opened.page, "#shape-hard_iron_norm_ut", {"bars": BAR_COLOUR, "units": UNIT_COLOUR,
+                                                                   "curves": LINE_COLOUR}, within=24,
+                         path=tmp_path / "shape.png")
+    assert seen["bars"] > 2000 and seen["units"] > 5 * 12 and seen["curves"] > 150, seen
+    # the limit 80 µT beyond five units 0.1 µT apart is named at the edge, not drawn with bars a pixel wide
+    assert "USL 150 →" in opened.page.inner_text("#shape-hard_iron_norm_ut")
     text = opened.page.inner_text("body")
     assert "shape and method" in text and "control limits" in text and "provisional" in text
 

@@ -511,3 +511,16 @@ def test_yield_and_failure_causes_trend_per_shift_station_operator_product_and_c
         main(["spc", "--station", str(station), "--shifts", "6:61"])
     assert usage.value.code == 2 and "argument --shifts: '6:61' is not a clock time" in capsys.readouterr().err
     assert main(["spc", "--station", str(station), "--with-reports"]) == 2
+
+
+def test_the_histogram_shows_the_units_shape_and_draws_only_the_limits_near_them():
+    """A limit within reach of the units is drawn in the histogram's range; one far beyond them is named
+    at the edge it lies past, so the bars keep a width a person can read; the bins are the width the
+    fitted curve is scaled by."""
+    from magline.core.reports.capability_figures import histogram_view
+
+    values = np.array([73.64, 73.65, 73.67, 73.69, 73.72])
+    view, size, off = histogram_view(values, 0.03, (None, 150.0))
+    assert off == {"USL"} and view.high < 74.0 and size == pytest.approx(0.08 / 5)
+    view, _, off = histogram_view(values, 0.03, (73.5, 74.2))
+    assert off == set() and view.low < 73.5 and view.high > 74.2

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 import uvicorn
 import yaml
-from browser import open_page, screenshot
+from browser import colour_pixels, open_page, screenshot
 from conftest import REPO
 from playwright.sync_api import TimeoutError as PlaywrightTimeout
 from sqlalchemy import create_engine
@@ -623,8 +623,6 @@ def test_a_turntable_s_tilt_is_drawn_under_the_prompt_and_dimmed_while_the_table
     """The cradle asked for, as the operator sees it: the words in the prompt, a side and a rear view drawn
     under it (pixels of the cradle's colour and of its yellow nose in the picture), dimmed while the table
     turns, gone once the tumble stalled (the words then say what is missing)."""
-    import base64
-
     from magline.core.motion.tilts import Tilt
     from magline.core.operator_ui.cradle import cradle_svg
 
@@ -643,17 +641,9 @@ def test_a_turntable_s_tilt_is_drawn_under_the_prompt_and_dimmed_while_the_table
     assert page.evaluate(draw, shown) is False
     assert page.inner_text("#prompt") == "Tilt the cradle: nose down 45°"
     assert page.get_attribute("#tilt svg", "aria-label") == "cradle: nose down 45°"
-    shot = base64.b64encode(page.locator("#tilt").screenshot(path=str(tmp_path / "tilt.png"))).decode()
     # the screenshot's pixels, decoded by the browser itself: the cradle's colour and its yellow nose
-    cradle, nose = page.evaluate("""async (png) => { const img = new Image(); img.src = "data:image/png;base64," + png;
-        await img.decode(); const c = document.createElement("canvas"); c.width = img.width; c.height = img.height;
-        const g = c.getContext("2d"); g.drawImage(img, 0, 0); const d = g.getImageData(0, 0, c.width, c.height).data;
-        const near = (i, r, gr, b) => Math.abs(d[i] - r) < 40 && Math.abs(d[i + 1] - gr) < 40
-            && Math.abs(d[i + 2] - b) < 40;
-        let cradle = 0, nose = 0;
-        for (let i = 0; i < d.length; i += 4) {
-            cradle += near(i, 0x1b, 0x3a, 0x5c); nose += near(i, 0xe0, 0xa0, 0x00); }
-        return [cradle, nose]; }""", shot)
+    seen = colour_pixels(page, "#tilt", {"cradle": "#1b3a5c", "nose": "#e0a000"}, path=tmp_path / "tilt.png")
+    cradle, nose = seen["cradle"], seen["nose"]
     assert cradle > 500 and nose > 50, (cradle, nose)
     assert page.evaluate(draw, {**shown, "state": "turning"}) is False
     assert page.evaluate("getComputedStyle(document.getElementById('tilt')).opacity") == "0.45"

@@ -14,7 +14,7 @@ import math
 import os
 from collections import Counter
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import plotly.graph_objects as go
@@ -27,6 +27,7 @@ from magline.core.reports.commands import default_name
 from magline.core.text import fmt
 
 LIMIT_COLOUR, LINE_COLOUR = "#cf222e", "#0969da"
+BAR_COLOUR, UNIT_COLOUR = "#8c959f", "#8250df"  # histogram bars; the probability plot's unit markers
 
 
 def report_links(report: SpcReport, folder: Path | None, page: Path) -> dict[int, str]:
@@ -81,6 +82,35 @@ def imr_figure(m: MeasurementReport, runs: list[dict[str, Any]], links: dict[int
     return fig
 
 
+class HistogramView(NamedTuple):
+    low: float
+    high: float
+    bins_start: float
+
+
+def histogram_view(values: np.ndarray, sigma: float, limits: tuple[float | None, float | None],
+                   reach: float = 4.0) -> tuple[HistogramView, float, set[str]]:
+    """The x range, the bin width and the limits too far away to draw.  Why not always the limits'
+    range, as a capability histogram usually is: a unit population 0.1 µT wide under a limit 80 µT away
+    drew its bars one pixel wide — no shape to read.  The view spans the units and ``reach`` times their
+    spread beyond them; a limit within it is drawn, one beyond it named at that edge (its distance is
+    in the capability figures beside)."""
+    low, high = float(values.min()), float(values.max())
+    spread = max(high - low, 6.0 * sigma, 1e-9 * max(abs(low), abs(high), 1.0))
+    bins = max(5, min(40, int(math.sqrt(values.size)) + 1))
+    size = (high - low) / bins if high > low else spread / 10.0
+    view_low, view_high = low - 0.5 * spread, high + 0.5 * spread
+    off_scale = set()
+    for value, label in zip(limits, ("LSL", "USL"), strict=True):
+        if value is None:
+            continue
+        if low - reach * spread <= value <= high + reach * spread:
+            view_low, view_high = min(view_low, value - 0.05 * spread), max(view_high, value + 0.05 * spread)
+        else:
+            off_scale.add(label)
+    return HistogramView(view_low, view_high, low - size / 2.0), size, off_scale
+
+
 def fitted_density(cap: Capability, x: np.ndarray) -> np.ndarray | None:
     """The density the capability was computed from, at ``x``: normal, Box-Cox (back-transformed) or
     the shape the percentile method fitted."""
@@ -107,24 +137,30 @@ def shape_figure(m: MeasurementReport) -> go.Figure:
     cap = m.capability
     fig = make_subplots(rows=1, cols=2, column_widths=[0.55, 0.45], horizontal_spacing=0.1,
                         subplot_titles=(f"histogram — {cap.method_short}", "normal probability plot"))
-    bins = max(5, min(40, int(math.sqrt(values.size)) + 1))
-    fig.add_trace(go.Histogram(x=values, nbinsx=bins, name="units", marker={"color": "#8c959f"},
+    view, size, off_scale = histogram_view(values, cap.sigma_overall, (m.limit.low, m.limit.high))
+    fig.add_trace(go.Histogram(x=values, xbins={"start": view.bins_start, "end": view.high, "size": size},
+                               autobinx=False, name="units", marker={"color": BAR_COLOUR},
                                hovertemplate="%{x}<br>%{y} units<extra></extra>"), row=1, col=1)
-    low = min([values.min(), *(v for v in (m.limit.low, m.limit.high) if v is not None)])
-    high = max([values.max(), *(v for v in (m.limit.low, m.limit.high) if v is not None)])
-    span = high - low or 1.0
-    grid = np.linspace(low - 0.05 * span, high + 0.05 * span, 200)
+    grid = np.linspace(view.low, view.high, 300)
     density = fitted_density(cap, grid)
-    if density is not None:
-        width = (values.max() - values.min()) / bins if values.max() > values.min() else 1.0
-        fig.add_trace(go.Scatter(x=grid, y=density * values.size * width, mode="lines", name="fitted",
+    if density is not None:  # scaled as the bars are: units per bin of ``size``
+        fig.add_trace(go.Scatter(x=grid, y=density * values.size * size, mode="lines", name="fitted",
                                  line={"color": LINE_COLOUR, "width": 2}), row=1, col=1)
     for value, label in ((m.limit.low, "LSL"), (m.limit.high, "USL")):
-        if value is not None:
+        if value is None:
+            continue
+        if label in off_scale:  # far from every unit: named at the edge it lies beyond, not drawn as a spike
+            fig.add_annotation(text=f"{label} {fmt(value)} {'→' if value > view.high else '←'}", showarrow=False,
+                               xref="x domain", yref="y domain", x=1.0 if value > view.high else 0.0, y=1.0,
+                               xanchor="right" if value > view.high else "left", yanchor="bottom",
+                               font={"color": LIMIT_COLOUR}, row=1, col=1)
+        else:
             fig.add_vline(x=value, line={"color": LIMIT_COLOUR, "dash": "dot", "width": 1.5}, row=1, col=1,
                           annotation_text=f"{label} {fmt(value)}", annotation_position="top")
+    fig.update_xaxes(range=[view.low, view.high], row=1, col=1)
     (theoretical, ordered), (slope, intercept, _) = stats.probplot(values, dist="norm")
-    fig.add_trace(go.Scatter(x=theoretical, y=ordered, mode="markers", name="units", marker={"size": 5},
+    fig.add_trace(go.Scatter(x=theoretical, y=ordered, mode="markers", name="units",
+                             marker={"size": 6, "color": UNIT_COLOUR},
                              hovertemplate="z %{x:.2f}<br>%{y:.4g}<extra></extra>"), row=1, col=2)
     fig.add_trace(go.Scatter(x=[theoretical[0], theoretical[-1]],
                              y=[slope * theoretical[0] + intercept, slope * theoretical[-1] + intercept],
