@@ -100,7 +100,8 @@ def part_two(boards: int, seed: int, rates: list[float]) -> None:
     from magline.sim.load import LoadSim
 
     print(f"\n2. end to end on the simulators, {boards} two-compass boards per firmware and compass rate (the SCPI "
-          "load, 40 A, speed 5, the station's sweep defaults; goal: the sweep ≤ 10 s, compensation leaves ≤ 5 % of "
+          "load, 40 A, tumble speed 5 (1 at compasses under 50 Hz), the station's sweep defaults; goal: the sweep "
+          "≤ 10 s, compensation leaves ≤ 5 % of "
           "the change)")
     print("   left (true): what the simulated firmware's corrected output still moves at 40 A, without noise; "
           "left (proof): what the proof sweep measured, with its σ")
@@ -115,8 +116,10 @@ def part_two(boards: int, seed: int, rates: list[float]) -> None:
                     folder = Path(tmp)
                     (folder / "fc").mkdir()
                     listen = "udp:127.0.0.1:0" if flavour == "px4" else "tcp:127.0.0.1:0"
+                    # a fast tumble (speed 5) reads a 10 Hz pair of compasses 10° apart in heading between two
+                    # readings, which the agreement check rightly fails: slower compasses get a hand's speed
                     sim = create_sim(flavour, listen, workdir=folder / "fc", seed=seed + k, boot_time_s=0.3,
-                                     speed=5.0, mag_rate_hz=rate, mag_count=2)
+                                     speed=5.0 if rate >= 50 else 1.0, mag_rate_hz=rate, mag_count=2)
                     with sim, LoadSim("tcp:127.0.0.1:0", board=sim) as load:
                         host, port = sim.address.split(":")[1:]
                         address = f"udpout://{host}:{port}" if flavour == "px4" else sim.address
@@ -141,6 +144,8 @@ def part_two(boards: int, seed: int, rates: list[float]) -> None:
                     print(f"   {flavour:<10} {rate:4.0f} {found.get('readings_per_step', 0):8d} {sweep:8.1f} "
                           f"{c['pct_at_max']:9.2f} {true_pct:14.3f} {true_left / before:14.2%} {left:15.2f} "
                           f"{left / sigma_pct:10.1f}  {record.verdict.value}")
+                if record.verdict.value != "pass":
+                    print(f"      {record.verdict.value}: {record.cause}")
 
 
 def main() -> int:
