@@ -188,8 +188,13 @@ def format_text(report: SpcReport) -> str:
              + (f" (from {report.series.source})" if report.series.source else ""), ""]
     if not runs:
         return "\n".join([*lines, "no runs match"])
+    # the indices' columns as wide as their widest entry: a capable process's "538.97 [362.81, 715.13]"
+    # pushed the normality columns out of line
+    cpk_w = max([20, *(len(index_words(m.capability.cpk)) for m in report.measurements)])
+    ppk_w = max([20, *(len(index_words(m.capability.ppk)) for m in report.measurements)])
     header = (f"{'measurement':<24} {'n':>6} {'centre':>11} {'σ within':>10} {'LCL':>10} {'UCL':>10} "
-              f"{'limits':>18}  {'Cpk [95% CI]':<20} {'Ppk [95% CI]':<20} {'AD p':>6} {'method':<16} signals")
+              f"{'limits':>18}  {'Cpk [95% CI]':<{cpk_w}} {'Ppk [95% CI]':<{ppk_w}} {'AD p':>6} {'method':<16} "
+              "signals")
     lines += [header, "-" * len(header)]
     for m in report.measurements:
         c = m.chart
@@ -199,9 +204,9 @@ def format_text(report: SpcReport) -> str:
         where = (f"{len(c.signals)}: latest {latest.rule} at {runs[c.index[latest.point]]['serial']}"
                  if latest else "none")
         lines.append(f"{m.name:<24} {c.values.size:>6} {fmt(c.centre):>11} {fmt(c.sigma):>10} {fmt(c.lcl):>10} "
-                     f"{fmt(c.ucl):>10} {limits:>18}  {index_words(m.capability.cpk):<20} "
-                     f"{index_words(m.capability.ppk):<20} {_ad_p(m.capability):>6} {m.capability.method_short:<16} "
-                     f"{where}")
+                     f"{fmt(c.ucl):>10} {limits:>18}  {index_words(m.capability.cpk):<{cpk_w}} "
+                     f"{index_words(m.capability.ppk):<{ppk_w}} {_ad_p(m.capability):>6} "
+                     f"{m.capability.method_short:<16} {where}")
     if report.missing:
         lines.append(f"no run here holds: {', '.join(report.missing)}")
     judged = max((m.capability.n for m in report.measurements), default=0)
