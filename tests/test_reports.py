@@ -178,11 +178,19 @@ def test_the_batch_report_reads_like_a_capability_study_and_a_point_opens_its_un
             const labels = [...plot.querySelectorAll('.annotation-text')].filter(
                 t => /^(LSL|USL)/.test(t.textContent)).map(t => t.getBoundingClientRect());
             const ticks = [...plot.querySelectorAll('.ytick text')].map(t => t.getBoundingClientRect());
-            for (const a of labels) for (const b of ticks)
-                if (a.left < b.right && b.left < a.right && a.top < b.bottom && b.top < a.bottom) out.push(plot.id);
+            const meet = (a, b) => a.left < b.right && b.left < a.right && a.top < b.bottom && b.top < a.bottom;
+            for (const a of labels) for (const b of ticks) if (meet(a, b)) out.push(plot.id);
+            // nor do the chart's own labels overprint each other (UCL, centre and LCL squeezed into one
+            // line under a limit far away)
+            const all = [...plot.querySelectorAll('.annotation-text')].map(
+                t => [t.textContent, t.getBoundingClientRect()]);
+            all.forEach(([ta, a], i) => all.slice(i + 1).forEach(([tb, b]) => {
+                if (meet(a, b)) out.push(plot.id + ": " + ta + " / " + tb); }));
         });
         return out;}""")
     assert overlaps == []
+    # a specification limit far from the units is named at the chart's edge, the control band fills it
+    assert "USL 150 ↑" in opened.page.inner_text("#chart-hard_iron_norm_ut")
 
     # a click on the first unit's point opens its report, from the station's reports folder
     point = opened.page.locator("#chart-hard_iron_norm_ut .scatterlayer .trace:first-child .point").first

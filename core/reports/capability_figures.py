@@ -68,10 +68,20 @@ def imr_figure(m: MeasurementReport, runs: list[dict[str, Any]], links: dict[int
     for value, label, dash in ((c.centre, "centre", "solid"), (c.ucl, "UCL", "dash"), (c.lcl, "LCL", "dash")):
         fig.add_hline(y=value, line={"color": LINE_COLOUR, "dash": dash, "width": 1}, row=1, col=1,
                       annotation_text=f"{label} {fmt(value)}", annotation_position="right")
+    band = [float(np.min(c.values)), float(np.max(c.values)), *(float(v) for v in (c.lcl, c.ucl, c.centre)
+                                                                 if v is not None and np.isfinite(v))]
+    low, high = min(band), max(band)
+    y_low, y_high, off_scale = view_with_limits(low, high, max(high - low, 1e-9 * max(abs(low), abs(high), 1.0)),
+                                                (m.limit.low, m.limit.high))
     for value, label in ((m.limit.low, "LSL"), (m.limit.high, "USL")):
-        if value is not None:
+        if value is None:
+            continue
+        if label in off_scale:
+            off_scale_label(fig, label, value, value > y_high, "y", 1)
+        else:
             fig.add_hline(y=value, line={"color": LIMIT_COLOUR, "dash": "dot", "width": 1}, row=1, col=1,
                           annotation_text=f"{label} {fmt(value)}", annotation_position="top left")
+    fig.update_yaxes(range=[y_low, y_high], row=1, col=1)
     fig.add_trace(go.Scatter(x=when[1:], y=c.moving_ranges, mode="lines", name="moving range",
                              line={"width": 1, "color": "#57606a"}), row=2, col=1)
     fig.add_hline(y=c.mr_bar, line={"color": LINE_COLOUR, "width": 1}, row=2, col=1)
@@ -88,17 +98,12 @@ class HistogramView(NamedTuple):
     bins_start: float
 
 
-def histogram_view(values: np.ndarray, sigma: float, limits: tuple[float | None, float | None],
-                   reach: float = 4.0) -> tuple[HistogramView, float, set[str]]:
-    """The x range, the bin width and the limits too far away to draw.  Why not always the limits'
-    range, as a capability histogram usually is: a unit population 0.1 µT wide under a limit 80 µT away
-    drew its bars one pixel wide — no shape to read.  The view spans the units and ``reach`` times their
-    spread beyond them; a limit within it is drawn, one beyond it named at that edge (its distance is
-    in the capability figures beside)."""
-    low, high = float(values.min()), float(values.max())
-    spread = max(high - low, 6.0 * sigma, 1e-9 * max(abs(low), abs(high), 1.0))
-    bins = max(5, min(40, int(math.sqrt(values.size)) + 1))
-    size = (high - low) / bins if high > low else spread / 10.0
+def view_with_limits(low: float, high: float, spread: float, limits: tuple[float | None, float | None],
+                     reach: float = 4.0) -> tuple[float, float, set[str]]:
+    """An axis range over ``low``–``high`` and half a ``spread`` beyond, stretched to every specification
+    limit within ``reach`` spreads of it; the labels of the limits farther away (they are named at the
+    edge they lie past, not drawn).  Why: a population 0.1 µT wide under a limit 80 µT away was drawn
+    as one flat line — no shape, no control band, labels on top of each other."""
     view_low, view_high = low - 0.5 * spread, high + 0.5 * spread
     off_scale = set()
     for value, label in zip(limits, ("LSL", "USL"), strict=True):
@@ -108,7 +113,28 @@ def histogram_view(values: np.ndarray, sigma: float, limits: tuple[float | None,
             view_low, view_high = min(view_low, value - 0.05 * spread), max(view_high, value + 0.05 * spread)
         else:
             off_scale.add(label)
+    return view_low, view_high, off_scale
+
+
+def histogram_view(values: np.ndarray, sigma: float, limits: tuple[float | None, float | None],
+                   reach: float = 4.0) -> tuple[HistogramView, float, set[str]]:
+    """The x range, the bin width and the limits too far away to draw (:func:`view_with_limits`)."""
+    low, high = float(values.min()), float(values.max())
+    spread = max(high - low, 6.0 * sigma, 1e-9 * max(abs(low), abs(high), 1.0))
+    bins = max(5, min(40, int(math.sqrt(values.size)) + 1))
+    size = (high - low) / bins if high > low else spread / 10.0
+    view_low, view_high, off_scale = view_with_limits(low, high, spread, limits, reach)
     return HistogramView(view_low, view_high, low - size / 2.0), size, off_scale
+
+
+def off_scale_label(fig: go.Figure, label: str, value: float, beyond_high: bool, axis: str, row: int) -> None:
+    """A limit beyond the view, named at the edge it lies past (x: left/right; y: bottom/top)."""
+    arrow = {("x", True): "→", ("x", False): "←", ("y", True): "↑", ("y", False): "↓"}[(axis, beyond_high)]
+    edge = 1.0 if beyond_high else 0.0
+    place = ({"x": edge, "y": 1.0, "xanchor": "right" if beyond_high else "left", "yanchor": "bottom"} if axis == "x"
+             else {"x": 0.0, "y": edge, "xanchor": "left", "yanchor": "top" if beyond_high else "bottom"})
+    fig.add_annotation(text=f"{label} {fmt(value)} {arrow}", showarrow=False, xref="x domain", yref="y domain",
+                       font={"color": LIMIT_COLOUR}, row=row, col=1, **place)
 
 
 def fitted_density(cap: Capability, x: np.ndarray) -> np.ndarray | None:
@@ -150,10 +176,7 @@ def shape_figure(m: MeasurementReport) -> go.Figure:
         if value is None:
             continue
         if label in off_scale:  # far from every unit: named at the edge it lies beyond, not drawn as a spike
-            fig.add_annotation(text=f"{label} {fmt(value)} {'→' if value > view.high else '←'}", showarrow=False,
-                               xref="x domain", yref="y domain", x=1.0 if value > view.high else 0.0, y=1.0,
-                               xanchor="right" if value > view.high else "left", yanchor="bottom",
-                               font={"color": LIMIT_COLOUR}, row=1, col=1)
+            off_scale_label(fig, label, value, value > view.high, "x", 1)
         else:
             fig.add_vline(x=value, line={"color": LIMIT_COLOUR, "dash": "dot", "width": 1.5}, row=1, col=1,
                           annotation_text=f"{label} {fmt(value)}", annotation_position="top")
