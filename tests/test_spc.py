@@ -525,3 +525,17 @@ def test_the_histogram_shows_the_units_shape_and_draws_only_the_limits_near_them
     assert off == {"USL"} and view.high < 74.0 and size == pytest.approx(0.08 / 5)
     view, _, off = histogram_view(values, 0.03, (73.5, 74.2))
     assert off == set() and view.low < 73.5 and view.high > 74.2
+
+
+def test_the_frozen_limits_are_said_as_the_charts_draw_them_inside_what_a_measurement_can_take():
+    """An angle ≥ 0 with its centre 2σ above 0: the chart's LCL is 0, and the freeze says 0 too (it said
+    −0.0468°, a limit no unit can cross)."""
+    from magline.core.quality.baseline import Frozen, frozen_text
+    from magline.core.results.control_limits import FrozenLimits
+
+    angle = FrozenLimits(measurement="mag2.mounting_error_deg", centre=0.094, sigma_within=0.047, mr_bar=0.053, n=25,
+                         baseline="the first 25 judged units", first_run=1, last_run=25, version=1)
+    free = FrozenLimits(measurement="field_error_pct", centre=-0.19, sigma_within=0.054, mr_bar=0.061, n=25,
+                        baseline="the first 25 judged units", first_run=1, last_run=25, version=1)
+    text = frozen_text(Frozen(version=1, limits=[angle, free]), "MOCK-100", None)
+    assert "LCL 0  UCL 0.235" in text and "LCL -0.352  UCL -0.028" in text, text

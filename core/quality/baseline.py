@@ -14,8 +14,12 @@ from __future__ import annotations
 import getpass
 from dataclasses import dataclass
 
+import numpy as np
+
 from magline.core import __version__
+from magline.core.measurements import POSSIBLE, base_name
 from magline.core.quality.capability import MIN_UNITS, MIN_UNITS_SOURCE
+from magline.core.quality.charts import control_limits
 from magline.core.quality.spc import SpcReport
 from magline.core.record import now_iso
 from magline.core.results.control_limits import EVERY_STATION, FrozenLimits, freeze
@@ -78,9 +82,11 @@ def frozen_text(frozen: Frozen, part: str, station_id: str | None) -> str:
     for item in frozen.limits:
         state = "stable" if not item.signals else "NOT STABLE: " + "; ".join(
             f"{s['rule']} at {s['serial']}" for s in item.signals)
+        # the limits as every later chart draws them: inside what the measurement can take
+        lcl, ucl = control_limits(item.centre, item.sigma_within,
+                                  POSSIBLE.get(base_name(item.measurement), (-np.inf, np.inf)))
         lines.append(f"  {item.measurement:<28} n {item.n:>4}  centre {item.centre:.6g}  σ {item.sigma_within:.4g}  "
-                     f"LCL {item.centre - 3 * item.sigma_within:.6g}  UCL {item.centre + 3 * item.sigma_within:.6g}  "
-                     f"{state}")
+                     f"LCL {lcl:.6g}  UCL {ucl:.6g}  {state}")
     lines.append("the baseline was stable: every later spc judges units against these limits" if frozen.stable else
                  "the baseline was NOT stable: find the cause of each signal, then freeze a baseline without it; "
                  "these limits are stored and judge later units until then")

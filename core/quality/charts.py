@@ -19,6 +19,12 @@ D2 = 1.128  # E[range of two normal values] / σ
 D4 = 3.267  # upper limit of the moving-range chart: D4 · MR̄
 
 
+def control_limits(centre: float, sigma: float, bounds: tuple[float, float] = (-np.inf, np.inf)) -> tuple[float, float]:
+    """(LCL, UCL) at 3σ, kept inside what the measurement can take: an angle's or a length's LCL is never
+    below 0 — a limit no unit can cross signals nothing and only misleads the reader."""
+    return max(centre - 3 * sigma, bounds[0]), min(centre + 3 * sigma, bounds[1])
+
+
 @dataclass
 class ImrChart:
     name: str
@@ -34,11 +40,11 @@ class ImrChart:
 
     @property
     def ucl(self) -> float:
-        return min(self.centre + 3 * self.sigma, self.bounds[1])
+        return control_limits(self.centre, self.sigma, self.bounds)[1]
 
     @property
     def lcl(self) -> float:
-        return max(self.centre - 3 * self.sigma, self.bounds[0])
+        return control_limits(self.centre, self.sigma, self.bounds)[0]
 
     @property
     def mr_ucl(self) -> float:
