@@ -414,7 +414,8 @@ def test_a_frozen_baseline_judges_later_units_and_its_stability_is_checked(make_
     assert chart["frozen"]["version"] == 1 and chart["frozen"]["frozen_by"] == "qe-anna"
     assert chart["limits_from"].startswith("frozen v1 ") and "from the first 30 judged units" in chart["limits_from"]
     assert chart["centre"] == pytest.approx(np.mean(stable))  # the baseline's, not this window's
-    assert not any(p["in_baseline"] for p in chart["points"])
+    # the baseline's own 30 units are marked as the data behind the frozen limits, the later ones are not
+    assert [p["in_baseline"] for p in chart["points"]] == [True] * 30 + [False] * 15
     after = [p for p in chart["points"][30:] if p["signals"]]
     assert after and not [p for p in chart["points"][:30] if p["signals"]]  # the step, and only the step
 

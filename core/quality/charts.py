@@ -85,8 +85,9 @@ def imr_chart(name: str, values: np.ndarray, baseline: int = 50, outside: np.nda
 
 def frozen_chart(name: str, values: np.ndarray, centre: float, sigma: float, mr_bar: float,
                  bounds: tuple[float, float] = (-np.inf, np.inf)) -> ImrChart | None:
-    """The chart of ``values`` against limits a baseline froze earlier (AIAG Phase II): no point of this
-    window sets them, every point is judged by the rules; None without values."""
+    """The chart of ``values`` against limits a baseline froze earlier (AIAG Phase II): nothing in this
+    window moves them, every point is judged by the rules; None without values.  Which of the window's
+    points came from the baseline is the caller's to mark (it knows the runs)."""
     values = np.asarray(values, dtype=float)
     index = np.flatnonzero(np.isfinite(values))
     x = values[index]

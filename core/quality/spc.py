@@ -20,7 +20,7 @@ from magline.core.quality.charts import ImrChart, frozen_chart, imr_chart
 from magline.core.quality.rules import RULES
 from magline.core.quality.trends import Shifts, Trends, trends
 from magline.core.quality.yields import YieldRow, ranked_causes, yields
-from magline.core.results.control_limits import FrozenLimits
+from magline.core.results.control_limits import EVERY_STATION, FrozenLimits
 from magline.core.results.series import Limit, RunSeries
 from magline.core.station.schema import NOT_PROCESS_FIGURES
 from magline.core.text import fmt, percent
@@ -149,6 +149,9 @@ def build(series: RunSeries, title: str, names: Sequence[str] | None = None, bas
         if chart is None:
             continue
         chart.index = [judged[i] for i in chart.index]
+        if held is not None:  # the window's units that built the frozen limits, marked as the data behind them
+            chart.in_baseline = np.array([in_frozen_baseline(held, series.runs[i], float(value), limit)
+                                          for i, value in zip(chart.index, chart.values, strict=True)], bool)
         report.measurements.append(MeasurementReport(
             name=name, unit=unit, limit=limit, chart=chart,
             capability=capability(chart.values, limit.low, limit.high, chart.sigma), frozen=held))
@@ -179,6 +182,17 @@ def limits_words(report: SpcReport) -> list[str]:
 
 def _ad_p(cap: Capability) -> str:
     return "—" if cap.normality is None else cap.normality.p_words.replace(" ", "")
+
+
+def in_frozen_baseline(held: FrozenLimits, run: dict, value: float, limit: Limit) -> bool:
+    """Whether ``run`` was one of the units a frozen baseline's limits came from: a judged run of the
+    baseline's station (or any, for limits frozen over every station) between its first and last run,
+    its value inside the measurement's limits (a unit outside them never set a centre line)."""
+    if not held.first_run <= int(run["id"]) <= held.last_run or run.get("verdict") not in ("pass", "fail"):
+        return False
+    if held.station_id != EVERY_STATION and run.get("station_id") != held.station_id:
+        return False
+    return not ((limit.low is not None and value < limit.low) or (limit.high is not None and value > limit.high))
 
 
 def format_text(report: SpcReport) -> str:
