@@ -189,6 +189,9 @@ def test_the_batch_report_reads_like_a_capability_study_and_a_point_opens_its_un
         });
         return out;}""")
     assert overlaps == []
+    # the yield's own axis reads in round percentages (aligned to the units axis it read 33.3, 66.5, 99.8)
+    assert opened.page.evaluate("""() => [...document.querySelectorAll('#fpy-over-time .y2tick text')]
+        .map(t => t.textContent)""") == ["0", "25", "50", "75", "100"]
     # a specification limit far from the units is named at the chart's edge, the control band fills it
     assert "USL 150 ↑" in opened.page.inner_text("#chart-hard_iron_norm_ut")
 

@@ -39,7 +39,9 @@ def yield_over_time(trends: Trends, grouping: str, by_shift: bool) -> go.Figure 
     title = f"first-pass yield per {period}" + ("" if grouping == "all" else f", per {grouping}")
     fig.update_layout(title=title, height=320, margin=MARGIN)
     fig.update_yaxes(title_text="units", secondary_y=False, visible=grouping == "all")
-    fig.update_yaxes(title_text="FPY %", range=[0, 105], secondary_y=True)
+    # its own ticks at round percentages: aligned to the units axis they fell at 33.3, 66.5, 99.8
+    fig.update_yaxes(title_text="FPY %", range=[0, 105], tickvals=[0, 25, 50, 75, 100], showgrid=False,
+                     secondary_y=True)
     fig.update_xaxes(type="category")
     return fig
 
