@@ -129,7 +129,8 @@ class RunRecord:
         titles = {}
         for i, m in enumerate(s for s in sensors or [] if isinstance(s, dict)):
             label = str(m.get("label") or "magnetometer")
-            named = "" if label == f"compass {i + 1}" else f"{label} "  # no "compass 1: compass 1"
+            # no "compass 1: compass 1", nor "compass 1: (396809)" with nothing between
+            named = "" if label == f"compass {i + 1}" else f": {label}"
             titles[str(m.get("prefix") or "") + "." if m.get("prefix") else ""] = \
-                f"compass {i + 1}: {named}({m.get('device_id')})"
+                f"compass {i + 1}{named} ({m.get('device_id')})"
         return titles

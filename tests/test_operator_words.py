@@ -236,3 +236,15 @@ def test_a_part_the_station_does_not_build_is_refused_in_words_and_leaves_no_rec
         seq.close()
     assert str(refused.value) == ("part 'NOPE' is not built on station demo-01: its parts are MOCK-100 — choose "
                                   "one of them")
+
+
+def test_a_compass_is_titled_by_its_place_its_sensor_where_known_and_its_device_id():
+    """'compass 2: HMC5883 (458786)'; a sensor known only by its place reads 'compass 1 (396809)', not
+    'compass 1: (396809)' with nothing after the colon, nor 'compass 1: compass 1'."""
+    from magline.core.record import RunRecord
+
+    record = RunRecord(serial="T-1", part="P", station_id="S", line="L", operator="op", software_version="0",
+                       limit_hash="h")
+    record.unit_info = {"magnetometers": [{"device_id": 396809, "label": "compass 1"},
+                                          {"device_id": 458786, "label": "HMC5883", "prefix": "mag2"}]}
+    assert record.sensor_titles() == {"": "compass 1 (396809)", "mag2.": "compass 2: HMC5883 (458786)"}
