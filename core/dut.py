@@ -33,8 +33,10 @@ ParamValue = int | float
 
 
 def float32_equal(a: float, b: float) -> bool:
-    """Equal at float32 precision, the width MAVLink carries a parameter in (1.05 reads back as 1.0499999523)."""
-    return math.isclose(a, b, rel_tol=1e-6, abs_tol=1e-6)
+    """Equal as the float32 MAVLink carries a parameter in (1.05 reads back as 1.0499999523): the same
+    float32, exactly.  Why no tolerance: a near-diagonal soft iron writes an off-diagonal term of
+    −4e-7, and "within 1e-6" took a stale echo of its old 0 for the new value's."""
+    return bool(np.float32(a) == np.float32(b)) or (math.isnan(a) and math.isnan(b))
 
 
 def param_equal(written: ParamValue, echoed: ParamValue) -> bool:
@@ -43,7 +45,7 @@ def param_equal(written: ParamValue, echoed: ParamValue) -> bool:
     if isinstance(written, int) and not isinstance(written, bool):
         return (isinstance(echoed, int) and echoed == written) or (
             isinstance(echoed, float) and echoed.is_integer() and int(echoed) == written)
-    return math.isclose(float(written), float(echoed), rel_tol=1e-6, abs_tol=1e-7)  # float32 precision
+    return float32_equal(float(written), float(echoed))
 
 
 class DutError(RuntimeError):
