@@ -108,7 +108,8 @@ def prove(run: RunContext) -> None:
         if measured.verdict is Verdict.FAIL:
             failed.append(f"{run.sensor_label(sensor.device_id)}: the compensated field still changes {pct:.1f} % of "
                           f"the field at {run.interference.current_max_a:g} A (limit {measured.high:g} %)")
-    run.record.unit_info.setdefault("interference", {})["proof"] = proof
+    found = run.record.unit_info.setdefault("interference", {})
+    found["proof"], found["proof_seconds"] = proof, again.seconds
     if failed:  # the unit does not hold what was written: its FAIL, as a calibration that did not survive
         raise DutError("current compensation not proven after the power cycle: " + "; ".join(failed))
 
