@@ -2,7 +2,9 @@
 
     python benchmarks/process_quality.py [--records 1000000] [--engines sqlite,postgresql]
 
-1. A store of ``--records`` synthetic unit records (as ``results_store.py`` makes them):
+1. A store of ``--records`` synthetic unit records (as ``results_store.py`` makes them; ``--values``
+   uniform — every characteristic non-normal, the percentile method's four shape fits for each, the
+   worst case — and normal, a stable line's):
    ``magline spc --part P-1`` over its last 10,000 units, end to end as a separate process
    (interpreter start and imports included; goal ≤ 3 s, issue 45's), and the same report built
    in-process with the station file's limits, as the command builds it.
@@ -125,13 +127,16 @@ def main() -> None:
     parser.add_argument("--records", type=int, default=1_000_000)
     parser.add_argument("--engines", default="sqlite,postgresql")
     parser.add_argument("--reuse", metavar="URL", help="a store already filled by results_store.bulk (no generation)")
+    parser.add_argument("--values", default="uniform,normal",
+                        help="the measurements' values: uniform (every characteristic non-normal: the percentile "
+                             "method's shape fits for each, the worst case) and/or normal (a stable line's)")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         seconds, size = unit_report(folder)
         print(f"3. unit report (600 raw samples): {seconds * 1e3:.0f} ms (goal ≤ 1 s), {size:.2f} MB (goal ≤ 6 MB)")
         with cluster() as pg:
-            for engine in args.engines.split(","):
+            for engine, values in ((e, v) for e in args.engines.split(",") for v in args.values.split(",")):
                 env = dict(os.environ)
                 if args.reuse:
                     url = args.reuse
@@ -142,17 +147,17 @@ def main() -> None:
                     os.environ["MAGLINE_BENCH_DB_URL"] = url
                     station = station_file(folder, {"sink": "sql", "url_env": "MAGLINE_BENCH_DB_URL"})
                 else:
-                    url = args.reuse or f"sqlite:///{folder / 'large.sqlite'}"
+                    url = args.reuse or f"sqlite:///{folder / f'large-{values}.sqlite'}"
                     station = station_file(folder, {"sink": "sqlite", "path": url.removeprefix("sqlite:///")})
-                made = bulk(url, args.records) if not args.reuse else 0.0
+                made = bulk(url, args.records, values) if not args.reuse else 0.0
                 store = SqlStore(create_engine(url), engine)
                 read, total = in_process(store, station)
                 median, p95 = review_check(store)
                 store.close()
                 wall = spc_end_to_end(station, env)
-                print(f"1. {engine:<10} {args.records:,} records (generated in {made:.0f} s): magline spc over the "
-                      f"last 10,000 units {wall:.2f} s end to end (goal ≤ 3 s, issue 45); in-process read "
-                      f"{read:.2f} s, read + charts + rules + shape tests + capability {total:.2f} s")
+                print(f"1. {engine:<10} {args.records:,} records, {values} values (generated in {made:.0f} s): magline "
+                      f"spc over the last 10,000 units {wall:.2f} s end to end (goal ≤ 3 s, issue 45); in-process "
+                      f"read {read:.2f} s, read + charts + rules + shape tests + capability {total:.2f} s")
                 print(f"2. {engine:<10} in-run review check: median {median:.1f} ms, p95 {p95:.1f} ms "
                       "(goal ≤ 20 ms per unit)")
 

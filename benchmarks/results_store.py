@@ -101,11 +101,21 @@ def concurrent(url: str, stations: int, units: int) -> tuple[int, int, int, floa
     return expected, expected - distinct, rows - distinct, expected / elapsed
 
 
-def bulk(url: str, n: int) -> float:
-    """n runs (parts P-0..P-9, serials S-0..), each with the catalogue's numeric measurements."""
+# a measurement's value in SQL: uniform on (−1, 1) — every characteristic far from normal, so ``spc``
+# fits the percentile method's shapes to each (its worst case) — or normal, N(0, 1) as the sum of twelve
+# uniforms less six (Irwin–Hall; what most characteristics of a stable line look like)
+UNIFORM = {"postgresql": "random() * 2 - 1", "sqlite": "random() / 9.2e18"}
+NORMAL = {"postgresql": " + ".join(["random()"] * 12) + " - 6",
+          "sqlite": "(" + " + ".join(["(random() / 1.8446744e19 + 0.5)"] * 12) + ") - 6"}
+
+
+def bulk(url: str, n: int, values: str = "uniform") -> float:
+    """n runs (parts P-0..P-9, serials S-0..), each with the catalogue's numeric measurements, their
+    values ``uniform`` or ``normal`` (:data:`UNIFORM`, :data:`NORMAL`)."""
     engine = create_engine(url)
     SqlStore(engine, "bench").close()
     names = sorted(CATALOGUE)
+    draw = {"uniform": UNIFORM, "normal": NORMAL}[values]
     t = time.perf_counter()
     with engine.begin() as conn:
         if engine.dialect.name == "postgresql":
@@ -116,7 +126,7 @@ def bulk(url: str, n: int) -> float:
                 "FROM generate_series(1, :n) g"), {"n": n})
             conn.execute(text(
                 "INSERT INTO measurements (run_id, name, kind, value, verdict) "
-                "SELECT r.id, m.name, 'numeric', random(), 'pass' FROM runs r "
+                f"SELECT r.id, m.name, 'numeric', {draw['postgresql']}, 'pass' FROM runs r "
                 "CROSS JOIN unnest(CAST(:names AS text[])) AS m(name) "
                 "WHERE r.serial LIKE 'S-%'"), {"names": names})
         else:
@@ -125,10 +135,10 @@ def bulk(url: str, n: int) -> float:
                 "INSERT INTO runs (run_uuid, serial, part, station_id, line, started, verdict) "
                 "SELECT hex(randomblob(16)), 'S-' || x, 'P-' || (x % 10), 'st-' || (x % 8), 'L1', "
                 "strftime('%Y-%m-%dT%H:%M:%S', '2026-01-01', '+' || x || ' seconds'), 'pass' FROM g"), {"n": n})
-            values = " UNION ALL ".join(f"SELECT '{name}' AS name" for name in names)
+            rows = " UNION ALL ".join(f"SELECT '{name}' AS name" for name in names)
             conn.execute(text(
                 f"INSERT INTO measurements (run_id, name, kind, value, verdict) SELECT r.id, m.name, 'numeric', "
-                f"random() / 9.2e18, 'pass' FROM runs r CROSS JOIN ({values}) m WHERE r.serial LIKE 'S-%'"))
+                f"{draw['sqlite']}, 'pass' FROM runs r CROSS JOIN ({rows}) m WHERE r.serial LIKE 'S-%'"))
     with engine.connect().execution_options(isolation_level="AUTOCOMMIT") as conn:
         conn.execute(text("ANALYZE"))  # what autovacuum does after a bulk load: fresh planner statistics
     engine.dispose()
