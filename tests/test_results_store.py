@@ -372,3 +372,22 @@ def test_show_and_the_unit_report_read_as_a_document_not_as_stored_json(make_sta
     shown = re.findall(r"coverage: \d+ of \d+ direction bins \((\d+)%\)", text)
     assert shown == [f"{round(accepted.coverage * 100)}"]  # the 3D picture says the judged figure
     assert "<h3>Power cycle</h3>" in text and "as written" in text
+
+
+def test_the_head_revision_a_store_is_recognised_by_is_alembic_s_own_head():
+    """A store at HEAD is opened without alembic (one query): a migration added without moving HEAD
+    would leave stores unmigrated, so HEAD is held to the newest migration script."""
+    assert schema_version.head_revision() == schema_version.HEAD, (
+        "a migration was added: set schema_version.HEAD to its revision")
+
+
+def test_a_store_at_the_head_is_opened_without_alembic(tmp_path):
+    import subprocess
+    import sys
+
+    path = tmp_path / "at-head.sqlite"
+    SqliteSink(path).close()
+    probe = ("import sys; from pathlib import Path; from magline.core.results.sqlite_sink import SqliteSink; "
+             f"SqliteSink(Path({str(path)!r})).close(); print('alembic' in sys.modules)")
+    assert subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True).stdout.strip() \
+        == "False"
