@@ -391,3 +391,33 @@ def test_a_store_at_the_head_is_opened_without_alembic(tmp_path):
              f"SqliteSink(Path({str(path)!r})).close(); print('alembic' in sys.modules)")
     assert subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True).stdout.strip() \
         == "False"
+
+
+def test_a_series_reads_every_value_back_bit_for_bit_on_each_engine(store_url):
+    """The series comes back as text parsed by NumPy on both engines (the drivers' Python floats cost
+    more than the query): every double must survive it exactly, a failure be placed on its run, and a
+    run without the measurement stay NaN."""
+    from sqlalchemy import create_engine
+
+    from magline.core.measurements import Numeric, Verdict
+    from magline.core.record import Outcome, RunRecord
+    from magline.core.results.reading import RunFilter
+    from magline.core.results.store import SqlStore
+
+    # what measurements take (SQLite's own printf rounds a few doubles beyond 1e±200 in the last bit)
+    awkward = [0.1 + 0.2, 1e-12, -2.2250738585e-8, 123456.78901234567, 48.000000000000014, 6.02214076e23,
+               -1.0 / 3.0]
+    store = SqlStore(create_engine(store_url), "test store")
+    for i, value in enumerate([*awkward, None]):
+        record = RunRecord(serial=f"B-{i}", part="P", station_id="s", line="L", operator="", software_version="0",
+                           limit_hash="h")
+        record.verdict = Outcome.FAIL if i == 2 else Outcome.PASS
+        if value is not None:
+            record.measurements.append(Numeric("field_ut", value, "µT", None, None,
+                                               Verdict.FAIL if i == 2 else Verdict.PASS))
+        store.finish(record)
+    series = store.series(RunFilter(part="P"), with_attempts=True)
+    store.close()
+    read = series.values["field_ut"]
+    assert [float(v).hex() for v in read[:-1]] == [v.hex() for v in awkward] and np.isnan(read[-1])
+    assert series.failed[2] == ["field_ut"] and not any(series.failed[i] for i in (0, 1, 3, 4, 5, 6, 7))

@@ -15,8 +15,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from sqlalchemy import Connection, Float, Integer, case, func, literal, select, true
-from sqlalchemy.dialects.postgresql import ARRAY
+from sqlalchemy import Connection, case, func, literal, select, true
 
 from magline.core.results.reading import RunFilter
 from magline.core.results.tables import attempts, measurements, runs
@@ -127,15 +126,22 @@ def _grouped(conn: Connection, rows: Any) -> list[tuple[str, Sequence[int], Sequ
     """(name, run ids, values, run ids where it failed) per measurement name, grouped by the
     database: about twenty rows come back, not 200,000.  PostgreSQL aggregates into arrays;
     SQLite into comma-separated text that NumPy parses: each REAL printed with ``%!.17g`` (the
-    ``!`` flag makes SQLite print all 17 digits exactly, so every value comes back bit for bit;
-    its default text has 15), and a missing value as ``nan`` (``group_concat`` skips NULLs, which
+    ``!`` flag makes SQLite print all 17 digits, so a measurement's value comes back bit for bit —
+    0 of 150,000 differed; its own printf rounds a few doubles beyond 1e±200 in the last bit; its
+    default text has 15), and a missing value as ``nan`` (``group_concat`` skips NULLs, which
     would misalign the lists)."""
     if conn.dialect.name == "postgresql":
-        query = (select(rows.c.name, func.array_agg(rows.c.run_id, type_=ARRAY(Integer)),
-                        func.array_agg(rows.c.value, type_=ARRAY(Float)),
-                        func.array_agg(rows.c.run_id, type_=ARRAY(Integer)).filter(rows.c.verdict == "fail"))
+        # as text too: 200,000 Python floats and ints built by the driver cost more than the query (PostgreSQL
+        # ≥ 12 prints a float8 in its shortest exact form, so every value comes back bit for bit)
+        def joined(column: Any, *where: Any) -> Any:
+            aggregated = func.array_agg(column)
+            return func.array_to_string(aggregated.filter(*where) if where else aggregated, ",", "nan")
+
+        query = (select(rows.c.name, joined(rows.c.run_id), joined(rows.c.value),
+                        joined(rows.c.run_id, rows.c.verdict == "fail"))
                  .group_by(rows.c.name))
-        return [(name, rids, np.array(values, dtype=np.float64), failed or [])  # NULL → NaN
+        return [(name, np.fromstring(rids, dtype=np.int64, sep=","), np.fromstring(values, dtype=np.float64, sep=","),
+                 np.fromstring(failed, dtype=np.int64, sep=",") if failed else [])
                 for name, rids, values, failed in conn.execute(query)]
     query = (select(rows.c.name, func.group_concat(rows.c.run_id),
                     func.group_concat(case((rows.c.value.is_(None), literal("nan")),
