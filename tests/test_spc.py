@@ -540,3 +540,39 @@ def test_the_frozen_limits_are_said_as_the_charts_draw_them_inside_what_a_measur
                         baseline="the first 25 judged units", first_run=1, last_run=25, version=1)
     text = frozen_text(Frozen(version=1, limits=[angle, free]), "MOCK-100", None)
     assert "LCL 0  UCL 0.235" in text and "LCL -0.352  UCL -0.028" in text, text
+
+
+def test_large_windows_are_judged_on_worker_processes_with_the_answers_of_one_process():
+    """Skewed characteristics of a large window get their capability on forked workers (their shape fits
+    cost 80 ms each); every answer is the one the same call gives here, in order — normal, Box-Cox and
+    percentile alike — and a small window stays in this process."""
+    import os
+
+    from magline.core.quality import parallel
+    from magline.core.quality.capability import capability
+
+    rng = np.random.default_rng(45)
+    jobs = [(rng.gamma(2.0, 1.0, 2100) - 1.0, None, 11.0, 1.0),  # reaches below 0: percentile
+            (rng.lognormal(0.0, 0.5, 2100), None, float(np.exp(1.5)), 0.5),  # Box-Cox
+            (rng.normal(10.0, 1.0, 2100), 4.0, 17.0, 1.0),  # normal
+            (rng.weibull(1.5, 2100) + 5.0, None, 9.5, 0.6)]  # percentile
+    seen = []
+    real = parallel.ProcessPoolExecutor
+
+    def watched(*args, **kwargs):
+        seen.append(os.getpid())
+        return real(*args, **kwargs)
+
+    parallel.ProcessPoolExecutor = watched
+    try:
+        found = parallel.capabilities(jobs)
+        small = parallel.capabilities([(job[0][:200], *job[1:]) for job in jobs])
+    finally:
+        parallel.ProcessPoolExecutor = real
+    assert len(seen) == (1 if (os.cpu_count() or 1) > 1 else 0)  # one pool for the large window, none for small
+    for got, job in zip(found, jobs, strict=True):
+        one = capability(*job)
+        assert (got.method, got.method_words) == (one.method, one.method_words)
+        assert got.ppk == one.ppk and got.cpk == one.cpk
+    assert [c.method for c in found] == ["percentile", "box-cox", "normal", "percentile"]
+    assert [c.n for c in small] == [200] * 4

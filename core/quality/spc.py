@@ -15,8 +15,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from magline.core.measurements import CATALOGUE, POSSIBLE, base_name
-from magline.core.quality.capability import MIN_UNITS, MIN_UNITS_SOURCE, Capability, capability, index_words
+from magline.core.quality.capability import MIN_UNITS, MIN_UNITS_SOURCE, Capability, index_words
 from magline.core.quality.charts import ImrChart, frozen_chart, imr_chart
+from magline.core.quality.parallel import capabilities
 from magline.core.quality.rules import RULES
 from magline.core.quality.trends import Shifts, Trends, trends
 from magline.core.quality.yields import YieldRow, ranked_causes, yields
@@ -114,6 +115,7 @@ def build(series: RunSeries, title: str, names: Sequence[str] | None = None, bas
     report = SpcReport(title=title, series=series)
     judged = [i for i, r in enumerate(series.runs) if r["verdict"] in ("pass", "fail")]
     report.missing = [n for n in names or () if n not in series.values]
+    charted: list[tuple[str, str, Limit, ImrChart, FrozenLimits | None]] = []
     for name in sorted(names or series.values, key=_order):
         values = series.values.get(name)
         if values is None:
@@ -152,9 +154,11 @@ def build(series: RunSeries, title: str, names: Sequence[str] | None = None, bas
         if held is not None:  # the window's units that built the frozen limits, marked as the data behind them
             chart.in_baseline = np.array([in_frozen_baseline(held, series.runs[i], float(value), limit)
                                           for i, value in zip(chart.index, chart.values, strict=True)], bool)
-        report.measurements.append(MeasurementReport(
-            name=name, unit=unit, limit=limit, chart=chart,
-            capability=capability(chart.values, limit.low, limit.high, chart.sigma), frozen=held))
+        charted.append((name, unit, limit, chart, held))
+    found = capabilities([(chart.values, limit.low, limit.high, chart.sigma) for _, _, limit, chart, _ in charted])
+    report.measurements = [MeasurementReport(name=name, unit=unit, limit=limit, chart=chart, capability=cap,
+                                             frozen=held)
+                           for (name, unit, limit, chart, held), cap in zip(charted, found, strict=True)]
     for by in ("station_id", "operator", "part"):
         report.yields[by] = yields(series, by)
     report.refusals, report.failed = ranked_causes(series)
