@@ -576,3 +576,20 @@ def test_large_windows_are_judged_on_worker_processes_with_the_answers_of_one_pr
         assert got.ppk == one.ppk and got.cpk == one.cpk
     assert [c.method for c in found] == ["percentile", "box-cox", "normal", "percentile"]
     assert [c.n for c in small] == [200] * 4
+
+
+def test_the_bootstrap_s_lambdas_are_scipy_s_maximum_likelihood_lambdas():
+    """Every bootstrap data set's Box-Cox λ, found for all sets at once (a grid and a parabola), is the
+    one scipy.stats.boxcox finds set by set — to a thousandth, far inside λ's own uncertainty."""
+    from scipy import special, stats
+
+    from magline.core.quality.capability import box_cox_lambdas
+
+    rng = np.random.default_rng(7)
+    for lam, n in ((0.0, 1000), (0.5, 30), (-0.7, 200), (1.5, 400)):
+        sets = special.inv_boxcox(rng.normal(3.0 if lam >= 0 else 0.5, 0.3, size=(60, n)), lam)
+        sets = sets[np.all(np.isfinite(sets) & (sets > 0), axis=1)]
+        found = box_cox_lambdas(sets, lam)
+        assert np.abs(found - [stats.boxcox(row)[1] for row in sets]).max() < 1e-3
+    far = rng.lognormal(0.0, 0.3, size=(3, 100))  # the data's λ 4 away: each row beyond the grid goes to scipy
+    assert np.abs(box_cox_lambdas(far, 4.0) - [stats.boxcox(row)[1] for row in far]).max() < 1e-6
