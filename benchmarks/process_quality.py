@@ -4,7 +4,7 @@
 
 1. A store of ``--records`` synthetic unit records (as ``results_store.py`` makes them; ``--values``
    uniform — every characteristic non-normal, the percentile method's four shape fits for each, the
-   worst case — and normal, a stable line's):
+   worst case — and line, a stable line's: signed figures normal, magnitudes log-normal):
    ``magline spc --part P-1`` over its last 10,000 units, end to end as a separate process
    (interpreter start and imports included; goal ≤ 3 s, issue 45's), and the same report built
    in-process with the station file's limits, as the command builds it.
@@ -127,9 +127,10 @@ def main() -> None:
     parser.add_argument("--records", type=int, default=1_000_000)
     parser.add_argument("--engines", default="sqlite,postgresql")
     parser.add_argument("--reuse", metavar="URL", help="a store already filled by results_store.bulk (no generation)")
-    parser.add_argument("--values", default="uniform,normal",
+    parser.add_argument("--values", default="uniform,line",
                         help="the measurements' values: uniform (every characteristic non-normal: the percentile "
-                             "method's shape fits for each, the worst case) and/or normal (a stable line's)")
+                             "method's shape fits for each, the worst case) and/or line (a stable line's: signed "
+                             "figures normal, magnitudes log-normal, which go to Box-Cox)")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)

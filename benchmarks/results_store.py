@@ -32,7 +32,7 @@ sys.path.insert(0, str(REPO / "tests"))
 from pg_server import cluster  # noqa: E402
 
 from magline.core.fit.samples_csv import RawSamples, format_samples, parse_samples  # noqa: E402
-from magline.core.measurements import CATALOGUE, Array, Numeric  # noqa: E402
+from magline.core.measurements import CATALOGUE, POSSIBLE, Array, Numeric  # noqa: E402
 from magline.core.record import AttemptRecord, Outcome, PhaseResult, RunRecord  # noqa: E402
 from magline.core.results import raw_blob  # noqa: E402
 from magline.core.results.reading import RunFilter  # noqa: E402
@@ -102,20 +102,28 @@ def concurrent(url: str, stations: int, units: int) -> tuple[int, int, int, floa
 
 
 # a measurement's value in SQL: uniform on (−1, 1) — every characteristic far from normal, so ``spc``
-# fits the percentile method's shapes to each (its worst case) — or normal, N(0, 1) as the sum of twelve
-# uniforms less six (Irwin–Hall; what most characteristics of a stable line look like)
+# fits the percentile method's shapes to each (its worst case) — or a stable line's: N(0, 1) (the sum of
+# twelve uniforms less six, Irwin–Hall) for a figure that takes either sign, and log-normal, exp(N(0, 0.5)),
+# for a magnitude bounded by 0 (a norm, a residual, an angle from the nearest orientation), which is
+# skewed and goes to the Box-Cox method
 UNIFORM = {"postgresql": "random() * 2 - 1", "sqlite": "random() / 9.2e18"}
-NORMAL = {"postgresql": " + ".join(["random()"] * 12) + " - 6",
-          "sqlite": "(" + " + ".join(["(random() / 1.8446744e19 + 0.5)"] * 12) + ") - 6"}
+NORMAL = {"postgresql": "(" + " + ".join(["random()"] * 12) + " - 6)",
+          "sqlite": "((" + " + ".join(["(random() / 1.8446744e19 + 0.5)"] * 12) + ") - 6)"}
+
+
+def line_value(engine: str, names: list[str]) -> str:
+    """The SQL of a stable line's value for the measurement ``m.name`` (see :data:`NORMAL`)."""
+    magnitudes = ", ".join(f"'{n}'" for n in names if POSSIBLE.get(n, (-np.inf, np.inf))[0] >= 0)
+    return f"CASE WHEN m.name IN ({magnitudes}) THEN exp(0.5 * {NORMAL[engine]}) ELSE {NORMAL[engine]} END"
 
 
 def bulk(url: str, n: int, values: str = "uniform") -> float:
     """n runs (parts P-0..P-9, serials S-0..), each with the catalogue's numeric measurements, their
-    values ``uniform`` or ``normal`` (:data:`UNIFORM`, :data:`NORMAL`)."""
+    values ``uniform`` or a stable ``line``'s (:data:`UNIFORM`, :data:`NORMAL`)."""
     engine = create_engine(url)
     SqlStore(engine, "bench").close()
     names = sorted(CATALOGUE)
-    draw = {"uniform": UNIFORM, "normal": NORMAL}[values]
+    draw = UNIFORM if values == "uniform" else {e: line_value(e, names) for e in ("postgresql", "sqlite")}
     t = time.perf_counter()
     with engine.begin() as conn:
         if engine.dialect.name == "postgresql":
