@@ -20,8 +20,9 @@ import numpy as np
 
 from magline.core.quality.capability import Capability, capability
 
-# Below this many values a capability costs milliseconds (no shape fit reaches the optimiser's
-# per-call overhead): the workers would cost more than they save.
+# Windows with fewer values stay in this process: their report is ready well within a second either way
+# (the fits cost about the same at any size; it is the read and the charts that grow), a fork costs
+# 10–30 ms, and a process whose other threads serve a screen is better not forked for nothing.
 PARALLEL_VALUES = 2000
 MAX_WORKERS = 4
 
