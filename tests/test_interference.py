@@ -445,3 +445,37 @@ def test_magline_sim_load_alone_speaks_scpi(tmp_path):
     finally:
         proc.terminate()
         proc.wait(10)
+
+
+def test_a_noisy_slow_compass_is_read_as_long_as_the_sweep_s_timeout_allows_not_past_it():
+    """A 10 Hz compass whose noise asks for 200 readings a step (20 s each, five steps) would outlast a
+    60 s sweep and end the unit as the station's ERROR; it is read as long as the timeout allows, with a
+    fifth spare, and its σ then says what was reached."""
+    from magline.core.interference.sweep import SweepStep, readings_for_target, readings_in_time, sweep_levels
+    from magline.core.station.schema import InterferenceSettings
+
+    settings = InterferenceSettings()  # 8 … 200 readings, ±0.005 µT/A, settle 0.3 s, timeout 60 s
+    levels = sweep_levels(settings.steps)
+    rng = np.random.default_rng(3)
+    step = SweepStep(level=0.0, readings={1: list(rng.normal(0.0, 2.0, size=(8, 3)))})  # 2 µT of noise
+    assert readings_for_target(step, [1], levels, 10.0, settings) == 200  # what the noise alone asks
+    # 8 readings took 0.8 s after the 0.3 s settle; 58 s are left: 0.8·58 − 4·0.3 = 45.2 s → 452 more
+    # readings at 0.1 s, (452 + 8) / 5 = 92 a step
+    most = readings_in_time(step, [1], levels, settings, spent_s=1.1, left_s=58.0)
+    assert most == 92
+    assert readings_for_target(step, [1], levels, 10.0, settings, most) == 92
+    assert readings_in_time(step, [1], levels, settings, spent_s=1.1, left_s=1.0) == settings.readings  # the least
+
+
+def test_a_sweep_whose_most_readings_are_fewer_than_its_least_is_refused_naming_the_keys(tmp_path):
+    doc = yaml.safe_load((REPO / "stations" / "ardupilot-sim.yaml").read_text(encoding="utf-8"))
+    part = doc["default_part"]
+    doc["products"][part].update({"interference": "measure", "current_max_a": 40})
+    doc["current_source"] = {"type": "electronic-load", "options": {"resource": "TCPIP0::h::1::SOCKET"}}
+    doc["interference"] = {"readings": 50, "readings_max": 20}
+    path = tmp_path / "station.yaml"
+    path.write_text(yaml.safe_dump(doc, sort_keys=False), encoding="utf-8")
+    with pytest.raises(StationError) as refused:
+        load_station(path)
+    said = str(refused.value)
+    assert "readings_max (20) is below readings (50)" in said and str(path) in said and "interference" in said

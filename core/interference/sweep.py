@@ -103,15 +103,20 @@ def run_sweep(run: RunContext, source: CurrentSource, settings: InterferenceSett
             source.set_level(level)
             step = SweepStep(level=level)
             settled_ms = clock.in_ms(settings.settle_s)
+            step_started = time.monotonic()
             _read_step(stream, clock, step, settled_ms, wanted, device_ids, deadline)
             while index == 0:  # the compasses' noise at 0 A decides how many readings every step needs,
                 # estimated again from each larger set until the readings in hand are enough
-                needed = readings_for_target(step, device_ids, levels, run.product.current_max_a or 0.0, settings)
+                most = readings_in_time(step, device_ids, levels, settings, time.monotonic() - step_started,
+                                        deadline - time.monotonic())
+                needed = readings_for_target(step, device_ids, levels, run.product.current_max_a or 0.0, settings,
+                                             most)
                 if needed <= wanted:
                     break
                 wanted = needed
                 run.log(f"sweep: {wanted} readings a step bring the field per amp to ±"
-                        f"{settings.target_sigma_ut_per_a:g} µT/A (the compasses' noise at 0 A)")
+                        f"{settings.target_sigma_ut_per_a:g} µT/A (the compasses' noise at 0 A)"
+                        + (f" — or as near as the sweep's {settings.timeout_s:g} s allow" if wanted == most else ""))
                 _read_step(stream, clock, step, settled_ms, wanted, device_ids, deadline)
             step.source_a = source.measured_current_a()
             steps.append(step)
@@ -129,12 +134,25 @@ def run_sweep(run: RunContext, source: CurrentSource, settings: InterferenceSett
     return Sweep(steps=steps, seconds=time.monotonic() - started, device_ids=list(device_ids), readings_per_step=wanted)
 
 
+def readings_in_time(step: SweepStep, device_ids: list[int], levels: list[float], settings: InterferenceSettings,
+                     spent_s: float, left_s: float) -> int:
+    """The most readings a step that let the whole sweep end within its timeout, at the rate the slowest
+    compass delivered them in this first step (``spent_s`` so far, its settle included; ``left_s`` to
+    the deadline), with a fifth of the time spare.  Why: a noisy compass at 10 Hz would otherwise be
+    asked for more readings than the timeout holds, and the unit end as the station's ERROR."""
+    have = min(len(step.readings.get(d, [])) for d in device_ids)
+    reading_s = max(spent_s - settings.settle_s, 1e-3) / max(have, 1)
+    later = len(levels) - 1  # the steps still to come, each with its settle
+    budget = 0.8 * left_s - later * settings.settle_s
+    return max(settings.readings, int((budget / reading_s + have) / len(levels)))
+
+
 def readings_for_target(step: SweepStep, device_ids: list[int], levels: list[float], top_a: float,
-                        settings: InterferenceSettings) -> int:
+                        settings: InterferenceSettings, most: int | None = None) -> int:
     """Readings a step that bring the slope's 1σ per axis to ``target_sigma_ut_per_a`` for the noisiest
     compass: a line through ``n`` readings at each current ``L·top`` has ``σ_c = σ / (top·√(n·Σ(L − L̄)²))``.
     The noise is each compass's scatter at this (0 A) step, pooled over its three axes, as the fit pools
-    the residuals; between ``readings`` and ``readings_max``."""
+    the residuals; between ``readings`` and ``readings_max`` (or ``most``, what the time allows)."""
     if top_a <= 0:
         return settings.readings
     spread = float(np.sum((np.asarray(levels) - np.mean(levels)) ** 2))
@@ -144,7 +162,8 @@ def readings_for_target(step: SweepStep, device_ids: list[int], levels: list[flo
         if len(fields) >= 2:
             noise = max(noise, float(np.sqrt(np.sum(np.var(fields, axis=0, ddof=1)) / 3.0)))
     needed = (noise / (top_a * settings.target_sigma_ut_per_a)) ** 2 / spread
-    return int(min(max(settings.readings, np.ceil(needed)), settings.readings_max))
+    ceiling = settings.readings_max if most is None else min(settings.readings_max, most)
+    return int(min(max(settings.readings, np.ceil(needed)), max(ceiling, settings.readings)))
 
 
 def _amps(value: float | None) -> str:

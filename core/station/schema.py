@@ -158,6 +158,13 @@ class InterferenceSettings(_Strict):
     rate_hz: Annotated[float, Field(gt=0, le=400)] = 50.0
     timeout_s: Annotated[float, Field(gt=0)] = 60.0  # the whole sweep
 
+    @model_validator(mode="after")
+    def _most_at_least_least(self) -> InterferenceSettings:
+        if self.readings_max < self.readings:
+            raise ValueError(f"readings_max ({self.readings_max}) is below readings ({self.readings}): the most "
+                             "readings a step may take cannot be fewer than the least")
+        return self
+
 
 class Product(_Strict):
     """What the station does for one part number."""
