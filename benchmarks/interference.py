@@ -142,9 +142,11 @@ def part_two(boards: int, seed: int, rates: list[float]) -> None:
                 sweep = found.get("seconds", float("nan"))
                 proof_s = found.get("proof_seconds", float("nan"))
                 for device, c in (found.get("compasses") or {}).items():
-                    left = (found.get("proof") or {}).get(device, {}).get("left_pct_at_max", float("nan"))
-                    # the left slope is measured by the proof's own 0/top/0 sweep: its σ is about √2 × the first's
-                    sigma_pct = np.sqrt(2.0) * c["per_amp_sigma_ut"] * 40.0 / found["field_ut"] * 100.0
+                    proof = (found.get("proof") or {}).get(device, {})
+                    left = proof.get("left_pct_at_max", float("nan"))
+                    # the left slope: the written slope's error and the proof sweep's own, each with its σ
+                    sigma = np.hypot(c["per_amp_sigma_ut"], proof.get("sigma_ut_per_a", float("nan")))
+                    sigma_pct = sigma * 40.0 / found["field_ut"] * 100.0
                     true_left, before = truth[device]
                     true_pct = true_left / found["field_ut"] * 100.0
                     print(f"   {flavour:<10} {rate:4.0f} {found.get('readings_per_step', 0):8d} {sweep:8.1f} "

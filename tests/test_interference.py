@@ -89,9 +89,10 @@ def test_the_interference_of_every_compass_is_measured_compensated_and_proven_af
                 assert pct.verdict is Verdict.REVIEW
                 assert f"{pct.value:.0f} % of the field at 40 A — grey zone" in pct.note
             left = measured(record, prefix + "interference_left_pct_at_max")
-            # what is left is the written slope's error and the proof sweep's own (a 0/top/0 sweep of the same
-            # readings: about the same σ), against the uncompensated share
-            left_sigma = np.sqrt(2.0) * sigma * CURRENT_MAX_A / record.reference_field_ut * 100.0
+            # what is left is the written slope's error and the proof sweep's own, each with its σ, against the
+            # uncompensated share
+            proof_sigma = record.unit_info["interference"]["proof"][str(sensor.device_id)]["sigma_ut_per_a"]
+            left_sigma = np.hypot(sigma, proof_sigma) * CURRENT_MAX_A / record.reference_field_ut * 100.0
             assert left.verdict is Verdict.PASS and left.value < 0.25 * pct.value + Z_NEVER * left_sigma, (
                 left.value, pct.value, left_sigma)
         written, back = record.params_written, record.params_read_back
