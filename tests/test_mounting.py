@@ -600,3 +600,39 @@ def test_each_compass_is_paired_at_the_instant_it_was_read_whatever_the_firmware
     assert measured(record, "mag1-mag2.heading_agreement_median_deg").value < 0.5
     assert record.unit_info["mounting"]["mag1"]["skew_ms"] == pytest.approx(measured(record, "time_skew_ms").value,
                                                                                abs=0.01)
+
+
+def turntable_tumble(mounted: np.ndarray, tilts: tuple[tuple[float, float], ...]) -> tuple[np.ndarray, np.ndarray,
+                                                                                        ImuSeries]:
+    """A turntable's tumble: the table turning at 90 °/s while the cradle is held at each (roll, pitch) tilt in
+    turn, 50 Hz readings of a sensor mounted as ``mounted`` and of the accelerometer, at one instant each,
+    without noise."""
+    from magline.sim.truth.sensor import earth_field_ned
+
+    t = np.arange(0.0, 8.0 * len(tilts), 0.02)
+    held = np.repeat(np.array(tilts, float), len(t) // len(tilts), axis=0)
+    poses = Rotation.from_euler("z", 90.0 * t[:, None], degrees=True) * Rotation.from_euler("xy", held, degrees=True)
+    body = poses.inv().apply(earth_field_ned(48.0, 62.0))
+    accel = poses.inv().apply([0.0, 0.0, -9.80665])
+    return body @ np.asarray(mounted), t * 1000.0, ImuSeries(t_ms=t * 1000.0, accel_mss=accel)
+
+
+@pytest.mark.parametrize(("mounted", "value"), [(np.eye(3), 0), (np.diag([1.0, -1.0, -1.0]), 8)],
+                         ids=["straight", "Roll180"])
+def test_gravity_seen_in_one_plane_is_decided_by_the_place_s_dip_not_by_noise(mounted, value):
+    """A turntable whose cradle was tilted about one axis only (level, on its sides, upside down) shows
+    gravity in one plane; then a sensor mounted straight and one mounted Roll180 give the same readings,
+    each with the field dipping the other way — a CI run FAILed two good units as Roll180 with the
+    inclination 124° off.  The place's dip (the field source's) decides; without it the tumble cannot
+    prove the mounting and says so; tilted about the other axis too, the readings decide by themselves."""
+    rolls = ((0.0, 0.0), (90.0, 0.0), (180.0, 0.0), (-90.0, 0.0))
+    mag, t, imu = turntable_tumble(mounted, rolls)
+    estimate = estimate_mounting(mag, t, imu, dip_deg=62.0)
+    found, error_deg = estimate.right_angle_of(estimate.data_to_body)
+    assert found == value and error_deg < 0.1 and estimate.inclination_deg == pytest.approx(62.0, abs=0.1)
+    with pytest.raises(MountingUnobservable, match="about one axis only"):
+        estimate_mounting(mag, t, imu)
+    mag, t, imu = turntable_tumble(mounted, (*rolls, (0.0, 45.0)))
+    estimate = estimate_mounting(mag, t, imu)
+    assert estimate.right_angle_of(estimate.data_to_body)[0] == value
+    assert estimate.inclination_deg == pytest.approx(62.0, abs=0.1)

@@ -115,6 +115,7 @@ def _mounting_determined(run: RunContext, margin: float):
     limit, at most the estimator's own bound).  A stream without an accelerometer never will be:
     then the stop does not wait, and the validate phase says the mounting cannot be proven."""
     skews: dict[str, float] = {}  # each sensor's skew found on an earlier snapshot: the next starts there
+    dip = getattr(run.field_source, "reference_inclination_deg", lambda: None)()  # as the validate phase reads it
 
     def confirm(fits: dict[str, FitResult], snapshot: dict[str, RawSamples], imu: ImuSeries | None):
         if imu is None or not len(imu) or not np.any(np.linalg.norm(imu.accel_mss, axis=1) > 1.0):
@@ -126,7 +127,7 @@ def _mounting_determined(run: RunContext, margin: float):
             samples = snapshot[prefix]
             try:
                 estimate = estimate_mounting(calibrated(fit, samples.mag_ut), samples.t_ms, imu,
-                                             skew_hint_ms=skews.get(prefix))
+                                             skew_hint_ms=skews.get(prefix), dip_deg=dip)
             except MountingUnobservable:
                 return None
             skews[prefix] = estimate.skew_ms

@@ -103,7 +103,7 @@ def magline_validate_unit(run: RunContext, fits: dict[int, FitResult]) -> list[M
         prefix = run.sensor_prefix(sensor.device_id)
         cal = calibrated(fits[sensor.device_id], samples.mag_ut)
         try:
-            estimate = estimate_mounting(cal, samples.t_ms, attempt.imu)
+            estimate = estimate_mounting(cal, samples.t_ms, attempt.imu, dip_deg=reference)
         except MountingUnobservable as exc:
             raise StationFault(f"the mounting of {label} cannot be proven: {exc} (a product without an "
                                "accelerometer in its stream may say orientation: skip)") from None

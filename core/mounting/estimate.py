@@ -133,12 +133,30 @@ def residual_variance(resid: NDArray, params: int) -> float:
     return scale**2 * len(resid) / dof * factor
 
 
+# The mirrored mounting fits alike when its residuals are within this factor (plus a floor) of the fit's.
+MIRROR_TIE, MIRROR_FLOOR = 3.0, 0.01
+
+
+def mirrored(gravity_rows: NDArray, rotation: NDArray) -> NDArray:
+    """``rotation`` turned 180° about the body axis gravity was seen least along.  Why: gravity seen in
+    one plane only — a turntable's cradle tilted about one axis (level, on its sides, upside down) — gives
+    ``gᵀ·R'·m = −gᵀ·R·m`` for every reading, so this mounting with the opposite inclination fits exactly
+    as well: the readings cannot tell a sensor mounted Roll180 in a field pointing down from one mounted
+    straight in a field pointing up."""
+    from scipy.spatial.transform import Rotation
+
+    axis = np.linalg.svd(gravity_rows, full_matrices=False)[2][-1]
+    return Rotation.from_rotvec(np.pi * axis).as_matrix() @ rotation
+
+
 def estimate_mounting(mag_cal: NDArray, t_mag_ms: NDArray, imu: ImuSeries | None, *,
-                      skew_hint_ms: float | None = None) -> MountingEstimate:
+                      skew_hint_ms: float | None = None, dip_deg: float | None = None) -> MountingEstimate:
     """The rotation from the calibrated magnetometer's axes (``mag_cal``, rows, any unit) to the body,
     with the field's inclination; raises :class:`MountingUnobservable` with the reason when the
     readings cannot prove it.  ``skew_hint_ms``: a skew found on the same stream before (a tumble's
-    earlier snapshot), where the refinement starts instead of the coarse search."""
+    earlier snapshot), where the refinement starts instead of the coarse search.  ``dip_deg``: the local
+    field's inclination (the field source's), which decides between a mounting and its mirror when
+    gravity was seen in one plane only (:func:`mirrored`); without it that tumble cannot prove one."""
     from scipy.optimize import least_squares  # on use: scipy costs every command start
     from scipy.spatial.transform import Rotation
 
@@ -177,6 +195,17 @@ def estimate_mounting(mag_cal: NDArray, t_mag_ms: NDArray, imu: ImuSeries | None
     # tilts once let the solver wander to 118° for a 62° field (a good unit FAILed at 56° "error"); the
     # field's dip is in [−90°, 90°], the same sine there
     inclination, skew = float(np.arcsin(np.clip(np.sin(fit.x[3]), -1.0, 1.0))), float(fit.x[4])
+    seen = gravity(skew)
+    mirror = mirrored(seen, rotation)
+    own = np.einsum("ij,ij->i", seen, m @ rotation.T) + np.sin(inclination)
+    other = np.einsum("ij,ij->i", seen, m @ mirror.T) - np.sin(inclination)
+    if np.sqrt(np.mean(other**2)) <= MIRROR_TIE * np.sqrt(np.mean(own**2)) + MIRROR_FLOOR:
+        if dip_deg is None:
+            raise MountingUnobservable("gravity was seen about one axis only: the mounting and the same turned "
+                                       "180° fit alike, with the field pointing up or down — tilt the unit about "
+                                       "its other axis too")
+        if np.sign(inclination) != np.sign(dip_deg):  # the mirror is the one whose field dips as the place's
+            rotation, inclination = mirror, -inclination
     variance = residual_variance(fit.fun, len(fit.x))
     try:
         cov = variance * np.linalg.inv(fit.jac.T @ fit.jac)
