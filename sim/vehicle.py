@@ -586,8 +586,7 @@ class SimulatedAutopilot(ABC):
         sensor = self.faults.current_sensor
         if sensor == "none":
             return 0.0
-        if sensor == "bypassed":
-            self.true_current_a(time.monotonic() if now is None else now)  # the compasses still see it all
+        if sensor == "bypassed":  # the compasses still see the whole current (interference_ut)
             return self.idle_current_a * self.current_scale if self.power is Power.UP else 0.0
         return self.true_current_a(time.monotonic() if now is None else now) * self.current_scale
 
