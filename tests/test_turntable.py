@@ -236,8 +236,13 @@ def test_two_units_on_one_turntable_share_its_turns_with_the_tilts_their_coverag
     log = log_of(records["A"])
     asked = [line.removeprefix("operator: Tilt the cradle: ") for line in log if "Tilt the cradle:" in line]
     assert asked[0] == "level" and len(asked) >= 2
-    assert not [line for line in log_of(records["B"]) if "Tilt the cradle" in line]  # A speaks for the cradle
-    assert [tilt_words(*m) for m in made] == asked[1:len(made) + 1]  # the operator made each tilt asked
+    # A speaks for the cradle while it reads; a tilt still needed once A's tumble ended is B's to ask
+    later = [line.removeprefix("operator: Tilt the cradle: ") for line in log_of(records["B"])
+             if "Tilt the cradle:" in line]
+    assert "level" not in later  # B never took the first words from A
+    # the operator made each tilt asked, and every tilt made was asked in a record (one was once shown on the
+    # pendant from B's step just before A's tumble ended, and said nowhere)
+    assert [tilt_words(*m) for m in made] == (asked + later)[1:len(made) + 1]
     assert 2 <= turns <= len(asked) + 1  # one turn per tilt for both units (and the spin check), not one each
     assert not [line for line in log if "never tilted" in line]  # ended by the stop rule or the count, no stall
 
@@ -316,3 +321,32 @@ def test_the_first_slot_speaks_for_the_cradle_even_when_another_slot_steps_first
     level = Tilt(0.0, 0.0).gravity_body()
     assert guide.step("B", level, True, set(), np.eye(3)).prompt is None
     assert guide.step("A", level, True, set(), np.eye(3)).prompt == "Tilt the cradle: level"
+
+
+def test_the_next_tilt_is_asked_in_the_step_of_the_slot_that_speaks_for_the_cradle():
+    """A CI run: the turn ended during slot B's step, B asked the next tilt on the pendant (the operator made
+    it) while A spoke for the cradle — and A's tumble ended before its next step, so the tilt was said in
+    no record.  Now a turn that ended waits for the speaker's step, which shows and says the next tilt at
+    once; once A has stopped stepping, B speaks."""
+    clock, table = Clock(), FakeTable(tilts=[Tilt(0.0, 0.0), Tilt(-45.0, 0.0), Tilt(45.0, 0.0)])
+    guide = TiltGuide(table, ["A", "B"], 40, 62.0, clock=clock)
+    level = Tilt(0.0, 0.0).gravity_body()
+    assert guide.step("A", level, True, set(), np.eye(3)).prompt == "Tilt the cradle: level"
+    guide.step("B", level, True, set(), np.eye(3))
+    clock.now += 0.6
+    assert guide.step("A", level, True, set(), np.eye(3)).state == "turning"
+    table.busy = False  # the turn ended
+    clock.now += 0.3
+    shown = list(table.shown)
+    assert guide.step("B", level, True, set(), np.eye(3)).prompt is None
+    assert table.shown == shown  # nothing new on the pendant from B's step
+    assert guide.step("A", level, True, set(), np.eye(3)).prompt == "Tilt the cradle: nose down 45°"
+    assert table.shown[-1] == "Tilt the cradle: nose down 45°"
+    clock.now += 1.5  # A's tumble ended: it steps no more, and B speaks
+    nose_down = Tilt(-45.0, 0.0).gravity_body()
+    guide.step("B", nose_down, True, set(), np.eye(3))
+    clock.now += 0.6
+    assert guide.step("B", nose_down, True, set(), np.eye(3)).state == "turning"
+    table.busy = False
+    clock.now += 0.3
+    assert guide.step("B", nose_down, True, set(), np.eye(3)).prompt == "Tilt the cradle: nose up 45°"

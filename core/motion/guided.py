@@ -93,11 +93,15 @@ class TiltGuide:
             seen.covered, seen.sensor_to_body, seen.stepped = set(covered), np.asarray(sensor_to_body, float), now
             if gravity_mss is not None:
                 seen.gravity, seen.at, seen.steady = np.asarray(gravity_mss, float), now, steady
-            if self._tilt is None:
+            if self._tilt is None:  # the first tilt: the first slot says it at its first step, whoever asked
                 self._ask(self._next_tilt(), now)
+            # a next tilt only in the step of the slot that speaks for the cradle, so the words shown on the pendant
+            # are in the speaker's record (one asked in another slot's step just before the speaker's tumble
+            # ended was made by the operator and said nowhere)
+            speaks = slot == self._leader(slot, now)
             if self._state == "tilt":
                 self._check_tilt(now)
-            elif self._state == "turning" and now - self._polled >= POLL_S:
+            elif self._state == "turning" and speaks and now - self._polled >= POLL_S:
                 self._polled = now
                 if not self.motion.turning():
                     self.done.append(self._tilt)
@@ -165,14 +169,17 @@ class TiltGuide:
         # the first member still reading speaks for the cradle: one whose tumble ended (it stepped, then stopped)
         # hands it on; one that has not stepped yet is about to (a CI run's second slot stepped first and took
         # the first words from the first)
-        reading = [m for m in self.members if m not in self._seen or now - self._seen[m].stepped < 1.0]
-        leader = reading[0] if reading else slot
+        leader = self._leader(slot, now)
         words = self._words()
         prompt = None
         if slot == leader and words != self._said:
             self._said = prompt = words
         return Guidance(state=self._state, tilt=self._tilt, step=len(self.done) + 1, prompt=prompt, leader=leader,
                         found=self._found, why=self._why)
+
+    def _leader(self, slot: str, now: float) -> str:
+        reading = [m for m in self.members if m not in self._seen or now - self._seen[m].stepped < 1.0]
+        return reading[0] if reading else slot
 
     def _words(self) -> str:
         if self._state == "turning":
