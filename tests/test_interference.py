@@ -151,8 +151,9 @@ def test_the_interference_reads_in_words_in_show_the_report_and_the_export(tmp_p
     from magline.core.operator_ui.verdict_words import sensor_cards
     from magline.core.reports.commands import write_report
 
-    with board_on_a_load(tmp_path, "ardupilot") as (_, _, station):
+    with board_on_a_load(tmp_path, "ardupilot") as (sim, _, station):
         record = run_unit(station, "INT-WORDS")
+        second_id = sim.magnetometers[1].device_id
     assert record.verdict is Outcome.PASS, record.cause
     capsys.readouterr()
     assert main(["show", "INT-WORDS", "--station", str(station)]) == 0
@@ -161,7 +162,8 @@ def test_the_interference_reads_in_words_in_show_the_report_and_the_export(tmp_p
     band = "fine" if pct < 30 else "grey zone"
     assert "current interference (swept to 40 A in " in shown
     assert f", {record.unit_info['interference']['readings_per_step']} readings a step" in shown
-    assert f"{pct:.1f} % of the field at 40 A — {band}; compensated: " in shown
+    known = record.unit_info["interference"]["compasses"][str(second_id)]["known_pct"]
+    assert f"{pct:.1f} % of the field at 40 A — {band}; compensated (known to ±{known:.1f} % of it): " in shown
     assert "% left after the power cycle" in shown
     assert "  interference " in shown  # the phase, in the phases table
     engine = create_engine(f"sqlite:///{tmp_path / 'results.sqlite'}")
@@ -480,3 +482,123 @@ def test_a_sweep_whose_most_readings_are_fewer_than_its_least_is_refused_naming_
         load_station(path)
     said = str(refused.value)
     assert "readings_max (20) is below readings (50)" in said and str(path) in said and "interference" in said
+
+
+def test_the_ends_are_held_for_the_fewest_readings_that_know_a_slope_to_its_goal():
+    """The hold's arithmetic: a reading adds ``(L − L̄)²`` to the slope's leverage; the readings added at
+    the top and the last zero are the fewest that reach the leverage the goal needs (one fewer does not),
+    a weaker slope or a noisier compass needs more, and the budget (the proof's three steps included)
+    caps them."""
+    from magline.core.interference.hold import (
+        leverage,
+        needed_leverage,
+        readings_in_budget,
+        readings_to_add,
+    )
+    from magline.core.interference.sweep import sweep_levels
+
+    levels = sweep_levels(2)  # 0, ½, 1, ½, 0
+    assert leverage(levels, [8] * 5) == pytest.approx(8 * 0.7)
+    # σ per axis = noise / (top·√leverage) must reach goal·|c|/3: 0.3 µT, 0.05 µT/A at 40 A, 5 % → 81
+    needed = needed_leverage(0.3 / 40.0, 0.05, 0.05)
+    assert needed == pytest.approx(81.0)
+    m = readings_to_add(levels, [8] * 5, (2, 4), needed)
+    assert leverage(levels, [8, 8, 8 + m, 8, 8 + m]) >= needed > leverage(levels, [8, 8, 7 + m, 8, 7 + m])
+    assert readings_to_add(levels, [8] * 5, (2, 4), needed_leverage(0.3 / 40.0, 0.025, 0.05)) > 3 * m
+    assert readings_to_add(levels, [8] * 5, (2, 4), needed_leverage(0.6 / 40.0, 0.05, 0.05)) > 3 * m
+    assert readings_to_add(levels, [200] * 5, (2, 4), 1.0) == 0  # already known: nothing held
+    # 3 of 5 steps took 3 s (1 s a step), 10 ms a reading: 10 − 3 − (2 + 3)·1 = 2 s → 100 readings at each end
+    assert readings_in_budget(3.0, 3, 5, 0.01, 10.0, left_s=57.0) == 100
+    assert readings_in_budget(3.0, 3, 5, 0.01, 6.0, left_s=57.0) == 0  # no time left: nothing held
+    assert readings_in_budget(3.0, 3, 5, 0.01, 60.0, left_s=6.0) == int((0.8 * 6.0 - 2.0) / 0.02)  # the timeout
+
+
+def test_a_slope_within_the_sweep_s_noise_is_not_written_and_the_record_says_why():
+    """Writing a slope ``ĉ`` known to σ per axis adds an error of mean square 3σ² and removes |c|² ≈
+    |ĉ|² − 3σ²: below |ĉ|² = 6σ² it adds more than it removes, so that compass is not compensated."""
+    from types import SimpleNamespace
+
+    from magline.core.dut import CompensatesCurrent
+    from magline.core.interference import phase
+    from magline.core.interference.model import CompassInterference, Interference
+
+    def compass(device_id: int, per_amp: list[float], sigma: float) -> CompassInterference:
+        return CompassInterference(device_id=device_id, per_amp_ut=np.array(per_amp), per_amp_sigma_ut=sigma,
+                                   per_amp_written_ut=np.array(per_amp), written_sigma_ut=sigma, linearity_ut=0.0,
+                                   return_ut=0.0, pct_at_max=1.0)
+
+    class Board(CompensatesCurrent):
+        def interference_params(self, device_id, per_amp_ut, fit):
+            return {f"MOT{device_id}_X": float(per_amp_ut[0])}
+
+    notes: list[str] = []
+    found = Interference(compasses={1: compass(1, [0.004, 0.002, 0.0], 0.003),  # |ĉ|² = 2.2σ²: within the noise
+                                    2: compass(2, [0.03, 0.0, 0.0], 0.003)},  # 100σ²: written
+                         reference="source", current_max_a=40.0, field_ut=48.0, sensor_error_pct=0.0, moved_deg=0.0,
+                         seconds=1.0)
+    run = SimpleNamespace(product=SimpleNamespace(interference="compensate"), interference=found,
+                          station=SimpleNamespace(interference=SimpleNamespace(compensation_goal_pct=50.0,
+                                                                               compensation_budget_s=10.0)),
+                          require_dut=lambda: Board.__new__(Board), sensor_label=lambda d: f"compass {d}",
+                          log=notes.append, record=SimpleNamespace(unit_info={}))
+    assert phase.params_for(run, SimpleNamespace(device_id=1), None, None) == {}
+    assert phase.params_for(run, SimpleNamespace(device_id=2), None, None) == {"MOT2_X": 0.03}
+    assert found.compensated == {2}
+    said = run.record.unit_info["interference_notes"]
+    assert said == ["compass 1: current interference not compensated: its field per amp (0.0045 ± 0.0030 µT/A per "
+                    "axis) is within the sweep's noise — writing it would add about as much as it removes"]
+
+
+def weak_first_compass(sim, per_amp_ut: float) -> np.ndarray:
+    """The board's first (GPS mast) compass made to see only ``per_amp_ut`` µT/A of the current."""
+    mast = sim.magnetometers[0]
+    mast.interference_ut_per_a = per_amp_ut * mast.interference_ut_per_a / np.linalg.norm(mast.interference_ut_per_a)
+    return mast.interference_ut_per_a
+
+
+def test_a_compass_that_sees_little_current_is_held_until_its_compensation_is_known_to_the_goal(tmp_path):
+    """A GPS-mast compass seeing 0.05 µT/A (4 % of the field at 40 A): the station's target σ would leave
+    compensation ~17 % of its interference; with room in the budget, the top and the last zero are held
+    until its written slope is known to 5 % of itself, and the simulated firmware's own corrected output
+    then moves no more than that slope's σ allows (noise-free truth)."""
+    goal = 5.0
+    with board_on_a_load(tmp_path, "ardupilot", faults="", mode="compensate") as (sim, _, station):
+        doc = yaml.safe_load(station.read_text(encoding="utf-8"))
+        doc["interference"].update({"compensation_goal_pct": goal, "compensation_budget_s": 60.0})
+        station.write_text(yaml.safe_dump(doc, sort_keys=False), encoding="utf-8")
+        truth = weak_first_compass(sim, 0.05)
+        record = run_unit(station, "INT-HELD")
+        left_ut = np.linalg.norm(sim.corrected_change_ut(0, CURRENT_MAX_A))
+    assert record.verdict is Outcome.PASS, record.cause
+    found = record.unit_info["interference"]
+    mast = found["compasses"][str(sim.magnetometers[0].device_id)]
+    assert found["held_readings"] == found["hold_asked"] > 0
+    # the last zero is held until the written slope's own fit says the goal is met
+    assert mast["known_pct"] <= goal, mast["known_pct"]
+    assert not record.unit_info.get("interference_notes")
+    # what the firmware's compensation truly leaves is the written slope's error: within Z_NEVER of its σ,
+    # which the hold brought to a few hundredths of the compass's interference
+    sigma = mast["written_sigma_ut_per_a"]
+    assert left_ut < Z_NEVER * np.sqrt(3) * sigma * CURRENT_MAX_A, (left_ut, sigma)
+    assert sigma < goal / 100.0 * np.linalg.norm(truth) / 2.0  # 3σ ≤ 5 % of |ĉ|; |ĉ| within 5σ (8 %) of the truth
+
+
+def test_a_budget_too_short_for_the_goal_compensates_as_well_as_it_can_and_says_how_well(tmp_path):
+    """The same compass with a 1 s budget: nothing can be held, the unit still passes and is compensated
+    with the slope the sweep has, and the record says how well it is known against the goal."""
+    with board_on_a_load(tmp_path, "ardupilot", mode="compensate") as (sim, _, station):
+        doc = yaml.safe_load(station.read_text(encoding="utf-8"))
+        doc["interference"].update({"compensation_budget_s": 1.0})
+        station.write_text(yaml.safe_dump(doc, sort_keys=False), encoding="utf-8")
+        weak_first_compass(sim, 0.05)
+        record = run_unit(station, "INT-SHORT")
+    assert record.verdict is Outcome.PASS, record.cause
+    found = record.unit_info["interference"]
+    assert found["held_readings"] == 0 < found["hold_asked"]
+    mast = found["compasses"][str(sim.magnetometers[0].device_id)]
+    assert mast["known_pct"] > 5.0  # ~17 % at 10 readings a step of a 0.3 µT compass
+    assert "COMPASS_MOT_X" in record.params_written  # still written: it removes most of the interference
+    notes = record.unit_info["interference_notes"]
+    assert notes == [f"compass 1 ({sim.magnetometers[0].device_id}): its compensation is known to "
+                     f"±{mast['known_pct']:.0f} % of its interference, not the goal's 5 %: the 1 s budget held the "
+                     f"top and 0 A for 0 readings more of the {found['hold_asked']} the goal asked"]

@@ -19,6 +19,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from magline.core.faults import StationFault
+from magline.core.interference.hold import known_pct, worth_writing
+from magline.core.interference.line import length_sigma, line_fit
 from magline.core.interference.sweep import Sweep
 
 if TYPE_CHECKING:
@@ -44,6 +46,7 @@ class CompassInterference:
     per_amp_ut: NDArray  # calibrated frame, µT per amp of the reference current
     per_amp_sigma_ut: float  # 1σ of its length
     per_amp_written_ut: NDArray  # the raw stream's frame, µT per amp of the unit's own reading: compensated
+    written_sigma_ut: float  # 1σ per axis of the written slope
     linearity_ut: float
     return_ut: float
     pct_at_max: float
@@ -52,6 +55,17 @@ class CompassInterference:
     @property
     def ut_per_a(self) -> float:
         return float(np.linalg.norm(self.per_amp_ut))
+
+    @property
+    def known_pct(self) -> float:
+        """How well the written slope is known, 3σ as a share of itself (%): about what compensating
+        with it may leave of this compass's interference."""
+        return known_pct(float(np.linalg.norm(self.per_amp_written_ut)), self.written_sigma_ut)
+
+    @property
+    def worth_writing(self) -> bool:
+        """Whether compensating with the written slope removes more than it adds, on average."""
+        return worth_writing(float(np.linalg.norm(self.per_amp_written_ut)), self.written_sigma_ut)
 
 
 @dataclass
@@ -65,45 +79,22 @@ class Interference:
     seconds: float
     steps: list[dict] = field(default_factory=list)  # level, source and unit current per step (the record)
     readings_per_step: int = 0  # readings of every compass at each step (as the noise at 0 A asked)
+    held_readings: int = 0  # read more at the top and the last zero for the compensation goal
+    hold_asked: int = 0  # what the goal asked for there (more than held: the budget cut it)
     compensated: set[int] = field(default_factory=set)  # device ids whose compensation the persist phase writes
 
     def to_dict(self) -> dict:
         return {"reference": self.reference, "current_max_a": self.current_max_a, "field_ut": self.field_ut,
                 "sensor_error_pct": self.sensor_error_pct, "moved_deg": self.moved_deg, "seconds": self.seconds,
                 "steps": self.steps, "readings_per_step": self.readings_per_step,
+                "held_readings": self.held_readings, "hold_asked": self.hold_asked,
                 "compasses": {str(d): {"per_amp_ut": c.per_amp_ut.tolist(), "per_amp_sigma_ut": c.per_amp_sigma_ut,
                                        "per_amp_written_ut": c.per_amp_written_ut.tolist(),
+                                       "written_sigma_ut_per_a": c.written_sigma_ut,
+                                       "known_pct": c.known_pct if np.isfinite(c.known_pct) else None,
                                        "linearity_ut": c.linearity_ut, "return_ut": c.return_ut,
                                        "pct_at_max": c.pct_at_max, "step_fields_ut": c.step_fields_ut}
                               for d, c in self.compasses.items()}}
-
-
-def line_fit(x: NDArray, y: NDArray) -> tuple[NDArray, NDArray, NDArray]:
-    """``y ≈ a + c·x`` (rows of ``y`` are vectors): (a, c, σ of c per axis, from the residual scatter
-    pooled over the axes)."""
-    x = np.asarray(x, float)
-    y = np.asarray(y, float).reshape(len(x), -1)
-    xm = x.mean()
-    sxx = float(np.sum((x - xm) ** 2))
-    if sxx <= 0 or len(x) < 3:
-        raise StationFault("the sweep's current did not change: no slope to fit")
-    c = ((x - xm)[:, None] * (y - y.mean(axis=0))).sum(axis=0) / sxx
-    a = y.mean(axis=0) - c * xm
-    residual = y - a - np.outer(x, c)
-    # one noise for every axis of a sensor (pooled: three times the degrees of freedom, so a σ from ten
-    # readings a step is not itself a coin toss — with each axis on its own, 0.4–1.5 % of the lengths
-    # fell beyond 3σ in the benchmark instead of 0.3 %)
-    dof = max(y.shape[1] * (len(x) - 2), 1)
-    sigma_res = np.full(y.shape[1], np.sqrt(np.sum(residual**2) / dof))
-    return a, c, sigma_res / np.sqrt(sxx)
-
-
-def length_sigma(c: NDArray, sigma: NDArray) -> float:
-    """1σ of |c| from the per-axis σ (linearised; near zero, the per-axis σ's RMS)."""
-    norm = float(np.linalg.norm(c))
-    if norm < 3.0 * float(np.linalg.norm(sigma)):
-        return float(np.sqrt(np.mean(sigma**2)))
-    return float(np.sqrt(np.sum((c / norm) ** 2 * sigma**2)))
 
 
 def analyse(sweep: Sweep, fits: dict[int, FitResult], current_max_a: float, field_ut: float) -> Interference:
@@ -147,11 +138,12 @@ def analyse(sweep: Sweep, fits: dict[int, FitResult], current_max_a: float, fiel
             means.append(cal.mean(axis=0))
         cal_all, raw_all = np.vstack(cal_rows), np.vstack(raw_rows)
         a, c, sigma = line_fit(np.array(ref_x), cal_all)
-        _, written, _ = line_fit(np.array(unit_x), raw_all)
+        _, written, written_sigma = line_fit(np.array(unit_x), raw_all)
         line = a + np.outer(reference_a, c)
         means_arr = np.array(means)
         compasses[device_id] = CompassInterference(
             device_id=device_id, per_amp_ut=c, per_amp_sigma_ut=length_sigma(c, sigma), per_amp_written_ut=written,
+            written_sigma_ut=float(written_sigma[0]),
             linearity_ut=float(np.max(np.linalg.norm(means_arr - line, axis=1))),
             return_ut=float(np.linalg.norm(means_arr[-1] - means_arr[0])),
             pct_at_max=float(np.linalg.norm(c) * current_max_a / field_ut * 100.0),
@@ -159,7 +151,8 @@ def analyse(sweep: Sweep, fits: dict[int, FitResult], current_max_a: float, fiel
     table = [{"level": s.level, "source_a": s.source_a, "unit_a": s.firmware_mean_a} for s in steps]
     return Interference(compasses=compasses, reference="source" if has_source else "unit", current_max_a=current_max_a,
                         field_ut=field_ut, sensor_error_pct=sensor_error, moved_deg=moved, seconds=sweep.seconds,
-                        steps=table, readings_per_step=sweep.readings_per_step)
+                        steps=table, readings_per_step=sweep.readings_per_step, held_readings=sweep.held_readings,
+                        hold_asked=sweep.hold_asked)
 
 
 def _moved_deg(steps) -> float:

@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 
 from magline.core.dut import CompensatesCurrent, DutError, ParamValue
 from magline.core.faults import StationFault
+from magline.core.interference.hold import HoldGoal
 from magline.core.interference.model import analyse
 from magline.core.interference.source import open_current_source
 from magline.core.interference.sweep import run_sweep
@@ -58,6 +59,25 @@ def measure(run: RunContext) -> None:
     run.record.unit_info["interference"] = run.interference.to_dict()
 
 
+def _note(run: RunContext, note: str) -> None:
+    run.log(note)
+    run.record.unit_info.setdefault("interference_notes", []).append(note)
+
+
+def goal_note(run: RunContext, device_id: int) -> str | None:
+    """For a compass being compensated whose written slope is known less well than the station's goal
+    (the budget held the sweep's ends too short for its noise and its small interference): how well it
+    is known, so a process engineer can weigh a longer budget or a quieter compass."""
+    settings = run.station.interference
+    found = run.interference
+    c = found.compasses[device_id]
+    if c.known_pct <= settings.compensation_goal_pct:
+        return None
+    return (f"{run.sensor_label(device_id)}: its compensation is known to ±{c.known_pct:.0f} % of its interference, "
+            f"not the goal's {settings.compensation_goal_pct:g} %: the {settings.compensation_budget_s:g} s budget "
+            f"held the top and 0 A for {found.held_readings} readings more of the {found.hold_asked} the goal asked")
+
+
 def params_for(run: RunContext, sensor: Magnetometer, fit: FitResult, turn: NDArray | None) -> dict[str, ParamValue]:
     """The compensation parameters of one compass (``turn``: the orientation fix its fit was turned by),
     for the persist phase; empty unless the product compensates.  A firmware without them: the unit is
@@ -67,18 +87,25 @@ def params_for(run: RunContext, sensor: Magnetometer, fit: FitResult, turn: NDAr
     dut = run.require_dut()
     if not isinstance(dut, CompensatesCurrent):
         return {}
-    per_amp = run.interference.compasses[sensor.device_id].per_amp_written_ut
+    found = run.interference.compasses[sensor.device_id]
+    if not found.worth_writing:
+        _note(run, f"{run.sensor_label(sensor.device_id)}: current interference not compensated: its field per amp "
+                   f"({np.linalg.norm(found.per_amp_written_ut):.4f} ± {found.written_sigma_ut:.4f} µT/A per axis) is "
+                   "within the sweep's noise — writing it would add about as much as it removes")
+        return {}
+    per_amp = found.per_amp_written_ut
     if turn is not None:
         per_amp = turn @ per_amp
     try:
         params = dict(dut.interference_params(sensor.device_id, per_amp, fit))
-        run.interference.compensated.add(sensor.device_id)
-        return params
     except DutError as exc:
-        note = f"{run.sensor_label(sensor.device_id)}: current interference not compensated: {exc}"
-        run.log(note)
-        run.record.unit_info.setdefault("interference_notes", []).append(note)
+        _note(run, f"{run.sensor_label(sensor.device_id)}: current interference not compensated: {exc}")
         return {}
+    run.interference.compensated.add(sensor.device_id)
+    note = goal_note(run, sensor.device_id)
+    if note:
+        _note(run, note)
+    return params
 
 
 def switch_on(run: RunContext, written: dict[str, ParamValue]) -> dict[str, ParamValue]:
@@ -129,9 +156,12 @@ def _sweep(run: RunContext, dut: CompensatesCurrent, compensation: bool) -> tupl
     source.start(run)
     dut.measure_current_interference(compensation=compensation)
     settings = run.station.interference
+    goal = None
     if compensation:  # only the slope left matters, to the same ±σ: the noise decides the readings from 4 up
         settings = settings.model_copy(update={"steps": 1, "readings": min(settings.readings, PROOF_LEAST_READINGS)})
-    sweep = run_sweep(run, source, settings, [m.device_id for m in run.magnetometers])
+    elif run.product.interference == "compensate":
+        goal = HoldGoal(share=settings.compensation_goal_pct / 100.0, budget_s=settings.compensation_budget_s)
+    sweep = run_sweep(run, source, settings, [m.device_id for m in run.magnetometers], goal)
     return sweep, {**run.fits, run.magnetometers[0].device_id: run.require_fit()}
 
 

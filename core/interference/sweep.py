@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 
 from magline.core.dut import DutError, SampleChunk
 from magline.core.faults import StationFault
+from magline.core.interference.hold import HoldGoal, readings_for_goal, readings_in_budget
 from magline.core.interference.source import CurrentSource
 
 if TYPE_CHECKING:
@@ -52,6 +53,8 @@ class Sweep:
     seconds: float
     device_ids: list[int]
     readings_per_step: int = 0  # what the noise at 0 A asked for (the station's ``readings`` at least)
+    held_readings: int = 0  # read more at the top and the last zero in all, for a compensation goal (:mod:`.hold`)
+    hold_asked: int = 0  # what the goal asked for there in all (more than held: the budget cut it)
 
 
 def sweep_levels(steps: int) -> list[float]:
@@ -85,9 +88,11 @@ class UnitClock:
         return self.stamp_ms + (time.monotonic() - self.arrived + seconds_from_now) * 1000.0
 
 
-def run_sweep(run: RunContext, source: CurrentSource, settings: InterferenceSettings, device_ids: list[int]) -> Sweep:
+def run_sweep(run: RunContext, source: CurrentSource, settings: InterferenceSettings, device_ids: list[int],
+              goal: HoldGoal | None = None) -> Sweep:
     """Step the source through :func:`sweep_levels`, reading every compass in ``device_ids`` (the
-    primary first) and the unit's current after each settle.  The source draws nothing again
+    primary first) and the unit's current after each settle; with a ``goal`` (a compensated unit), the
+    top and the last zero step are held for it (:mod:`.hold`).  The source draws nothing again
     afterwards, whatever happened."""
     dut = run.require_dut()  # a CompensatesCurrent: the interference phase checked it
     started = time.monotonic()
@@ -97,6 +102,7 @@ def run_sweep(run: RunContext, source: CurrentSource, settings: InterferenceSett
     stream = dut.samples(settings.rate_hz)
     levels = sweep_levels(settings.steps)
     wanted = settings.readings
+    held = asked = top_held = 0  # readings held at the ends in all, what the goal asked, those at the top
     try:
         for index, level in enumerate(levels):
             run.abort.check()
@@ -104,7 +110,8 @@ def run_sweep(run: RunContext, source: CurrentSource, settings: InterferenceSett
             step = SweepStep(level=level)
             settled_ms = clock.in_ms(settings.settle_s)
             step_started = time.monotonic()
-            _read_step(stream, clock, step, settled_ms, wanted, device_ids, deadline)
+            _read_step(stream, clock, step, settled_ms, wanted + (top_held if index == len(levels) - 1 else 0),
+                       device_ids, deadline)
             while index == 0:  # the compasses' noise at 0 A decides how many readings every step needs,
                 # estimated again from each larger set until the readings in hand are enough
                 most = readings_in_time(step, device_ids, levels, settings, time.monotonic() - step_started,
@@ -118,6 +125,9 @@ def run_sweep(run: RunContext, source: CurrentSource, settings: InterferenceSett
                         f"{settings.target_sigma_ut_per_a:g} µT/A (the compasses' noise at 0 A)"
                         + (f" — or as near as the sweep's {settings.timeout_s:g} s allow" if wanted == most else ""))
                 _read_step(stream, clock, step, settled_ms, wanted, device_ids, deadline)
+            if goal is not None and index in (settings.steps, len(levels) - 1):  # the top, the last zero: hold
+                held, asked, top_held = _hold(run, stream, clock, step, steps, levels, index, settled_ms, wanted,
+                                              device_ids, goal, (started, step_started, deadline), held, top_held)
             step.source_a = source.measured_current_a()
             steps.append(step)
             run.log(f"sweep {level:.0%}: unit reads {_amps(step.firmware_mean_a)}, source {_amps(step.source_a)}")
@@ -131,7 +141,48 @@ def run_sweep(run: RunContext, source: CurrentSource, settings: InterferenceSett
         raise
     stream.close()
     source.stop()
-    return Sweep(steps=steps, seconds=time.monotonic() - started, device_ids=list(device_ids), readings_per_step=wanted)
+    return Sweep(steps=steps, seconds=time.monotonic() - started, device_ids=list(device_ids), readings_per_step=wanted,
+                 held_readings=held, hold_asked=asked)
+
+
+def _hold(run: RunContext, stream, clock: UnitClock, step: SweepStep, steps: list[SweepStep], levels: list[float],
+          index: int, settled_ms: float, wanted: int, device_ids: list[int], goal: HoldGoal,
+          times: tuple[float, float, float], held: int, top_held: int) -> tuple[int, int, int]:
+    """Hold the top step (once, for itself and the last zero) or the last zero step (planned again from
+    the whole sweep until the goal is met or the budget ends) for :mod:`.hold`'s goal.  ``times``: when
+    the sweep and this step started, and the sweep's deadline.  Returns the readings held at the ends in
+    all, what the goal asks there in all (as readings at both ends: at the top, the plan; at the last
+    zero, what is held plus what both ends would still need), and those held at the top."""
+    started, step_started, deadline = times
+    top, last = levels.index(1.0), len(levels) - 1
+    sweep_so_far = [*steps, step]
+    while True:
+        if index == top:
+            more = readings_for_goal(sweep_so_far, device_ids, levels, wanted, goal.share, (top, last))
+            asked, ends = held + 2 * more, 2
+        else:  # the top is past: only the last zero can still be held — it asks what both ends would need
+            both = readings_for_goal(sweep_so_far, device_ids, levels, wanted, goal.share, (top, last))
+            asked, ends = held + 2 * both, 1
+            more = readings_for_goal(sweep_so_far, device_ids, levels, wanted, goal.share, (last,)) if both else 0
+        if not more:
+            break
+        spent = time.monotonic() - started
+        slowest = min(len(step.readings.get(d, [])) for d in device_ids)
+        reading_s = max(time.monotonic() - step_started - run.station.interference.settle_s, 1e-3) / max(slowest, 1)
+        allowed = min(more, readings_in_budget(spent, index + 1, len(levels), reading_s, goal.budget_s,
+                                               deadline - time.monotonic(), ends))
+        if not allowed:
+            run.log(f"sweep {step.level:.0%}: the goal (every compensated slope known to {goal.share:.0%} of itself) "
+                    f"asks for more readings at the ends than the {goal.budget_s:g} s budget holds")
+            break
+        run.log(f"sweep {step.level:.0%}: held for {allowed} readings more, to know every compensated slope to "
+                f"{goal.share:.0%} of itself")
+        _read_step(stream, clock, step, settled_ms, slowest + allowed, device_ids, deadline)
+        held += allowed * ends
+        if index == top:
+            top_held = allowed
+            break  # the last zero plans again from the whole sweep
+    return held, asked, top_held
 
 
 def readings_in_time(step: SweepStep, device_ids: list[int], levels: list[float], settings: InterferenceSettings,

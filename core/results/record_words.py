@@ -108,6 +108,12 @@ def persistence_rows(persistence: dict[str, Any] | None) -> list[tuple[str, str]
     return rows
 
 
+def _known(compass: dict[str, Any]) -> str:
+    """How well a compensated compass's written slope was known, in words (records before it: nothing)."""
+    known = compass.get("known_pct")
+    return f" (known to ±{known:.1f} % of it)" if isinstance(known, int | float) else ""
+
+
 def interference_rows(unit_info: dict[str, Any] | None) -> list[tuple[str, str, str, str]]:
     """(compass, field per amp with σ, share of the field at the top current in words, linearity and
     return to zero) per compass swept, then what compensation left after the power cycle; a note where a
@@ -126,7 +132,8 @@ def interference_rows(unit_info: dict[str, Any] | None) -> list[tuple[str, str, 
         rows.append((f"{names.get(device, 'compass')} ({device})",
                      f"{per_amp:.3f} ± {c['per_amp_sigma_ut']:.3f} µT/A",
                      f"{c['pct_at_max']:.1f} % of the field at {top:g} A — {zone_words(c['pct_at_max'])}"
-                     + (f"; compensated: {left['left_pct_at_max']:.2f} % left after the power cycle" if left else ""),
+                     + (f"; compensated{_known(c)}: {left['left_pct_at_max']:.2f} % left after the power cycle"
+                        if left else ""),
                      f"line within {c['linearity_ut']:.2f} µT, back at 0 A within {c['return_ut']:.2f} µT"))
     for note in (unit_info or {}).get("interference_notes") or []:
         rows.append(("note", value_words(note), "", ""))

@@ -157,6 +157,11 @@ class InterferenceSettings(_Strict):
     readings_max: Annotated[int, Field(ge=3, le=5000)] = 200
     rate_hz: Annotated[float, Field(gt=0, le=400)] = 50.0
     timeout_s: Annotated[float, Field(gt=0)] = 60.0  # the whole sweep
+    # a compensated unit: its top and last zero steps are held until every compass's written slope is known to
+    # this share of itself (3σ) — about what compensation may leave of its interference —, as far as
+    # ``compensation_budget_s`` (its sweep and the proof after the power cycle together) allows
+    compensation_goal_pct: Annotated[float, Field(gt=0, le=100)] = 5.0
+    compensation_budget_s: Annotated[float, Field(gt=0)] = 10.0
 
     @model_validator(mode="after")
     def _most_at_least_least(self) -> InterferenceSettings:
