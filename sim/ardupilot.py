@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from magline.core.mounting import orientation_matrix
-from magline.sim.magnetometers import SimMagnetometer
+from magline.sim.magnetometers import SimMagnetometer, driver_rate_hz
 from magline.sim.params import INT8, INT16, INT32, REAL32, ParamSpec, ParamValue, ccast_from_wire
 from magline.sim.vehicle import ACCEPTED, UNSUPPORTED, SimulatedAutopilot, int16_mg
 
@@ -75,6 +75,14 @@ class ArduPilotSim(SimulatedAutopilot):
                      mavlink.MAVLINK_MSG_ID_SCALED_IMU2: 1, mavlink.MAVLINK_MSG_ID_SCALED_IMU3: 2}
     REBOOT_DELAY_S = 0.2
     firmware_mag_rate_hz: ClassVar[float | None] = 10.0  # ArduCopter's update_compass task
+
+    def samples_per_reading(self, sensor: SimMagnetometer) -> int:
+        """ArduPilot's drivers accumulate every sample they read (``AP_Compass_Backend::accumulate_sample``)
+        and the compass's read drains the sum as its mean (``drain_accumulated_samples``): a reading
+        published at ArduCopter's 10 Hz is the mean of the driver's samples since the last one — its noise
+        the sample's over √(driver rate / 10).  Centred on the reading's time: the 40 ms between
+        accelerometer and compass measured on SITL (``ACCEL_AGE_S``) was measured on such means."""
+        return max(1, round(driver_rate_hz(sensor.device_id) / self.sensor_rate_hz(sensor)))
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         self.stored: dict[str, ParamValue] = {}

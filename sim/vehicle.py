@@ -550,6 +550,11 @@ class SimulatedAutopilot(ABC):
     def sensor_rate_hz(self, sensor: SimMagnetometer) -> float:
         return self.mag_rate_hz or self.firmware_mag_rate_hz or driver_rate_hz(sensor.device_id)
 
+    def samples_per_reading(self, sensor: SimMagnetometer) -> int:
+        """How many of the driver's samples one published reading averages: one — the firmware publishes
+        each sample as it comes (PX4's sensor_mag, INAV's compass task reading its sensor once)."""
+        return 1
+
     # ------------------------------------------------------------------ current and its interference
     def hold_still(self, still: bool) -> None:
         """The unit is clamped in its fixture (a load or the motors connected): it keeps the attitude it
@@ -633,11 +638,16 @@ class SimulatedAutopilot(ABC):
         due, reading = self._held.get(sensor.device_id, (now, None))
         if reading is None or now >= due:
             taken = now - self._real_time(self.mag_age_s() + self._latency_s.get(sensor.device_id, 0.0))
-            field = self.body_field_ut(taken) + self.interference_ut(sensor, taken)
+            count = self.samples_per_reading(sensor)
+            # the driver's samples averaged into this reading, spread over its period and centred on ``taken``
+            times = [taken + self._real_time((j - (count - 1) / 2.0) * period / count) for j in range(count)]
+            fields = np.array([self.body_field_ut(t) + self.interference_ut(sensor, t) for t in times])
+            field = fields.mean(axis=0)
             if len(self._seen_dirs) < 20000:
                 self._seen_dirs.append(field / np.linalg.norm(field))
             self._read_since_supply = True
-            reading = (sensor.read_ut(field, self.rng) + self.warmup_offset_ut(now)
+            samples = sensor.truth.read(sensor.rotation.inv().apply(fields), self.rng)
+            reading = (samples.mean(axis=0) + self.warmup_offset_ut(now)
                        + self.WARMUP_DIRECTION * self.faults.mag_offset_after_cut * self.supply_cuts)
             due = due + period if now - due < period else now + period
             self._held[sensor.device_id] = (due, reading)

@@ -542,3 +542,25 @@ def test_the_board_reports_its_current_as_its_battery_monitor_measures_it(tmp_pa
         # the compasses see the whole current whatever the monitor reads
         assert sim.interference_ut(sim.magnetometers[0], time.monotonic()) == pytest.approx(
             drawn * sim.magnetometers[0].interference_ut_per_a)
+
+
+@pytest.mark.parametrize("flavour", ["ardupilot", "px4"])
+def test_a_published_reading_averages_the_driver_samples_as_the_firmware_does(tmp_path, flavour):
+    """ArduPilot's drivers accumulate every sample and the compass's read publishes their mean
+    (AP_Compass_Backend accumulate_sample / drain_accumulated_samples): at ArduCopter's 10 Hz an IST8310
+    read at 50 Hz gives the mean of 5 samples, an RM3100 at 100 Hz of 10 — noise over √5 and √10.  PX4
+    publishes each sample (the driver's rate here): its noise is the sample's."""
+    from magline.sim.magnetometers import driver_rate_hz
+
+    listen = "udp:127.0.0.1:0" if flavour == "px4" else "tcp:127.0.0.1:0"
+    with create_sim(flavour, listen, workdir=tmp_path, mag_count=2, seed=6, boot_time_s=0.3) as sim:
+        sim.hold_still(True)
+        for sensor in sim.magnetometers:
+            period = 1.0 / sim.sensor_rate_hz(sensor)
+            start = time.monotonic()
+            readings = np.array([sim.held_reading_ut(sensor, start + (k + 0.5) * period) for k in range(400)])
+            averaged = round(driver_rate_hz(sensor.device_id) * period) if flavour == "ardupilot" else 1
+            expected = sensor.truth.noise_ut / math.sqrt(averaged)
+            # 400 readings × 3 axes: the noise's estimate within ±4 % (1σ); ±20 % is five of them
+            assert np.std(readings, axis=0, ddof=1).mean() == pytest.approx(expected, rel=0.2), (sensor.device_id,
+                                                                                                 averaged)
