@@ -507,10 +507,14 @@ def test_the_ends_are_held_for_the_fewest_readings_that_know_a_slope_to_its_goal
     assert readings_to_add(levels, [8] * 5, (2, 4), needed_leverage(0.3 / 40.0, 0.025, 0.05)) > 3 * m
     assert readings_to_add(levels, [8] * 5, (2, 4), needed_leverage(0.6 / 40.0, 0.05, 0.05)) > 3 * m
     assert readings_to_add(levels, [200] * 5, (2, 4), 1.0) == 0  # already known: nothing held
-    # 3 of 5 steps took 3 s (1 s a step), 10 ms a reading: 10 − 3 − (2 + 3)·1 = 2 s → 100 readings at each end
-    assert readings_in_budget(3.0, 3, 5, 0.01, 10.0, left_s=57.0) == 100
-    assert readings_in_budget(3.0, 3, 5, 0.01, 6.0, left_s=57.0) == 0  # no time left: nothing held
-    assert readings_in_budget(3.0, 3, 5, 0.01, 60.0, left_s=6.0) == int((0.8 * 6.0 - 2.0) / 0.02)  # the timeout
+    # 3 s spent, the slowest step 1 s, 2 steps to come, 10 ms a reading: 10 − 3 − (2 + 3)·1 = 2 s → 100 readings
+    # at each end
+    assert readings_in_budget(3.0, 1.0, 2, 0.01, 10.0, left_s=57.0) == 100
+    assert readings_in_budget(3.0, 1.0, 2, 0.01, 6.0, left_s=57.0) == 0  # no time left: nothing held
+    assert readings_in_budget(3.0, 1.0, 2, 0.01, 60.0, left_s=6.0) == int((0.8 * 6.0 - 2.0) / 0.02)  # the timeout
+    # the last zero alone: 10 − 8 − 3 · 0.25 = 1.25 s at 0.125 s a reading; opening and closing 0.125 s each
+    assert readings_in_budget(8.0, 0.25, 0, 0.125, 10.0, left_s=50.0, ends=1) == 10
+    assert readings_in_budget(8.0, 0.25, 0, 0.125, 10.0, left_s=50.0, ends=1, opening_s=0.125) == 8
 
 
 def test_a_slope_within_the_sweep_s_noise_is_not_written_and_the_record_says_why():

@@ -127,13 +127,15 @@ def readings_for_goal(steps: Sequence[SweepStep], device_ids: Sequence[int], lev
     return readings_to_add(currents, counts, ends, needed) if needed else 0
 
 
-def readings_in_budget(spent_s: float, steps_done: int, steps_total: int, reading_s: float, budget_s: float,
-                       left_s: float, ends: int = 2) -> int:
-    """The most readings that may be added at each of ``ends`` steps and still let the sweep and its proof end within
-    ``budget_s`` (``spent_s`` of it gone over ``steps_done`` steps; each later step and each of the proof's
-    :data:`PROOF_STEPS` taken to cost what a step cost so far; a reading ``reading_s`` at the slowest
-    compass), and the sweep within its timeout (``left_s`` to it, with a fifth spare)."""
-    step_s = spent_s / max(steps_done, 1)
-    later = steps_total - steps_done
-    spare = min(budget_s - spent_s - (later + PROOF_STEPS) * step_s, 0.8 * left_s - later * step_s)
+def readings_in_budget(spent_s: float, step_s: float, later: int, reading_s: float, budget_s: float, left_s: float,
+                       ends: int = 2, opening_s: float = 0.0) -> int:
+    """The most readings that may be added at each of ``ends`` steps and still let the sweep and its proof
+    end within ``budget_s``, and the sweep within its timeout (``left_s`` to it, with a fifth spare).
+    ``spent_s`` of the budget is gone; each of the ``later`` steps and of the proof's :data:`PROOF_STEPS`
+    costs ``step_s`` — the slowest step so far without its hold: a step's cost varies with the source's
+    and the stream's timing, and a budget is a limit, not an average; the proof's opening and this
+    sweep's closing cost ``opening_s`` each — what this sweep took to open its stream; a reading costs
+    ``reading_s`` at the slowest compass."""
+    rest = (later + PROOF_STEPS) * step_s + 2.0 * opening_s
+    spare = min(budget_s - spent_s - rest, 0.8 * left_s - later * step_s)
     return max(0, int(spare / (ends * max(reading_s, 1e-4))))

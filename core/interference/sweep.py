@@ -102,16 +102,21 @@ def run_sweep(run: RunContext, source: CurrentSource, settings: InterferenceSett
     stream = dut.samples(settings.rate_hz)
     levels = sweep_levels(settings.steps)
     wanted = settings.readings
-    held = asked = top_held = 0  # readings held at the ends in all, what the goal asked, those at the top
+    held = asked = 0  # readings held at the ends in all, and what the goal asked there
+    # when each step began, before its source was set, and how long it was held: a step's cost is from one
+    # step to the next, without its hold
+    began: list[float] = []
+    hold_s: list[float] = []
     try:
         for index, level in enumerate(levels):
             run.abort.check()
+            began.append(time.monotonic())
+            hold_s.append(0.0)
             source.set_level(level)
             step = SweepStep(level=level)
             settled_ms = clock.in_ms(settings.settle_s)
             step_started = time.monotonic()
-            _read_step(stream, clock, step, settled_ms, wanted + (top_held if index == len(levels) - 1 else 0),
-                       device_ids, deadline)
+            _read_step(stream, clock, step, settled_ms, wanted, device_ids, deadline)
             while index == 0:  # the compasses' noise at 0 A decides how many readings every step needs,
                 # estimated again from each larger set until the readings in hand are enough
                 most = readings_in_time(step, device_ids, levels, settings, time.monotonic() - step_started,
@@ -126,8 +131,11 @@ def run_sweep(run: RunContext, source: CurrentSource, settings: InterferenceSett
                         + (f" — or as near as the sweep's {settings.timeout_s:g} s allow" if wanted == most else ""))
                 _read_step(stream, clock, step, settled_ms, wanted, device_ids, deadline)
             if goal is not None and index in (settings.steps, len(levels) - 1):  # the top, the last zero: hold
-                held, asked, top_held = _hold(run, stream, clock, step, steps, levels, index, settled_ms, wanted,
-                                              device_ids, goal, (started, step_started, deadline), held, top_held)
+                step_s = float(np.max(np.diff(began) - hold_s[:-1]))
+                holding = time.monotonic()
+                held, asked = _hold(run, stream, clock, step, steps, levels, index, settled_ms, wanted, device_ids,
+                                    goal, (started, step_started, deadline, step_s, began[0] - started), held)
+                hold_s[-1] = time.monotonic() - holding
             step.source_a = source.measured_current_a()
             steps.append(step)
             run.log(f"sweep {level:.0%}: unit reads {_amps(step.firmware_mean_a)}, source {_amps(step.source_a)}")
@@ -147,15 +155,20 @@ def run_sweep(run: RunContext, source: CurrentSource, settings: InterferenceSett
 
 def _hold(run: RunContext, stream, clock: UnitClock, step: SweepStep, steps: list[SweepStep], levels: list[float],
           index: int, settled_ms: float, wanted: int, device_ids: list[int], goal: HoldGoal,
-          times: tuple[float, float, float], held: int, top_held: int) -> tuple[int, int, int]:
-    """Hold the top step (once, for itself and the last zero) or the last zero step (planned again from
-    the whole sweep until the goal is met or the budget ends) for :mod:`.hold`'s goal.  ``times``: when
-    the sweep and this step started, and the sweep's deadline.  Returns the readings held at the ends in
-    all, what the goal asks there in all (as readings at both ends: at the top, the plan; at the last
-    zero, what is held plus what both ends would still need), and those held at the top."""
-    started, step_started, deadline = times
+          times: tuple[float, float, float, float, float], held: int) -> tuple[int, int]:
+    """Hold the top step or the last zero step for :mod:`.hold`'s goal.  The top is held once, for as many
+    readings as the plan gives it if the last zero gets as many; the last zero is then planned afresh from
+    the whole sweep and from the budget truly left — so the top's plan, made from half a sweep and a few
+    readings' timing, never commits the last zero to more than the budget holds — and planned again after
+    each hold until the goal is met or the budget ends.  ``times``: when the sweep and this step started,
+    the sweep's deadline, the slowest step's cost so far and what opening the sweep's stream cost.
+    Returns the readings held at the ends in all, and what the goal asks there in all (as readings at
+    both ends: at the top, the plan; at the last zero, what is held plus what both ends would still
+    need)."""
+    started, step_started, deadline, step_s, opening_s = times
     top, last = levels.index(1.0), len(levels) - 1
     sweep_so_far = [*steps, step]
+    asked = held
     while True:
         if index == top:
             more = readings_for_goal(sweep_so_far, device_ids, levels, wanted, goal.share, (top, last))
@@ -169,8 +182,8 @@ def _hold(run: RunContext, stream, clock: UnitClock, step: SweepStep, steps: lis
         spent = time.monotonic() - started
         slowest = min(len(step.readings.get(d, [])) for d in device_ids)
         reading_s = max(time.monotonic() - step_started - run.station.interference.settle_s, 1e-3) / max(slowest, 1)
-        allowed = min(more, readings_in_budget(spent, index + 1, len(levels), reading_s, goal.budget_s,
-                                               deadline - time.monotonic(), ends))
+        allowed = min(more, readings_in_budget(spent, step_s, last - index, reading_s, goal.budget_s,
+                                               deadline - time.monotonic(), ends, opening_s))
         if not allowed:
             run.log(f"sweep {step.level:.0%}: the goal (every compensated slope known to {goal.share:.0%} of itself) "
                     f"asks for more readings at the ends than the {goal.budget_s:g} s budget holds")
@@ -178,11 +191,10 @@ def _hold(run: RunContext, stream, clock: UnitClock, step: SweepStep, steps: lis
         run.log(f"sweep {step.level:.0%}: held for {allowed} readings more, to know every compensated slope to "
                 f"{goal.share:.0%} of itself")
         _read_step(stream, clock, step, settled_ms, slowest + allowed, device_ids, deadline)
-        held += allowed * ends
+        held += allowed
         if index == top:
-            top_held = allowed
             break  # the last zero plans again from the whole sweep
-    return held, asked, top_held
+    return held, asked
 
 
 def readings_in_time(step: SweepStep, device_ids: list[int], levels: list[float], settings: InterferenceSettings,
