@@ -164,7 +164,7 @@ def test_the_interference_reads_in_words_in_show_the_report_and_the_export(tmp_p
     assert f", {record.unit_info['interference']['readings_per_step']} readings a step" in shown
     known = record.unit_info["interference"]["compasses"][str(second_id)]["known_pct"]
     assert f"{pct:.1f} % of the field at 40 A — {band}; compensated (known to ±{known:.1f} % of it): " in shown
-    assert "% left after the power cycle" in shown
+    assert "% of the field left after the power cycle" in shown
     assert "  interference " in shown  # the phase, in the phases table
     engine = create_engine(f"sqlite:///{tmp_path / 'results.sqlite'}")
     page = write_report(engine, "INT-WORDS", None, tmp_path / "reports").read_text(encoding="utf-8")

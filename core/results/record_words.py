@@ -132,8 +132,8 @@ def interference_rows(unit_info: dict[str, Any] | None) -> list[tuple[str, str, 
         rows.append((f"{names.get(device, 'compass')} ({device})",
                      f"{per_amp:.3f} ± {c['per_amp_sigma_ut']:.3f} µT/A",
                      f"{c['pct_at_max']:.1f} % of the field at {top:g} A — {zone_words(c['pct_at_max'])}"
-                     + (f"; compensated{_known(c)}: {left['left_pct_at_max']:.2f} % left after the power cycle"
-                        if left else ""),
+                     + (f"; compensated{_known(c)}: {left['left_pct_at_max']:.2f} % of the field left after the "
+                        "power cycle" if left else ""),
                      f"line within {c['linearity_ut']:.2f} µT, back at 0 A within {c['return_ut']:.2f} µT"))
     for note in (unit_info or {}).get("interference_notes") or []:
         rows.append(("note", value_words(note), "", ""))
