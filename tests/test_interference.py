@@ -603,6 +603,18 @@ def test_a_budget_too_short_for_the_goal_compensates_as_well_as_it_can_and_says_
     assert mast["known_pct"] > 5.0  # ~17 % at 10 readings a step of a 0.3 µT compass
     assert "COMPASS_MOT_X" in record.params_written  # still written: it removes most of the interference
     notes = record.unit_info["interference_notes"]
+    # the report gives the note its own line under the compasses' table, not a squeezed table cell
+    import html
+
+    from sqlalchemy import create_engine
+
+    from magline.core.reports.commands import write_report
+
+    engine = create_engine(f"sqlite:///{tmp_path / 'results.sqlite'}")
+    page = write_report(engine, "INT-SHORT", None, tmp_path / "reports").read_text(encoding="utf-8")
+    engine.dispose()
+    said = html.escape(f"compass 1 ({sim.magnetometers[0].device_id}): its compensation is known to")
+    assert f"<p class=note>{said}" in page and f"<td>{said}" not in page
     assert notes == [f"compass 1 ({sim.magnetometers[0].device_id}): its compensation is known to "
                      f"±{mast['known_pct']:.0f} % of its interference, not the goal's 5 %: the 1 s budget held the "
                      f"top and 0 A for 0 readings more of the {found['hold_asked']} the goal asked"]

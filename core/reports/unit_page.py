@@ -105,8 +105,12 @@ def _mounting(run: dict[str, Any]) -> str:
     out = "<h2>Mounting</h2>" + table(["sensor / pair", "found", "misalignment", "inclination"], rows) if rows else ""
     current = interference_rows(run.get("unit_info"))
     if current:
+        # the notes are sentences, not a compass's figures: under the table, not squeezed into its second column
+        notes = [row[1] for row in current if row[0] == "note"]
         out += "<h2>Current interference</h2>" + table(["compass", "field per amp", "at the top current",
-                                                         "linearity, return to zero"], current)
+                                                         "linearity, return to zero"],
+                                                        [row for row in current if row[0] != "note"])
+        out += "".join(f"<p class=note>{html.escape(note)}</p>" for note in notes)
     return out
 
 
