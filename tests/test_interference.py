@@ -617,4 +617,29 @@ def test_a_budget_too_short_for_the_goal_compensates_as_well_as_it_can_and_says_
     assert f"<p class=note>{said}" in page and f"<td>{said}" not in page
     assert notes == [f"compass 1 ({sim.magnetometers[0].device_id}): its compensation is known to "
                      f"±{mast['known_pct']:.0f} % of its interference, not the goal's 5 %: the 1 s budget held the "
-                     f"top and 0 A for 0 readings more of the {found['hold_asked']} the goal asked"]
+                     f"top and 0 A for 0 readings more of the {found['hold_asked']} the goal asked (the compasses kept "
+                     f"pace with a {record.attempts[-1].sensor_rate_hz:.0f} Hz stream: a faster "
+                     "interference.rate_hz than 50 holds more readings in the budget, where the link carries it)"]
+
+
+@pytest.mark.parametrize(("sensor_rate_hz", "hint"), [(10.0, False), (44.0, True), (98.0, True)])
+def test_the_goal_note_says_a_faster_stream_would_help_only_where_the_compasses_keep_pace(sensor_rate_hz, hint):
+    """ArduPilot's 10 Hz compasses gain nothing from a faster sweep stream; compasses that delivered a new
+    reading in (nearly) every message of a stream at least as fast as the sweep's would."""
+    from types import SimpleNamespace
+
+    from magline.core.interference import phase
+    from magline.core.interference.model import CompassInterference, Interference
+    from magline.core.station.schema import InterferenceSettings
+
+    weak = CompassInterference(device_id=1, per_amp_ut=np.array([0.03, 0.0, 0.0]), per_amp_sigma_ut=0.002,
+                               per_amp_written_ut=np.array([0.03, 0.0, 0.0]), written_sigma_ut=0.002,
+                               linearity_ut=0.0, return_ut=0.0, pct_at_max=2.5)
+    found = Interference(compasses={1: weak}, reference="source", current_max_a=40.0, field_ut=48.0,
+                         sensor_error_pct=0.0, moved_deg=0.0, seconds=6.0, held_readings=0, hold_asked=300)
+    run = SimpleNamespace(interference=found, station=SimpleNamespace(interference=InterferenceSettings()),
+                          sensor_label=lambda d: f"compass {d}",
+                          record=SimpleNamespace(attempts=[SimpleNamespace(sensor_rate_hz=sensor_rate_hz)]))
+    note = phase.goal_note(run, 1)
+    assert note.startswith("compass 1: its compensation is known to ±20 % of its interference, not the goal's 5 %")
+    assert ("a faster interference.rate_hz than 50 holds more readings" in note) is hint
