@@ -121,8 +121,10 @@ def magline_register_current_sources(register: Register) -> None:
         product's ``current_max_a`` (a motor test: of its throttle), ``measured_current_a()`` what it
         measures itself (None when it cannot: the unit's own reading is the reference then),
         ``stop()`` draws nothing again (always called, also after errors), ``close()`` at the end of
-        the batch.  The name is the station file's ``current_source.type``; ``plugins/current``
-        registers ``electronic-load`` and ``motor-test``.
+        the batch.  A source whose level lasts only a while once set (a motor test spins for the
+        seconds it was asked) says so in an attribute ``level_lasts_s``: the sweep sets the level again
+        before half of that has passed, however long a step reads.  The name is the station file's
+        ``current_source.type``; ``plugins/current`` registers ``electronic-load`` and ``motor-test``.
     """
 
 

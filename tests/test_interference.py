@@ -266,8 +266,9 @@ def test_a_station_file_that_cannot_sweep_names_the_key(tmp_path):
 
 
 @contextlib.contextmanager
-def board_with_motors(tmp_path, interlock_exit: int, faults: str = ""):
-    """A board whose own motors draw the current (no load), behind a propeller interlock script."""
+def board_with_motors(tmp_path, interlock_exit: int, faults: str = "", step_s: float = 5.0, sweep: dict | None = None):
+    """A board whose own motors draw the current (no load), behind a propeller interlock script; each
+    motor test asked for ``step_s``."""
     (tmp_path / "fc").mkdir()
     injected = SimFaults.parse(faults.split()) if faults else None
     sim = create_sim("ardupilot", "tcp:127.0.0.1:0", workdir=tmp_path / "fc", seed=11, boot_time_s=0.3, speed=5.0,
@@ -286,8 +287,8 @@ def board_with_motors(tmp_path, interlock_exit: int, faults: str = ""):
         station = write_station("ardupilot-sim.yaml", tmp_path, sim.address, AP_OPTIONS, {
             "products": {part: {"interference": "measure", "current_max_a": CURRENT_MAX_A, "motor_test": True}},
             "current_source": {"type": "motor-test", "options": {"interlock_command": interlock,
-                                                                  "throttle_max_pct": 70.0, "step_s": 5.0}},
-            "interference": SWEEP})
+                                                                  "throttle_max_pct": 70.0, "step_s": step_s}},
+            "interference": sweep or SWEEP})
         yield sim, spins, station
 
 
@@ -311,6 +312,21 @@ def test_a_line_without_a_load_sweeps_with_the_units_own_motors_behind_the_prope
     per_amp = np.asarray(found["compasses"][str(second.device_id)]["per_amp_ut"])
     assert np.linalg.norm(per_amp - truth) < 0.1 * np.linalg.norm(truth)  # 9.9 A of swing, not 40
     assert not any(m.name == "current_sensor_error_pct" for m in record.measurements)
+
+
+def test_a_step_that_reads_longer_than_a_motor_test_lasts_keeps_the_motor_spinning(tmp_path):
+    """A motor test spins for the seconds asked (1 s here), then the firmware stops the motor; a step that
+    reads 150 readings at a 50 Hz stream takes 3 s.  The sweep asks again before half of it has passed
+    (ArduCopter restarts the timeout of a running test), so the whole step is read at its current — not
+    two thirds of it at idle, counted at 70 % throttle."""
+    sweep = {**SWEEP, "readings": 150}
+    with board_with_motors(tmp_path, 0, step_s=1.0, sweep=sweep) as (sim, spins, station):
+        record = run_unit(station, "INT-LONG-STEP")
+        assert record.verdict is Outcome.PASS, record.cause
+    spinning = np.interp(70.0, *zip(*sim.MOTOR_CURVE, strict=True))
+    found = record.unit_info["interference"]
+    assert max(s["unit_a"] for s in found["steps"]) == pytest.approx(spinning, abs=0.05)  # the step's mean
+    assert sum(1 for throttle, _ in spins if round(throttle) == 70) >= 4  # asked again through the 3 s step
 
 
 @pytest.mark.parametrize(("interlock_exit", "faults", "cause"), [

@@ -12,6 +12,7 @@ measurement, and the two disagreeing is a power module's wrong scale.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -88,6 +89,28 @@ class UnitClock:
         return self.stamp_ms + (time.monotonic() - self.arrived + seconds_from_now) * 1000.0
 
 
+class LevelKeeper:
+    """Sets the source's level, and keeps it drawn however long a step reads: a level that lasts only
+    ``level_lasts_s`` once set (a motor test spins for the seconds asked, then the firmware stops it) is
+    set again before half of that has passed.  Why: a step reads as long as the noise or the hold asks —
+    far longer than a motor test's few seconds — and readings after the motor stopped would be taken at
+    idle yet counted at the step's current."""
+
+    def __init__(self, source: CurrentSource) -> None:
+        self.source = source
+        self.lasts_s: float | None = getattr(source, "level_lasts_s", None)
+        self.level: float | None = None
+        self.set_at = 0.0
+
+    def set(self, level: float) -> None:
+        self.source.set_level(level)
+        self.level, self.set_at = level, time.monotonic()
+
+    def __call__(self) -> None:
+        if self.lasts_s and self.level is not None and time.monotonic() - self.set_at > self.lasts_s / 2.0:
+            self.set(self.level)
+
+
 def run_sweep(run: RunContext, source: CurrentSource, settings: InterferenceSettings, device_ids: list[int],
               goal: HoldGoal | None = None) -> Sweep:
     """Step the source through :func:`sweep_levels`, reading every compass in ``device_ids`` (the
@@ -100,6 +123,7 @@ def run_sweep(run: RunContext, source: CurrentSource, settings: InterferenceSett
     steps: list[SweepStep] = []
     clock = UnitClock()
     stream = dut.samples(settings.rate_hz)
+    keeper = LevelKeeper(source)
     levels = sweep_levels(settings.steps)
     wanted = settings.readings
     held = asked = 0  # readings held at the ends in all, and what the goal asked there
@@ -112,11 +136,11 @@ def run_sweep(run: RunContext, source: CurrentSource, settings: InterferenceSett
             run.abort.check()
             began.append(time.monotonic())
             hold_s.append(0.0)
-            source.set_level(level)
+            keeper.set(level)
             step = SweepStep(level=level)
             settled_ms = clock.in_ms(settings.settle_s)
             step_started = time.monotonic()
-            _read_step(stream, clock, step, settled_ms, wanted, device_ids, deadline)
+            _read_step(stream, clock, step, settled_ms, wanted, device_ids, deadline, keeper)
             while index == 0:  # the compasses' noise at 0 A decides how many readings every step needs,
                 # estimated again from each larger set until the readings in hand are enough
                 most = readings_in_time(step, device_ids, levels, settings, time.monotonic() - step_started,
@@ -129,12 +153,13 @@ def run_sweep(run: RunContext, source: CurrentSource, settings: InterferenceSett
                 run.log(f"sweep: {wanted} readings a step bring the field per amp to ±"
                         f"{settings.target_sigma_ut_per_a:g} µT/A (the compasses' noise at 0 A)"
                         + (f" — or as near as the sweep's {settings.timeout_s:g} s allow" if wanted == most else ""))
-                _read_step(stream, clock, step, settled_ms, wanted, device_ids, deadline)
+                _read_step(stream, clock, step, settled_ms, wanted, device_ids, deadline, keeper)
             if goal is not None and index in (settings.steps, len(levels) - 1):  # the top, the last zero: hold
                 step_s = float(np.max(np.diff(began) - hold_s[:-1]))
                 holding = time.monotonic()
-                held, asked = _hold(run, stream, clock, step, steps, levels, index, settled_ms, wanted, device_ids,
-                                    goal, (started, step_started, deadline, step_s, began[0] - started), held)
+                held, asked = _hold(run, (stream, clock, keeper), step, steps, levels, index, settled_ms, wanted,
+                                    device_ids, goal, (started, step_started, deadline, step_s, began[0] - started),
+                                    held)
                 hold_s[-1] = time.monotonic() - holding
             step.source_a = source.measured_current_a()
             steps.append(step)
@@ -153,19 +178,21 @@ def run_sweep(run: RunContext, source: CurrentSource, settings: InterferenceSett
                  held_readings=held, hold_asked=asked)
 
 
-def _hold(run: RunContext, stream, clock: UnitClock, step: SweepStep, steps: list[SweepStep], levels: list[float],
+def _hold(run: RunContext, reading: tuple, step: SweepStep, steps: list[SweepStep], levels: list[float],
           index: int, settled_ms: float, wanted: int, device_ids: list[int], goal: HoldGoal,
           times: tuple[float, float, float, float, float], held: int) -> tuple[int, int]:
     """Hold the top step or the last zero step for :mod:`.hold`'s goal.  The top is held once, for as many
     readings as the plan gives it if the last zero gets as many; the last zero is then planned afresh from
     the whole sweep and from the budget truly left — so the top's plan, made from half a sweep and a few
     readings' timing, never commits the last zero to more than the budget holds — and planned again after
-    each hold until the goal is met or the budget ends.  ``times``: when the sweep and this step started,
+    each hold until the goal is met or the budget ends.  ``reading``: the stream, the unit's clock and the
+    level's keeper.  ``times``: when the sweep and this step started,
     the sweep's deadline, the slowest step's cost so far and what opening the sweep's stream cost.
     Returns the readings held at the ends in all, and what the goal asks there in all (as readings at
     both ends: at the top, the plan; at the last zero, what is held plus what both ends would still
     need)."""
     started, step_started, deadline, step_s, opening_s = times
+    stream, clock, keeper = reading
     top, last = levels.index(1.0), len(levels) - 1
     sweep_so_far = [*steps, step]
     asked = held
@@ -190,7 +217,7 @@ def _hold(run: RunContext, stream, clock: UnitClock, step: SweepStep, steps: lis
             break
         run.log(f"sweep {step.level:.0%}: held for {allowed} readings more, to know every compensated slope to "
                 f"{goal.share:.0%} of itself")
-        _read_step(stream, clock, step, settled_ms, slowest + allowed, device_ids, deadline)
+        _read_step(stream, clock, step, settled_ms, slowest + allowed, device_ids, deadline, keeper)
         held += allowed
         if index == top:
             break  # the last zero plans again from the whole sweep
@@ -234,10 +261,10 @@ def _amps(value: float | None) -> str:
 
 
 def _read_step(stream, clock: UnitClock, step: SweepStep, settled_ms: float, wanted: int, device_ids: list[int],
-               deadline: float) -> None:
+               deadline: float, keep_level: Callable[[], None] = lambda: None) -> None:
     """Readings of one step: those stamped before ``settled_ms`` (the unit's clock) are dropped — the
     current and the field still moving —, then ``wanted`` readings of every compass and at least one
-    current reading."""
+    current reading; ``keep_level`` is called at every chunk (to keep the step's level drawn)."""
     primary = device_ids[0]
     settled_at = time.monotonic()
     unmeasured = 0  # current reports saying "not measured"
@@ -251,6 +278,7 @@ def _read_step(stream, clock: UnitClock, step: SweepStep, settled_ms: float, wan
         except StopIteration:
             raise DutError("the unit's stream ended during the current sweep") from None
         clock.saw(chunk)
+        keep_level()
         if settled_ms == float("-inf"):  # the first chunk of the sweep: the clock starts with it
             settled_ms = clock.in_ms(0.0)
         for device_id, readings in ((primary, chunk), *chunk.more.items()):

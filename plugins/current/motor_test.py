@@ -46,6 +46,9 @@ class MotorTest:
         self.opts = options
         self.station_dir = station_dir
         self.dut: RunsMotorTest | None = None
+        # a spin lasts the seconds it was asked for: the firmware stops the motor then (ArduCopter's motor
+        # test times out; a new command while it runs sets the throttle and starts the timeout again)
+        self.level_lasts_s = options.step_s
 
     def start(self, run: RunContext) -> None:
         if not run.product.motor_test:
