@@ -576,7 +576,7 @@ def weak_first_compass(sim, per_amp_ut: float) -> np.ndarray:
     return mast.interference_ut_per_a
 
 
-def test_a_compass_that_sees_little_current_is_held_until_its_compensation_is_known_to_the_goal(tmp_path):
+def test_a_compass_that_sees_little_current_is_held_until_its_compensation_is_known_to_the_goal(tmp_path, capsys):
     """A GPS-mast compass seeing 0.05 µT/A (4 % of the field at 40 A): the station's target σ would leave
     compensation ~17 % of its interference; with room in the budget, the top and the last zero are held
     until its written slope is known to 5 % of itself, and the simulated firmware's own corrected output
@@ -593,6 +593,13 @@ def test_a_compass_that_sees_little_current_is_held_until_its_compensation_is_kn
     found = record.unit_info["interference"]
     mast = found["compasses"][str(sim.magnetometers[0].device_id)]
     assert found["held_readings"] == found["hold_asked"] > 0
+    from magline.core.cli import main
+
+    capsys.readouterr()
+    assert main(["show", "INT-HELD", "--station", str(station)]) == 0
+    shown = capsys.readouterr().out
+    assert f", {found['held_readings']} more held at the top and the last 0 A together" in shown
+    assert f"compensated (known to ±{mast['known_pct']:.1f} % of it)" in shown
     # the last zero is held until the written slope's own fit says the goal is met
     assert mast["known_pct"] <= goal, mast["known_pct"]
     assert not record.unit_info.get("interference_notes")

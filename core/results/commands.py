@@ -76,8 +76,8 @@ def show(store: Any, run: str, as_json: bool, out: TextIO | None = None) -> int:
         sweep = unit["interference"]
         lines.append(f"current interference (swept to {sweep['current_max_a']:g} A in {sweep['seconds']:.0f} s"
                      + (f", {sweep['readings_per_step']} readings a step" if sweep.get("readings_per_step") else "")
-                     + (f", {sweep['held_readings']} more at the top and at the last 0 A" if sweep.get("held_readings")
-                        else "")
+                     + (f", {sweep['held_readings']} more held at the top and the last 0 A together"
+                        if sweep.get("held_readings") else "")
                      + (f", the unit's current sensor {sweep['sensor_error_pct']:+.1f} % against the load"
                         if sweep.get("sensor_error_pct") is not None else "") + "):")
         lines += [f"  {name}: " + ", ".join(w for w in words if w) for name, *words in interference]
