@@ -160,9 +160,9 @@ class InterferenceSettings(_Strict):
     # a compensated unit: its top and last zero steps are held until every compass's written slope is known to
     # this share of itself (3σ) — about what compensation may leave of its interference —, as far as
     # ``compensation_budget_s`` (its sweep and the proof after the power cycle together) allows.  The hold is
-    # planned from the sweep's own step costs, and the two sweeps ended up to 0.45 s past the plan on the
-    # simulators (the proof's steps cost a little more than the sweep's): 9.5 s keeps them within the 10 s a
-    # unit may spend on its interference
+    # planned from the sweep's own step costs, and the two sweeps ended up to 0.3 s past the plan on the
+    # simulators (0.45 s with each step costed at the mean step; the proof's steps cost a little more than the
+    # sweep's): 9.5 s leaves the 10 s a unit may spend on its interference room for it
     compensation_goal_pct: Annotated[float, Field(gt=0, le=100)] = 5.0
     compensation_budget_s: Annotated[float, Field(gt=0)] = 9.5
 
