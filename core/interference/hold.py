@@ -94,37 +94,51 @@ def readings_to_add(levels: Sequence[float], counts: Sequence[int], ends: tuple[
     return high
 
 
-def readings_for_goal(steps: Sequence[SweepStep], device_ids: Sequence[int], levels: Sequence[float], wanted: int,
-                      goal_share: float, ends: tuple[int, ...]) -> int:
-    """The readings to add at each of ``ends`` (indices into ``levels``; ``steps`` read so far, the steps
-    still to come reading ``wanted`` each) so that every compass worth compensating has its written slope
-    known to ``goal_share`` of itself; :data:`MOST_READINGS` if no number there does (readings at one end
-    alone can only bring the leverage to ``Σ n·I²``).  Each compass's line so far is fitted as the
-    analysis fits the written slope — its raw readings against the unit's own current per step — so that
-    once nothing more is asked, the record's ``known_pct`` is within the goal; the steps to come are taken
-    at their level of the top current read.  A compass whose slope is still within its noise would not be
-    written, so it asks for nothing."""
+@dataclass(frozen=True)
+class GoalPlan:
+    """What the goal needs of the sweep as read so far: the leverage that knows every compass worth
+    compensating to its goal, and the sweep's currents and readings per step (those to come at their
+    level of the top current read, ``wanted`` readings each)."""
+
+    currents: list[float]
+    counts: list[int]
+    needed: float
+
+    def readings(self, ends: tuple[int, ...]) -> int:
+        """The readings to add at each of ``ends`` (indices into the levels) for the goal; 0 when it is met,
+        :data:`MOST_READINGS` if no number there does (readings at one end alone can only bring the
+        leverage to ``Σ n·I²``)."""
+        return readings_to_add(self.currents, self.counts, ends, self.needed) if self.needed else 0
+
+
+def plan_for_goal(steps: Sequence[SweepStep], device_ids: Sequence[int], levels: Sequence[float], wanted: int,
+                  goal_share: float) -> GoalPlan:
+    """The goal's plan from ``steps`` read so far: each compass's line fitted as the analysis fits the
+    written slope — its raw readings against the unit's own current per step — so that once nothing more
+    is asked, the record's ``known_pct`` is within the goal.  A compass whose slope is still within its
+    noise would not be written, so it asks for nothing; nor does a sweep whose unit current did not move
+    (the analysis says why)."""
     read_a = [step.firmware_mean_a for step in steps]
-    if any(a is None for a in read_a):
-        return 0
-    top_a = max(read_a)
-    currents = [*read_a, *(level * top_a for level in levels[len(steps):])]
     counts = [min(len(step.readings.get(d, [])) for d in device_ids) for step in steps]
     counts += [wanted] * (len(levels) - len(steps))
+    if any(a is None for a in read_a):
+        return GoalPlan(currents=[], counts=counts, needed=0.0)
+    top_a = max(read_a)
+    currents = [*read_a, *(level * top_a for level in levels[len(steps):])]
     needed = 0.0
     for device_id in device_ids:
         x = np.concatenate([[a] * len(step.readings.get(device_id, [])) for step, a in zip(steps, read_a, strict=True)])
         y = np.vstack([step.fields(device_id) for step in steps])
         try:
             _, slope, sigma = line_fit(x, y)
-        except StationFault:  # the unit's current did not move: the analysis says why, nothing to hold for
-            return 0
+        except StationFault:
+            return GoalPlan(currents=currents, counts=counts, needed=0.0)
         length = float(np.linalg.norm(slope))
         if not worth_writing(length, float(sigma[0])):
             continue
         noise = float(sigma[0]) * float(np.sqrt(np.sum((x - x.mean()) ** 2)))
         needed = max(needed, needed_leverage(noise, length, goal_share))
-    return readings_to_add(currents, counts, ends, needed) if needed else 0
+    return GoalPlan(currents=currents, counts=counts, needed=needed)
 
 
 def readings_in_budget(spent_s: float, step_s: float, later: int, reading_s: float, budget_s: float, left_s: float,

@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 
 from magline.core.dut import DutError, SampleChunk
 from magline.core.faults import StationFault
-from magline.core.interference.hold import HoldGoal, readings_for_goal, readings_in_budget
+from magline.core.interference.hold import HoldGoal, plan_for_goal, readings_in_budget
 from magline.core.interference.source import CurrentSource
 
 if TYPE_CHECKING:
@@ -195,15 +195,14 @@ def _hold(run: RunContext, reading: tuple, step: SweepStep, steps: list[SweepSte
     stream, clock, keeper = reading
     top, last = levels.index(1.0), len(levels) - 1
     sweep_so_far = [*steps, step]
-    asked = held
     while True:
+        plan = plan_for_goal(sweep_so_far, device_ids, levels, wanted, goal.share)
+        both = plan.readings((top, last))
+        asked = held + 2 * both  # what the whole sweep needs, as far as it is known now
         if index == top:
-            more = readings_for_goal(sweep_so_far, device_ids, levels, wanted, goal.share, (top, last))
-            asked, ends = held + 2 * more, 2
-        else:  # the top is past: only the last zero can still be held — it asks what both ends would need
-            both = readings_for_goal(sweep_so_far, device_ids, levels, wanted, goal.share, (top, last))
-            asked, ends = held + 2 * both, 1
-            more = readings_for_goal(sweep_so_far, device_ids, levels, wanted, goal.share, (last,)) if both else 0
+            more, ends = both, 2
+        else:  # the top is past: only the last zero can still be held
+            more, ends = (plan.readings((last,)) if both else 0), 1
         if not more:
             break
         spent = time.monotonic() - started

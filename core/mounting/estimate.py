@@ -197,9 +197,8 @@ def estimate_mounting(mag_cal: NDArray, t_mag_ms: NDArray, imu: ImuSeries | None
     inclination, skew = float(np.arcsin(np.clip(np.sin(fit.x[3]), -1.0, 1.0))), float(fit.x[4])
     seen = gravity(skew)
     mirror = mirrored(seen, rotation)
-    own = np.einsum("ij,ij->i", seen, m @ rotation.T) + np.sin(inclination)
     other = np.einsum("ij,ij->i", seen, m @ mirror.T) - np.sin(inclination)
-    if np.sqrt(np.mean(other**2)) <= MIRROR_TIE * np.sqrt(np.mean(own**2)) + MIRROR_FLOOR:
+    if np.sqrt(np.mean(other**2)) <= MIRROR_TIE * np.sqrt(np.mean(fit.fun**2)) + MIRROR_FLOOR:
         if dip_deg is None:
             raise MountingUnobservable("gravity was seen about one axis only: the mounting and the same turned "
                                        "180° fit alike, with the field pointing up or down — tilt the unit about "
@@ -221,7 +220,7 @@ def estimate_mounting(mag_cal: NDArray, t_mag_ms: NDArray, imu: ImuSeries | None
                 f"{sigma_rot:.1f}° 1σ, ±{MAX_SIGMA_DEG:g}° needed): turn the unit about more than one axis")
         raise MountingUnobservable(f"the attitudes seen determine the mounting only to ±{sigma_rot:.1f}° "
                                    f"(1σ; ±{MAX_SIGMA_DEG:g}° needed): tumble through more orientations")
-    angles = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", gravity(skew), m @ rotation.T), -1, 1)))
+    angles = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", seen, m @ rotation.T), -1, 1)))
     return MountingEstimate(data_to_body=rotation, sigma_deg=sigma_rot, inclination_deg=float(np.degrees(inclination)),
                             inclination_sigma_deg=sigma_incl,
                             angle_rms_deg=float(np.sqrt(np.mean((angles - np.mean(angles)) ** 2))),
