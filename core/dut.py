@@ -330,12 +330,18 @@ class CompensatesCurrent(Protocol):
     field change per amp of the firmware's *own* current reading, µT/A, in the frame the backend streams
     its raw readings in — for a sensor calibrated with ``fit``, in the firmware's frame, units and sign;
     raise :class:`DutError` naming what is missing when this firmware cannot hold it.
+    ``compensation_missing(device_id)``: before the sweep, what this firmware lacks to hold the
+    compensation of ``device_id`` (its parameters, by name), or ``None`` when it can — asked without
+    writing or remembering anything, so a unit that cannot be compensated is not held at the sweep's
+    ends for a slope nobody will write.
     ``compensation_params()``: what switches the compensation on (written once with the
     calibration)."""
 
     def measure_current_interference(self, compensation: bool = False) -> None: ...
 
     def interference_params(self, device_id: int, per_amp_ut: NDArray, fit: FitResult) -> dict[str, ParamValue]: ...
+
+    def compensation_missing(self, device_id: int) -> str | None: ...
 
     def compensation_params(self) -> dict[str, ParamValue]: ...
 

@@ -226,18 +226,23 @@ def test_a_sweep_that_cannot_be_judged_is_an_error_and_nothing_is_written(tmp_pa
     assert not load.input_on  # the load is switched off after an error too
 
 
-def test_a_firmware_without_the_compensation_parameters_is_measured_judged_and_says_so(tmp_path):
-    """PX4 builds without CAL_MAGn_xCOMP (checked in its parameter list): the interference is still
-    measured and judged, the calibration written, and the record says it could not be compensated."""
-    names = ",".join(f"CAL_MAG{n}_{a}COMP" for n in range(4) for a in "XYZ")
-    with board_on_a_load(tmp_path, "px4", f"unknown_params={names}") as (_, _, station):
+@pytest.mark.parametrize(("flavour", "names", "said"), [
+    ("px4", [f"CAL_MAG{n}_{a}COMP" for n in range(4) for a in "XYZ"], "this firmware has no CAL_MAG"),
+    ("ardupilot", [f"COMPASS_MOT{s}_{a}" for s in ("", "2", "3") for a in "XYZ"], "this firmware has no COMPASS_MOT")])
+def test_a_firmware_without_the_compensation_parameters_is_measured_judged_and_says_so(tmp_path, flavour, names, said):
+    """Builds without CAL_MAGn_xCOMP or COMPASS_MOTn_* (checked in the parameter list): the interference
+    is still measured and judged, the calibration written, and the record says it could not be
+    compensated."""
+    with board_on_a_load(tmp_path, flavour, f"unknown_params={','.join(names)}") as (_, _, station):
         record = run_unit(station, "INT-NOCOMP")
     assert record.verdict is Outcome.PASS, record.cause
     assert measured(record, "mag2.interference_pct_at_max").verdict in (Verdict.PASS, Verdict.REVIEW)  # judged
-    assert not any("COMP" in name for name in record.params_written)
+    assert not set(record.params_written) & {*names, "CAL_MAG_COMP_TYP", "COMPASS_MOTCT"}, record.params_written
     notes = record.unit_info["interference_notes"]
-    assert len(notes) == 2 and all("current interference not compensated: this firmware has no CAL_MAG" in n
-                                   for n in notes)
+    assert len(notes) == 2 and all(f"current interference not compensated: {said}" in n for n in notes), notes
+    # asked before the sweep: nothing will be written, so its ends are not held for the compensation goal
+    found = record.unit_info["interference"]
+    assert found["held_readings"] == 0 and found["hold_asked"] == 0, found
 
 
 def test_a_station_file_that_cannot_sweep_names_the_key(tmp_path):
@@ -666,3 +671,23 @@ def test_the_goal_note_says_a_faster_stream_would_help_only_where_the_compasses_
     note = phase.goal_note(run, 1)
     assert note.startswith("compass 1: its compensation is known to ±20 % of its interference, not the goal's 5 %")
     assert ("a faster interference.rate_hz than 50 holds more readings" in note) is hint
+
+
+def test_three_sigma_of_a_slope_holds_the_truth_as_often_as_for_a_known_noise_even_from_few_readings():
+    """The noise behind a slope's σ is estimated from the same readings, so the slope's error over it
+    follows Student's t: from 4 readings (6 degrees of freedom pooled over 3 axes) 2.4 % of the errors
+    lay beyond 3 standard errors instead of a normal's 0.27 %.  The σ the station states is widened for
+    it: ±3σ holds the truth as often as for a known noise, at any count."""
+    from magline.core.interference.line import line_fit
+
+    rng = np.random.default_rng()
+    x = np.array([0.0, 20.0, 40.0, 0.0])
+    truth = np.array([0.05, -0.02, 0.01])
+    lines = 20000
+    beyond = 0
+    for _ in range(lines):
+        y = np.outer(x, truth) + rng.normal(scale=0.3, size=(len(x), 3))
+        _, slope, sigma = line_fit(x, y)
+        beyond += int(np.sum(np.abs(slope - truth) > 3.0 * sigma))
+    expected = 0.0027 * 3 * lines  # 162 of 60,000 axes, a binomial σ of 12.7
+    assert abs(beyond - expected) < Z_NEVER * np.sqrt(expected), (beyond, expected)

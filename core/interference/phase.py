@@ -168,10 +168,20 @@ def _sweep(run: RunContext, dut: CompensatesCurrent, compensation: bool) -> tupl
     goal = None
     if compensation:  # only the slope left matters, to the same ±σ: the noise decides the readings from 4 up
         settings = settings.model_copy(update={"steps": 1, "readings": min(settings.readings, PROOF_LEAST_READINGS)})
-    elif run.product.interference == "compensate":
+    elif run.product.interference == "compensate" and _can_compensate(run, dut):
         goal = HoldGoal(share=settings.compensation_goal_pct / 100.0, budget_s=settings.compensation_budget_s)
     sweep = run_sweep(run, source, settings, [m.device_id for m in run.magnetometers], goal)
     return sweep, {**run.fits, run.magnetometers[0].device_id: run.require_fit()}
+
+
+def _can_compensate(run: RunContext, dut: CompensatesCurrent) -> bool:
+    """Whether the firmware can hold any compass's compensation: where it cannot, the sweep is not held
+    at its ends for slopes nobody will write (the persist phase's note says why)."""
+    missing = [dut.compensation_missing(m.device_id) for m in run.magnetometers]
+    if all(missing):
+        run.log(f"the sweep is not held for the compensation goal: {missing[0]}")
+        return False
+    return True
 
 
 def _identity(fit: FitResult) -> FitResult:

@@ -102,6 +102,7 @@ class ArduPilotDut:
         self.device_id = self._selected_id()
         self.chosen = [self.device_id]
         self.written_sets = {}
+        self._lacks: dict[str, str | None] = {}  # a parameter this firmware lacks (why), asked once per connection
         self.offs_max_mg = self.link.get("COMPASS_OFFS_MAX")
         self.magnetometers = [self._magnetometer(suffix, dev) for suffix, dev in self.ids.items() if dev]
         return UnitInfo(autopilot="ArduPilot", firmware=firmware, sensors=[i for i in self.ids.values() if i],
@@ -303,12 +304,23 @@ class ArduPilotDut:
         if np.any(np.abs(mot) > MOT_RANGE_MG_PER_A):
             raise DutError(f"{', '.join(names)} would be {np.round(mot, 1).tolist()} mG/A, beyond the firmware's "
                            f"±{MOT_RANGE_MG_PER_A:g}")
-        try:
-            self.link.get(names[0])
-        except DutError as exc:
-            raise DutError(f"this firmware has no {names[0]} ({exc})") from None
+        missing = self.compensation_missing(device_id)
+        if missing:
+            raise DutError(missing)
         self.written_sets[device_id] = self._suffix_of(device_id)
         return {name: round(float(v), 3) for name, v in zip(names, mot, strict=True)}
+
+    def compensation_missing(self, device_id: int) -> str | None:
+        # one look per connection, at the first set's: a build has COMPASS_MOTn_* for every set or none
+        # (COMPASS_MOT_ENABLED, checked in the source), and an unknown name costs the read's retries, 15 s
+        name = set_names("")["MOT"][0]
+        if name not in self._lacks:
+            try:
+                self.link.get(name)
+                self._lacks[name] = None
+            except DutError as exc:
+                self._lacks[name] = f"this firmware has no COMPASS_MOTn_X/Y/Z ({exc})"
+        return self._lacks[name]
 
     def compensation_params(self) -> dict[str, ParamValue]:
         return {"COMPASS_MOTCT": 2}  # current (0 off, 1 throttle)

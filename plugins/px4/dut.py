@@ -332,10 +332,17 @@ class Px4Dut:
         whatever the calibration."""
         slot = self.sensors[device_id]["slot"]
         names = [f"CAL_MAG{slot}_{a}COMP" for a in "XYZ"]
-        if not self._has_param("CAL_MAG0_XCOMP"):  # one look per firmware: a build has them for every slot or none
-            raise DutError("this firmware has no CAL_MAGn_XCOMP/YCOMP/ZCOMP (CAL_MAG0_XCOMP unknown)")
+        missing = self.compensation_missing(device_id)
+        if missing:
+            raise DutError(missing)
         comp = -10.0 * np.asarray(per_amp_ut, float)
         return {name: round(float(v), 4) for name, v in zip(names, comp, strict=True)}
+
+    def compensation_missing(self, device_id: int) -> str | None:
+        # one look per firmware: a build has the parameters for every slot or none
+        if self._has_param("CAL_MAG0_XCOMP"):
+            return None
+        return "this firmware has no CAL_MAGn_XCOMP/YCOMP/ZCOMP (CAL_MAG0_XCOMP unknown)"
 
     def compensation_params(self) -> dict[str, ParamValue]:
         # 2: the current of battery_status instance 0, where a BATTERY_STATUS from the power module lands
