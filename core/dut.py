@@ -331,9 +331,9 @@ class CompensatesCurrent(Protocol):
     its raw readings in — for a sensor calibrated with ``fit``, in the firmware's frame, units and sign;
     raise :class:`DutError` naming what is missing when this firmware cannot hold it.
     ``compensation_missing(device_id)``: before the sweep, what this firmware lacks to hold the
-    compensation of ``device_id`` (its parameters, by name), or ``None`` when it can — asked without
-    writing or remembering anything, so a unit that cannot be compensated is not held at the sweep's
-    ends for a slope nobody will write.
+    compensation of ``device_id`` (its parameters, by name), or ``None`` when it can — it writes nothing
+    and records nothing to be written (a backend may remember the answer for the connection), so a unit
+    that cannot be compensated is not held at the sweep's ends for a slope nobody will write.
     ``compensation_params()``: what switches the compensation on (written once with the
     calibration)."""
 

@@ -102,7 +102,7 @@ class ArduPilotDut:
         self.device_id = self._selected_id()
         self.chosen = [self.device_id]
         self.written_sets = {}
-        self._lacks: dict[str, str | None] = {}  # a parameter this firmware lacks (why), asked once per connection
+        self._lacks: dict[str, str | None] = {}  # name → why this firmware lacks it (None: it has it), asked once
         self.offs_max_mg = self.link.get("COMPASS_OFFS_MAX")
         self.magnetometers = [self._magnetometer(suffix, dev) for suffix, dev in self.ids.items() if dev]
         return UnitInfo(autopilot="ArduPilot", firmware=firmware, sensors=[i for i in self.ids.values() if i],
