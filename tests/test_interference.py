@@ -240,6 +240,7 @@ def test_a_firmware_without_the_compensation_parameters_is_measured_judged_and_s
     assert not set(record.params_written) & {*names, "CAL_MAG_COMP_TYP", "COMPASS_MOTCT"}, record.params_written
     notes = record.unit_info["interference_notes"]
     assert len(notes) == 2 and all(f"current interference not compensated: {said}" in n for n in notes), notes
+    assert not any("not judged" in n for n in notes), notes  # it was judged: the note says only what is missing
     # asked before the sweep: nothing will be written, so its ends are not held for the compensation goal
     found = record.unit_info["interference"]
     assert found["held_readings"] == 0 and found["hold_asked"] == 0, found
