@@ -287,6 +287,25 @@ def test_a_uart_too_slow_for_the_asked_stream_is_said_before_the_tumble(tmp_path
     assert "after 0 readings" in record.cause and not record.params_written
 
 
+def test_a_uart_too_slow_for_the_current_sweeps_stream_names_the_sweeps_own_rate(tmp_path):
+    """The tumble's stream fits the line but the current sweep asks its own, faster one
+    (``interference.rate_hz``): the ERROR before the sweep names that key, not the tumble's."""
+    from magline.sim.load import LoadSim
+
+    by_path, _ = usb_names(tmp_path)
+    with sim("px4", tmp_path, f"serial:{by_path}:57600") as board, LoadSim("tcp:127.0.0.1:0", board=board) as load:
+        part = "PX4-X500-100"
+        record = run_unit(station("px4", tmp_path, f"serial:{by_path}:57600",
+                                  products={part: {"interference": "measure", "current_max_a": 40.0}},
+                                  current_source={"type": "electronic-load",
+                                                  "options": {"resource": load.visa_resource}},
+                                  acquisition={"rate_hz": 100.0}, interference={"rate_hz": 200.0}))
+    assert record.verdict is Outcome.ERROR, record.cause
+    assert [p.name for p in record.phases if p.outcome is Outcome.ERROR] == ["interference"], record.cause
+    assert "57600 baud carries 5,760 bytes/s" in record.cause and "interference.rate_hz" in record.cause
+    assert not record.params_written
+
+
 @pytest.mark.parametrize("flavour", ["px4", "ardupilot"])
 def test_a_whole_unit_runs_over_a_uart_at_921600_baud(tmp_path, flavour):
     """The station opens the port at the board's baud: nothing is misframed once the line is set.  What

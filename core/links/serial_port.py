@@ -302,7 +302,8 @@ class SerialPortWatch:
             asked = ", ".join(f"{name} {rate:g}/s" for name, (_, rate) in streams.items())
             raise StationFault(f"{self.address.path} at {self.address.baud} baud carries {line:,.0f} bytes/s; the "
                                f"stream asked ({asked}) needs {need:,.0f} bytes/s: raise the baud (on the board and "
-                               "in the station file), connect the board's USB port, or lower acquisition.rate_hz")
+                               "in the station file), connect the board's USB port, or lower the stream's rate: "
+                               "acquisition.rate_hz for the tumble, interference.rate_hz for the current sweep")
 
     def still_at(self, node: str | None) -> bool:
         """The station's name still points at ``node`` (it did not vanish or move meanwhile)."""
