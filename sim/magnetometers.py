@@ -81,7 +81,11 @@ class SimMagnetometer:
                          * Rotation.from_rotvec(np.deg2rad(self.misalignment_deg)))  # sensor → body
 
     def read_ut(self, b_body_ut: NDArray, rng: np.random.Generator) -> NDArray:
-        return self.truth.read(np.atleast_2d(self.rotation.inv().apply(b_body_ut)), rng)[0]
+        return self.read_samples_ut(np.atleast_2d(b_body_ut), rng)[0]
+
+    def read_samples_ut(self, b_body_rows_ut: NDArray, rng: np.random.Generator) -> NDArray:
+        """One raw sample for each body-frame field (rows): what a driver reads, one sample after another."""
+        return self.truth.read(np.atleast_2d(self.rotation.inv().apply(b_body_rows_ut)), rng)
 
 
 def default_magnetometers(count: int, rng: np.random.Generator) -> list[SimMagnetometer]:

@@ -646,7 +646,7 @@ class SimulatedAutopilot(ABC):
             if len(self._seen_dirs) < 20000:
                 self._seen_dirs.append(field / np.linalg.norm(field))
             self._read_since_supply = True
-            samples = sensor.truth.read(sensor.rotation.inv().apply(fields), self.rng)
+            samples = sensor.read_samples_ut(fields, self.rng)
             reading = (samples.mean(axis=0) + self.warmup_offset_ut(now)
                        + self.WARMUP_DIRECTION * self.faults.mag_offset_after_cut * self.supply_cuts)
             due = due + period if now - due < period else now + period

@@ -6,6 +6,8 @@ step, how long to hold it) fit the same line the same way.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -44,6 +46,7 @@ def line_fit(x: NDArray, y: NDArray) -> tuple[NDArray, NDArray, NDArray]:
     return a, c, sigma_res / np.sqrt(sxx) * coverage_widening(dof)
 
 
+@functools.lru_cache(maxsize=256)
 def coverage_widening(dof: int) -> float:
     """How much wider than the standard error σ is for ±3σ to hold ``THREE_SIGMA_SHARE`` of the errors
     when the noise was estimated with ``dof`` degrees of freedom (1.022 at 114, 1.09 at 30)."""
