@@ -323,6 +323,32 @@ def test_the_first_slot_speaks_for_the_cradle_even_when_another_slot_steps_first
     assert guide.step("A", level, True, set(), np.eye(3)).prompt == "Tilt the cradle: level"
 
 
+def test_the_table_waits_for_every_unit_of_the_round_before_it_turns():
+    """A CI run: slot B saw the cradle level and the table turned before slot A's stream handed over its
+    first readings, so A lost the first turn and its record never said "level".  A unit of the round not
+    heard from yet holds the table — for a while: one silent longer has failed and holds nobody."""
+    from magline.core.motion.guided import FIRST_STEP_WAIT_S
+
+    clock, table = Clock(), FakeTable(tilts=[Tilt(0.0, 0.0), Tilt(-45.0, 0.0)])
+    guide = TiltGuide(table, ["A", "B"], 40, 62.0, clock=clock)
+    level = Tilt(0.0, 0.0).gravity_body()
+    for _ in range(10):  # B level and still for 2 s, four times the settle time
+        guide.step("B", level, True, set(), np.eye(3))
+        clock.now += 0.2
+    assert table.turned == 0
+    assert guide.step("A", level, True, set(), np.eye(3)).prompt == "Tilt the cradle: level"
+    clock.now += 0.6
+    guide.step("B", level, True, set(), np.eye(3))
+    assert guide.step("A", level, True, set(), np.eye(3)).state == "turning" and table.turned == 1
+    # a unit that never speaks holds the table no longer than FIRST_STEP_WAIT_S
+    clock, table = Clock(), FakeTable(tilts=[Tilt(0.0, 0.0)])
+    guide = TiltGuide(table, ["A", "B"], 40, 62.0, clock=clock)
+    while clock.now < 100.0 + FIRST_STEP_WAIT_S + 1.0 and not table.turned:
+        guide.step("B", level, True, set(), np.eye(3))
+        clock.now += 0.2
+    assert table.turned == 1 and clock.now >= 100.0 + FIRST_STEP_WAIT_S
+
+
 def test_the_next_tilt_is_asked_in_the_step_of_the_slot_that_speaks_for_the_cradle():
     """A CI run: the turn ended during slot B's step, B asked the next tilt on the pendant (the operator made
     it) while A spoke for the cradle — and A's tumble ended before its next step, so the tilt was said in

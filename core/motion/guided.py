@@ -22,6 +22,10 @@ from magline.core.motion.tilts import COVERAGE_TILTS, Tilt, best_tilt, off_by_de
 
 DEFAULT_INCLINATION_DEG = 60.0  # where no field reference says: the ring's placement is a heuristic
 POLL_S = 0.1  # how often the table is asked whether its revolution is done (not at every chunk)
+# A unit of the round not heard from yet holds the table this long at most: every slot of a round is about to hand
+# its first readings over (its stream opening, seconds on a loaded station); one silent longer has failed, and its
+# own stream timeout ends it, so it must not hold the others' tumble
+FIRST_STEP_WAIT_S = 10.0
 
 
 @dataclass
@@ -70,6 +74,7 @@ class TiltGuide:
         self.clock = clock
         self._lock = threading.Lock()
         self._seen: dict[str, _Seen] = {}
+        self._made_at = clock()
         self.done: list[Tilt] = []  # the tilts turned so far, in order
         self.turns = 0
         self._state = "tilt"
@@ -135,6 +140,11 @@ class TiltGuide:
     def _check_tilt(self, now: float) -> None:
         fresh = [s for s in self._seen.values() if s.gravity is not None and now - s.at < 1.0]
         if not fresh:
+            return
+        if any(m not in self._seen for m in self.members) and now - self._made_at < FIRST_STEP_WAIT_S:
+            # a unit not heard from yet would miss the turn: a CI run's slot A opened its stream after B had
+            # seen the cradle level and the table turned for B alone (A lost that turn, and its record the words)
+            self._agree_since = None
             return
         off = [off_by_deg(s.gravity, self._tilt) for s in fresh]
         if all(o <= self.tolerance_deg for o in off) and all(s.steady for s in fresh):
