@@ -19,6 +19,16 @@ class StationFault(RuntimeError):
     timeout of the station's own equipment, a configuration the unit cannot be tested with."""
 
 
+class StreamTooFast(StationFault):
+    """A stream asked faster than the station's serial line carries; ``fits_hz`` is the fastest the same
+    stream fits at.  Why its own class: a rate the station file states is refused with the figures, but
+    a rate the station chose itself (the current sweep's default) is lowered to ``fits_hz`` instead."""
+
+    def __init__(self, message: str, fits_hz: float) -> None:
+        super().__init__(message)
+        self.fits_hz = fits_hz
+
+
 class UnitAborted(BaseException):
     """The operator stopped the unit.  A ``BaseException`` (like ``KeyboardInterrupt``) so that no
     plugin's ``except Exception`` swallows it; the sequencer restores the DUT and records it."""

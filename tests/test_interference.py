@@ -325,7 +325,7 @@ def test_a_step_that_reads_longer_than_a_motor_test_lasts_keeps_the_motor_spinni
     reads 150 readings at a 50 Hz stream takes 3 s.  The sweep asks again before half of it has passed
     (ArduCopter restarts the timeout of a running test), so the whole step is read at its current — not
     two thirds of it at idle, counted at 70 % throttle."""
-    sweep = {**SWEEP, "readings": 150}
+    sweep = {**SWEEP, "readings": 150, "rate_hz": 50.0}
     with board_with_motors(tmp_path, 0, step_s=1.0, sweep=sweep) as (sim, spins, station):
         record = run_unit(station, "INT-LONG-STEP")
         assert record.verdict is Outcome.PASS, record.cause
@@ -648,7 +648,8 @@ def test_a_budget_too_short_for_the_goal_compensates_as_well_as_it_can_and_says_
                      f"±{mast['known_pct']:.0f} % of its interference, not the goal's 5 %: the 1 s budget held the "
                      f"top and 0 A for 0 readings more of the {found['hold_asked']} the goal asked (the compasses kept "
                      f"pace with a {record.attempts[-1].sensor_rate_hz:.0f} Hz stream: a faster "
-                     "interference.rate_hz than 50 holds more readings in the budget, where the link carries it)"]
+                     f"interference.rate_hz than {found['stream_hz']:g} holds more readings in the budget, where the "
+                     "link carries it)"]
 
 
 @pytest.mark.parametrize(("sensor_rate_hz", "hint"), [(10.0, False), (44.0, True), (98.0, True)])
@@ -665,7 +666,8 @@ def test_the_goal_note_says_a_faster_stream_would_help_only_where_the_compasses_
                                per_amp_written_ut=np.array([0.03, 0.0, 0.0]), written_sigma_ut=0.002,
                                linearity_ut=0.0, return_ut=0.0, pct_at_max=2.5)
     found = Interference(compasses={1: weak}, reference="source", current_max_a=40.0, field_ut=48.0,
-                         sensor_error_pct=0.0, moved_deg=0.0, seconds=6.0, held_readings=0, hold_asked=300)
+                         sensor_error_pct=0.0, moved_deg=0.0, seconds=6.0, held_readings=0, hold_asked=300,
+                         stream_hz=50.0)
     run = SimpleNamespace(interference=found, station=SimpleNamespace(interference=InterferenceSettings()),
                           sensor_label=lambda d: f"compass {d}",
                           record=SimpleNamespace(attempts=[SimpleNamespace(sensor_rate_hz=sensor_rate_hz)]))

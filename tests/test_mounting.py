@@ -240,6 +240,7 @@ def test_a_good_three_compass_ardupilot_unit_passes_with_every_compass_calibrate
         panel = "\n".join(lines)
         order = ["✓ compass 1", "✓ compass 2", "✓ compass 3", "✓ agreement  PASS  mag1 and mag2 · mag1 and mag3 · "
                  "mag2 and mag3", f"every measurement: magline show {record.run_id}"]
+        assert all(part in panel for part in order), (panel, record.unit_info.get('mounting'))
         assert [panel.index(part) for part in order] == sorted(panel.index(part) for part in order)
         assert all(f"compass {n}" in line and "  PASS  hard iron [" in line
                    for n, line in zip((1, 2, 3), (line for line in lines if "✓ compass" in line), strict=True))

@@ -287,23 +287,41 @@ def test_a_uart_too_slow_for_the_asked_stream_is_said_before_the_tumble(tmp_path
     assert "after 0 readings" in record.cause and not record.params_written
 
 
-def test_a_uart_too_slow_for_the_current_sweeps_stream_names_the_sweeps_own_rate(tmp_path):
-    """The tumble's stream fits the line but the current sweep asks its own, faster one
-    (``interference.rate_hz``): the ERROR before the sweep names that key, not the tumble's."""
+def sweep_over_a_uart(tmp_path, baud: int, acquisition: dict, interference: dict):
+    """A PX4 unit on a simulated load, its current interference measured over a UART at ``baud``."""
     from magline.sim.load import LoadSim
 
     by_path, _ = usb_names(tmp_path)
-    with sim("px4", tmp_path, f"serial:{by_path}:57600") as board, LoadSim("tcp:127.0.0.1:0", board=board) as load:
-        part = "PX4-X500-100"
-        record = run_unit(station("px4", tmp_path, f"serial:{by_path}:57600",
-                                  products={part: {"interference": "measure", "current_max_a": 40.0}},
-                                  current_source={"type": "electronic-load",
-                                                  "options": {"resource": load.visa_resource}},
-                                  acquisition={"rate_hz": 100.0}, interference={"rate_hz": 200.0}))
+    with sim("px4", tmp_path, f"serial:{by_path}:{baud}") as board, LoadSim("tcp:127.0.0.1:0", board=board) as load:
+        return run_unit(station("px4", tmp_path, f"serial:{by_path}:{baud}",
+                                products={"PX4-X500-100": {"interference": "measure", "current_max_a": 40.0}},
+                                current_source={"type": "electronic-load", "options": {"resource": load.visa_resource}},
+                                acquisition=acquisition, interference=interference))
+
+
+def test_a_uart_too_slow_for_the_current_sweeps_stream_names_the_sweeps_own_rate(tmp_path):
+    """The tumble's stream fits the line but the current sweep asks its own, faster one
+    (``interference.rate_hz``): the ERROR before the sweep names that key, not the tumble's."""
+    record = sweep_over_a_uart(tmp_path, 57600, {"rate_hz": 100.0}, {"rate_hz": 200.0})
     assert record.verdict is Outcome.ERROR, record.cause
     assert [p.name for p in record.phases if p.outcome is Outcome.ERROR] == ["interference"], record.cause
     assert "57600 baud carries 5,760 bytes/s" in record.cause and "interference.rate_hz" in record.cause
     assert not record.params_written
+
+
+def test_a_sweep_stream_the_station_chose_is_lowered_to_what_a_uart_carries(tmp_path):
+    """With ``interference.rate_hz`` unset the sweep asks 100 Hz — the station's choice, not the line's
+    fault: on a 38400-baud line that cannot carry it the sweep runs at the fastest rate that fits, says
+    so, and the unit is judged (a rate the station file sets is refused instead, above)."""
+    record = sweep_over_a_uart(tmp_path, 38400, {"rate_hz": 50.0}, {})
+    assert record.verdict is Outcome.PASS, record.cause
+    streams = len(record.unit_info["magnetometers"])  # SCALED_IMU, and SCALED_IMU2/3 for more compasses
+    frame = 36  # PX4's SCALED_IMU as MAVLink 2 sends it, at most
+    fits = int(0.9 * 3840 / (streams * frame))  # 90 % of a line's baud/10 bytes a second
+    assert record.unit_info["interference"]["stream_hz"] == fits < 100
+    said = [line for phase in record.phases for line in phase.log if "serial line carries" in line]
+    assert said == [f"sweep: the serial line carries the sweep's stream at {fits} Hz, not 100 "
+                    "(interference.rate_hz unset)"]
 
 
 @pytest.mark.parametrize("flavour", ["px4", "ardupilot"])

@@ -81,13 +81,14 @@ class Interference:
     readings_per_step: int = 0  # readings of every compass at each step (as the noise at 0 A asked)
     held_readings: int = 0  # read more at the top and the last zero for the compensation goal
     hold_asked: int = 0  # what the goal asked for there (more than held: the budget cut it)
+    stream_hz: float = 0.0  # the rate the sweep's stream was asked for (0: not known)
     compensated: set[int] = field(default_factory=set)  # device ids whose compensation the persist phase writes
 
     def to_dict(self) -> dict:
         return {"reference": self.reference, "current_max_a": self.current_max_a, "field_ut": self.field_ut,
                 "sensor_error_pct": self.sensor_error_pct, "moved_deg": self.moved_deg, "seconds": self.seconds,
                 "steps": self.steps, "readings_per_step": self.readings_per_step,
-                "held_readings": self.held_readings, "hold_asked": self.hold_asked,
+                "held_readings": self.held_readings, "hold_asked": self.hold_asked, "stream_hz": self.stream_hz,
                 "compasses": {str(d): {"per_amp_ut": c.per_amp_ut.tolist(), "per_amp_sigma_ut": c.per_amp_sigma_ut,
                                        "per_amp_written_ut": c.per_amp_written_ut.tolist(),
                                        "written_sigma_ut_per_a": c.written_sigma_ut,
@@ -152,7 +153,7 @@ def analyse(sweep: Sweep, fits: dict[int, FitResult], current_max_a: float, fiel
     return Interference(compasses=compasses, reference="source" if has_source else "unit", current_max_a=current_max_a,
                         field_ut=field_ut, sensor_error_pct=sensor_error, moved_deg=moved, seconds=sweep.seconds,
                         steps=table, readings_per_step=sweep.readings_per_step, held_readings=sweep.held_readings,
-                        hold_asked=sweep.hold_asked)
+                        hold_asked=sweep.hold_asked, stream_hz=sweep.stream_hz)
 
 
 def _moved_deg(steps) -> float:

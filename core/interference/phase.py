@@ -81,9 +81,9 @@ def goal_note(run: RunContext, device_id: int) -> str | None:
     # the tumble's stream says whether the compasses are faster than the sweep's: every reading new at the
     # sweep's rate means they may publish faster, and a faster sweep stream holds more readings in the budget
     rates = [a.sensor_rate_hz for a in run.record.attempts if a.sensor_rate_hz]
-    if rates and rates[-1] >= KEPT_PACE * settings.rate_hz:
+    if found.stream_hz and rates and rates[-1] >= KEPT_PACE * found.stream_hz:
         note += (f" (the compasses kept pace with a {rates[-1]:.0f} Hz stream: a faster interference.rate_hz than "
-                 f"{settings.rate_hz:g} holds more readings in the budget, where the link carries it)")
+                 f"{found.stream_hz:g} holds more readings in the budget, where the link carries it)")
     return note
 
 

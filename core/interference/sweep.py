@@ -12,7 +12,7 @@ measurement, and the two disagreeing is a power module's wrong scale.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -20,7 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from magline.core.dut import DutError, SampleChunk
-from magline.core.faults import StationFault
+from magline.core.faults import StationFault, StreamTooFast
 from magline.core.interference.hold import HoldGoal, plan_for_goal, readings_in_budget
 from magline.core.interference.source import CurrentSource
 
@@ -30,6 +30,10 @@ if TYPE_CHECKING:
 
 
 NO_CURRENT_S = 3.0  # compasses read, and still no current reading from the unit: it has none
+# The sweep's stream where the station file sets no ``interference.rate_hz``: as fast as common compasses
+# publish (a faster stream only repeats their readings); a serial line that cannot carry it gets what it can
+DEFAULT_STREAM_HZ = 100.0
+LEAST_STREAM_HZ = 5.0  # below this a line is refused even for the default: a sweep would outlast its timeout
 
 
 @dataclass
@@ -56,6 +60,7 @@ class Sweep:
     readings_per_step: int = 0  # what the noise at 0 A asked for (the station's ``readings`` at least)
     held_readings: int = 0  # read more at the top and the last zero in all, for a compensation goal (:mod:`.hold`)
     hold_asked: int = 0  # what the goal asked for there in all (more than held: the budget cut it)
+    stream_hz: float = 0.0  # the rate the sweep's stream was asked for
 
 
 def sweep_levels(steps: int) -> list[float]:
@@ -117,12 +122,11 @@ def run_sweep(run: RunContext, source: CurrentSource, settings: InterferenceSett
     primary first) and the unit's current after each settle; with a ``goal`` (a compensated unit), the
     top and the last zero step are held for it (:mod:`.hold`).  The source draws nothing again
     afterwards, whatever happened."""
-    dut = run.require_dut()  # a CompensatesCurrent: the interference phase checked it
     started = time.monotonic()
     deadline = started + settings.timeout_s
     steps: list[SweepStep] = []
     clock = UnitClock()
-    stream = dut.samples(settings.rate_hz)
+    stream, first, stream_hz = open_stream(run, settings)
     keeper = LevelKeeper(source)
     levels = sweep_levels(settings.steps)
     wanted = settings.readings
@@ -140,7 +144,8 @@ def run_sweep(run: RunContext, source: CurrentSource, settings: InterferenceSett
             step = SweepStep(level=level)
             settled_ms = clock.in_ms(settings.settle_s)
             step_started = time.monotonic()
-            _read_step(stream, clock, step, settled_ms, wanted, device_ids, deadline, keeper)
+            _read_step(stream, clock, step, settled_ms, wanted, device_ids, deadline, keeper, first)
+            first = []
             while index == 0:  # the compasses' noise at 0 A decides how many readings every step needs,
                 # estimated again from each larger set until the readings in hand are enough
                 most = readings_in_time(step, device_ids, levels, settings, time.monotonic() - step_started,
@@ -175,7 +180,30 @@ def run_sweep(run: RunContext, source: CurrentSource, settings: InterferenceSett
     stream.close()
     source.stop()
     return Sweep(steps=steps, seconds=time.monotonic() - started, device_ids=list(device_ids), readings_per_step=wanted,
-                 held_readings=held, hold_asked=asked)
+                 held_readings=held, hold_asked=asked, stream_hz=stream_hz)
+
+
+def open_stream(run: RunContext, settings: InterferenceSettings) -> tuple[Iterator[SampleChunk], list[SampleChunk],
+                                                                           float]:
+    """The sweep's stream, its first chunk (read here: a backend checks its line when the stream starts)
+    and the rate asked.  ``interference.rate_hz`` where the station file sets it, refused with the figures
+    on a serial line too slow for it; unset, :data:`DEFAULT_STREAM_HZ`, lowered to what a serial line
+    carries (logged) — the station's own choice is not the line's fault."""
+    dut = run.require_dut()
+    rate_hz = settings.rate_hz or DEFAULT_STREAM_HZ
+    while True:
+        stream = dut.samples(rate_hz)
+        try:
+            return stream, [next(stream)], rate_hz
+        except StreamTooFast as exc:
+            stream.close()
+            if settings.rate_hz is not None or exc.fits_hz < LEAST_STREAM_HZ or exc.fits_hz >= rate_hz:
+                raise
+            rate_hz = float(np.floor(exc.fits_hz))
+            run.log(f"sweep: the serial line carries the sweep's stream at {rate_hz:g} Hz, not "
+                    f"{DEFAULT_STREAM_HZ:g} (interference.rate_hz unset)")
+        except StopIteration:
+            raise DutError("the unit's stream ended before the current sweep read anything") from None
 
 
 def _hold(run: RunContext, reading: tuple, step: SweepStep, steps: list[SweepStep], levels: list[float],
@@ -260,10 +288,13 @@ def _amps(value: float | None) -> str:
 
 
 def _read_step(stream, clock: UnitClock, step: SweepStep, settled_ms: float, wanted: int, device_ids: list[int],
-               deadline: float, keep_level: Callable[[], None] = lambda: None) -> None:
+               deadline: float, keep_level: Callable[[], None] = lambda: None,
+               waiting: list[SampleChunk] | None = None) -> None:
     """Readings of one step: those stamped before ``settled_ms`` (the unit's clock) are dropped — the
     current and the field still moving —, then ``wanted`` readings of every compass and at least one
-    current reading; ``keep_level`` is called at every chunk (to keep the step's level drawn)."""
+    current reading; ``keep_level`` is called at every chunk (to keep the step's level drawn).
+    ``waiting``: chunks already taken from the stream, read first."""
+    pending = list(waiting or [])
     primary = device_ids[0]
     settled_at = time.monotonic()
     unmeasured = 0  # current reports saying "not measured"
@@ -273,7 +304,7 @@ def _read_step(stream, clock: UnitClock, step: SweepStep, settled_ms: float, wan
             raise StationFault(f"the current sweep outlasted its timeout at the {step.level:.0%} step (readings "
                                f"{have}; unit current readings {len(step.firmware_a)})")
         try:
-            chunk: SampleChunk = next(stream)
+            chunk: SampleChunk = pending.pop(0) if pending else next(stream)
         except StopIteration:
             raise DutError("the unit's stream ended during the current sweep") from None
         clock.saw(chunk)

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from magline.core.dut import LinkError
-from magline.core.faults import StationFault
+from magline.core.faults import StationFault, StreamTooFast
 
 DEFAULT_BAUD = 115200
 UDEV_ROOT = Path("/dev/serial")
@@ -291,8 +291,9 @@ class SerialPortWatch:
 
     def require_capacity(self, streams: dict[str, tuple[int, float]]) -> None:
         """Before a stream is asked (name → (frame bytes, messages a second)): a UART at the station's
-        baud carries it, else a StationFault with the figures — said before the tumble, not found as a
-        short one (the firmware drops what its transmit buffer cannot hold)."""
+        baud carries it, else a :class:`StreamTooFast` with the figures and the rate the stream fits at —
+        said before the tumble, not found as a short one (the firmware drops what its transmit buffer
+        cannot hold)."""
         node = os.path.realpath(self.address.path)
         if ignores_baud(node):
             return
@@ -300,10 +301,12 @@ class SerialPortWatch:
         line = self.address.baud / 10.0  # 8N1: ten bits a byte
         if need > LINE_SHARE * line:
             asked = ", ".join(f"{name} {rate:g}/s" for name, (_, rate) in streams.items())
-            raise StationFault(f"{self.address.path} at {self.address.baud} baud carries {line:,.0f} bytes/s; the "
-                               f"stream asked ({asked}) needs {need:,.0f} bytes/s: raise the baud (on the board and "
-                               "in the station file), connect the board's USB port, or lower the stream's rate: "
-                               "acquisition.rate_hz for the tumble, interference.rate_hz for the current sweep")
+            fits_hz = max(rate for _, rate in streams.values()) * LINE_SHARE * line / need
+            raise StreamTooFast(f"{self.address.path} at {self.address.baud} baud carries {line:,.0f} bytes/s; the "
+                                f"stream asked ({asked}) needs {need:,.0f} bytes/s: raise the baud (on the board and "
+                                "in the station file), connect the board's USB port, or lower the stream's rate: "
+                                "acquisition.rate_hz for the tumble, interference.rate_hz for the current sweep",
+                                fits_hz)
 
     def still_at(self, node: str | None) -> bool:
         """The station's name still points at ``node`` (it did not vanish or move meanwhile)."""

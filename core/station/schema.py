@@ -139,7 +139,9 @@ class CurrentSourceConfig(_Strict):
 class InterferenceSettings(_Strict):
     """How the current sweep is run: ``steps`` levels from 0 up to the product's ``current_max_a`` and as
     many back down to 0 (the return to zero is judged), each held ``settle_s`` before ``readings``
-    readings of every compass are taken; the stream asks for ``rate_hz``.  The defaults (0, ½, 1, ½, 0
+    readings of every compass are taken; the stream asks for ``rate_hz`` — unset, for 100 Hz, or the fastest
+    a serial line carries (a stream faster than a compass only repeats its readings, which are dropped,
+    and one slower than it throws readings away that a compensated unit's hold would need).  The defaults (0, ½, 1, ½, 0
     of the top, 8 readings) take about 6 s at ArduPilot's 10 Hz compasses.  The proof after the power
     cycle needs only the slope: 0, 1, 0.
 
@@ -155,7 +157,7 @@ class InterferenceSettings(_Strict):
     readings: Annotated[int, Field(ge=3, le=1000)] = 8
     target_sigma_ut_per_a: Annotated[float, Field(gt=0)] = 0.005
     readings_max: Annotated[int, Field(ge=3, le=5000)] = 200
-    rate_hz: Annotated[float, Field(gt=0, le=400)] = 50.0
+    rate_hz: Annotated[float, Field(gt=0, le=400)] | None = None
     timeout_s: Annotated[float, Field(gt=0)] = 60.0  # the whole sweep
     # a compensated unit: its top and last zero steps are held until every compass's written slope is known to
     # this share of itself (3σ) — about what compensation may leave of its interference —, as far as
