@@ -232,11 +232,14 @@ def test_with_three_compasses_the_stop_waits_for_the_noisiest(tmp_path):
         assert figures["mounting_sigma_deg"] <= 0.7 * 3.0
         # a live stream: readings arrived while a snapshot was fitted, and the stop was confirmed on all of them
         assert measured[prefix + "direction_sigma_deg"] == pytest.approx(figures["direction_sigma_deg"], rel=1e-9)
-    # the primary alone was determined well before: the stop waited for compass 3
+    # the stop never came before the noisiest compass was determined on its own readings: usually well after
+    # the primary was.  Not always after: where the primary waits for the tumble's last axis, every compass's
+    # σ falls at once when it is covered, and compass 3 was once determined in the same instant (a CI run)
     primary, third = attempt.raw, attempt.more[mags[2].device_id]
-    alone = next(n for n in range(50, len(primary), 10) if determined(primary, primary.t_ms[n - 1]))
-    assert not determined(third, primary.t_ms[alone - 1])
-    assert attempt.samples > alone
+    steps = range(50, len(primary) + 1, 10)
+    alone = next(n for n in steps if determined(primary, primary.t_ms[n - 1]))
+    noisiest = next((n for n in steps if determined(third, primary.t_ms[n - 1])), None)
+    assert noisiest is not None and alone <= noisiest <= attempt.samples, (alone, noisiest, attempt.samples)
 
 
 def determined(samples: RawSamples, until_ms: float) -> bool:

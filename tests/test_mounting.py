@@ -238,13 +238,25 @@ def test_a_good_three_compass_ardupilot_unit_passes_with_every_compass_calibrate
 
         lines = verdict_lines(record)
         panel = "\n".join(lines)
-        order = ["✓ compass 1", "✓ compass 2", "✓ compass 3", "✓ agreement  PASS  mag1 and mag2 · mag1 and mag3 · "
-                 "mag2 and mag3", f"every measurement: magline show {record.run_id}"]
-        assert all(part in panel for part in order), (panel, record.unit_info.get('mounting'))
+        # a good pair is flagged only for the station's doubt about its relative timing: two skews of one
+        # driver loop differ beyond 3σ by chance in 0.27 % of pairs (a CI run), and are then paired apart,
+        # each at its own, within a window that a 1,400°/s tumble turns into more than the 1° limit
+        pairs = ("mag1-mag2", "mag1-mag3", "mag2-mag3")
+        doubted = [pair for pair in pairs
+                   if any(measured(record, f"{pair}.heading_agreement_{figure}_deg").verdict is Verdict.REVIEW
+                          for figure in ("median", "max"))]
+        assert all(record.unit_info["mounting"][pair]["timing_window_ms"] > 0 for pair in doubted), doubted
+        agreeing = " · ".join(pair.replace("-", " and ") for pair in pairs if pair not in doubted)
+        order = ["✓ compass 1", "✓ compass 2", "✓ compass 3",
+                 *[f"! agreement {pair.replace('-', ' and ')}  REVIEW" for pair in doubted],
+                 *([f"✓ agreement  PASS  {agreeing}"] if agreeing else []),
+                 f"every measurement: magline show {record.run_id}"]
+        assert all(part in panel for part in order), panel
         assert [panel.index(part) for part in order] == sorted(panel.index(part) for part in order)
         assert all(f"compass {n}" in line and "  PASS  hard iron [" in line
                    for n, line in zip((1, 2, 3), (line for line in lines if "✓ compass" in line), strict=True))
-        assert "hard_iron_x_ut" not in panel and len(lines) <= 14
+        # a flagged pair adds its own card: its title and its two figures with why
+        assert "hard_iron_x_ut" not in panel and len(lines) <= 14 + 3 * len(doubted)
         # every sensor's readings and the accelerometer's are kept with the attempt
         engine = create_engine(f"sqlite:///{tmp_path / 'results.sqlite'}")
         with engine.connect() as conn:
@@ -556,7 +568,11 @@ def test_a_compass_read_by_a_slower_loop_is_no_false_reject_and_the_unproven_agr
         record = run_unit(write_station("ardupilot-sim.yaml", tmp_path, sim.address, AP_OPTIONS,
                                         {"acquisition": {"samples": 300}}))
     assert record.verdict is Outcome.PASS, record.cause
-    assert record.unit_info["mounting"]["mag1-mag2"]["timing_window_ms"] == 0.0  # one loop: paired at one skew
+    # one loop: paired at one skew — unless the two estimates of it differ beyond 3σ, as 0.27 % of such pairs do
+    skews = [(measured(record, p + "time_skew_ms").value, measured(record, p + "time_skew_sigma_ms").value)
+             for p in ("", "mag2.")]
+    apart = bool(abs(skews[0][0] - skews[1][0]) > 3.0 * np.hypot(skews[0][1], skews[1][1]))
+    assert (record.unit_info["mounting"]["mag1-mag2"]["timing_window_ms"] > 0.0) is apart
     for first in ("mag1", "mag2"):
         prefix = "" if first == "mag1" else "mag2."
         lag = measured(record, prefix + "time_skew_ms").value - measured(record, "mag3.time_skew_ms").value
