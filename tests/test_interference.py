@@ -605,6 +605,7 @@ def test_a_compass_that_sees_little_current_is_held_until_its_compensation_is_kn
     assert main(["show", "INT-HELD", "--station", str(station)]) == 0
     shown = capsys.readouterr().out
     assert f", {found['held_readings']} more held at the top and the last 0 A together" in shown
+    assert f" readings a step from a 100 Hz stream, {found['held_readings']} more held" in shown  # the default rate
     assert f"compensated (known to ±{mast['known_pct']:.1f} % of it)" in shown
     # the last zero is held until the written slope's own fit says the goal is met
     assert mast["known_pct"] <= goal, mast["known_pct"]

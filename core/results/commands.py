@@ -76,6 +76,7 @@ def show(store: Any, run: str, as_json: bool, out: TextIO | None = None) -> int:
         sweep = unit["interference"]
         lines.append(f"current interference (swept to {sweep['current_max_a']:g} A in {sweep['seconds']:.0f} s"
                      + (f", {sweep['readings_per_step']} readings a step" if sweep.get("readings_per_step") else "")
+                     + (f" from a {sweep['stream_hz']:g} Hz stream" if sweep.get("stream_hz") else "")
                      + (f", {sweep['held_readings']} more held at the top and the last 0 A together"
                         if sweep.get("held_readings") else "")
                      + (f", the unit's current sensor {sweep['sensor_error_pct']:+.1f} % against the load"
