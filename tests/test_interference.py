@@ -695,3 +695,37 @@ def test_three_sigma_of_a_slope_holds_the_truth_as_often_as_for_a_known_noise_ev
         beyond += int(np.sum(np.abs(slope - truth) > 3.0 * sigma))
     expected = 0.0027 * 3 * lines  # 162 of 60,000 axes, a binomial σ of 12.7
     assert abs(beyond - expected) < Z_NEVER * np.sqrt(expected), (beyond, expected)
+
+
+@pytest.mark.parametrize(("set_hz", "fits_hz", "opened_hz"),
+                         [(None, 96.4, 96.0), (None, 3.0, None), (200.0, 96.4, None), (None, 400.0, 100.0)])
+def test_the_sweep_lowers_only_its_own_stream_rate_to_what_the_line_carries(set_hz, fits_hz, opened_hz):
+    """The sweep's stream: unset, 100 Hz, lowered to the whole rate a serial line carries (not below
+    5 Hz, where a sweep would outlast its timeout); a rate the station file sets is refused, never changed."""
+    from types import SimpleNamespace
+
+    from magline.core.faults import StreamTooFast
+    from magline.core.interference.sweep import open_stream
+    from magline.core.station.schema import InterferenceSettings
+
+    asked: list[float] = []
+
+    def samples(rate_hz: float):
+        asked.append(rate_hz)
+        if rate_hz > fits_hz:
+            raise StreamTooFast(f"the line carries {fits_hz} Hz", fits_hz)
+        yield f"chunk at {rate_hz:g} Hz"
+
+    log: list[str] = []
+    run = SimpleNamespace(require_dut=lambda: SimpleNamespace(samples=samples), log=log.append)
+    settings = InterferenceSettings(rate_hz=set_hz)
+    if opened_hz is None:
+        with pytest.raises(StreamTooFast):
+            open_stream(run, settings)
+        assert asked == [set_hz or 100.0] and not log
+        return
+    _, first, rate = open_stream(run, settings)
+    assert rate == opened_hz and first == [f"chunk at {opened_hz:g} Hz"]
+    assert asked == ([100.0] if opened_hz == 100.0 else [100.0, opened_hz])
+    assert log == ([] if opened_hz == 100.0 else [f"sweep: the serial line carries the sweep's stream at {opened_hz:g} "
+                                                  "Hz, not 100 (interference.rate_hz unset)"])
