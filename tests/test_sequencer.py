@@ -47,7 +47,8 @@ def test_demo_command_passes_after_exactly_one_retry(tmp_path):
     (verdict, calibration), = rows(db, "SELECT verdict, calibration FROM runs WHERE serial='SN-0001'")
     assert verdict == "pass"
     attempts = attempt_rows(db, "SN-0001")
-    assert [(a["attempt"], a["accepted"]) for a in attempts] == [(1, 0), (2, 1)]
+    assert [(a["attempt"], a["accepted"]) for a in attempts] == [(1, 0), (2, 1)], \
+        [(a["attempt"], a["refused"], a["samples"], a["coverage"], a["stopped"]) for a in attempts]
     assert attempts[0]["coverage"] < 0.6 <= attempts[1]["coverage"]
     raw = attempts[1]["raw"]
     # the first attempt (a spin about one axis) stops when its coverage stops growing; the second

@@ -373,7 +373,7 @@ def test_a_three_compass_unit_shows_a_card_per_compass_naming_the_one_that_faile
             page.fill("#serial", "SCR-3MAG")
             page.press("#serial", "Enter")
             page.wait_for_selector("#verdict:not([hidden])", timeout=60_000)
-            assert page.inner_text("#verdict-word") == "FAIL"
+            assert page.inner_text("#verdict-word") == "FAIL", page.inner_text("#verdict")
             cards = page.eval_on_selector_all("#verdict-sensors .sensor", "els => els.map(e => ({cls: e.className, "
                                               "title: e.querySelector('h3').textContent, text: e.innerText}))")
             compasses = [c for c in cards if c["title"].startswith("compass")]
