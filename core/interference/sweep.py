@@ -11,6 +11,7 @@ measurement, and the two disagreeing is a power module's wrong scale.
 
 from __future__ import annotations
 
+import itertools
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -127,6 +128,7 @@ def run_sweep(run: RunContext, source: CurrentSource, settings: InterferenceSett
     steps: list[SweepStep] = []
     clock = UnitClock()
     stream, first, stream_hz = open_stream(run, settings)
+    chunks = itertools.chain(first, stream)  # the first chunk, read to open the stream, goes to the first step
     keeper = LevelKeeper(source)
     levels = sweep_levels(settings.steps)
     wanted = settings.readings
@@ -144,8 +146,7 @@ def run_sweep(run: RunContext, source: CurrentSource, settings: InterferenceSett
             step = SweepStep(level=level)
             settled_ms = clock.in_ms(settings.settle_s)
             step_started = time.monotonic()
-            _read_step(stream, clock, step, settled_ms, wanted, device_ids, deadline, keeper, first)
-            first = []
+            _read_step(chunks, clock, step, settled_ms, wanted, device_ids, deadline, keeper)
             while index == 0:  # the compasses' noise at 0 A decides how many readings every step needs,
                 # estimated again from each larger set until the readings in hand are enough
                 most = readings_in_time(step, device_ids, levels, settings, time.monotonic() - step_started,
@@ -158,11 +159,11 @@ def run_sweep(run: RunContext, source: CurrentSource, settings: InterferenceSett
                 run.log(f"sweep: {wanted} readings a step bring the field per amp to ±"
                         f"{settings.target_sigma_ut_per_a:g} µT/A (the compasses' noise at 0 A)"
                         + (f" — or as near as the sweep's {settings.timeout_s:g} s allow" if wanted == most else ""))
-                _read_step(stream, clock, step, settled_ms, wanted, device_ids, deadline, keeper)
+                _read_step(chunks, clock, step, settled_ms, wanted, device_ids, deadline, keeper)
             if goal is not None and index in (settings.steps, len(levels) - 1):  # the top, the last zero: hold
                 step_s = float(np.max(np.diff(began) - hold_s[:-1]))
                 holding = time.monotonic()
-                held, asked = _hold(run, (stream, clock, keeper), step, steps, levels, index, settled_ms, wanted,
+                held, asked = _hold(run, (chunks, clock, keeper), step, steps, levels, index, settled_ms, wanted,
                                     device_ids, goal, (started, step_started, deadline, step_s, began[0] - started),
                                     held)
                 hold_s[-1] = time.monotonic() - holding
@@ -187,23 +188,26 @@ def open_stream(run: RunContext, settings: InterferenceSettings) -> tuple[Iterat
                                                                            float]:
     """The sweep's stream, its first chunk (read here: a backend checks its line when the stream starts)
     and the rate asked.  ``interference.rate_hz`` where the station file sets it, refused with the figures
-    on a serial line too slow for it; unset, :data:`DEFAULT_STREAM_HZ`, lowered to what a serial line
-    carries (logged) — the station's own choice is not the line's fault."""
+    on a serial line too slow for it; unset, :data:`DEFAULT_STREAM_HZ`, lowered once to what a serial
+    line carries (logged) — the station's own choice is not the line's fault."""
     dut = run.require_dut()
-    rate_hz = settings.rate_hz or DEFAULT_STREAM_HZ
-    while True:
-        stream = dut.samples(rate_hz)
-        try:
-            return stream, [next(stream)], rate_hz
-        except StreamTooFast as exc:
-            stream.close()
-            if settings.rate_hz is not None or exc.fits_hz < LEAST_STREAM_HZ or exc.fits_hz >= rate_hz:
-                raise
-            rate_hz = float(np.floor(exc.fits_hz))
-            run.log(f"sweep: the serial line carries the sweep's stream at {rate_hz:g} Hz, not "
-                    f"{DEFAULT_STREAM_HZ:g} (interference.rate_hz unset)")
-        except StopIteration:
-            raise DutError("the unit's stream ended before the current sweep read anything") from None
+    try:
+        return _first_chunk(dut, settings.rate_hz or DEFAULT_STREAM_HZ)
+    except StreamTooFast as exc:
+        if settings.rate_hz is not None or exc.fits_hz < LEAST_STREAM_HZ:
+            raise
+        rate_hz = float(np.floor(exc.fits_hz))
+        run.log(f"sweep: the serial line carries the sweep's stream at {rate_hz:g} Hz, not {DEFAULT_STREAM_HZ:g} "
+                "(interference.rate_hz unset)")
+        return _first_chunk(dut, rate_hz)
+
+
+def _first_chunk(dut, rate_hz: float) -> tuple[Iterator[SampleChunk], list[SampleChunk], float]:
+    stream = dut.samples(rate_hz)
+    try:
+        return stream, [next(stream)], rate_hz
+    except StopIteration:
+        raise DutError("the unit's stream ended before the current sweep read anything") from None
 
 
 def _hold(run: RunContext, reading: tuple, step: SweepStep, steps: list[SweepStep], levels: list[float],
@@ -288,13 +292,10 @@ def _amps(value: float | None) -> str:
 
 
 def _read_step(stream, clock: UnitClock, step: SweepStep, settled_ms: float, wanted: int, device_ids: list[int],
-               deadline: float, keep_level: Callable[[], None] = lambda: None,
-               waiting: list[SampleChunk] | None = None) -> None:
+               deadline: float, keep_level: Callable[[], None] = lambda: None) -> None:
     """Readings of one step: those stamped before ``settled_ms`` (the unit's clock) are dropped — the
     current and the field still moving —, then ``wanted`` readings of every compass and at least one
-    current reading; ``keep_level`` is called at every chunk (to keep the step's level drawn).
-    ``waiting``: chunks already taken from the stream, read first."""
-    pending = list(waiting or [])
+    current reading; ``keep_level`` is called at every chunk (to keep the step's level drawn)."""
     primary = device_ids[0]
     settled_at = time.monotonic()
     unmeasured = 0  # current reports saying "not measured"
@@ -304,7 +305,7 @@ def _read_step(stream, clock: UnitClock, step: SweepStep, settled_ms: float, wan
             raise StationFault(f"the current sweep outlasted its timeout at the {step.level:.0%} step (readings "
                                f"{have}; unit current readings {len(step.firmware_a)})")
         try:
-            chunk: SampleChunk = pending.pop(0) if pending else next(stream)
+            chunk: SampleChunk = next(stream)
         except StopIteration:
             raise DutError("the unit's stream ended during the current sweep") from None
         clock.saw(chunk)
