@@ -32,6 +32,7 @@ from scipy.spatial.transform import Rotation
 from magline.sim.faults import SimFaults
 from magline.sim.magnetometers import SimMagnetometer, attitude, default_magnetometers, driver_rate_hz
 from magline.sim.params import ParamSpec, ParamTable, ParamValue
+from magline.sim.schedule import BoardSchedule
 from magline.sim.storage import NvStorage
 from magline.sim.thermal import BoardWarmth
 from magline.sim.transport import open_server
@@ -127,7 +128,8 @@ class SimulatedAutopilot(ABC):
         self._still: tuple[Rotation, float] | None = None  # held still in a fixture: (attitude, since)
         self._still_by_motors = False  # … strapped in the cradle for a motor test (not a load's fixture)
         self._motors_commanded_at = 0.0
-        self._status_streams: dict[int, list[float]] = {}  # BATTERY_STATUS / SYS_STATUS: [interval, due]
+        # BATTERY_STATUS / SYS_STATUS, on the board's clock (the scheduler's jitter its own stream of numbers)
+        self._status_streams = BoardSchedule(random.Random(None if seed is None else seed + 1))
         self._latency_s = {self.magnetometers[index].device_id: seconds
                            for index, seconds in self.faults.latencies_s().items() if index < len(self.magnetometers)}
         self.field_ned = earth_field_ned(field_ut, inclination_deg)
@@ -157,7 +159,7 @@ class SimulatedAutopilot(ABC):
         self.bad_frames = 0
         self.boots = 0
         self._parsers: dict[object, mavlink.MAVLink] = {}
-        self._streams: dict[int, list[float]] = {}
+        self._streams = BoardSchedule(random.Random(None if seed is None else seed + 2))  # the sensor streams
         self._motion_index = -1
         self._seen_dirs: list[NDArray] = []  # the field's body directions the tumble showed since the last boot
         # after a power cycle: (attitude, the motion index at which the next tumble ends the rest)
@@ -454,16 +456,13 @@ class SimulatedAutopilot(ABC):
             self._next_heartbeat += 1.0
             self.mav.heartbeat_send(mavlink.MAV_TYPE_QUADROTOR, self.autopilot,
                                     mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 0, mavlink.MAV_STATE_STANDBY)
-        for msg_id, due in self._streams.items():
-            if now >= due[1]:
-                due[1] = max(due[1] + due[0], now - due[0])
-                message = self.stream_message(msg_id, now)
-                if message is not None:
-                    self.mav.send(message)
-        for msg_id, due in self._status_streams.items():
-            if now >= due[1]:
-                due[1] = max(due[1] + due[0], now - due[0])
-                self.send_status(msg_id, now)
+        # each message computed and stamped at the instant it fell due, however late the host let us run
+        for instant, msg_id in self._streams.due(now):
+            message = self.stream_message(msg_id, instant)
+            if message is not None:
+                self.mav.send(message)
+        for instant, msg_id in self._status_streams.due(now):
+            self.send_status(msg_id, instant)
 
     def _transmit(self, data: bytes) -> None:
         if self.power not in (Power.UP, Power.SHUTTING_DOWN) or self.link_dead or self.link is None:
@@ -770,16 +769,16 @@ class SimulatedAutopilot(ABC):
         msg_id, interval_us = int(params[0]), params[1]
         if msg_id in self.STATUS_MESSAGES:
             if interval_us <= 0:
-                self._status_streams.pop(msg_id, None)
+                self._status_streams.stop(msg_id)
             else:
-                self._status_streams[msg_id] = [max(interval_us / 1e6, 1.0 / MAX_STREAM_HZ), time.monotonic()]
+                self._status_streams.start(msg_id, max(interval_us / 1e6, 1.0 / MAX_STREAM_HZ), time.monotonic())
             return ACCEPTED
         if msg_id not in self.stream_sensor and msg_id != mavlink.MAVLINK_MSG_ID_HEARTBEAT:
             return FAILED
         if msg_id == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
             return ACCEPTED
         if interval_us < 0 or interval_us == 0:
-            self._streams.pop(msg_id, None)
+            self._streams.stop(msg_id)
         else:
             interval = max(interval_us / 1e6, 1.0 / MAX_STREAM_HZ)
             if not self._streams:
@@ -787,7 +786,7 @@ class SimulatedAutopilot(ABC):
                 if self._still_by_motors and time.monotonic() - self._motors_commanded_at > MOTOR_CRADLE_S:
                     self._still, self._still_by_motors = None, False  # out of the cradle
                 self._mag_stream_started = time.monotonic()
-            self._streams[msg_id] = [interval, time.monotonic()]
+            self._streams.start(msg_id, interval, time.monotonic())
         if not self._streams:
             self._mag_stream_started = None
         return ACCEPTED

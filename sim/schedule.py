@@ -1,0 +1,75 @@
+"""When a simulated board's periodic messages fall due: on the board's own clock, whatever the host did.
+
+Why: a board samples, stamps and sends on its own timer; a host too loaded to run the simulator's loop
+for 50 ms must change only when the bytes arrive, never what the board measured or the instant it
+stamped.  The loop used to compute and stamp each message at the moment it happened to run, and to drop
+what a stall had skipped: under a loaded CI run a 10 Hz compass read 8.3 Hz, a 50 Hz stream repeated
+each reading 2.87 times instead of 5, and good units FAILed their mounting on timing no board has.
+
+Each message still leaves within its scheduler's tick after its nominal instant (uniformly, up to
+:data:`SCHEDULER_JITTER_S`), as the loop's own 2 ms poll placed it before: a stream's instants then fall
+at every fraction of a millisecond, and the whole-millisecond stamps of two streams lose the same
+fraction on average.  Without it each stream kept one constant fraction of its own, a relative skew
+between two compasses that turned into a degree of disagreement on a fast tumble.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+from dataclasses import dataclass
+
+SCHEDULER_JITTER_S = 0.002  # a message goes out within this of its nominal instant (the loop's 2 ms poll)
+CATCH_UP_S = 1.0  # a stall longer than this (the host suspended) loses what fell due before its last second
+
+
+@dataclass
+class Periodic:
+    """One periodic message: its interval, its next nominal instant and that instant with its jitter."""
+
+    interval_s: float
+    nominal_s: float
+    due_s: float
+
+    @classmethod
+    def starting(cls, interval_s: float, at_s: float) -> Periodic:
+        return cls(interval_s, at_s, at_s)
+
+
+class BoardSchedule:
+    """The board's periodic messages by key (a message id), and the instants each fell due at."""
+
+    def __init__(self, rng: random.Random) -> None:
+        self.rng = rng
+        self.streams: dict[int, Periodic] = {}
+
+    def start(self, key: int, interval_s: float, at_s: float) -> None:
+        self.streams[key] = Periodic.starting(interval_s, at_s)
+
+    def stop(self, key: int) -> None:
+        self.streams.pop(key, None)
+
+    def clear(self) -> None:
+        self.streams.clear()
+
+    def __bool__(self) -> bool:
+        return bool(self.streams)
+
+    def __contains__(self, key: int) -> bool:
+        return key in self.streams
+
+    def due(self, now_s: float) -> list[tuple[float, int]]:
+        """Every (instant, key) that fell due up to ``now_s``, oldest first across all streams: what the
+        board sent while the host did not run the loop, each to be computed at its own instant."""
+        due: list[tuple[float, int]] = []
+        for key, stream in self.streams.items():
+            behind = now_s - CATCH_UP_S - stream.nominal_s
+            if behind > 0.0:  # the host stopped us for longer than any link buffers: resume a second back
+                stream.nominal_s += math.ceil(behind / stream.interval_s) * stream.interval_s
+                stream.due_s = stream.nominal_s
+            while stream.due_s <= now_s:
+                due.append((stream.due_s, key))
+                stream.nominal_s += stream.interval_s
+                stream.due_s = stream.nominal_s + self.rng.uniform(0.0, SCHEDULER_JITTER_S)
+        due.sort()
+        return due
