@@ -17,6 +17,8 @@ readings exactly as they were.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
@@ -44,8 +46,14 @@ def spiral_angles(t: float | NDArray, stepped: bool = False) -> tuple[NDArray, N
 def field_frame(field_dir: NDArray | None) -> Rotation:
     """A fixed turn taking the NED field direction onto +Z (the spiral's pole)."""
     f = DEFAULT_FIELD_DIR if field_dir is None else np.asarray(field_dir, float)
-    f = f / np.linalg.norm(f)
-    turn, _ = Rotation.align_vectors([[0.0, 0.0, 1.0]], [f])
+    return _frame_towards(*(f / np.linalg.norm(f)).tolist())
+
+
+@functools.lru_cache(maxsize=64)
+def _frame_towards(north: float, east: float, down: float) -> Rotation:
+    """Why cached: a simulated board asks for its attitude at every sample it averages, and aligning the
+    vectors anew each time was half of the simulator's CPU (a station's field stays put)."""
+    turn, _ = Rotation.align_vectors([[0.0, 0.0, 1.0]], [[north, east, down]])
     return turn
 
 
