@@ -602,7 +602,15 @@ def test_a_second_screen_on_a_busy_station_shows_a_refusal_not_a_verdict(screen,
         other.wait_for_selector("#station-name:has-text('demo-01')")
         other.keyboard.type("BUSY-2")
         other.keyboard.press("Enter")
-        other.wait_for_selector("#refusal:not([hidden])", timeout=30_000)
+        try:
+            other.wait_for_selector("#refusal:not([hidden])", timeout=30_000)
+        except PlaywrightTimeout:  # twice on a loaded machine: say where the scan went and what the page shows
+            seen = other.evaluate("""() => ({focus: document.activeElement && document.activeElement.id,
+                serial: document.getElementById('serial').value,
+                error: document.getElementById('form-error').textContent,
+                banner: !document.getElementById('banner').hidden, idle: !document.getElementById('idle').hidden})""")
+            raise AssertionError(f"no refusal shown; the page: {seen}; the second runner busy: {runner.busy()}, "
+                                 f"its state: {runner.state.snapshot()[1].get('refusal')!r}") from None
         text = other.inner_text("#refusal")
         assert "NOT STARTED" in text.upper() and "is busy: station demo-01 is testing serial BUSY-1" in text
         assert f"folder {tmp_path.resolve()}" in text and "Nothing was recorded" in text
