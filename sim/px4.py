@@ -249,8 +249,10 @@ class Px4Sim(SimulatedAutopilot):
         acc = self.accel_mg(now)
         t_ms = self.time_boot_ms(now)
         if msg_id == mavlink.MAVLINK_MSG_ID_HIGHRES_IMU:
+            # stamped with the IMU sample's own time in microseconds (HIGHRES_IMU.hpp: time_usec =
+            # vehicle_imu.timestamp_sample), not the millisecond of the SCALED_IMU messages
             cal_g = self.corrected_ut(sensor, raw_ut) / 100.0
-            return self.mav.highres_imu_encode(t_ms * 1000, *(acc * 9.80665e-3), 0.0, 0.0, 0.0, *cal_g,
+            return self.mav.highres_imu_encode(self.time_boot_us(now), *(acc * 9.80665e-3), 0.0, 0.0, 0.0, *cal_g,
                                                1013.25, 0.0, 0.0, 25.0, 0x1FF)
         encode = {mavlink.MAVLINK_MSG_ID_SCALED_IMU: self.mav.scaled_imu_encode,
                   mavlink.MAVLINK_MSG_ID_SCALED_IMU2: self.mav.scaled_imu2_encode,

@@ -489,6 +489,9 @@ class SimulatedAutopilot(ABC):
     def time_boot_ms(self, now: float) -> int:
         return int((now - self._booted_at) * 1000) & 0xFFFFFFFF
 
+    def time_boot_us(self, now: float) -> int:
+        return int((now - self._booted_at) * 1e6)
+
     def current_motion(self) -> str:
         return self.motions[min(max(self._motion_index, 0), len(self.motions) - 1)]
 

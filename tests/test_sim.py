@@ -598,3 +598,22 @@ def test_a_stalled_host_delays_the_stream_but_moves_no_stamp_and_loses_no_readin
         # a new reading every 100 ms: five messages, four or six where the 2 ms jitter crosses its instant
         assert set(whole) <= {4, 5, 6} and abs(np.mean(whole) - 5.0) < 0.5, whole
         assert not sim.errors
+
+
+def test_px4_stamps_highres_imu_with_the_imu_sample_in_microseconds(px4):
+    """PX4's HIGHRES_IMU carries ``time_usec = vehicle_imu.timestamp_sample`` (HIGHRES_IMU.hpp): the
+    sample's time to the microsecond, where SCALED_IMU carries whole milliseconds.  A station pairing its
+    accelerometer with the field reads it to the microsecond; the simulator once sent the millisecond
+    times a thousand."""
+    gcs = Gcs(px4.address)
+    assert gcs.command(ML.MAV_CMD_SET_MESSAGE_INTERVAL, ML.MAVLINK_MSG_ID_HIGHRES_IMU,
+                       5_000).result == ML.MAV_RESULT_ACCEPTED
+    stamps = []
+    while len(stamps) < 40:
+        msg = gcs.recv("HIGHRES_IMU", timeout=2.0)
+        assert msg is not None, px4.health()
+        stamps.append(msg.time_usec)
+    assert np.all(np.diff(stamps) > 0)
+    assert sum(t % 1000 != 0 for t in stamps) >= 35, stamps  # all but a chance few fall inside a millisecond
+    # and they are the board's time since boot, the message's instant
+    assert abs(stamps[-1] / 1e6 - (time.monotonic() - px4._booted_at)) < 0.5
