@@ -263,7 +263,11 @@ def test_the_calibrated_output_reads_the_reference_after_a_good_calibration(tmp_
     with start_sim(tmp_path) as sim:
         record = run_unit(station(tmp_path, sim))
         assert record.verdict is Outcome.PASS, record.cause
-        assert record.persistence["figures"]["calibrated_field_ut"] == pytest.approx(48.0, rel=0.01)
+    # at rest where the tumble saw the field least (issue 50): within what the fit knows there and the
+    # median of 20 noisy readings (0.3 µT · 1.25 / √20) — a fixed 1 % failed a good unit in a CI run (+1.04 %)
+    figures = record.persistence["figures"]
+    known = float(np.hypot(figures["calibrated_field_sigma_ut"], 0.3 * 1.25 / np.sqrt(20)))
+    assert abs(figures["calibrated_field_ut"] - 48.0) <= 4.0 * known, (figures, known)
 
 
 def test_after_the_power_cycle_the_firmware_is_proven_to_apply_the_calibration_where_the_unit_rests(tmp_path):

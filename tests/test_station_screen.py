@@ -94,10 +94,12 @@ def screen(make_station):
 # The unit at a compass's pace (50 Hz): at the demo's 200 Hz a determined retry ended within 0.7 s, before a
 # loaded machine's page had drawn the retry prompt at all — no operator reads a prompt that fast either
 REALTIME = {"products": {"MOCK-100": {"options": {"realtime": True}}}, "acquisition": {"rate_hz": 50.0}}
-# A unit that stays under test until it is aborted (spun about one axis, tumble after tumble, at the
-# sensor's real rate), whatever time the page takes for its first 3D drawing on a loaded machine
+# A unit that stays under test until it is aborted (spun about one axis at the sensor's real rate, its one
+# tumble 10⁶ readings long), whatever time the page takes for its first 3D drawing on a loaded machine.
+# Why so long: with the demo's 600 readings a tumble at 200 Hz, three tumbles ended the unit in some 10 s; on a
+# loaded run a second screen's page was scanned only after that — its scan then started a unit, not a refusal.
 BUSY_UNIT = {"products": {"MOCK-100": {"options": {"realtime": True, "motions": ["single_axis"]}}},
-             "acquisition": {"stop": "samples"}}
+             "acquisition": {"stop": "samples", "samples": 1_000_000, "timeout_s": 3600.0}}
 
 
 def test_a_unit_driven_only_through_the_page_shows_the_retry_and_passes(screen, browser, tmp_path):
