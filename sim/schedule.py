@@ -31,10 +31,6 @@ class Periodic:
     nominal_s: float
     due_s: float
 
-    @classmethod
-    def starting(cls, interval_s: float, at_s: float) -> Periodic:
-        return cls(interval_s, at_s, at_s)
-
 
 class BoardSchedule:
     """The board's periodic messages by key (a message id), and the instants each fell due at."""
@@ -44,7 +40,7 @@ class BoardSchedule:
         self.streams: dict[int, Periodic] = {}
 
     def start(self, key: int, interval_s: float, at_s: float) -> None:
-        self.streams[key] = Periodic.starting(interval_s, at_s)
+        self.streams[key] = Periodic(interval_s, at_s, at_s)  # the first one at once, as the command asks
 
     def stop(self, key: int) -> None:
         self.streams.pop(key, None)
@@ -54,9 +50,6 @@ class BoardSchedule:
 
     def __bool__(self) -> bool:
         return bool(self.streams)
-
-    def __contains__(self, key: int) -> bool:
-        return key in self.streams
 
     def due(self, now_s: float) -> list[tuple[float, int]]:
         """Every (instant, key) that fell due up to ``now_s``, oldest first across all streams: what the

@@ -128,7 +128,8 @@ class SimulatedAutopilot(ABC):
         self._still: tuple[Rotation, float] | None = None  # held still in a fixture: (attitude, since)
         self._still_by_motors = False  # … strapped in the cradle for a motor test (not a load's fixture)
         self._motors_commanded_at = 0.0
-        # BATTERY_STATUS / SYS_STATUS, on the board's clock (the scheduler's jitter its own stream of numbers)
+        # BATTERY_STATUS / SYS_STATUS on the board's clock; the scheduler's jitter draws from its own generator,
+        # so the faults' draws (a dropped frame) are the ones a seed always gave
         self._status_streams = BoardSchedule(random.Random(None if seed is None else seed + 1))
         self._latency_s = {self.magnetometers[index].device_id: seconds
                            for index, seconds in self.faults.latencies_s().items() if index < len(self.magnetometers)}
