@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from magline.core.dut import DutError, SampleChunk
+from magline.core.dut import DutBackend, DutError, SampleChunk
 from magline.core.faults import StationFault, StreamTooFast
 from magline.core.interference.hold import HoldGoal, plan_for_goal, readings_in_budget
 from magline.core.interference.source import CurrentSource
@@ -202,7 +202,7 @@ def open_stream(run: RunContext, settings: InterferenceSettings) -> tuple[Iterat
         return _first_chunk(dut, rate_hz)
 
 
-def _first_chunk(dut, rate_hz: float) -> tuple[Iterator[SampleChunk], list[SampleChunk], float]:
+def _first_chunk(dut: DutBackend, rate_hz: float) -> tuple[Iterator[SampleChunk], list[SampleChunk], float]:
     stream = dut.samples(rate_hz)
     try:
         return stream, [next(stream)], rate_hz
