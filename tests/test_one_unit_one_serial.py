@@ -160,7 +160,7 @@ def test_two_demo_runs_in_two_folders_both_run_and_one_station_file_twice_is_ref
         first.close()
     text = str(busy.value)
     store = one.resolve() / "magline-demo-results.sqlite"
-    assert text.startswith("station demo-01 is busy: station demo-01 is testing serial DEMO-A")
+    assert text.startswith("station demo-01 is busy testing serial DEMO-A (")
     assert f"(folder {one.resolve()}, results {store}; pid " in text
     assert done[0].verdict == "pass"
     assert stored_serials(one / "magline-demo-results.sqlite") == ["DEMO-A"]

@@ -614,7 +614,7 @@ def test_a_second_screen_on_a_busy_station_shows_a_refusal_not_a_verdict(screen,
             raise AssertionError(f"no refusal shown; the page: {seen}; the second runner busy: {runner.busy()}, "
                                  f"its state: {runner.state.snapshot()[1].get('refusal')!r}") from None
         text = other.inner_text("#refusal")
-        assert "NOT STARTED" in text.upper() and "is busy: station demo-01 is testing serial BUSY-1" in text
+        assert "NOT STARTED" in text.upper() and "station demo-01 is busy testing serial BUSY-1 (" in text
         assert f"folder {tmp_path.resolve()}" in text and "Nothing was recorded" in text
         assert other.is_hidden("#verdict") and other.is_visible("#idle")
         screenshot(other, tmp_path / "second-screen-refused.png")

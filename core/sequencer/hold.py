@@ -72,7 +72,7 @@ def holding(keys: list[Shared], holder: dict) -> Iterator[None]:
                 fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except BlockingIOError:
                 handle.seek(0)
-                raise StationBusy(f"{what} is busy: {_describe(handle.read())}") from None
+                raise StationBusy(_refusal(what, handle.read())) from None
             handle.seek(0)
             handle.truncate()
             handle.write(json.dumps(holder))
@@ -119,6 +119,16 @@ def holder_of(serial: str, station_id: str, slot: str | None, folder: str = "", 
     (``folder``: the station file's folder) and its results store, the process and computer."""
     return {"serial": serial, "station": station_id, "slot": slot, "folder": folder, "store": store,
             "pid": os.getpid(), "host": socket.gethostname(), "since": datetime.now(UTC).isoformat(timespec="seconds")}
+
+
+def _refusal(what: str, text: str) -> str:
+    """The sentence refusing a run: what is shared, and who holds it.  Where the shared thing is the
+    station's own slot, its holder is that same station: it is named once ("station demo-01 is busy
+    testing serial …"), not twice."""
+    holder = _describe(text)
+    if holder.startswith(what + " is testing "):
+        return f"{what} is busy testing {holder.removeprefix(what + ' is testing ')}"
+    return f"{what} is busy: {holder}"
 
 
 def _describe(text: str) -> str:
