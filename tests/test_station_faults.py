@@ -163,7 +163,11 @@ def test_a_vehicle_closing_its_tcp_link_is_a_lost_link_at_once(tmp_path, capfd):
         seq.close()
         sim.stop()
     acquire = next(p for p in record.phases if p.name == "acquire")
-    assert record.verdict is Outcome.ERROR and "link" in record.cause and "closed" in record.cause
+    # the vehicle's end closes with a FIN, or — when bytes the station sent (a heartbeat) are still unread
+    # in its socket as it closes — the kernel resets it instead: both are the vehicle gone, each said as it is
+    assert record.verdict is Outcome.ERROR and "link" in record.cause, record.cause
+    assert "the vehicle closed the TCP connection" in record.cause or \
+        "the TCP connection was reset by the vehicle" in record.cause, record.cause
     assert acquire.duration_s < 30.0  # it did not wait for the stream timeout
     out = capfd.readouterr()
     assert "EOF on TCP socket" not in out.out + out.err
