@@ -311,14 +311,16 @@ def magline_acquisition_stopped(run: RunContext, attempt: int, reason: str, afte
     N s" (or that the most readings were taken) and can tell the operator to stop moving the unit.
 
     :param reason: ``"determined"`` (coverage and predicted uncertainties inside the station's
-        limits), ``"stalled"`` (coverage stopped growing short of its target: the operator is
-        asked again), ``"samples"`` (``acquisition.samples`` read), ``"timeout"`` (a determined
-        tumble reached ``acquisition.timeout_s`` with readings enough to judge), or ``"stream ended"``.
+        limits, and the mounting's errors clear of theirs), ``"stalled"`` (coverage stopped growing
+        short of its target: the operator is asked again), ``"samples"`` (``acquisition.samples``
+        read), ``"timeout"`` (a determined tumble reached ``acquisition.timeout_s`` with readings
+        enough to judge), or ``"stream ended"``.
     :param after_s: seconds of tumbling (from the motion's start for this unit).
     :param readings: distinct readings of the primary magnetometer.
     :param predicted: when determined, the running fit's predicted σ per sensor (its measurement
         prefix, ``""`` for the primary) by measurement name (``direction_sigma_deg``,
-        ``hard_iron_sigma_ut``); empty otherwise.
+        ``hard_iron_sigma_ut``, ``mounting_sigma_deg`` …), with the mounting's errors the stop judged
+        clear of their limits (``mounting_error_deg``, ``inclination_error_deg``); empty otherwise.
     """
 
 

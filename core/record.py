@@ -57,7 +57,8 @@ class AttemptRecord:
     imu: Any = None  # the accelerometer's readings (an ImuSeries), when the stream has them
     stopped: str | None = None  # why the tumble ended: "determined", "samples", "stream ended"
     tumble_s: float | None = None  # seconds of tumbling
-    predicted: dict[str, dict[str, float]] = field(default_factory=dict)  # the running fit's σ when determined
+    # the running fit's σ when determined, and the mounting's errors the stop judged clear of their limits
+    predicted: dict[str, dict[str, float]] = field(default_factory=dict)
 
 
 @dataclass

@@ -335,3 +335,41 @@ def test_a_tumble_at_its_count_before_the_drift_can_be_judged_goes_on_thinned(tm
     assert attempt.stopped in ("determined", "samples") and attempt.samples <= 300
     assert record.calibration["drift"]["judged"] is True and "statistic" in record.calibration["drift"], \
         (attempt.stopped, attempt.tumble_s, record.calibration["drift"])
+
+
+def test_an_error_within_two_sigma_of_a_bound_is_undecided_either_side_of_it():
+    from magline.core.acquisition.tumble_stop import DECISION_Z, undecided
+
+    assert DECISION_Z == 2.0
+    assert undecided(2.79, None, 3.0, 0.74)  # the good PX4 unit that read 2.79° ± 0.74° against 3°
+    assert undecided(3.21, None, 3.0, 0.5)  # … and the one that FAILed at 3.21°
+    assert not undecided(0.5, None, 3.0, 0.74)  # clear of the limit: a pass the next readings cannot turn
+    assert not undecided(8.0, None, 3.0, 0.74)  # far beyond it: a FAIL decided, no tumbling on for it
+    assert undecided(-4.6, -5.0, 5.0, 0.3) and not undecided(-4.3, -5.0, 5.0, 0.3)  # a range: either bound
+    assert not undecided(2.9, None, None, 1.0)  # no limit, nothing to decide
+
+
+@pytest.mark.parametrize("seed", [7, 8])
+def test_a_unit_mounted_at_its_limit_reads_on_until_its_mounting_verdict_is_decided(make_station, seed):
+    """A mock unit whose sensor is turned 3.0° — the mounting limit itself: its mounting σ reaches the
+    stop's target early, but its estimate then sits within 2σ of the limit, where the verdict is the
+    coin of the next readings.  The tumble may end 'determined' only once the estimate is clear of the
+    limit by 2σ (the prediction says both); otherwise it reads to ``samples``.  A straight unit on the
+    same tumble stops determined, its predicted error far inside."""
+    from magline.core.acquisition.tumble_stop import DECISION_Z
+
+    limit = 3.0
+    turned = run_with(make_station({"products": {"MOCK-100": {"options": {"misalignment_deg": [0.0, 0.0, limit]}}}},
+                                   seed=seed))
+    last = turned.attempts[-1]
+    if last.stopped == "determined":
+        predicted = last.predicted[""]
+        assert abs(predicted["mounting_error_deg"] - limit) >= DECISION_Z * predicted["mounting_sigma_deg"], predicted
+    else:
+        assert last.stopped == "samples" and last.samples == 600, (last.stopped, last.samples)
+    straight = run_with(make_station(seed=seed))
+    ended = straight.attempts[-1]
+    assert ended.stopped == "determined" and ended.samples < 600, (ended.stopped, ended.samples)
+    predicted = ended.predicted[""]
+    assert predicted["mounting_error_deg"] <= limit - DECISION_Z * predicted["mounting_sigma_deg"]
+    assert straight.verdict is Outcome.PASS, straight.cause

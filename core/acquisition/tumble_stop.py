@@ -13,7 +13,7 @@ from magline.core.fit.running import PREDICTED, RunningFit, StopRule
 from magline.core.fit.samples_csv import RawSamples
 from magline.core.measurements import limit_for
 from magline.core.mounting import ImuSeries
-from magline.core.mounting.checks import calibrated
+from magline.core.mounting.checks import calibrated, judge_mounting
 from magline.core.mounting.estimate import MAX_SIGMA_DEG as MOUNTING_MAX_SIGMA_DEG
 from magline.core.mounting.estimate import MountingUnobservable, estimate_mounting
 from magline.core.sequencer.context import RunContext
@@ -87,6 +87,24 @@ def running_fit(run: RunContext) -> RunningFit:
 # noise alone crosses the limit in about 10⁻³ of units: a rotation's size (three axes, Maxwell tail)
 # and a signed angle (one axis, two-sided normal).
 ROTATION_Z, ONE_AXIS_Z = 4.0, 3.3
+# How many σ an error's estimate must sit from each bound of its limit, inside or out, before the tumble
+# may end.  Why: the σ targets above hold a good unit's noise inside the limit only where its error is
+# near zero; a unit whose estimate happens to sit near the limit is decided by the coin of the next
+# readings (a good PX4 unit read 2.79° ± 0.74° against 3°, another FAILed at 3.21°).  Such a unit reads
+# on — to the acquisition's ``samples`` at most — until its estimate is clear of the limit either way: a
+# good unit's error shrinks back towards zero, a bad one's stays out, and only units near the limit pay.
+DECISION_Z = 2.0
+
+
+def undecided(value: float, low: float | None, high: float | None, sigma: float) -> bool:
+    """Whether ``value`` (with its 1σ) sits within :data:`DECISION_Z` σ of a bound: its verdict could
+    still turn on the noise of the readings that follow."""
+    return any(bound is not None and abs(value - bound) < DECISION_Z * sigma for bound in (low, high))
+
+
+def _verdict_open(run: RunContext, name: str, value: float, sigma: float) -> bool:
+    limit = limit_for(name, run.limits)
+    return limit is not None and undecided(value, limit.low, limit.high, sigma)
 
 
 def _limit_over(run: RunContext, name: str, z: float) -> float:
@@ -112,9 +130,11 @@ def _mounting_sigma_target(run: RunContext, prefix: str, margin: float) -> float
 def _mounting_determined(run: RunContext, margin: float):
     """The mounting is proven from the same tumble (core/mounting): the tumble goes on until every
     sensor's mounting σ is within the margin of what the check needs (its ``mounting_sigma_deg``
-    limit, at most the estimator's own bound).  A stream without an accelerometer never will be:
+    limit, at most the estimator's own bound), and its mounting and inclination errors are clear of
+    their limits (:data:`DECISION_Z`).  A stream without an accelerometer never will be:
     then the stop does not wait, and the validate phase says the mounting cannot be proven."""
     skews: dict[str, float] = {}  # each sensor's skew found on an earlier snapshot: the next starts there
+    sensors = _sensors(run)
     dip = getattr(run.field_source, "reference_inclination_deg", lambda: None)()  # as the validate phase reads it
 
     def confirm(fits: dict[str, FitResult], snapshot: dict[str, RawSamples], imu: ImuSeries | None):
@@ -136,6 +156,15 @@ def _mounting_determined(run: RunContext, margin: float):
                 return None
             figures[prefix] = {"mounting_sigma_deg": estimate.sigma_deg,
                                "inclination_sigma_deg": estimate.inclination_sigma_deg}
+            sensor = sensors.get(prefix)
+            if sensor is not None:
+                error = figures[prefix]["mounting_error_deg"] = judge_mounting(sensor, estimate).error_deg
+                if _verdict_open(run, prefix + "mounting_error_deg", error, estimate.sigma_deg):
+                    return None
+            if dip is not None:
+                error = figures[prefix]["inclination_error_deg"] = estimate.inclination_deg - dip
+                if _verdict_open(run, prefix + "inclination_error_deg", error, estimate.inclination_sigma_deg):
+                    return None
         return figures
 
     return confirm

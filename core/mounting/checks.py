@@ -79,6 +79,37 @@ def fix_text(run: RunContext, sensor: Magnetometer, value: int) -> str:
     return "set " + ", ".join(f"{k} = {v}" for k, v in params.items())
 
 
+@dataclass(frozen=True)
+class JudgedMounting:
+    """A sensor's estimated mounting as the check reads it: the firmware orientation it is really in
+    (``found``), whether that is the configured one (``right``), and the angle left between its axes and
+    what the firmware will apply (``error_deg``, judged by ``mounting_error_deg``)."""
+
+    found: int
+    expected: int
+    right: bool
+    error_deg: float
+    mounted: NDArray  # sensor axes → body, as the unit really is
+
+
+def judge_mounting(sensor: Magnetometer, estimate: MountingEstimate) -> JudgedMounting:
+    """What the check makes of ``estimate`` for ``sensor`` — shared with the tumble's stop, which asks
+    whether that verdict is decided before the tumble may end (``core/acquisition/tumble_stop.py``)."""
+    mounted = estimate.data_to_body @ applied_rotation(sensor)
+    found, error_deg = estimate.right_angle_of(mounted)
+    configured = configured_rotation(sensor)
+    expected = sensor.orientation if sensor.rotation is None else nearest_right_angle(configured)[0]
+    right = rotation_angle_deg(orientation_matrix(found), orientation_matrix(expected)) < 1e-6
+    if sensor.rotation is not None:
+        # a custom rotation is right when it explains the mounting at least as well as the nearest right
+        # angle does: one half-way between two right angles (INAV's align_mag_yaw = 45°) had its nearest
+        # right angle decided by noise, and a unit mounted exactly as configured FAILed 1 run in 4
+        right = rotation_angle_deg(mounted, configured) <= rotation_angle_deg(mounted, orientation_matrix(found))
+        if right:  # a custom rotation held already: what it leaves
+            error_deg = rotation_angle_deg(mounted, configured)
+    return JudgedMounting(found=found, expected=expected, right=right, error_deg=error_deg, mounted=mounted)
+
+
 @hookimpl
 def magline_validate_unit(run: RunContext, fits: dict[int, FitResult]) -> list[Measurement]:
     setting = run.product.orientation
@@ -108,19 +139,12 @@ def magline_validate_unit(run: RunContext, fits: dict[int, FitResult]) -> list[M
             raise StationFault(f"the mounting of {label} cannot be proven: {exc} (a product without an "
                                "accelerometer in its stream may say orientation: skip)") from None
         applied = applied_rotation(sensor)
-        mounted = estimate.data_to_body @ applied  # sensor axes → body, as the unit really is
-        found, error_deg = estimate.right_angle_of(mounted)
-        configured = configured_rotation(sensor)
-        expected = sensor.orientation if sensor.rotation is None else nearest_right_angle(configured)[0]
-        right = rotation_angle_deg(orientation_matrix(found), orientation_matrix(expected)) < 1e-6
-        if sensor.rotation is not None:
-            # a custom rotation is right when it explains the mounting at least as well as the nearest right
-            # angle does: one half-way between two right angles (INAV's align_mag_yaw = 45°) had its nearest
-            # right angle decided by noise, and a unit mounted exactly as configured FAILed 1 run in 4
-            right = rotation_angle_deg(mounted, configured) <= rotation_angle_deg(mounted, orientation_matrix(found))
+        judged = judge_mounting(sensor, estimate)
+        found, error_deg, right, mounted = judged.found, judged.error_deg, judged.right, judged.mounted
+        expected = judged.expected
         final = orientation_matrix(found)  # the agreement is judged as the sensor will be held once right
         if right and sensor.rotation is not None:  # a custom rotation held already: what it leaves
-            final, error_deg = configured, rotation_angle_deg(mounted, configured)
+            final = configured_rotation(sensor)
         note = ""
         verdict = Verdict.PASS
         if not right:
