@@ -24,6 +24,10 @@ class SimFaults:
     reboot_fails: bool = False  # after a reboot the board never comes back
     lose_reboot_ack: bool = False  # the reboot command's ACK is lost on the way (the board reboots all the same)
     link_loss_after_s: float | None = None  # the link goes silent this long after a mag stream starts
+    # "HOLD_S:EVERY_S": every EVERY_S the board's output is held HOLD_S, then leaves at once — what a station
+    # sees of a host that reads its port late (a busy PC) or a USB bus that stalls: bytes late by up to
+    # HOLD_S, in bursts, none lost, their stamps unchanged
+    link_stalls: str = ""
     mag_missing_after_reboot: int | None = None  # device id that is not detected on the next boot
     swap_mags_after_reboot: bool = False  # the second sensor enumerates first on the next boot
     # "N:K": magnetometer N (1, 2, 3 in detection order) is mounted in firmware orientation K
@@ -102,6 +106,13 @@ class SimFaults:
                 setattr(faults, name, float(value))
         faults.__post_init__()
         return faults
+
+    def stalls(self) -> tuple[float, float] | None:
+        """(hold s, period s) of the ``link_stalls`` fault, or None."""
+        if not self.link_stalls:
+            return None
+        hold, _, every = self.link_stalls.partition(":")
+        return float(hold), float(every or 1.0)
 
     def warmup(self) -> tuple[float, float] | None:
         """(µT, time constant s) of the compasses' warm-up after boot, or None."""

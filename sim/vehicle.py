@@ -183,6 +183,8 @@ class SimulatedAutopilot(ABC):
         self.sent_at: float | None = None  # when the board last put bytes on the link (monotonic)
         self.frames_sent = 0  # frames put on the link
         self.frames_dropped = 0  # frames the ``drop_percent`` fault lost on the way
+        self._held_output: list[bytes] = []  # frames sent during a stall of the ``link_stalls`` fault
+        self.started_at = time.monotonic()  # the ``link_stalls`` fault's stalls run from here
 
     # ------------------------------------------------------------------ flavour
     @abstractmethod
@@ -334,6 +336,7 @@ class SimulatedAutopilot(ABC):
     def _go_dark(self, state: Power) -> None:
         self.power = state
         self.link_dead = False
+        self._held_output = []  # what a stall held never left the board
         self._streams.clear()
         self._parsers.clear()
         if self.link is not None:
@@ -416,6 +419,7 @@ class SimulatedAutopilot(ABC):
             for peer, data in chunks:
                 self._receive(peer, data)
             self._advance(now)
+            self._release_held(now)
 
     def _receive(self, peer: object, data: bytes) -> None:
         parser = self._parsers.get(peer)
@@ -471,9 +475,27 @@ class SimulatedAutopilot(ABC):
         if self.faults.drop_percent and self.random.random() * 100.0 < self.faults.drop_percent:
             self.frames_dropped += 1
             return
+        if self._stalled(time.monotonic()):
+            self._held_output.append(data)
+            return
         self.link.send(data)
         self.frames_sent += 1
         self.sent_at = time.monotonic()
+
+    def _stalled(self, now: float) -> bool:
+        """Within a stall of the ``link_stalls`` fault (from the board's start)."""
+        stalls = self.faults.stalls()
+        return stalls is not None and (now - self.started_at) % stalls[1] < stalls[0]
+
+    def _release_held(self, now: float) -> None:
+        """A stall over: what the board sent meanwhile leaves at once, in order."""
+        if not self._held_output or self._stalled(now) or self.link is None or self.link_dead:
+            return
+        held, self._held_output = self._held_output, []
+        for data in held:
+            self.link.send(data)
+            self.frames_sent += 1
+        self.sent_at = now
 
     def health(self) -> str:
         """The board's side of a lost link, in one line: a test that sees the station lose the link
