@@ -71,14 +71,24 @@ def sweep_levels(steps: int) -> list[float]:
 
 
 class UnitClock:
-    """The unit's stream time now, from the chunks as they arrive: its newest stamp plus the time since
-    that chunk came.  Why: a chunk gathers readings until it is full (a second at a 10 Hz compass), so
-    the readings of a step are told from the ones before it by their own stamps, not by when their chunk
-    arrived — dropping whole chunks after each change cost a second per step."""
+    """The unit's stream time now, from the chunks as they arrive.  Why its own stamps: a chunk gathers
+    readings until it is full (a second at a 10 Hz compass), so the readings of a step are told from the
+    ones before it by their own stamps, not by when their chunk arrived — dropping whole chunks after each
+    change cost a second per step.
 
-    def __init__(self) -> None:
-        self.stamp_ms: float | None = None
-        self.arrived = 0.0
+    Why the *least* delayed chunk, not the newest: what the station reads is late by however long the
+    link and the host held it — a UART's transmit queue near its baud, a host busy elsewhere — and that
+    lateness comes and goes.  Taken from the newest chunk, "now" on the unit's clock was late by as much,
+    and a step's settle began that much too early: on a loaded 38400-baud run, readings and current
+    reports from before the load's change were counted at the new level (a good unit FAILed its return
+    to zero, its current sensor "28.6 % low").  The smallest lag seen (host arrival less the newest stamp)
+    is the closest bound on the clocks' offset: the unit's time then lags the truth only by the link's
+    least delay.  (Two crystals drift apart by a few milliseconds over a sweep at most: a clock kept per
+    sweep needs no drift term.)"""
+
+    def __init__(self, now: Callable[[], float] = time.monotonic) -> None:
+        self.now = now
+        self.offset_ms: float | None = None  # host arrival less unit stamp, the smallest seen (ms)
 
     def saw(self, chunk: SampleChunk) -> None:
         stamps = [np.max(chunk.t_ms)] if len(chunk.t_ms) else []
@@ -86,13 +96,14 @@ class UnitClock:
         if chunk.imu is not None and len(chunk.imu.t_ms):
             stamps.append(np.max(chunk.imu.t_ms))
         if stamps:
-            self.stamp_ms, self.arrived = float(max(stamps)), time.monotonic()
+            offset = self.now() * 1000.0 - float(max(stamps))
+            self.offset_ms = offset if self.offset_ms is None else min(self.offset_ms, offset)
 
     def in_ms(self, seconds_from_now: float) -> float:
         """The unit's stamp ``seconds_from_now`` from now (−∞ before the first chunk: take everything)."""
-        if self.stamp_ms is None:
+        if self.offset_ms is None:
             return float("-inf")
-        return self.stamp_ms + (time.monotonic() - self.arrived + seconds_from_now) * 1000.0
+        return (self.now() + seconds_from_now) * 1000.0 - self.offset_ms
 
 
 class LevelKeeper:
