@@ -478,6 +478,7 @@ class SimulatedAutopilot(ABC):
         if self._stalled(time.monotonic()):
             self._held_output.append(data)
             return
+        self._release_held(time.monotonic())  # what a stall held leaves first: the order is kept
         self.link.send(data)
         self.frames_sent += 1
         self.sent_at = time.monotonic()
