@@ -79,6 +79,14 @@ class SimFaults:
     def __post_init__(self) -> None:
         if self.cal_applied and self.cal_applied not in self.CAL_APPLIED:
             raise ValueError(f"cal_applied must be one of {', '.join(self.CAL_APPLIED)}, not {self.cal_applied!r}")
+        if self.link_stalls:
+            try:
+                hold, every = self.stalls() or (0.0, 0.0)
+            except ValueError:
+                hold = every = -1.0
+            if not 0.0 < hold < every:
+                raise ValueError(f"link_stalls must be HOLD_S:EVERY_S with 0 < HOLD_S < EVERY_S (seconds), not "
+                                 f"{self.link_stalls!r}")
         if self.current_sensor and self.current_sensor not in self.CURRENT_SENSOR:
             raise ValueError(f"current_sensor must be one of {', '.join(self.CURRENT_SENSOR)}, "
                              f"not {self.current_sensor!r}")

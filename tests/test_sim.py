@@ -497,6 +497,12 @@ def test_magline_sim_rejects_a_bad_fault_name(tmp_path):
     assert out.returncode == 2 and "unknown fault 'melt'" in out.stderr
 
 
+@pytest.mark.parametrize("value", ["abc", "1:0.5", "0:1"])
+def test_a_stall_the_board_cannot_hold_is_refused_before_it_starts(value):
+    with pytest.raises(ValueError, match=r"link_stalls must be HOLD_S:EVERY_S with 0 < HOLD_S < EVERY_S"):
+        SimFaults.parse([f"link_stalls={value}"])
+
+
 def test_dropped_packets_fault_loses_a_share_of_the_frames(tmp_path):
     with create_sim("px4", "udp:127.0.0.1:0", workdir=tmp_path, seed=9, boot_time_s=0.2,
                     faults=SimFaults(drop_percent=40.0)) as sim:
