@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -79,8 +79,7 @@ def fix_text(run: RunContext, sensor: Magnetometer, value: int) -> str:
     return "set " + ", ".join(f"{k} = {v}" for k, v in params.items())
 
 
-@dataclass(frozen=True)
-class JudgedMounting:
+class JudgedMounting(NamedTuple):
     """A sensor's estimated mounting as the check reads it: the firmware orientation it is really in
     (``found``), whether that is the configured one (``right``), and the angle left between its axes and
     what the firmware will apply (``error_deg``, judged by ``mounting_error_deg``)."""
@@ -139,9 +138,7 @@ def magline_validate_unit(run: RunContext, fits: dict[int, FitResult]) -> list[M
             raise StationFault(f"the mounting of {label} cannot be proven: {exc} (a product without an "
                                "accelerometer in its stream may say orientation: skip)") from None
         applied = applied_rotation(sensor)
-        judged = judge_mounting(sensor, estimate)
-        found, error_deg, right, mounted = judged.found, judged.error_deg, judged.right, judged.mounted
-        expected = judged.expected
+        found, expected, right, error_deg, mounted = judge_mounting(sensor, estimate)
         final = orientation_matrix(found)  # the agreement is judged as the sensor will be held once right
         if right and sensor.rotation is not None:  # a custom rotation held already: what it leaves
             final = configured_rotation(sensor)
