@@ -15,13 +15,14 @@ import threading
 import time
 
 import numpy as np
-from scipy.spatial.transform import Rotation
+from scipy.spatial.transform import Rotation, Slerp
 
 from magline.sim.magnetometers import attitude
 from magline.sim.scpi_server import ScpiServer
 
 PATTERNS = ("TUMBLE", "GIMBAL")
 FOLLOW_S = 0.05
+STALE_S = 1.0  # a follower silent this long holds its board back no more (MotionFollower.horizon)
 
 
 class GimbalSim(ScpiServer):
@@ -76,8 +77,12 @@ class MotionFollower:
         self.address = (host, int(port))
         self._pattern: tuple[str, float, float] | None = None
         self._held = Rotation.identity()
-        # a turntable: the turn (t0, angle0, °/s, until; wall-clock times) and the cradle's tilt
+        # a turntable: the turn (t0, angle0, °/s, until; wall-clock times) and the cradle's tilt, moving from a
+        # tilt to the next over a few tenths of a second (move start, its seconds, from, to)
         self._turn: tuple[float, float, float, float, Rotation] | None = None
+        self._move: tuple[float, float, Rotation, Rotation] | None = None
+        # the monotonic time up to which the platform's motion is known: when the last answer was asked for
+        self.known_until = float("-inf")
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._wall_minus_monotonic = time.time() - time.monotonic()  # the pattern's t0 is wall-clock time
@@ -96,11 +101,27 @@ class MotionFollower:
             if self._turn is not None:
                 t0, angle0, speed, until, cradle = self._turn
                 angle = angle0 + speed * (min(wall, until) - t0) if until > t0 else angle0
+                if self._move is not None:  # the cradle where it was at that instant, not where it is now
+                    since, seconds, start, cradle = self._move
+                    span = min(max((wall - since) / seconds, 0.0), 1.0)
+                    if span < 1.0:
+                        cradle = Slerp([0.0, 1.0], Rotation.concatenate([start, cradle]))([span])[0]
                 return Rotation.from_euler("Z", angle, degrees=True) * cradle
             if self._pattern is None:
                 return self._held
             name, speed, t0 = self._pattern
         return attitude(name.lower(), wall - t0, speed)
+
+    def horizon(self, now: float) -> float:
+        """The latest instant (monotonic) whose attitude is known: what the follower had asked before its
+        last answer.  Why a board waits for it: a turn or a pattern learnt a poll late was, until then,
+        computed as the motion before it — the readings already sent held the table still while it
+        turned, then jumped by the turn's speed times the lag (a loaded machine's 0.4 s lag once made a
+        good unit's mounting 54° and its skew −150 ms).  Messages wait for the knowledge instead, so they
+        are late, never wrong.  A follower that has heard nothing for ``STALE_S`` (the fixture gone, the
+        host suspended) holds nothing back."""
+        known = self.known_until
+        return now if now - known > STALE_S else min(now, known)
 
     @property
     def speed(self) -> float:
@@ -121,9 +142,11 @@ class MotionFollower:
                     wire.flush()
                     query = "ATT?" if "TURNTABLE" in wire.readline().upper() else "PATT?"
                     while not self._stop.wait(FOLLOW_S):
+                        asked = time.monotonic()
                         wire.write(query + "\n")
                         wire.flush()
                         self._update(wire.readline().strip())
+                        self.known_until = asked
             except (OSError, ValueError) as exc:
                 self.error = f"gimbal {self.address[0]}:{self.address[1]}: {exc}"
                 self._stop.wait(0.5)
@@ -136,6 +159,9 @@ class MotionFollower:
             if parts[0] == "TURN":
                 t0, angle0, speed, until = (float(v) for v in parts[1:5])
                 self._turn = (t0, angle0, speed, until, Rotation.from_quat([float(v) for v in parts[5:9]]))
+                if len(parts) >= 15:
+                    start = Rotation.from_quat([float(v) for v in parts[11:15]])
+                    self._move = (float(parts[9]), float(parts[10]), start, self._turn[4])
             elif parts[0] == "IDLE":
                 self._pattern = None
                 self._held = Rotation.from_quat(np.array([float(v) for v in parts[1:5]]))

@@ -4,7 +4,9 @@ operator who tilts the cradle when the rig's pendant asks.
 The table turns about the vertical at its speed for the revolutions asked; the cradle on it holds the
 units at the tilt the operator set (body → table: pitch then roll, FRD).  Simulated flight controllers
 mounted on it (``magline sim px4|ardupilot|inav --turntable ADDRESS``) ask ``ATT?`` every
-``FOLLOW_S`` and compute the attitude locally, so several boards on one table see the same turn.
+``FOLLOW_S`` and compute the attitude locally, so several boards on one table see the same turn: the
+answer is the turn and the cradle's move as functions of time, and a board sends a reading only once it
+knows how the table moved at the reading's instant (``MotionFollower.horizon``).
 
 The simulated operator reads the tilt asked on the pendant (``DISP:TILT``) and sets it after a reaction
 time, moving the cradle for ``MOVE_S``; ``operator="wrong"`` first sets a wrong tilt (nose and tail
@@ -149,10 +151,12 @@ class TurntableSim(ScpiServer):
             pitch, roll = (float(v) for v in arg.split(","))
             self.asked = (pitch, roll)
             return None
-        if head == "ATT?":  # for the boards on the table: the turn's parameters, the cradle now
-            q = self.cradle(now).as_quat()
-            turn = f"{self.t0:.6f},{self.angle0:.4f},{self.direction * self.speed_dps:g},{self.until:.6f}"
-            return f"TURN,{turn}," + ",".join(f"{v:.9f}" for v in q)
+        if head == "ATT?":  # for the boards on the table: the turn's and the cradle's move's parameters
+            with self.lock:
+                turn = f"{self.t0:.6f},{self.angle0:.4f},{self.direction * self.speed_dps:g},{self.until:.6f}"
+                to, start, since = self._to.as_quat(), self._from.as_quat(), self._move_t0
+            return (f"TURN,{turn}," + ",".join(f"{v:.9f}" for v in to) + f",{since:.6f},{MOVE_S:g},"
+                    + ",".join(f"{v:.9f}" for v in start))
         raise KeyError(head)
 
     # ------------------------------------------------------------------ the simulated operator

@@ -461,8 +461,11 @@ class SimulatedAutopilot(ABC):
             self._next_heartbeat += 1.0
             self.mav.heartbeat_send(mavlink.MAV_TYPE_QUADROTOR, self.autopilot,
                                     mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 0, mavlink.MAV_STATE_STANDBY)
-        # each message computed and stamped at the instant it fell due, however late the host let us run
-        for instant, msg_id in self._streams.due(now):
+        # each message computed and stamped at the instant it fell due, however late the host let us run —
+        # and, on a shared fixture, once the board knows how the fixture moved at that instant
+        horizon = self.follower.horizon(now) if self.follower is not None and self.current_motion() == "shared" \
+            else now
+        for instant, msg_id in self._streams.due(horizon):
             message = self.stream_message(msg_id, instant)
             if message is not None:
                 self.mav.send(message)
