@@ -143,6 +143,11 @@ def test_two_demo_runs_in_two_folders_both_run_and_one_station_file_twice_is_ref
     # the held unit need not tumble at a sensor's pace once released: what it holds is the station
     held_station = station.model_copy(deep=True)
     held_station.products["MOCK-100"].options["realtime"] = False
+    # held through the other folder's whole demo run, however long: its first tumble once ran to the demo's
+    # 60 s acquisition timeout on a loaded machine, the held unit's own 60 s ran out first, and its station
+    # was free again when the test tried it
+    held_station = held_station.model_copy(update={
+        "acquisition": held_station.acquisition.model_copy(update={"timeout_s": 3600.0})})
     first = Sequencer(held_station, load_plugins(extra=[hold]), one, sleep=lambda s: None)
     worker, done = held_unit(first, "DEMO-A", hold)
     try:
