@@ -29,7 +29,10 @@ class Stall:
     reaches new directions, so at half the rule fired the moment such a motion went on to new ones
     (10 % of the PX4 simulator's tumbles at 50 Hz, their readings thrown away and the operator asked
     again).  A ring is covered in its first turn, so a spin still stalls at ``2 × min_samples``; one
-    whose wobble finds a new direction now and then stalls later than at half (``benchmarks/stall.py``)."""
+    whose wobble finds a new direction now and then stalls later than at half (``benchmarks/stall.py``).
+    Not so since the coverage stopped lighting bins about a "sphere" under 10 µT (issue 49): a ring's
+    coverage now creeps as its ill-determined centre moves, and a spin stalls at a median ~940 readings
+    (docs/station-file.md, *Stop tumbling when the calibration is determined*)."""
 
     WITHOUT_GROWTH = 2 / 3  # the share of the readings with no new direction that is a stall
 
