@@ -400,6 +400,9 @@ DutFactory = Callable[["Product", Any], DutBackend]  # (the product entry, its v
 OptionsModel = TypeVar("OptionsModel", bound=BaseModel)
 
 
+FAIR_ATTEMPT_S = 2.0  # the least a reconnect is given once the old boot answered (see await_new_boot)
+
+
 def await_new_boot(reconnect: Callable[[float], None], uptime_s: Callable[[], float | None], started: float,
                    timeout_s: float, poll_s: float = 0.3) -> tuple[float, float]:
     """After a reboot / power-on at ``started`` (monotonic), reconnect until the vehicle proves a new boot.
@@ -409,6 +412,12 @@ def await_new_boot(reconnect: Callable[[float], None], uptime_s: Callable[[], fl
     shorter than the time since the command is the new one.  ``reconnect(remaining_s)`` opens a
     fresh link or raises :class:`DutError`; ``uptime_s()`` returns the vehicle's uptime or ``None``.
     Returns (seconds from the command to the new boot's link, its uptime then).
+
+    Once the old boot has answered, every attempt gets at least ``FAIR_ATTEMPT_S`` even past the
+    deadline.  Why: a reconnect is not instant (a MAVSDK server starts, a serial port opens); the
+    attempt begun with a tenth of a second left failed on a loaded machine, and a board that ran
+    through a supply cut was reported as one that "did not come back" — its old boot unproven, the
+    cause wrong.  A board that rebooted and is still down fails a fair attempt as before.
     """
     deadline = started + timeout_s
     told = False  # did the vehicle ever say its uptime?
@@ -416,7 +425,7 @@ def await_new_boot(reconnect: Callable[[float], None], uptime_s: Callable[[], fl
     while True:
         time.sleep(poll_s)
         try:
-            reconnect(max(deadline - time.monotonic(), 0.1))
+            reconnect(max(deadline - time.monotonic(), FAIR_ATTEMPT_S if told else 0.1))
         except DutError as exc:
             raise LinkError(f"the vehicle did not come back within {timeout_s:g} s of the power cycle "
                             f"(last attempt: {exc})") from None

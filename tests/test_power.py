@@ -220,3 +220,52 @@ def test_a_third_party_power_control_plugs_in(tmp_path):
         assert record.verdict is Outcome.PASS, record.cause
         assert made[0].clicks == ["on", "off", "on"] and sim.errors == []
         assert record.persistence["method"] == "acme-relay" and record.persistence["figures"]["channel"] == 4.0
+
+
+class _SlowReconnects:
+    """A clock and a vehicle for :func:`await_new_boot`: each reconnect takes ``takes_s`` of the budget it
+    is given and fails when that budget is shorter (a MAVSDK server starting on a loaded machine), or
+    always once the board is ``down``; the board answers with ``uptime`` (its old boot: it never reset)."""
+
+    def __init__(self, takes_s: float, uptime: float, down_after: int | None = None) -> None:
+        self.now, self.takes_s, self.uptime, self.down_after = 0.0, takes_s, uptime, down_after
+        self.budgets: list[float] = []
+
+    def monotonic(self) -> float:
+        return self.now
+
+    def sleep(self, seconds: float) -> None:
+        self.now += seconds
+
+    def reconnect(self, budget_s: float) -> None:
+        from magline.core.dut import DutError
+
+        self.budgets.append(budget_s)
+        if self.down_after is not None and len(self.budgets) > self.down_after:
+            self.now += budget_s
+            raise DutError("no PX4 vehicle answered")
+        if budget_s < self.takes_s:
+            self.now += budget_s
+            raise DutError("no PX4 vehicle answered")
+        self.now += self.takes_s
+
+
+def test_a_board_that_ran_through_the_cut_is_told_so_even_when_a_reconnect_is_slow(monkeypatch):
+    """Once the old boot answered, the last attempt near the deadline gets a fair time, not a tenth of a
+    second: a USB-powered board that ran through a supply cut was once reported as one that "did not come
+    back" (a CI run on a loaded machine), which hid why.  A board that really rebooted and stays down
+    still fails a fair attempt: no answer is not an old boot."""
+    from magline.core import dut
+    from magline.core.dut import FAIR_ATTEMPT_S, LinkError, OldBootRunning, await_new_boot
+
+    board = _SlowReconnects(takes_s=1.2, uptime=100.0)
+    monkeypatch.setattr(dut, "time", board)
+    with pytest.raises(OldBootRunning) as ran_through:
+        await_new_boot(board.reconnect, lambda: board.uptime, 0.0, 3.0)
+    assert ran_through.value.uptime_s == 100.0
+    assert min(board.budgets) >= board.takes_s and board.budgets[-1] == FAIR_ATTEMPT_S  # every attempt fair
+
+    rebooted = _SlowReconnects(takes_s=1.2, uptime=100.0, down_after=1)  # the old boot answered, then went down
+    monkeypatch.setattr(dut, "time", rebooted)
+    with pytest.raises(LinkError, match=r"did not come back within 3 s of the power cycle"):
+        await_new_boot(rebooted.reconnect, lambda: rebooted.uptime, 0.0, 3.0)
