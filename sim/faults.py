@@ -9,6 +9,7 @@ offsets that settle while the board warms after power-on.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, fields
+from functools import lru_cache
 
 
 @dataclass
@@ -116,11 +117,8 @@ class SimFaults:
         return faults
 
     def stalls(self) -> tuple[float, float] | None:
-        """(hold s, period s) of the ``link_stalls`` fault, or None."""
-        if not self.link_stalls:
-            return None
-        hold, _, every = self.link_stalls.partition(":")
-        return float(hold), float(every or 1.0)
+        """(hold s, period s) of the ``link_stalls`` fault, or None (asked at every frame a board sends)."""
+        return _hold_and_period(self.link_stalls) if self.link_stalls else None
 
     def warmup(self) -> tuple[float, float] | None:
         """(µT, time constant s) of the compasses' warm-up after boot, or None."""
@@ -150,3 +148,9 @@ class SimFaults:
 
     def ignores(self, name: str) -> bool:
         return "*" in self.ignore_param_set or name in self.ignore_param_set
+
+
+@lru_cache(maxsize=8)
+def _hold_and_period(text: str) -> tuple[float, float]:
+    hold, _, every = text.partition(":")
+    return float(hold), float(every or 1.0)

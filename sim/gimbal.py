@@ -15,10 +15,11 @@ import threading
 import time
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
+from scipy.spatial.transform import Rotation
 
 from magline.sim.magnetometers import attitude
 from magline.sim.scpi_server import ScpiServer
+from magline.sim.turntable import cradle_moving
 
 PATTERNS = ("TUMBLE", "GIMBAL")
 FOLLOW_S = 0.05
@@ -103,9 +104,7 @@ class MotionFollower:
                 angle = angle0 + speed * (min(wall, until) - t0) if until > t0 else angle0
                 if self._move is not None:  # the cradle where it was at that instant, not where it is now
                     since, seconds, start, cradle = self._move
-                    span = min(max((wall - since) / seconds, 0.0), 1.0)
-                    if span < 1.0:
-                        cradle = Slerp([0.0, 1.0], Rotation.concatenate([start, cradle]))([span])[0]
+                    cradle = cradle_moving(start, cradle, since, seconds, wall)
                 return Rotation.from_euler("Z", angle, degrees=True) * cradle
             if self._pattern is None:
                 return self._held

@@ -22,7 +22,6 @@ import re
 import threading
 import time
 
-import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from magline.sim.scpi_server import ScpiServer
@@ -36,6 +35,15 @@ HOME_S = 0.3  # the stage's homing run
 def cradle_rotation(pitch_deg: float, roll_deg: float) -> Rotation:
     """Body → table for a cradle tilt (the same convention the station asks in)."""
     return Rotation.from_euler("ZYX", [0.0, pitch_deg, roll_deg], degrees=True)
+
+
+def cradle_moving(start: Rotation, to: Rotation, since: float, seconds: float, wall: float) -> Rotation:
+    """The cradle at ``wall`` while the operator moves it from ``start`` to ``to`` over ``seconds`` from
+    ``since``: the table's own state and what a board in the cradle computes from ``ATT?`` alike."""
+    span = (wall - since) / seconds
+    if span >= 1.0:
+        return to
+    return Slerp([0.0, 1.0], Rotation.concatenate([start, to]))([max(span, 0.0)])[0]
 
 
 class TurntableSim(ScpiServer):
@@ -84,11 +92,7 @@ class TurntableSim(ScpiServer):
 
     def cradle(self, wall: float) -> Rotation:
         with self.lock:
-            span = (wall - self._move_t0) / MOVE_S
-            if span >= 1.0:
-                return self._to
-            both = Rotation.from_quat(np.vstack([self._from.as_quat(), self._to.as_quat()]))
-            return Slerp([0.0, 1.0], both)([max(span, 0.0)])[0]
+            return cradle_moving(self._from, self._to, self._move_t0, MOVE_S, wall)
 
     def attitude(self, wall: float | None = None) -> Rotation:
         """The units' attitude (body → NED): the table's turn, then the cradle's tilt."""

@@ -478,13 +478,14 @@ class SimulatedAutopilot(ABC):
         if self.faults.drop_percent and self.random.random() * 100.0 < self.faults.drop_percent:
             self.frames_dropped += 1
             return
-        if self._stalled(time.monotonic()):
+        now = time.monotonic()
+        if self._stalled(now):
             self._held_output.append(data)
             return
-        self._release_held(time.monotonic())  # what a stall held leaves first: the order is kept
+        self._release_held(now)  # what a stall held leaves first: the order is kept
         self.link.send(data)
         self.frames_sent += 1
-        self.sent_at = time.monotonic()
+        self.sent_at = now
 
     def _stalled(self, now: float) -> bool:
         """Within a stall of the ``link_stalls`` fault (from the board's start)."""
