@@ -27,6 +27,7 @@ import yaml
 from timed_unit import timed_unit
 
 from magline.core.record import Outcome
+from magline.plugin import INAV_TO_FRD
 from magline.sim import create_sim
 from magline.sim.inav import inav_compass
 from magline.sim.magnetometers import SimMagnetometer
@@ -86,10 +87,13 @@ def accuracy(units: int, seed: int, cross: bool, samples: int | None) -> None:
         field = float(record.calibration["field_ut"])
         fitted = np.asarray(record.calibration["hard_iron_ut"], float)
         sigma = np.asarray(record.calibration["hard_iron_sigma_ut"], float)
-        rounding += [abs(stored[f"magzero_{a}"] - counts * h) for a, h in zip("xyz", fitted, strict=True)]
+        # magline's fit is in forward-right-down axes, INAV's magzero in its forward-left-up sensor axes
+        in_inav = np.array(INAV_TO_FRD, float)
+        rounding += [abs(stored[f"magzero_{a}"] - counts * h) for a, h in zip("xyz", in_inav @ fitted, strict=True)]
         z_scores += list(np.abs(fitted - truth.hard_iron_ut) / sigma)
         sigma_counts += list(sigma * counts)
-        offsets += [abs(stored[f"magzero_{a}"] - counts * h) for a, h in zip("xyz", truth.hard_iron_ut, strict=True)]
+        offsets += [abs(stored[f"magzero_{a}"] - counts * h)
+                    for a, h in zip("xyz", in_inav @ truth.hard_iron_ut, strict=True)]
         gains += [abs(stored[f"maggain_{a}"] / (counts * field / s) - 1) * 100
                   for a, s in zip("xyz", np.diag(truth.soft_iron), strict=True)]
     if offsets:

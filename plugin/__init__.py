@@ -32,7 +32,8 @@ What is here, by role:
   :class:`Msp`, a setting's description :class:`SettingInfo` (:func:`parse_setting_info`,
   :func:`encode_setting_info`), :data:`INAV_ARMED_FLAG` and INAV's sensor alignments
   (:data:`INAV_ALIGNMENTS`, :data:`INAV_ALIGNMENT_NAMES`, :data:`INAV_COMPASS_DEFAULT_ALIGNMENT`,
-  an external compass's :func:`inav_external_rotation` and :func:`inav_external_angles`),
+  an external compass's :func:`inav_external_rotation` and :func:`inav_external_angles`; INAV's axes,
+  forward-left-up, against magline's: :data:`INAV_TO_FRD`, :func:`inav_rotation_in_frd`),
   a board on a serial port: :class:`SerialAddress`, :class:`SerialPortWatch` (present, permitted, not held,
   the same board after its reboot), :class:`UsbIdentity`, :func:`list_ports`, :data:`SERIAL_HINT`,
   :func:`mavlink2_frame_bytes` (a stream's bytes against what a UART carries);
@@ -97,6 +98,7 @@ from magline.core.links.msp import (
     INAV_ALIGNMENTS,
     INAV_ARMED_FLAG,
     INAV_COMPASS_DEFAULT_ALIGNMENT,
+    INAV_TO_FRD,
     Msp,
     MspClient,
     MspFrame,
@@ -110,6 +112,7 @@ from magline.core.links.msp import (
     encode_setting_info,
     inav_external_angles,
     inav_external_rotation,
+    inav_rotation_in_frd,
     parse_setting_info,
 )
 from magline.core.links.readings import INT16_MG_RANGE_UT, RepeatFilter, SensorStreams, untruncate_mg
@@ -152,6 +155,7 @@ __all__ = [
     "INAV_ALIGNMENT_NAMES",
     "INAV_ARMED_FLAG",
     "INAV_COMPASS_DEFAULT_ALIGNMENT",
+    "INAV_TO_FRD",
     "INT16_MG_RANGE_UT",
     "SERIAL_HINT",
     "SLICE_S",
@@ -247,6 +251,7 @@ __all__ = [
     "hookimpl",
     "inav_external_angles",
     "inav_external_rotation",
+    "inav_rotation_in_frd",
     "list_ports",
     "mavlink2_frame_bytes",
     "orientation_matrix",

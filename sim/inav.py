@@ -6,7 +6,8 @@ What it reproduces, because each is a trap for a station that calibrates over MS
   ``(raw − magzero)·1024/maggain`` in the sensor's counts (C integer division, truncating), then turned by
   ``align_mag`` — which the compass takes at boot only, DEFAULT meaning CW270FLIP — or, when any of
   ``align_mag_roll/pitch/yaw`` is set, by those angles instead (an external compass), and sent as int16;
-  the accelerometer beside it in g·512 (+512 on Z when level);
+  the accelerometer beside it in g·512 (+512 on Z when level); both in INAV's body axes, forward-left-up
+  (``INAV_TO_FRD``: the engine's body and sensors are forward-right-down, INAV's y and z point the other way);
 - settings by name with their own types and ranges (``MSP2_COMMON_SETTING_INFO``); a value is read in
   its setting's width, so one sent wider is stored truncated; out of range: an error reply;
 - a written setting is used from the compass's next update, unsaved; ``MSP_EEPROM_WRITE`` saves all
@@ -17,7 +18,8 @@ What it reproduces, because each is a trap for a station that calibrates over MS
   uptime in ``MSP2_INAV_MISC2``; the arming flags in ``MSP2_INAV_STATUS``.
 
 Its one compass is a QMC5883L read at ±8 G (3000 counts per gauss, INAV's driver's range), mounted as
-INAV's DEFAULT expects (CW270FLIP), updated at 10 Hz (INAV's compass task) unless ``mag_rate_hz`` says.
+INAV's DEFAULT expects (CW270FLIP: Roll180Yaw90 in forward-right-down terms), updated at 10 Hz (INAV's
+compass task) unless ``mag_rate_hz`` says.
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ from magline.core.links.msp import (
     INAV_ALIGNMENTS,
     INAV_ARMED_FLAG,
     INAV_COMPASS_DEFAULT_ALIGNMENT,
+    INAV_TO_FRD,
     REPLY,
     REQUEST,
     SETTING_FORMATS,
@@ -54,7 +57,8 @@ from magline.sim.vehicle import Power, SimulatedAutopilot
 
 INAV_UINT8, INAV_INT16 = 0, 3  # INAV's setting types (fc/settings.h)
 COUNTS_PER_GAUSS = 3000.0  # QMC5883L at ±8 G
-MAV_CW270FLIP = 14  # the MAV_SENSOR_ORIENTATION of INAV's CW270FLIP (Roll180Yaw270): how the sim's compass sits
+MAV_CW270FLIP = 10  # INAV's CW270FLIP as a MAV_SENSOR_ORIENTATION (Roll180Yaw90): how the compass sits
+FLIP = np.array(INAV_TO_FRD, float)  # the engine's axes (forward-right-down) to INAV's (forward-left-up) and back
 COMPASS_NOT_CALIBRATED = 1 << 12  # ARMING_DISABLED_COMPASS_NOT_CALIBRATED (fc/runtime_config.h)
 NEW_TUMBLE_GAP_S = 1.0  # RAW_IMU unasked this long: the operator picks the unit up for another tumble
 
@@ -182,8 +186,8 @@ class InavSim(SimulatedAutopilot):
 
     # ------------------------------------------------------------------ the compass
     def raw_counts(self, reading_ut: NDArray) -> NDArray:
-        """The driver's int16 counts for a reading in the sensor's axes (µT)."""
-        return np.clip(np.round(np.asarray(reading_ut) * self.counts_per_ut), -32768, 32767).astype(int)
+        """The driver's int16 counts, in INAV's sensor axes, for a reading in the engine's (µT)."""
+        return np.clip(np.round(FLIP @ np.asarray(reading_ut) * self.counts_per_ut), -32768, 32767).astype(int)
 
     def magnetometer_out(self, raw: NDArray) -> NDArray:
         """``compassUpdate``: the calibration per axis in the sensor's axes, then the alignment, as int16."""
@@ -294,7 +298,7 @@ class InavSim(SimulatedAutopilot):
             self._motion_index += 1  # the station starts polling again: the operator starts (another) tumble
             self._mag_stream_started = now
         self._last_imu_request = now
-        accel_g = -self.accel_mg(now) / 1000.0  # INAV's accelerometer reads +1 g on Z when level
+        accel_g = FLIP @ self.accel_mg(now) / 1000.0  # the specific force, forward-left-up: +1 g on Z when level
         acc = [int16(round(v * 512)) for v in accel_g]
         mag = [0, 0, 0]
         if self.detected:

@@ -16,7 +16,7 @@ from magline.core.links.msp import Msp, MspClient, SettingInfo, encode_setting_i
 from magline.core.plugins import load_plugins
 from magline.core.record import Outcome
 from magline.core.station import load_station
-from magline.plugin import orientation_matrix
+from magline.plugin import INAV_TO_FRD, inav_rotation_in_frd
 from magline.plugins.inav.calibration import alignment_for, fit_to_settings, mav_orientation
 from magline.sim import SimFaults, create_sim
 from magline.sim.inav import COUNTS_PER_GAUSS, SETTINGS
@@ -102,6 +102,35 @@ def test_the_simulator_is_true_to_inav_over_msp(tmp_path):
         client.close()
 
 
+def test_the_simulator_speaks_in_inav_s_body_axes_forward_left_up(tmp_path):
+    """INAV's body is forward-left-up (``flight/imu.c``; its accelerometer reads +1 g on Z at rest, the compass
+    in the same axes): level and facing north under a field that dips down, the accelerometer's Z and the
+    compass's Z have opposite signs; nose east, north lies to the left (+Y); nose up 30°, the specific force
+    along X is +g/2.  A board in forward-right-down axes reads the field's Z the sign of the accelerometer's."""
+    from scipy.spatial.transform import Rotation
+
+    clean = SimMagnetometer(device_id=1, hard_iron_ut=np.zeros(3), soft_iron=np.eye(3), noise_ut=0.0)
+    with board(tmp_path, magnetometers=[clean]) as sim:
+        client = MspClient.connect(sim.address)
+
+        def raw_imu(attitude: Rotation) -> tuple[np.ndarray, np.ndarray]:
+            sim.attitude_at = lambda now: attitude  # the unit held still in that attitude (body → NED)
+            sim._held.clear()  # the compass's next reading is of this attitude
+            values = np.array(struct.unpack("<9h", client.request(Msp.RAW_IMU)), float)
+            return values[0:3] / 512.0, values[6:9] / COUNTS_PER_UT
+
+        north, _, down = sim.field_ned
+        assert north > 0 and down > 0  # the simulated site's field dips down
+        accel_g, field = raw_imu(Rotation.identity())
+        assert accel_g == pytest.approx([0, 0, 1], abs=0.01)
+        assert field == pytest.approx([north, 0, -down], abs=0.5)
+        _, field = raw_imu(Rotation.from_euler("z", 90, degrees=True))  # nose east
+        assert field == pytest.approx([0, north, -down], abs=0.5)
+        accel_g, _ = raw_imu(Rotation.from_euler("y", 30, degrees=True))  # nose up
+        assert accel_g == pytest.approx([0.5, 0, np.cos(np.radians(30))], abs=0.01)
+        client.close()
+
+
 def reconnect(sim, timeout_s: float = 5.0) -> MspClient:
     import time
 
@@ -148,11 +177,16 @@ def test_a_whole_inav_unit_is_calibrated_saved_rebooted_and_proven(tmp_path):
     assert record.params_read_back == record.params_written
     sigma = np.asarray(record.calibration["hard_iron_sigma_ut"], float)
     zero = np.array([values[f"magzero_{a}"] for a in "xyz"])
-    assert np.all(np.abs(zero - truth.hard_iron_ut * COUNTS_PER_UT) <= 4 * sigma * COUNTS_PER_UT + 1)
+    true_zero = np.array(INAV_TO_FRD, float) @ truth.hard_iron_ut * COUNTS_PER_UT  # in INAV's sensor axes
+    assert np.all(np.abs(zero - true_zero) <= 4 * sigma * COUNTS_PER_UT + 1)
     gains = np.array([values[f"maggain_{a}"] for a in "xyz"])
     true_gains = COUNTS_PER_UT * record.calibration["field_ut"] / np.diag(truth.soft_iron)
     assert np.all(np.abs(gains / true_gains - 1) < 0.01)
     assert measured(record, "field_error_pct") == pytest.approx(0.0, abs=5.0)
+    # the compass and the accelerometer in one body frame: the field dips as the reference says (it read
+    # −126° off when the accelerometer was taken upside down) and the mounting is the one INAV holds
+    assert abs(measured(record, "inclination_error_deg")) < 2.0
+    assert measured(record, "mounting_error_deg") < 3.0
 
 
 def test_an_armed_unit_is_an_error_that_says_to_disarm_and_nothing_is_written(tmp_path):
@@ -196,9 +230,11 @@ def test_a_unit_that_fails_validation_gets_its_previous_calibration_back_in_ram_
 
 
 def test_a_compass_mounted_otherwise_is_named_in_inav_s_terms_and_fixed_with_align_mag(tmp_path):
-    cw90flip = mav_orientation(np.array([[0, 1, 0], [1, 0, 0], [0, 0, -1]], float))
-    assert alignment_for(cw90flip) == 6
-    assert np.allclose(orientation_matrix(cw90flip), [[0, 1, 0], [1, 0, 0], [0, 0, -1]])
+    """INAV's CW90FLIP turns (x, y, z) into (y, x, −z) in its forward-left-up axes: in magline's
+    forward-right-down ones that is Roll180Yaw270 (14), the mounting the simulated compass is given."""
+    cw90flip = mav_orientation(inav_rotation_in_frd([[0, 1, 0], [1, 0, 0], [0, 0, -1]]))
+    assert cw90flip == 14 and alignment_for(cw90flip) == 6
+    assert alignment_for(2) == 2  # a compass turned 90° clockwise seen from above: Yaw90, INAV's CW90
     with board(tmp_path, SimFaults(mag_mounting=[f"1:{cw90flip}"])) as sim:
         record = run_unit(station(tmp_path, sim.address))
     assert record.verdict is Outcome.FAIL and "set align_mag = 6" in record.cause
@@ -250,7 +286,8 @@ def test_inav_s_settings_are_written_in_their_own_widths_from_a_fit():
     raw = (np.linalg.inv(soft) @ v.T).T + np.array([30.0, -12.0, 5.0])
     fit = fit_calibration(raw, FitOptions(field_ut=48.0, model="diagonal", coverage_bins=40))
     settings = fit_to_settings(fit, COUNTS_PER_UT)
-    assert settings["magzero_x"] == 900 and settings["magzero_y"] == -360 and settings["magzero_z"] == 150
+    # the fit's axes are forward-right-down, INAV's sensor axes forward-left-up: y and z change sign
+    assert settings["magzero_x"] == 900 and settings["magzero_y"] == 360 and settings["magzero_z"] == -150
     assert settings["maggain_x"] == round(COUNTS_PER_UT * 48.0 / 1.02)
     assert all(isinstance(v, int) for v in settings.values())
     assert {s.name for s in SETTINGS} >= set(settings)
@@ -319,7 +356,8 @@ def test_an_external_compass_turned_by_its_angles_is_checked_and_fixed_in_those_
         sim = board(folder)
         sim.workdir.mkdir(parents=True, exist_ok=True)
         sim.write_storage({"align_mag_yaw": 450})
-        sim.magnetometers[0].rotation = Rotation.from_matrix(inav_external_rotation(0, 0, turned_dd))
+        turned = inav_rotation_in_frd(inav_external_rotation(0, 0, turned_dd))  # the engine's axes are FRD
+        sim.magnetometers[0].rotation = Rotation.from_matrix(turned)
         return sim
 
     with mast(tmp_path, 450) as sim:

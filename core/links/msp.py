@@ -75,6 +75,25 @@ INAV_ALIGNMENTS: dict[int, tuple[tuple[int, int, int], ...]] = {
 }
 INAV_COMPASS_DEFAULT_ALIGNMENT = 8  # what DEFAULT means for the compass
 
+# INAV's axes against magline's (``v_frd = INAV_TO_FRD · v_inav``).  INAV's body is forward-left-up:
+# its attitude turns the body into north-west-up (``flight/imu.c``: ``imuTransformVectorBodyToEarth``
+# rotates, then flips y to reach north-east-up), its accelerometer reads +1 g on Z at rest (the specific
+# force, up: SITL's fake accelerometer takes X-Plane's normal load, +1 level), and its compass reaches
+# ``MSP_RAW_IMU`` in the same axes.  Its sensor alignments turn sensor axes of the same kind.  magline's body
+# is forward-right-down, as PX4's and ArduPilot's: one flips y and z, a rotation ``R`` of INAV's is
+# ``F·R·F`` in magline's (:func:`inav_rotation_in_frd`: CWn is Yaw n).
+INAV_TO_FRD: tuple[tuple[int, int, int], ...] = ((1, 0, 0), (0, -1, 0), (0, 0, -1))
+
+
+def inav_rotation_in_frd(rotation):
+    """A rotation between INAV's axes (forward-left-up kind) as the same turn between magline's
+    (forward-right-down kind): ``F·R·F`` with ``F`` = :data:`INAV_TO_FRD` (its own inverse, so the same
+    call turns one of magline's back into INAV's)."""
+    import numpy as np
+
+    flip = np.array(INAV_TO_FRD, float)
+    return flip @ np.asarray(rotation, float) @ flip
+
 
 def inav_external_rotation(roll_dd: float, pitch_dd: float, yaw_dd: float):
     """``v_body = R·v_sensor`` for an external compass's ``align_mag_roll/pitch/yaw`` (0.1°): INAV's

@@ -1,11 +1,14 @@
 """INAV's compass calibration in its own terms (``docs/firmware.md``, *INAV*).
 
 INAV applies, per axis in the sensor's axes, ``out = (raw − magzero)·1024 / maggain`` (counts), then turns
-the result by its alignment.  Its own calibration makes the field 1024 counts long (each gain the largest
-deviation from the offset on its axis), the size its attitude estimator weights the compass by.  magline's
-fit puts ``S·(m − h)`` on a sphere of ``B`` µT with ``S`` diagonal (INAV holds no off-diagonal term), so
-with ``c`` counts per µT: ``magzero = c·h``, ``maggain = c·B / S_ii``, and INAV's output is
-``1024·S·(m − h) / B`` — back in µT as ``out · B / 1024``.
+the result by its alignment into its body axes, forward-left-up.  magline fits in forward-right-down axes
+of the same sensor (INAV's flipped in y and z, :data:`INAV_TO_FRD` = ``F``), so its offset ``h`` is
+INAV's with y and z negated and its diagonal soft iron is INAV's own.  INAV's own calibration makes the
+field 1024 counts long (each gain the largest deviation from the offset on its axis), the size its attitude
+estimator weights the compass by.  magline's fit puts ``S·(m − h)`` on a sphere of ``B`` µT with ``S``
+diagonal (INAV holds no off-diagonal term), so with ``c`` counts per µT: ``magzero = c·F·h``,
+``maggain = c·B / S_ii``, and INAV's output is ``1024·F·S·(m − h) / B`` — back in µT, in magline's
+body axes, as ``F·out · B / 1024``.
 """
 
 from __future__ import annotations
@@ -17,8 +20,10 @@ from magline.plugin import (
     INAV_ALIGNMENT_NAMES,
     INAV_ALIGNMENTS,
     INAV_COMPASS_DEFAULT_ALIGNMENT,
+    INAV_TO_FRD,
     DutError,
     FitResult,
+    inav_rotation_in_frd,
     orientation_matrix,
 )
 
@@ -28,6 +33,7 @@ UNITY_GAIN = 1024  # the gain of an uncalibrated axis, and the length INAV's cal
 NEUTRAL: dict[str, int] = {**dict.fromkeys(OFFSETS, 0), **dict.fromkeys(GAINS, UNITY_GAIN)}
 INT16 = (-32768, 32767)
 MAX_ORIENTATION = 101  # MAV_SENSOR_ORIENTATION values are below this
+FLIP = np.array(INAV_TO_FRD, float)  # INAV's axes to magline's and back (its own inverse)
 
 
 def fit_to_settings(fit: FitResult, counts_per_ut: float) -> dict[str, int]:
@@ -40,7 +46,7 @@ def fit_to_settings(fit: FitResult, counts_per_ut: float) -> dict[str, int]:
     diag = np.diag(s)
     if np.any(diag <= 0):
         raise DutError(f"the fit's soft iron has a non-positive diagonal {diag.round(4).tolist()}: no INAV gain is it")
-    zero = np.round(np.asarray(fit.hard_iron_ut, float) * counts_per_ut).astype(int)
+    zero = np.round(FLIP @ np.asarray(fit.hard_iron_ut, float) * counts_per_ut).astype(int)
     gain = np.round(counts_per_ut * float(fit.field_ut) / diag).astype(int)
     settings = dict(zip(OFFSETS, map(int, zero), strict=True)) | dict(zip(GAINS, map(int, gain), strict=True))
     wide = {k: v for k, v in settings.items() if not INT16[0] <= v <= INT16[1] or (k in GAINS and v == 0)}
@@ -51,13 +57,15 @@ def fit_to_settings(fit: FitResult, counts_per_ut: float) -> dict[str, int]:
 
 
 def output_to_ut(counts: NDArray, field_ut: float) -> NDArray:
-    """INAV's calibrated output (counts, radius 1024 in the field it was calibrated in) in µT."""
-    return np.asarray(counts, float) * field_ut / UNITY_GAIN
+    """INAV's calibrated output (counts in its body axes, radius 1024 in the field it was calibrated in) in
+    µT, in magline's body axes (forward-right-down)."""
+    return (np.asarray(counts, float) @ FLIP) * field_ut / UNITY_GAIN
 
 
 def alignment_matrix(value: int) -> NDArray:
-    """``v_body = R·v_sensor`` for an ``align_mag`` value (DEFAULT is CW270FLIP for the compass)."""
-    return np.array(INAV_ALIGNMENTS[int(value) or INAV_COMPASS_DEFAULT_ALIGNMENT], float)
+    """``v_body = R·v_sensor`` for an ``align_mag`` value (DEFAULT is CW270FLIP for the compass), in
+    magline's axes: INAV's turn, :func:`inav_rotation_in_frd` (CW90 is Yaw90)."""
+    return inav_rotation_in_frd(INAV_ALIGNMENTS[int(value) or INAV_COMPASS_DEFAULT_ALIGNMENT])
 
 
 def alignment_name(value: int) -> str:
@@ -83,4 +91,4 @@ def mav_orientation(matrix: NDArray) -> int:
 def alignment_for(orientation: int) -> int | None:
     """The ``align_mag`` value that holds MAV orientation ``orientation``; None when none of INAV's eight does."""
     wanted = orientation_matrix(orientation)
-    return next((v for v, m in INAV_ALIGNMENTS.items() if np.allclose(np.array(m, float), wanted)), None)
+    return next((v for v in INAV_ALIGNMENTS if np.allclose(alignment_matrix(v), wanted)), None)

@@ -22,9 +22,11 @@ from magline.plugin import (
     await_new_boot,
     inav_external_angles,
     inav_external_rotation,
+    inav_rotation_in_frd,
     orientation_matrix,
 )
 from magline.plugins.inav.calibration import (
+    FLIP,
     GAINS,
     NEUTRAL,
     OFFSETS,
@@ -93,7 +95,8 @@ class InavDut:
         self.alignment = int(self.link.read("align_mag"))
         self.angles = tuple(int(self.link.read(n)) for n in EXTERNAL_ANGLES) if self.has_external else (0, 0, 0)
         self.external = any(self.angles)
-        self.to_body = inav_external_rotation(*self.angles) if self.external else alignment_matrix(self.alignment)
+        self.to_body = (inav_rotation_in_frd(inav_external_rotation(*self.angles)) if self.external
+                        else alignment_matrix(self.alignment))
 
     def _magnetometer(self) -> Magnetometer:
         """The readings are turned back into the sensor's axes here; INAV turns them into the body by
@@ -141,8 +144,9 @@ class InavDut:
 
     # ------------------------------------------------------------------ readings
     def _sensor_ut(self, counts: np.ndarray) -> np.ndarray:
-        """INAV's aligned counts back into the sensor's axes, in µT (under the neutral calibration)."""
-        return (self.to_body.T @ counts) / self.counts_per_ut
+        """INAV's aligned counts (its body axes) into magline's body axes, back into the sensor's by the
+        alignment, in µT (under the neutral calibration)."""
+        return (self.to_body.T @ (FLIP @ counts)) / self.counts_per_ut
 
     def samples(self, rate_hz: float) -> Iterator[SampleChunk]:
         """``MSP_RAW_IMU`` polled at ``rate_hz``: a compass reading is passed once (INAV updates it at
@@ -188,7 +192,7 @@ class InavDut:
         external compass its three angles (all zero would hand it back to align_mag: CW0 then), else
         ``align_mag`` when one of its eight holds it."""
         if self.external:
-            roll, pitch, yaw = inav_external_angles(orientation_matrix(value))
+            roll, pitch, yaw = inav_external_angles(inav_rotation_in_frd(orientation_matrix(value)))
             if not (roll or pitch or yaw):
                 return {"align_mag": 1, **dict.fromkeys(EXTERNAL_ANGLES, 0)}
             return dict(zip(EXTERNAL_ANGLES, (roll, pitch, yaw), strict=True))

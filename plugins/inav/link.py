@@ -12,6 +12,7 @@ from numpy.typing import NDArray
 
 from magline.plugin import (
     INAV_ARMED_FLAG,
+    INAV_TO_FRD,
     DutError,
     LinkError,
     Msp,
@@ -45,8 +46,9 @@ class Identity:
 
 @dataclass(frozen=True)
 class ImuReading:
-    """One ``MSP_RAW_IMU``: INAV's accelerometer (m/s², specific force, body axes forward-right-down) and
-    its compass output (counts, calibrated and aligned as the firmware holds it now)."""
+    """One ``MSP_RAW_IMU``: INAV's accelerometer (m/s², specific force, in magline's body axes
+    forward-right-down) and its compass output (counts, calibrated and aligned as the firmware holds it now,
+    in INAV's own body axes forward-left-up)."""
 
     accel_mss: NDArray
     mag_counts: NDArray
@@ -166,7 +168,7 @@ class InavLink:
     # ------------------------------------------------------------------ readings
     def imu(self) -> ImuReading:
         values = struct.unpack("<9h", self.request(Msp.RAW_IMU)[:18])
-        # INAV's accelerometer reads +1 g on Z when level (the gravity vector, body forward-right-down):
-        # the specific force magline's mounting check speaks is its opposite
-        accel = -np.array(values[0:3], float) / ACC_PER_G * GRAVITY_MSS
+        # INAV's accelerometer is the specific force in its body axes, forward-left-up (+1 g on Z at rest):
+        # the same force in magline's forward-right-down axes has y and z the other way
+        accel = np.array(INAV_TO_FRD, float) @ np.array(values[0:3], float) / ACC_PER_G * GRAVITY_MSS
         return ImuReading(accel, np.array(values[6:9], float))
