@@ -8,7 +8,7 @@ the package list is computed so a new sub-package cannot be forgotten.
 from setuptools import find_packages, setup
 
 ROOTS = {"core": "magline.core", "plugin": "magline.plugin", "plugins": "magline.plugins", "sim": "magline.sim",
-         "stations": "magline.stations", "testing": "magline.testing"}
+         "sitl": "magline.sitl", "stations": "magline.stations", "testing": "magline.testing"}
 
 packages = []
 package_dir = {}

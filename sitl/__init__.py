@@ -1,0 +1,7 @@
+"""Drivers that turn a firmware's own SITL build through a motion and a distortion whose truth is known.
+
+magline's simulators (``magline.sim``) reproduce what each firmware does as far as it was read and seen;
+these drivers feed the real firmware instead, so that a station run against it can be held to a truth:
+INAV through its X-Plane-protocol peer (:mod:`magline.sitl.inav_xplane`).  Nothing here builds a
+firmware: a SITL binary is the user's, built from the firmware's own instructions.
+"""

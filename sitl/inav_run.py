@@ -1,0 +1,210 @@
+"""A good INAV unit, and one whose compass is turned, through the real ``magline run`` on INAV's own SITL.
+
+The firmware is fed by :mod:`magline.sitl.inav_xplane` (a compass of known distortion, tumbled); the
+station is the shipped ``stations/inav-sim.yaml`` pointed at the SITL (its fake compass reads 1024 counts
+per gauss).  After the run the SITL is killed (a hard power cut) and started again on the same storage,
+and its settings are read over MSP and held to the truth.  INAV's SITL listens on every interface, so the
+whole run happens in a private network namespace (``unshare -n``, entered by re-executing itself).
+
+    python -m magline.sitl.inav_run --sitl PATH/TO/SITL.elf [--workdir DIR] [--seed 1] [--turned 2] [--json OUT]
+
+Prints one line per check (figure against tolerance) and exits 0 when every one holds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import yaml
+
+from magline.core.links.msp import Msp, MspClient, parse_setting_info
+from magline.sitl.inav_xplane import COUNTS_PER_GAUSS, InavTruth, XPlanePeer
+
+PRIVATE = "MAGLINE_SITL_NETNS"  # set in the namespace the run re-executes itself in
+MSP_ADDRESS = "tcp:127.0.0.1:5760"  # SITL's UART1
+ZERO_TOLERANCE_COUNTS = 1  # INAV rounds to whole counts (0.98 mG each): the truth's own rounding
+GAIN_TOLERANCE_COUNTS = 1
+
+
+@dataclass
+class Check:
+    name: str
+    figure: str
+    tolerance: str
+    holds: bool
+
+    def line(self) -> str:
+        return f"{'ok  ' if self.holds else 'FAIL'} {self.name:<34} {self.figure:<28} {self.tolerance}"
+
+
+def _msp(timeout_s: float = 20.0) -> MspClient:
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            client = MspClient.connect(MSP_ADDRESS, connect_timeout_s=1.0)
+            client.request(Msp.API_VERSION)
+            return client
+        except Exception:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.3)
+
+
+def _settings(names: list[str]) -> dict[str, int]:
+    client = _msp()
+    try:
+        return {n: int(parse_setting_info(n, client.request(Msp.COMMON_SETTING_INFO, n.encode() + b"\0")).value)
+                for n in names}
+    finally:
+        client.close()
+
+
+def _station(workdir: Path, truth: InavTruth) -> Path:
+    shipped = Path(__file__).resolve().parent.parent / "stations" / "inav-sim.yaml"
+    station = yaml.safe_load(shipped.read_text())
+    product = next(iter(station["products"].values()))
+    product["connection"] = MSP_ADDRESS
+    product["options"]["counts_per_gauss"] = COUNTS_PER_GAUSS
+    station["field_source"] = {"type": "fixed", "options": {"field_ut": truth.field_ut,
+                                                            "inclination_deg": truth.inclination_deg}}
+    station["results"] = {"sink": "sqlite", "path": "results.sqlite"}
+    path = workdir / "station.yaml"
+    path.write_text(yaml.safe_dump(station, sort_keys=False))
+    return path
+
+
+class Sitl:
+    """The SITL process, started and killed as a power supply would."""
+
+    def __init__(self, binary: Path, workdir: Path) -> None:
+        self.binary, self.workdir, self.proc = binary, workdir, None
+        self.log = open(workdir / "sitl.log", "ab")  # noqa: SIM115 — kept open across power cycles
+
+    def start(self) -> None:
+        # restore_signals=False: the SITL inherits Python's ignored SIGPIPE (and keeps it across its own
+        # re-exec at a reboot).  Its TCP "serial port" sends without MSG_NOSIGNAL (drivers/serial_tcp.c), so
+        # a late reply to a client that timed out and closed would kill it (exit status −13, seen) where a
+        # board on USB carries on: the run is of the firmware, not of its socket emulation.
+        self.proc = subprocess.Popen([str(self.binary), "--sim=xp", "--simip=127.0.0.1", "--simport=49000"],
+                                     cwd=self.workdir, stdout=self.log, stderr=subprocess.STDOUT,
+                                     restore_signals=False)
+        _msp().close()
+
+    def cut(self) -> None:
+        if self.proc is not None:
+            died = self.proc.poll()
+            if died is not None:  # it ended before the cut: say how, beside its own output
+                self.log.write(f"[magline] the SITL had ended by itself: exit status {died}\n".encode())
+                self.log.flush()
+            self.proc.kill()
+            self.proc.wait()
+
+
+def one_unit(binary: Path, workdir: Path, seed: int, alignment: int | None) -> tuple[dict, list[Check]]:
+    """Run one unit; the compass sits at ``alignment`` (None: where INAV's default expects it)."""
+    workdir.mkdir(parents=True, exist_ok=True)
+    (workdir / "eeprom.bin").unlink(missing_ok=True)
+    truth = InavTruth.drawn(seed, speed=0.3, **({} if alignment is None else {"alignment": alignment}))
+    (workdir / "truth.json").write_text(json.dumps(asdict(truth), indent=2) + "\n")
+    peer = XPlanePeer(truth, seed=seed)
+    threading.Thread(target=peer.serve, daemon=True).start()
+    sitl = Sitl(binary, workdir)
+    try:
+        sitl.start()
+        station = _station(workdir, truth)
+        started = time.monotonic()
+        run = subprocess.run([sys.executable, "-m", "magline.core.cli", "run", str(station), "--serial",
+                              f"SITL-INAV-{seed}"], cwd=workdir, capture_output=True, text=True,
+                             stdin=subprocess.DEVNULL)
+        cycle_s = time.monotonic() - started
+        (workdir / "run.log").write_text(run.stdout + run.stderr)
+        shown = subprocess.run([sys.executable, "-m", "magline.core.cli", "show", "1", "--station", str(station),
+                                "--json"], cwd=workdir, capture_output=True, text=True, check=True)
+        record = json.loads(shown.stdout)
+        sitl.cut()  # the hard power cut: what was saved is what the unit keeps
+        sitl.start()
+        kept = _settings(list(truth.expected))
+    finally:
+        sitl.cut()
+        peer.stop()
+    return record, _judge(truth, record, kept, cycle_s, turned=alignment is not None)
+
+
+def _measurement(record: dict, name: str) -> float | None:
+    return next((m["value"] for m in record.get("measurements", []) if m["name"] == name), None)
+
+
+def _judge(truth: InavTruth, record: dict, kept: dict[str, int], cycle_s: float, turned: bool) -> list[Check]:
+    verdict, cause = record.get("verdict"), record.get("cause") or ""
+    if turned:
+        fix = f"align_mag = {truth.alignment}"
+        return [Check("turned compass FAILs naming its fix", f"{verdict}: {cause[:60]}", f"FAIL, '{fix}'",
+                      verdict == "fail" and fix in cause),
+                Check("nothing written to a failed unit", str(kept["align_mag"]), "align_mag unchanged (8)",
+                      kept["align_mag"] == 8 and not (record.get("params") or {}).get("written"))]
+    checks = [Check("good unit PASSes", f"{verdict} {cause[:40]}", "pass", verdict == "pass")]
+    for name in ("magzero_x", "magzero_y", "magzero_z"):
+        off = kept[name] - truth.expected[name]
+        checks.append(Check(f"{name} after a power cut", f"{kept[name]} ({off:+d} counts, "
+                            f"{off / COUNTS_PER_GAUSS * 1000:+.2f} mG)", f"±{ZERO_TOLERANCE_COUNTS} count of "
+                            f"{truth.expected[name]}", abs(off) <= ZERO_TOLERANCE_COUNTS))
+    for name in ("maggain_x", "maggain_y", "maggain_z"):
+        off = kept[name] - truth.expected[name]
+        checks.append(Check(f"{name} after a power cut", f"{kept[name]} ({off / truth.expected[name] * 100:+.2f} %)",
+                            f"±{GAIN_TOLERANCE_COUNTS} count of {truth.expected[name]}",
+                            abs(off) <= GAIN_TOLERANCE_COUNTS))
+    for name, limit in (("mounting_error_deg", 3.0), ("inclination_error_deg", 2.0)):
+        value = _measurement(record, name)
+        checks.append(Check(name, "missing" if value is None else f"{value:.2f}°", f"|·| ≤ {limit}°",
+                            value is not None and abs(value) <= limit))
+    checks.append(Check("cycle time", f"{cycle_s:.1f} s", "(figure)", True))
+    return checks
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    parser = argparse.ArgumentParser(prog="python -m magline.sitl.inav_run", description=__doc__.split("\n")[0])
+    parser.add_argument("--sitl", type=Path, required=True, help="INAV's SITL.elf, built from INAV's own tree")
+    parser.add_argument("--workdir", type=Path, help="where each unit's files stay (default: a temporary folder)")
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--turned", type=int, default=2, help="the align_mag value the turned compass sits at")
+    parser.add_argument("--json", type=Path, help="write every check here")
+    args = parser.parse_args(argv)
+    if not args.sitl.is_file():
+        print(f"INAV SITL not found at {args.sitl}: build INAV's SITL target and give its SITL.elf", file=sys.stderr)
+        return 2
+    if os.environ.get(PRIVATE) != "1":  # INAV's SITL listens on every interface: keep it off the network
+        if shutil.which("unshare") is None:
+            print("unshare (util-linux) is needed to run INAV's SITL in a private network namespace", file=sys.stderr)
+            return 2
+        os.execvpe("unshare", ["unshare", "-n", sys.executable, "-m", "magline.sitl.inav_run", *argv],
+                   {**os.environ, PRIVATE: "1"})
+    subprocess.run(["ip", "link", "set", "lo", "up"], check=True)
+    workdir = args.workdir or Path(tempfile.mkdtemp(prefix="magline-sitl-inav-"))
+    client = None
+    lines, results = [], {}
+    for label, alignment in (("good", None), ("turned", args.turned)):
+        record, checks = one_unit(args.sitl, workdir / label, args.seed, alignment)
+        if client is None:
+            client = record.get("unit_info", {}).get("firmware", "?")
+        results[label] = [asdict(c) for c in checks]
+        lines += [f"[{label}] {c.line()}" for c in checks]
+    print(f"INAV SITL {args.sitl} — firmware the station saw: {client}; files in {workdir}")
+    print("\n".join(lines))
+    if args.json:
+        args.json.write_text(json.dumps({"firmware": client, "checks": results}, indent=2) + "\n")
+    return 0 if all(c["holds"] for checks in results.values() for c in checks) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
