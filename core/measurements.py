@@ -57,6 +57,10 @@ CATALOGUE: dict[str, tuple[str, str]] = {
     "time_skew_ms": ("ms", "how much later than its message's time stamp a magnetometer reading was taken, on the "
                            "accelerometer's clock (negative: earlier)"),
     "time_skew_sigma_ms": ("ms", "1σ uncertainty of the time skew"),
+    "time_skew_own_ms": ("ms", "the time skew as this unit's tumble alone says it, before the line's known skew "
+                               "is joined with it (what the line learns its skew from)"),
+    "time_skew_own_sigma_ms": ("ms", "1σ uncertainty of the unit's own time skew (absent: its tumble could not "
+                                     "tell the skew from a turned sensor)"),
     "inclination_error_deg": ("°", "field inclination the unit saw minus the reference's"),
     "heading_agreement_median_deg": ("°", "median heading difference between two calibrated magnetometers"),
     "heading_agreement_max_deg": ("°", "largest heading difference between two magnetometers (over the tumble)"),
@@ -84,6 +88,7 @@ POSSIBLE: dict[str, tuple[float, float]] = {
     "mounting_error_deg": (0.0, 180.0), "mounting_sigma_deg": (0.0, float("inf")),
     "inclination_deg": (-90.0, 90.0), "inclination_error_deg": (-180.0, 180.0),
     "time_skew_ms": (-float("inf"), float("inf")), "time_skew_sigma_ms": (0.0, float("inf")),
+    "time_skew_own_ms": (-float("inf"), float("inf")), "time_skew_own_sigma_ms": (0.0, float("inf")),
     "heading_agreement_median_deg": (0.0, 180.0), "heading_agreement_max_deg": (0.0, 180.0),
     "residual_ut.std": (0.0, float("inf")), "residual_ut.ptp": (0.0, float("inf")),
     "interference_pct_at_max": (0.0, float("inf")), "interference_ut_per_a": (0.0, float("inf")),

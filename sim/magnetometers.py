@@ -15,7 +15,7 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from magline.sim.truth import SensorTruth
-from magline.sim.truth.attitudes import spiral_attitude
+from magline.sim.truth.attitudes import spiral_attitude, two_axis_attitude
 
 BUS_I2C, BUS_SPI = 1, 2
 
@@ -101,7 +101,7 @@ def default_magnetometers(count: int, rng: np.random.Generator) -> list[SimMagne
 
 # --------------------------------------------------------------------------- attitude
 
-MOTIONS = ("tumble", "single_axis", "gimbal", "still", "shared")  # shared: follow a gimbal simulator
+MOTIONS = ("tumble", "single_axis", "gimbal", "two_axis", "still", "shared")  # shared: follow a gimbal simulator
 
 
 def attitude(motion: str, t: float, speed: float = 1.0, field_dir: NDArray | None = None) -> Rotation:
@@ -111,13 +111,16 @@ def attitude(motion: str, t: float, speed: float = 1.0, field_dir: NDArray | Non
     ``SWEEP_S / speed`` seconds while the unit rocks about the field line (what a trained operator
     achieves; :mod:`magline.sim.truth.attitudes`); ``single_axis`` is the operator's classic mistake
     (yaw only); ``gimbal`` is a fixture (continuous yaw, stepped pitch, rocking about the field line
-    as a three-axis gimbal can); ``still`` does not move.
+    as a three-axis gimbal can); ``two_axis`` is a two-axis gimbal turning both axes at constant rates
+    (outer axis vertical: the motion on which a time skew is a turned sensor); ``still`` does not move.
     """
     t = t * speed
     if motion == "single_axis":
         return Rotation.from_euler("Z", 1.2 * t)
     if motion == "still":
         return Rotation.identity()
+    if motion == "two_axis":
+        return two_axis_attitude(t)
     if motion not in ("tumble", "gimbal"):
         raise ValueError(f"unknown motion {motion!r}; choose from {', '.join(m for m in MOTIONS if m != 'shared')}")
     return spiral_attitude(t, field_dir, stepped=motion == "gimbal")

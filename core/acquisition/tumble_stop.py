@@ -16,6 +16,7 @@ from magline.core.mounting import ImuSeries
 from magline.core.mounting.checks import calibrated, judge_mounting
 from magline.core.mounting.estimate import MAX_SIGMA_DEG as MOUNTING_MAX_SIGMA_DEG
 from magline.core.mounting.estimate import MountingUnobservable, estimate_mounting
+from magline.core.mounting.line_skew import skew_prior
 from magline.core.sequencer.context import RunContext
 
 
@@ -150,7 +151,8 @@ def _mounting_determined(run: RunContext, margin: float):
             samples = snapshot[prefix]
             try:
                 estimate = estimate_mounting(calibrated(fit, samples.mag_ut), samples.t_ms, imu,
-                                             skew_hint_ms=skews.get(prefix), dip_deg=dip)
+                                             skew_hint_ms=skews.get(prefix), dip_deg=dip,
+                                             skew_prior=skew_prior(run, prefix))
             except MountingUnobservable:
                 return None
             skews[prefix] = estimate.skew_ms

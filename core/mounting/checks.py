@@ -38,6 +38,7 @@ from magline.core.faults import StationFault
 from magline.core.measurements import Json, Measurement, Numeric, Verdict
 from magline.core.mounting.agreement import HeadingAgreement, heading_agreement
 from magline.core.mounting.estimate import MountingEstimate, MountingUnobservable, estimate_mounting
+from magline.core.mounting.line_skew import OWN_SKEW_DETERMINED_MS, skew_prior
 from magline.core.mounting.orientations import (
     nearest_right_angle,
     orientation_matrix,
@@ -133,7 +134,8 @@ def magline_validate_unit(run: RunContext, fits: dict[int, FitResult]) -> list[M
         prefix = run.sensor_prefix(sensor.device_id)
         cal = calibrated(fits[sensor.device_id], samples.mag_ut)
         try:
-            estimate = estimate_mounting(cal, samples.t_ms, attempt.imu, dip_deg=reference)
+            estimate = estimate_mounting(cal, samples.t_ms, attempt.imu, dip_deg=reference,
+                                         skew_prior=skew_prior(run, prefix))
         except MountingUnobservable as exc:
             raise StationFault(f"the mounting of {label} cannot be proven: {exc} (a product without an "
                                "accelerometer in its stream may say orientation: skip)") from None
@@ -166,8 +168,11 @@ def magline_validate_unit(run: RunContext, fits: dict[int, FitResult]) -> list[M
                            note=held.note if held is not None else ""))
         out.append(Numeric.of(prefix + "mounting_sigma_deg", estimate.sigma_deg, limits))
         out.append(Numeric.of(prefix + "inclination_deg", estimate.inclination_deg, limits))
-        out.append(Numeric.of(prefix + "time_skew_ms", estimate.skew_ms, limits))
+        out.append(_skew_judged(Numeric.of(prefix + "time_skew_ms", estimate.skew_ms, limits), estimate, label))
         out.append(Numeric.of(prefix + "time_skew_sigma_ms", estimate.skew_sigma_ms, limits))
+        if estimate.own_skew_sigma_ms <= OWN_SKEW_DETERMINED_MS:  # what the line learns its skew from
+            out.append(Numeric.of(prefix + "time_skew_own_ms", estimate.own_skew_ms, limits))
+            out.append(Numeric.of(prefix + "time_skew_own_sigma_ms", estimate.own_skew_sigma_ms, limits))
         if reference is not None:
             out.append(Numeric.of(prefix + "inclination_error_deg", estimate.inclination_deg - reference, limits))
         bodies[sensor.device_id] = (cal @ (final @ applied.T).T, np.asarray(samples.t_ms, float), estimate)
@@ -198,6 +203,26 @@ def magline_validate_unit(run: RunContext, fits: dict[int, FitResult]) -> list[M
     run.record.unit_info["mounting"] = report
     out.append(Json(name="mounting", data=report))
     return out
+
+
+# Beyond this many σ of the two together, a unit's own skew is not the line's: REVIEW, said in words.
+SKEW_DISAGREEMENT_SIGMAS = 3.0
+
+
+def _skew_judged(figure: Numeric, estimate: MountingEstimate, label: str) -> Numeric:
+    """The skew's figure flagged for review where the unit's own tumble puts its skew off the line's.
+    Why REVIEW and not FAIL: the mounting was judged with the line's skew and the unit may be good; but
+    a unit timed unlike the line's (another firmware build, a link that delays one message and not the
+    other) is one whose mounting verdict rests on a prior that may not be its own."""
+    if estimate.prior is None or estimate.skew_disagreement <= SKEW_DISAGREEMENT_SIGMAS:
+        return figure
+    if figure.verdict is Verdict.FAIL:
+        return figure
+    return replace(figure, verdict=Verdict.REVIEW, note=(
+        f"{label}'s own tumble puts its time skew at {estimate.own_skew_ms:.1f} ± {estimate.own_skew_sigma_ms:.1f} "
+        f"ms, {estimate.skew_disagreement:.1f}σ off the line's {estimate.prior.describe()}: its readings are not "
+        "timed as the line's units are (another firmware build, or a link that delays the compass), and its "
+        "mounting was judged with the line's skew"))
 
 
 def _timing_limited(figure: Numeric, agreement: HeadingAgreement, label_a: str, label_b: str) -> Numeric:

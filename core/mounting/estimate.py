@@ -16,6 +16,18 @@ squares (scipy, robust loss against readings taken while the unit accelerated) o
 the inclination and the skew together, so the mounting's σ includes what the skew leaves uncertain.
 A skew is not a turned sensor only while the unit turns about more than one axis: where the tumble
 cannot tell them apart the σ says so and the mounting is not proven.
+
+Why the skew's information is taken from the gravity's turn over a window, not from the fit's own
+Jacobian: on a two-axis fixture turning at constant rates (outer axis vertical) a skew ``δ`` is
+*exactly* a turn of the sensor by ``ω_inner·δ`` about the inner axis — the gravity–field angle cannot
+tell them apart — yet the fit's Jacobian took the accelerometer's noise, differentiated, for
+information, stated ±0.06° and was 12° off (the skew landing wherever the noise was least).  The
+gravity's rate of turn from a central difference over a window as long as the motion allows (the
+gravity turning half a radian, at most ±150 ms) carries the motion and far less of the noise, so such
+a tumble's σ says what it leaves open.  Where the firmware's skew is known (:class:`SkewPrior`: the
+station file's value, or the line's good units), it closes that direction: the skew and the mounting
+are moved together along what the tumble leaves open, to where the prior puts the skew, and the σ is
+the posterior's.
 """
 
 from __future__ import annotations
@@ -37,6 +49,14 @@ from magline.core.mounting.skew import (
 
 ROBUST_SCALE = 0.01  # soft-L1 scale of the cosine residual (about 0.6° near 90°)
 MAX_SIGMA_DEG = 3.0  # a mounting known worse than this is not proven (too few distinct attitudes)
+# The window the gravity's turn is differenced over for the skew's information: half of it as long as
+# the gravity turns by TURN_WINDOW_RAD (the difference keeps sin(x)/x of the turn: 96 % at 0.5 rad), at
+# most TURN_WINDOW_MAX_MS (the noise of a difference falls as the window grows) and at least
+# TURN_WINDOW_PERIODS of the accelerometer's periods.
+TURN_WINDOW_RAD = 0.5
+TURN_WINDOW_MAX_MS = 150.0
+TURN_WINDOW_PERIODS = 1.5
+SKEW_EVIDENCE = 3.0  # how many standard errors the skew's own information must stand out by (_information)
 
 
 class MountingUnobservable(ValueError):
@@ -68,6 +88,21 @@ class ImuSeries:
         return track
 
 
+@dataclass(frozen=True)
+class SkewPrior:
+    """What is known of a sensor's time skew before the unit is tumbled: the firmware's message pipeline
+    makes it (PX4's ``sensor_mag`` older than the IMU time it travels with, ArduCopter's compass later
+    than its message), so a line knows it from the station file or from its own good units.  ``sigma_ms``
+    is what one more unit's skew may be off it (the units' own spread, not the mean's error)."""
+
+    skew_ms: float
+    sigma_ms: float
+    source: str  # in words: "the station file", "24 passing units of PART on station ID"
+
+    def describe(self) -> str:
+        return f"{self.skew_ms:.1f} ± {self.sigma_ms:.1f} ms ({self.source})"
+
+
 @dataclass
 class MountingEstimate:
     """``data_to_body``: the rotation with ``v_body = R · v_data`` for the sensor's calibrated readings."""
@@ -80,6 +115,19 @@ class MountingEstimate:
     pairs: int  # magnetometer readings paired with a still accelerometer reading
     skew_ms: float = 0.0  # the reading belongs this much after its stamp, on the accelerometer's clock
     skew_sigma_ms: float = 0.0
+    # what the tumble alone says of the skew (∞ σ: nothing), and the prior it was joined with (None: none)
+    own_skew_ms: float = 0.0
+    own_skew_sigma_ms: float = 0.0
+    prior: SkewPrior | None = None
+
+    @property
+    def skew_disagreement(self) -> float:
+        """How many σ the unit's own skew lies off the prior (0 without one, or where the tumble says
+        nothing of the skew): beyond 3 the unit is not timed as the line's units are."""
+        if self.prior is None or not np.isfinite(self.own_skew_sigma_ms):
+            return 0.0
+        return abs(self.own_skew_ms - self.prior.skew_ms) / float(np.hypot(self.own_skew_sigma_ms,
+                                                                            self.prior.sigma_ms))
 
     @property
     def right_angle(self) -> tuple[int, float]:
@@ -96,6 +144,12 @@ class MountingEstimate:
                 "inclination_deg": self.inclination_deg, "inclination_sigma_deg": self.inclination_sigma_deg,
                 "angle_rms_deg": self.angle_rms_deg, "pairs": self.pairs,
                 "skew_ms": round(self.skew_ms, 2), "skew_sigma_ms": round(self.skew_sigma_ms, 2),
+                "own_skew_ms": round(self.own_skew_ms, 2),
+                "own_skew_sigma_ms": round(self.own_skew_sigma_ms, 2) if np.isfinite(self.own_skew_sigma_ms)
+                else None,
+                "skew_prior": None if self.prior is None else {"skew_ms": self.prior.skew_ms,
+                                                               "sigma_ms": self.prior.sigma_ms,
+                                                               "source": self.prior.source},
                 "nearest_orientation": value, "from_nearest_deg": residual}
 
 
@@ -150,13 +204,15 @@ def mirrored(gravity_rows: NDArray, rotation: NDArray) -> NDArray:
 
 
 def estimate_mounting(mag_cal: NDArray, t_mag_ms: NDArray, imu: ImuSeries | None, *,
-                      skew_hint_ms: float | None = None, dip_deg: float | None = None) -> MountingEstimate:
+                      skew_hint_ms: float | None = None, dip_deg: float | None = None,
+                      skew_prior: SkewPrior | None = None) -> MountingEstimate:
     """The rotation from the calibrated magnetometer's axes (``mag_cal``, rows, any unit) to the body,
     with the field's inclination; raises :class:`MountingUnobservable` with the reason when the
     readings cannot prove it.  ``skew_hint_ms``: a skew found on the same stream before (a tumble's
     earlier snapshot), where the refinement starts instead of the coarse search.  ``dip_deg``: the local
     field's inclination (the field source's), which decides between a mounting and its mirror when
-    gravity was seen in one plane only (:func:`mirrored`); without it that tumble cannot prove one."""
+    gravity was seen in one plane only (:func:`mirrored`); without it that tumble cannot prove one.
+    ``skew_prior``: what the line knows of this sensor's skew, joined with what the tumble says."""
     from scipy.optimize import least_squares  # on use: scipy costs every command start
     from scipy.spatial.transform import Rotation
 
@@ -206,27 +262,132 @@ def estimate_mounting(mag_cal: NDArray, t_mag_ms: NDArray, imu: ImuSeries | None
         if np.sign(inclination) != np.sign(dip_deg):  # the mirror is the one whose field dips as the place's
             rotation, inclination = mirror, -inclination
     variance = residual_variance(fit.fun, len(fit.x))
-    try:
-        cov = variance * np.linalg.inv(fit.jac.T @ fit.jac)
-        held = variance * np.linalg.inv(fit.jac[:, :4].T @ fit.jac[:, :4])  # the skew taken as known
-    except np.linalg.LinAlgError:
-        raise MountingUnobservable("the attitudes seen do not determine the mounting") from None
+    information, determined = _information(track, m, t, rotation, inclination, skew, fit.fun)
+    information = information / variance
+    if not determined:  # the skew anywhere in the search, as far as the tumble knows (a uniform's σ)
+        information[4, 4] += 3.0 / reach**2
+    own = _covariance(information)
+    own_skew, own_sigma = skew, float(np.sqrt(own[4, 4])) if np.isfinite(own[4, 4]) else float("inf")
+    cov = own
+    if skew_prior is not None:
+        rotation, inclination, skew, cov = _joined(skew_prior, information, rotation, inclination, skew,
+                                                   lambda r, incl, sk: _polished(m, gravity(sk), r, incl))
+    held = _covariance(information[:4, :4])  # the skew taken as known
     sigma_rot = _largest_sigma_deg(cov[:3, :3])
-    sigma_incl = float(np.degrees(np.sqrt(max(cov[3, 3], 0.0))))
+    sigma_incl = float(np.degrees(np.sqrt(max(cov[3, 3], 0.0)))) if np.isfinite(cov[3, 3]) else float("inf")
     if not np.isfinite(sigma_rot) or sigma_rot > MAX_SIGMA_DEG:
         if _largest_sigma_deg(held[:3, :3]) <= MAX_SIGMA_DEG:
+            what = ("" if skew_prior is None else f", even with the line's skew {skew_prior.describe()}")
             raise MountingUnobservable(
-                f"the tumble cannot tell the magnetometer's time skew from a turned sensor (mounting ±"
-                f"{sigma_rot:.1f}° 1σ, ±{MAX_SIGMA_DEG:g}° needed): turn the unit about more than one axis")
-        raise MountingUnobservable(f"the attitudes seen determine the mounting only to ±{sigma_rot:.1f}° "
+                f"the tumble cannot tell the magnetometer's time skew from a turned sensor{what} (mounting ±"
+                f"{_shown(sigma_rot)}° 1σ, ±{MAX_SIGMA_DEG:g}° needed): turn the unit about more than one axis "
+                "(a hand's tumble, or a gimbal whose axes change speed)"
+                + ("" if skew_prior is not None else ", or give the line's skew (the product's time_skew)"))
+        raise MountingUnobservable(f"the attitudes seen determine the mounting only to ±{_shown(sigma_rot)}° "
                                    f"(1σ; ±{MAX_SIGMA_DEG:g}° needed): tumble through more orientations")
+    seen = gravity(skew)
     angles = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", seen, m @ rotation.T), -1, 1)))
     return MountingEstimate(data_to_body=rotation, sigma_deg=sigma_rot, inclination_deg=float(np.degrees(inclination)),
                             inclination_sigma_deg=sigma_incl,
                             angle_rms_deg=float(np.sqrt(np.mean((angles - np.mean(angles)) ** 2))),
-                            pairs=len(m), skew_ms=skew, skew_sigma_ms=float(np.sqrt(max(cov[4, 4], 0.0))))
+                            pairs=len(m), skew_ms=skew, skew_sigma_ms=float(np.sqrt(max(cov[4, 4], 0.0))),
+                            own_skew_ms=own_skew, own_skew_sigma_ms=own_sigma, prior=skew_prior)
+
+
+def _shown(sigma_deg: float) -> str:
+    return f"{sigma_deg:.1f}" if np.isfinite(sigma_deg) and sigma_deg < 1e4 else "∞"
+
+
+def _information(track: GravityTrack, m: NDArray, t: NDArray, rotation: NDArray, inclination: float, skew: float,
+                 resid: NDArray) -> tuple[NDArray, bool]:
+    """``JᵀJ`` of the cosine residuals in (rotation vector, inclination, skew), each row weighted as the
+    robust fit weighed it.  The skew's column is the gravity's turn over a window as long as the motion
+    allows (:data:`TURN_WINDOW_RAD`), and its own entry is the product of two such columns, each from
+    every other accelerometer reading: the two carry the same motion and independent noise, so the
+    product carries the motion's information and, on average, none of the noise's (a column squared
+    took the noise, differentiated, for information — see the module's docstring)."""
+    seen = unit_rows(track.at(t + skew)[0])
+    body = m @ rotation.T
+    weight = (1.0 + (np.asarray(resid, float) / ROBUST_SCALE) ** 2) ** -0.25  # soft-L1's IRLS weight, its root
+    halves = [GravityTrack.of(track.t_ms[k::2], track.accel[k::2]) for k in (0, 1)]
+    shortest = TURN_WINDOW_PERIODS * max(h.period_ms for h in halves)
+    rate = float(np.median(np.linalg.norm(_turn(track, t + skew, shortest), axis=1)))
+    half = min(max(TURN_WINDOW_RAD / max(rate, 1e-9), shortest), TURN_WINDOW_MAX_MS)
+    # rows whose window reaches past either half's readings are left out whole: a turn clipped at the
+    # stream's end is not the motion's, and a row that says "the skew does nothing here" is information
+    inside = np.all([(t + skew - half >= h.t_ms[0]) & (t + skew + half <= h.t_ms[-1]) for h in halves], axis=0)
+    weight = np.where(inside, weight, 0.0)
+    skew_a, skew_b = (np.einsum("ij,ij->i", _turn(h, t + skew, half), body) * weight for h in halves)
+    jac = np.column_stack([np.cross(body, seen), np.full(len(m), np.cos(inclination))]) * weight[:, None]
+    information = np.zeros((5, 5))
+    information[:4, :4] = jac.T @ jac
+    information[:4, 4] = information[4, :4] = jac.T @ (skew_a + skew_b) / 2.0
+    information[4, 4] = float(skew_a @ skew_b)
+    # What the skew adds beyond the mounting (the Schur complement) must stand out of the noise of its own
+    # estimate: the two columns' difference is their noise, and a product of noises is as often large as
+    # small.  Below SKEW_EVIDENCE of its standard error the tumble is taken to say nothing of the skew
+    # (``False``: the caller then takes it as anywhere in the search, so that the mounting's σ holds what
+    # the skew can move it by — all on a two-axis gimbal, next to nothing on a turntable's spins).
+    explained = float(information[4, :4] @ np.linalg.lstsq(information[:4, :4], information[:4, 4], rcond=None)[0])
+    mean, diff = (skew_a + skew_b) / 2.0, skew_a - skew_b
+    noise = float(np.sqrt(np.sum((mean * diff) ** 2) + np.sum((diff**2 / 2.0) ** 2)))
+    if information[4, 4] - explained < SKEW_EVIDENCE * noise:
+        information[4, 4] = explained
+    return information, information[4, 4] > explained
+
+
+def _turn(track: GravityTrack, when_ms: NDArray, half_ms: float) -> NDArray:
+    """The gravity's direction's rate of change (per ms), a central difference over ±``half_ms``."""
+    return (unit_rows(track.at(when_ms + half_ms)[0]) - unit_rows(track.at(when_ms - half_ms)[0])) / (2.0 * half_ms)
+
+
+def _covariance(information: NDArray) -> NDArray:
+    """The inverse of an information matrix; ∞ on the diagonal of each parameter in a direction it
+    leaves open (no information at all)."""
+    scale = np.sqrt(np.maximum(np.diag(information), 1e-300))
+    values, vectors = np.linalg.eigh(information / np.outer(scale, scale))
+    open_ = values <= 1e-9 * max(values.max(), 1e-300)  # none, or less than none (a noisy estimate of none)
+    cov = (vectors[:, ~open_] / values[~open_]) @ vectors[:, ~open_].T / np.outer(scale, scale)
+    if open_.any():
+        cov[np.diag_indices_from(cov)] = np.where(np.abs(vectors[:, open_]).max(axis=1) > 1e-6, np.inf,
+                                                  np.diag(cov))
+    return cov
+
+
+def _joined(prior: SkewPrior, information: NDArray, rotation: NDArray, inclination: float, skew: float,
+            polish) -> tuple[NDArray, float, float, NDArray]:
+    """The tumble's estimate joined with the prior on the skew: the Gaussian update moves the skew and,
+    through what the tumble correlates with it, the mounting and inclination; then the mounting and
+    inclination are refined at that skew.  Returns them with the posterior covariance."""
+    from scipy.spatial.transform import Rotation
+
+    prior_information = np.zeros_like(information)
+    prior_information[4, 4] = 1.0 / prior.sigma_ms**2
+    cov = np.linalg.inv(information + prior_information)
+    step = cov[:, 4] * (prior.skew_ms - skew) / prior.sigma_ms**2
+    rotation = Rotation.from_rotvec(step[:3]).as_matrix() @ rotation
+    inclination, skew = inclination + float(step[3]), skew + float(step[4])
+    rotation, inclination = polish(rotation, inclination, skew)
+    return rotation, inclination, skew, cov
+
+
+def _polished(m: NDArray, seen: NDArray, rotation: NDArray, inclination: float) -> tuple[NDArray, float]:
+    """The mounting and inclination refined with the pairing (the skew) held."""
+    from scipy.optimize import least_squares
+    from scipy.spatial.transform import Rotation
+
+    def residuals(p: NDArray) -> NDArray:
+        r = Rotation.from_rotvec(p[:3]).as_matrix() @ rotation
+        return np.einsum("ij,ij->i", seen, m @ r.T) + np.sin(p[3])
+
+    fit = least_squares(residuals, np.array([0.0, 0.0, 0.0, inclination]), loss="soft_l1", f_scale=ROBUST_SCALE,
+                        x_scale=0.01)
+    return (Rotation.from_rotvec(fit.x[:3]).as_matrix() @ rotation,
+            float(np.arcsin(np.clip(np.sin(fit.x[3]), -1.0, 1.0))))
 
 
 def _largest_sigma_deg(cov: NDArray) -> float:
     """1σ of a rotation's least certain axis (degrees) from its rotation-vector covariance."""
+    if not np.all(np.isfinite(cov)):
+        return float("inf")
     return float(np.degrees(np.sqrt(max(np.linalg.eigvalsh(cov).max(), 0.0))))

@@ -105,6 +105,9 @@ class RunContext:
     # ``misalignment: write``)
     orientation_fixes: dict[int, int] = field(default_factory=dict)
     rotation_writes: dict[int, dict[str, float]] = field(default_factory=dict)
+    # what the line knows of each sensor's time skew (by measurement prefix; None: nothing), found once
+    # for the tumble's stop and the mounting check (core/mounting/line_skew.py)
+    skew_priors: dict[str, Any] = field(default_factory=dict)
     persisted: PersistReport | None = None  # what the persist phase wrote, for the verify phase
     # the current interference (issue 46): what draws the sweep's current (opened by the interference
     # phase, closed with the unit) and what the sweep found, for validate, persist and verify

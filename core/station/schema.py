@@ -176,6 +176,14 @@ class InterferenceSettings(_Strict):
         return self
 
 
+class TimeSkew(_Strict):
+    """A product's magnetometer time skew as measured (``time_skew: {ms: -31, sigma_ms: 4}``): how much
+    later than its message's stamp a reading is taken, and how far one unit's may be off it."""
+
+    ms: Annotated[float, Field(ge=-150, le=150)]
+    sigma_ms: Annotated[float, Field(gt=0, le=100)]
+
+
 class Product(_Strict):
     """What the station does for one part number."""
 
@@ -194,6 +202,11 @@ class Product(_Strict):
     # the firmware can hold any rotation — PX4 ≥ 1.15, external sensors: CAL_MAGn_ROLL/PITCH/YAW — and
     # proven like the calibration; a sensor that cannot hold one keeps its discrete orientation, said)
     misalignment: Literal["keep", "write"] = "keep"
+    # the magnetometers' time skew against the accelerometer, which the firmware's message pipeline makes
+    # and the mounting check must know where the tumble cannot tell it from a turned sensor (a two-axis
+    # gimbal at constant rates): ``learn`` (from this station's own passing units of the part, once
+    # enough have determined theirs), ``none`` (each unit on its own tumble), or ``{ms, sigma_ms}``
+    time_skew: Literal["learn", "none"] | TimeSkew = "learn"
     # the serial rule of this part (see core/serials.py): a full-match regular expression and a length
     serial_pattern: str | None = None
     serial_max_length: Annotated[int, Field(ge=1, le=256)] = 64
@@ -319,7 +332,8 @@ class VerifySettings(_Strict):
 # (benchmarks/review_flags.py, 200 good units reviewed) these four drew 29 of the review's 54 flags,
 # every one for an uncertainty larger than the cluster and still inside its limit, which validate judges.
 NOT_PROCESS_FIGURES = ("attempts", "hard_iron_sigma_ut", "direction_sigma_deg", "mounting_sigma_deg",
-                       "drift_detectable_ut", "time_skew_sigma_ms", "interference_sigma_ut_per_a")
+                       "drift_detectable_ut", "time_skew_sigma_ms", "time_skew_own_sigma_ms",
+                       "interference_sigma_ut_per_a")
 
 
 class ReviewSettings(_Strict):

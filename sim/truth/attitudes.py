@@ -74,6 +74,24 @@ def spiral_attitude(t: float | NDArray, field_dir: NDArray | None = None, *, ste
     return ned_to_body.inv()
 
 
+# A two-axis gimbal at constant rates (speed 1): its outer axis vertical, its inner axis the unit's pitch.
+# Rates whose ratio is no simple fraction, so the field's direction in the body does not retrace one curve
+# (with the outer axis vertical the two caps about the pitch axis stay unseen where the field dips
+# steeply: 63 % of 100 bins at a 60° dip); together 188°/s.
+TWO_AXIS_OUTER_DPS, TWO_AXIS_INNER_DPS = 160.0, 99.0
+
+
+def two_axis_attitude(t: float | NDArray, outer_dps: float = TWO_AXIS_OUTER_DPS,
+                      inner_dps: float = TWO_AXIS_INNER_DPS) -> Rotation:
+    """Body → NED at ``t`` on a two-axis gimbal turning both axes at constant rates: ``Rz(outer·t) ·
+    Ry(inner·t)``.  Why the simulators have it: on this motion a time skew ``δ`` between the
+    magnetometer and the accelerometer is exactly a turn of the sensor by ``inner·δ`` about the pitch
+    axis (gravity sees the inner axis only), so a station that finds the skew from the tumble alone
+    cannot tell it from a turned sensor; a hand's rocking tumble keeps the two apart."""
+    t = np.asarray(t, float)
+    return Rotation.from_euler("ZY", np.stack([outer_dps * t, inner_dps * t], axis=-1), degrees=True)
+
+
 def spiral_direction(t: float | NDArray, stepped: bool = False) -> NDArray:
     """The field's unit direction in the body at motion time ``t`` (what the magnetometer sees)."""
     phi, theta = spiral_angles(t, stepped)

@@ -8,12 +8,17 @@ operator's rate; the accelerometer reads gravity plus its own noise and a hand's
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from magline.sim.truth.attitudes import hand_attitudes, spiral_attitude
 from magline.sim.truth.sensor import GRAVITY_MSS, earth_field_ned
+
+if TYPE_CHECKING:
+    from magline.core.mounting import ImuSeries
 
 HAND_MSS = 0.1  # RMS of the small, slow accelerations of a hand holding the unit (smoothed over 0.5 s)
 ACCEL_NOISE_MSS = 0.05
@@ -106,3 +111,28 @@ def skewed_tumble(mounted: NDArray, rng: np.random.Generator, *, rate_dps: float
     inside = (first > 0) & (first < len(t_msg))
     stamps = t_msg[first[inside]]
     return mag[inside], stamps * 1000.0, accel, t_msg * 1000.0, (taken[inside] - stamps) * 1000.0
+
+
+def two_axis_tumble(mounted: NDArray, rng: np.random.Generator, *, rate_hz: float, skew_s: float,
+                    seconds: float = 25.0, outer_dps: float = 160.0, inner_dps: float = 99.0,
+                    noise_ut: float = 0.3, accel_noise_mss: float = 0.05, age_jitter_s: float = 0.01,
+                    field_ut: float = 48.0, inclination_deg: float = 60.0) -> tuple[NDArray, NDArray, ImuSeries]:
+    """A two-axis gimbal at constant rates as PX4 streams it in SCALED_IMU (issue 61): each message carries
+    the accelerometer at its stamp and the latest magnetometer reading, taken ``skew_s`` (and up to
+    ``age_jitter_s`` more) before it; the messages arrive irregularly at ``rate_hz`` on average (a loaded
+    host's 16 a second, a quiet one's 50).  ``(mag_ut, t_mag_ms, imu)``."""
+    from magline.core.mounting import ImuSeries
+    from magline.sim.truth.attitudes import two_axis_attitude
+
+    n = max(int(seconds * rate_hz), 2)
+    t = np.cumsum(rng.uniform(0.5, 1.5, n) / rate_hz)
+    start = rng.uniform(0.0, 360.0 / max(outer_dps, 1e-9))
+
+    def attitude(when: NDArray):
+        return two_axis_attitude(when + start, outer_dps, inner_dps)
+
+    accel = attitude(t).inv().apply([0.0, 0.0, -GRAVITY_MSS]) + rng.normal(0.0, accel_noise_mss, (n, 3))
+    taken = t + skew_s - rng.uniform(0.0, age_jitter_s, n)
+    body = attitude(taken).inv().apply(earth_field_ned(field_ut, inclination_deg))
+    mag = body @ np.asarray(mounted) + rng.normal(0.0, noise_ut, (n, 3))
+    return mag, t * 1000.0, ImuSeries(t_ms=t * 1000.0, accel_mss=accel)
