@@ -297,6 +297,29 @@ class WritesRotation(Protocol):
 
 
 @runtime_checkable
+class StoresFactoryCalibration(Protocol):
+    """A firmware store for the calibration that survives a reset of the parameters (PX4's
+    ``/fs/mtd_caldata``), for a product with ``persist: factory-storage``.
+
+    ``store_factory_calibration(mode_after)`` is called in the persist phase after the parameters are
+    written and saved: it has the firmware copy them into its store, leaves the store's mode setting at
+    ``mode_after`` (saved) and returns what the firmware said; the firmware refusing or failing raises
+    :class:`DutError` with the firmware's own words (the unit is then an ERROR whose parameters are still
+    proven).  ``factory_store_contents(written)`` (after the power cycle): for each of the ``written``
+    parameters the store is meant to hold, the value it holds (None: it holds none; a value the firmware
+    shows rounded is the written one where it is within that rounding), or None as a whole where the
+    firmware does not let a station read the store.  ``restore_from_factory_store(since)``: the proof the
+    product may ask for (``prove_factory_restore``) — reset the calibration parameters so the store alone
+    can bring them back, reboot, await the new boot, and return what the store's names read back."""
+
+    def store_factory_calibration(self, mode_after: int) -> str: ...
+
+    def factory_store_contents(self, written: dict[str, ParamValue]) -> dict[str, ParamValue | None] | None: ...
+
+    def restore_from_factory_store(self, since: float) -> dict[str, ParamValue]: ...
+
+
+@runtime_checkable
 class ReportsUptime(Protocol):
     """Seconds since the autopilot booted (MAVLink SYSTEM_TIME's ``time_boot_ms``), None when it does not
     answer; ``acquisition.warm_up_s`` waits on it (without it: the whole time, counted from the moment asked)."""

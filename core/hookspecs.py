@@ -44,7 +44,8 @@ class Register(Protocol):
     ``magline check`` validates them with file, key and line, and the factory receives them
     validated (an instance of ``Model``)."""
 
-    def __call__(self, name: str, factory: Callable[..., Any], options: type[BaseModel] | None = None) -> None: ...
+    def __call__(self, name: str, factory: Callable[..., Any], options: type[BaseModel] | None = None,
+                 stores: dict[str, str] | None = None) -> None: ...
 
 
 # --------------------------------------------------------------------------- registration
@@ -60,7 +61,11 @@ def magline_register_dut_backends(register: Register) -> None:
         ``Model`` (the raw mapping without one), and returns a :class:`~magline.plugin.DutBackend`.
         The name is what a station file writes under ``products.<part>.backend``; with ``Model``,
         ``magline check`` (and every command that loads the station) reports bad options with file,
-        key and line before any unit is connected.
+        key and line before any unit is connected.  ``stores`` (optional) names where the backend can
+        keep a calibration — the values a product's ``persist`` may take, each with a sentence for the
+        engineer (``{"parameters": "…", "factory-storage": "…"}``; without it: ``parameters`` only); a
+        product asking for another is refused by ``magline check`` with those sentences.  A backend
+        offering ``factory-storage`` implements :class:`~magline.plugin.StoresFactoryCalibration`.
     """
 
 

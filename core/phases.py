@@ -17,6 +17,7 @@ from magline.core.dut import (
     DutError,
     LinkError,
     ParamValue,
+    StoresFactoryCalibration,
     param_equal,
 )
 from magline.core.faults import StationFault
@@ -114,7 +115,30 @@ def magline_persist(run: RunContext, fit: FitResult) -> PersistReport:
         kind = LinkError if isinstance(exc, StationFault) else DutError
         raise kind(f"{exc}; {_roll_back(run, before)}") from exc
     dut.commit()
-    return PersistReport(before=before, written=params, echoed=echoed)
+    factory = _store_in_factory(run) if run.product.persist == "factory-storage" else None
+    return PersistReport(before=before, written=params, echoed=echoed, store=run.product.persist, factory=factory)
+
+
+def _store_in_factory(run: RunContext) -> dict:
+    """``persist: factory-storage``: the firmware copies the parameters just written and saved into its
+    factory store.  A refusal or a failure (the unit moved, no partition) is kept, not raised: the
+    parameters are proven through the power cycle all the same, and the unit then ends as an ERROR
+    that says the factory store was not written (the sequencer's verify)."""
+    dut = run.require_dut()
+    if not isinstance(dut, StoresFactoryCalibration):
+        raise StationFault(f"the {run.product.backend} backend has no factory calibration store "
+                           "(products.<part>.persist: factory-storage)")
+    mode_after = run.product.factory_cal_mode_after
+    run.log("copying the calibration into the firmware's factory calibration store")
+    try:
+        said = dut.store_factory_calibration(mode_after)
+    except DutError as exc:
+        if isinstance(exc, StationFault):
+            raise
+        run.log(f"factory calibration store not written: {exc}")
+        return {"written": False, "said": str(exc), "mode_after": mode_after}
+    run.log(f"factory calibration store written: {said}")
+    return {"written": True, "said": said, "mode_after": mode_after}
 
 
 def _roll_back(run: RunContext, before: dict[str, ParamValue]) -> str:

@@ -48,6 +48,9 @@ class Plugins:
         # options models a plugin declared at registration (``register(name, factory, options=Model)``),
         # so ``magline check`` validates a product's options before any unit is connected
         self.option_models: dict[tuple[str, str], type] = {}
+        # where each DUT backend can keep a calibration (a product's ``persist``), each in the backend's
+        # words: ``register(name, factory, stores={"parameters": "…", "factory-storage": "…"})``
+        self.calibration_stores: dict[str, dict[str, str]] = {}
         # who registered each name: (kind, name) → plugin name (for ``magline plugins`` and errors)
         self.registered_by: dict[tuple[str, str], str] = {}
         self.versions = versions or {}  # plugin name → (distribution, version)
@@ -65,7 +68,8 @@ class Plugins:
             # a plugin registered without a name (a test's or an application's object) is called by its class
             by = impl.plugin_name if not impl.plugin_name.isdigit() else type(impl.plugin).__name__
 
-            def register(name: str, factory: Any, options: type | None = None, _by: str = by) -> None:
+            def register(name: str, factory: Any, options: type | None = None, _by: str = by,
+                         stores: dict[str, str] | None = None) -> None:
                 if not isinstance(name, str) or not name:
                     raise PluginError(f"plugin {_by!r}: a {kind} must be registered under a non-empty name")
                 if name in registry:
@@ -75,6 +79,11 @@ class Plugins:
                 self.registered_by[(kind, name)] = _by
                 if options is not None:
                     self.option_models[(kind, name)] = options
+                if stores is not None:
+                    if kind != "dut backend" or "parameters" not in stores:
+                        raise PluginError(f"plugin {_by!r}: stores= belongs to a DUT backend, and every backend "
+                                          "keeps a calibration in 'parameters'")
+                    self.calibration_stores[name] = dict(stores)
 
             impl.function(register=register)
 

@@ -66,6 +66,10 @@ class PersistReport:
     before: dict[str, ParamValue]
     written: dict[str, ParamValue]
     echoed: dict[str, ParamValue]
+    # where the calibration is kept (the product's ``persist``) and, for the factory store, what writing it
+    # did: {"written": bool, "said": the firmware's words or why it was not written, "mode_after": int}
+    store: str = "parameters"
+    factory: dict[str, Any] | None = None
 
 
 @dataclass
@@ -76,6 +80,7 @@ class VerifyReport:
     method: str
     figures: dict[str, float] = field(default_factory=dict)
     missing: list[str] = field(default_factory=list)  # the sensors gone after the power cycle, by name
+    store: str = ""  # where the calibration is kept and how that was proven, in words
 
     @property
     def ok(self) -> bool:

@@ -21,7 +21,8 @@ What is here, by role:
   :func:`prove_unechoed_write`, :func:`float32_equal`);
 * optional capabilities a backend has by having the method (the core asks ``isinstance(dut, …)``):
   :class:`CalibratesSeveral`, :class:`ReportsSensorsPresent`, :class:`WritesOrientation`,
-  :class:`WritesRotation`, :class:`ReportsUptime`, :class:`HasBootTimeout`, :class:`ReadsCalibratedField`,
+  :class:`WritesRotation`, :class:`StoresFactoryCalibration`, :class:`ReportsUptime`, :class:`HasBootTimeout`,
+  :class:`ReadsCalibratedField`,
   :class:`ReadsCalibratedFields`, :class:`ReadsRawAndCalibrated` (answering a :class:`CalibratedBesideRaw`),
   :class:`CompensatesCurrent`, :class:`RunsMotorTest`;
 * links to hardware: :func:`get_listening`, :func:`stall_s`, :data:`SLICE_S` (reading a queue while
@@ -73,6 +74,7 @@ from magline.core.dut import (
     ReportsUptime,
     RunsMotorTest,
     SampleChunk,
+    StoresFactoryCalibration,
     UnansweredRequest,
     UnitInfo,
     WritesOrientation,
@@ -229,6 +231,7 @@ __all__ = [
     "Station",
     "StationFault",
     "StopRule",
+    "StoresFactoryCalibration",
     "Tilt",
     "TurnsForTilts",
     "UnansweredRequest",

@@ -73,6 +73,14 @@ class SimFaults:
     msp_variant: str = ""
     armed: bool = False
     uid_changes_at_reboot: bool = False
+    # PX4's factory calibration storage (/fs/mtd_caldata): a board without that partition ("cannot open
+    # calibration storage"), an export that fails, a store that keeps the values it held before (a flash
+    # write that did not take), and a unit moved during the gyro calibration that writes the store
+    # ("Motion during calibration")
+    no_factory_partition: bool = False
+    factory_store_fails: bool = False
+    factory_store_stale: bool = False
+    moved_during_gyro_cal: bool = False
 
     CAL_APPLIED = ("sign", "unit", "slot", "none")
     CURRENT_SENSOR = ("none", "bypassed")

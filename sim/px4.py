@@ -16,7 +16,13 @@ What it reproduces, because each is a trap for a factory tool:
   (``listener sensor_mag -i N``), as on a NuttX board; with ``shell=False`` SERIAL_CONTROL is
   ignored, as POSIX builds (SITL) do: their shell is ``pxh`` and answers nothing over MAVLink;
 - ``preset_ids=True``: the slot ids are preset to the detected sensors, as POSIX startup scripts
-  do (``param set-default CAL_MAG0_ID …``), so they are defaults, not stored values.
+  do (``param set-default CAL_MAG0_ID …``), so they are defaults, not stored values;
+- the factory calibration storage (``/fs/mtd_caldata``, ``docs/firmware.md`` *Factory calibration
+  storage*): with ``SYS_FAC_CAL_MODE`` ≥ 1 the commander's gyro calibration (MAV_CMD_PREFLIGHT_CALIBRATION,
+  param1 = 1, the unit still) exports every ``CAL_*`` but ``CAL_MAG_SIDES`` and ``*_PRIO`` (mode 2: and
+  no ``CAL_MAG*``) and every ``TC_*`` there, saying so in STATUSTEXT as PX4 does; a board with the
+  partition loads it at boot before the user's parameters; ``bsondump /fs/mtd_caldata`` in the shell
+  prints it; MAV_CMD_PREFLIGHT_STORAGE param1 = 3 resets the calibration parameters, saves and reboots.
 """
 
 from __future__ import annotations
@@ -37,6 +43,10 @@ from magline.sim.vehicle import ACCEPTED, DENIED, UNSUPPORTED, Power, SimulatedA
 
 SLOTS = 4
 AXES = ("X", "Y", "Z")
+FACTORY_STORE = "/fs/mtd_caldata"
+GYRO_CAL_S = 2.0  # how long the commander's gyro calibration takes (divided by a sped-up motion's speed)
+CAL_STARTED, CAL_DONE, CAL_FAILED = ("[cal] calibration started: 2 {}", "[cal] calibration done: {}",
+                                     "[cal] calibration failed: {}")  # calibration_messages.h
 SHELL_DEVICE = mavlink.SERIAL_CONTROL_DEV_SHELL
 SHELL_REPLY = mavlink.SERIAL_CONTROL_FLAG_REPLY
 
@@ -86,6 +96,7 @@ class Px4Sim(SimulatedAutopilot):
         self._last_save = -1e9
         self._saving: tuple[float, dict[str, ParamValue]] | None = None  # (finishes at, snapshot)
         self._shell_line = b""
+        self._gyro_cal_done_at: float | None = None  # the commander's gyro calibration in progress
         super().__init__(*args, **kwargs)
 
     @property
@@ -104,8 +115,10 @@ class Px4Sim(SimulatedAutopilot):
                   ParamSpec("SENS_MAG_SIDES", INT32, 63), ParamSpec("SENS_BOARD_ROT", INT32, 0),
                   *(ParamSpec(f"SENS_BOARD_{a}_OFF", REAL32, 0.0) for a in AXES),
                   ParamSpec("MBE_ENABLE", INT32, 1), ParamSpec("SYS_FAC_CAL_MODE", INT32, 0),
-                  ParamSpec("SYS_AUTOSTART", INT32, 4001), ParamSpec("MAV_SYS_ID", INT32, 1)]
-        return specs
+                  ParamSpec("SYS_AUTOSTART", INT32, 4001), ParamSpec("MAV_SYS_ID", INT32, 1),
+                  ParamSpec("CAL_GYRO0_ID", INT32, 2293768), ParamSpec("CAL_GYRO0_PRIO", INT32, -1),
+                  *(ParamSpec(f"CAL_GYRO0_{a}OFF", REAL32, 0.0) for a in AXES)]
+        return [spec for spec in specs if spec.name not in self.faults.unknown_params]
 
     # ------------------------------------------------------------------ parameters
     def wire_value(self, spec: ParamSpec, value: ParamValue) -> float:
@@ -129,16 +142,79 @@ class Px4Sim(SimulatedAutopilot):
             for n, sensor in enumerate(self.detected[:SLOTS]):
                 name = f"CAL_MAG{n}_ID"
                 self.table.specs[name] = replace(self.table.specs[name], default=sensor.device_id)
-        self.table.load(stored)
+        # rcS: the factory store first (``param load /fs/mtd_caldata`` where the board has the partition),
+        # then the user's file over it: a calibration parameter the user's file does not hold (never set,
+        # or reset) keeps its factory value
+        self.table.load({**self.factory_store(), **stored})
         self._save_due = None
         self._saving = None
         self._shell_line = b""
+        self._gyro_cal_done_at = None
 
     def _start_save(self, now: float) -> None:
         self._saving = (now + self.save_duration_s, self.table.non_default())
         self._last_save = now
 
+    # ------------------------------------------------------------------ factory calibration storage
+    @property
+    def factory_path(self):
+        return self.workdir / "px4-mtd_caldata.json"
+
+    def factory_store(self) -> dict[str, ParamValue]:
+        """What ``/fs/mtd_caldata`` holds (nothing on a board without the partition)."""
+        from magline.sim.storage import NvStorage
+
+        return {} if self.faults.no_factory_partition else NvStorage(self.factory_path).load()
+
+    def _exported(self, mode: int) -> dict[str, ParamValue]:
+        """``filter_calibration_params`` over the parameters set (PX4 exports its user config)."""
+        def kept(name: str) -> bool:
+            if mode == 2 and name.startswith("CAL_MAG"):
+                return False
+            return (name.startswith("CAL_") and name != "CAL_MAG_SIDES" and not name.endswith("_PRIO")) \
+                or name.startswith("TC_")
+
+        return {n: v for n, v in self.table.non_default().items() if kept(n)}
+
+    def _calibrate(self, params: list[float]) -> int:
+        """MAV_CMD_PREFLIGHT_CALIBRATION: only the gyro (param1 = 1) is simulated; accepted at once, the
+        result in STATUSTEXT when it ends, as the commander's worker thread does."""
+        if int(params[0]) != 1 or any(int(p) for p in params[1:6]):
+            return UNSUPPORTED
+        if self._gyro_cal_done_at is not None or self._saving is not None:
+            return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
+        self.statustext(mavlink.MAV_SEVERITY_INFO, CAL_STARTED.format("gyro"))
+        self._gyro_cal_done_at = time.monotonic() + GYRO_CAL_S / max(1.0, self.motion_speed())
+        return ACCEPTED
+
+    def _finish_gyro_calibration(self) -> None:
+        """``do_gyro_calibration``: motion fails it; the factory store is opened (its partition must be
+        there) whenever SYS_FAC_CAL_MODE ≥ 1, and written after the gyro's parameters."""
+        self._gyro_cal_done_at = None
+        mode = int(self.table.values.get("SYS_FAC_CAL_MODE", 0))
+        ok = True
+        if self.faults.moved_during_gyro_cal:
+            self.statustext(mavlink.MAV_SEVERITY_CRITICAL, "ERROR: Motion during calibration")
+            ok = False
+        if mode >= 1 and self.faults.no_factory_partition:
+            self.statustext(mavlink.MAV_SEVERITY_CRITICAL, "ERROR: cannot open calibration storage")
+            ok = False
+        if ok:
+            for axis, offset in zip(AXES, self.rng.normal(0.0, 0.002, 3), strict=True):
+                self.table.set(f"CAL_GYRO0_{axis}OFF", float(offset))
+            if mode >= 1 and self.faults.factory_store_fails:
+                ok = False  # "param export failed": on the console only
+            elif mode >= 1 and not self.faults.factory_store_stale:
+                from magline.sim.storage import NvStorage
+
+                NvStorage(self.factory_path).save(self._exported(mode))
+            self._save_due = self._save_due or time.monotonic() + self.AUTOSAVE_DELAY_S
+        self.statustext(mavlink.MAV_SEVERITY_INFO if ok else mavlink.MAV_SEVERITY_CRITICAL,
+                        (CAL_DONE if ok else CAL_FAILED).format("gyro"))
+
     def tick(self, now: float) -> None:
+        if self._gyro_cal_done_at is not None and now >= self._gyro_cal_done_at and self.power is Power.UP:
+            self._finish_gyro_calibration()
         if self._saving is not None and now >= self._saving[0]:
             self.write_storage(self._saving[1])
             self._saving = None
@@ -262,7 +338,8 @@ class Px4Sim(SimulatedAutopilot):
     # ------------------------------------------------------------------ commands
     def extra_commands(self) -> dict:
         return {mavlink.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN: self._reboot,
-                mavlink.MAV_CMD_PREFLIGHT_STORAGE: self._storage}
+                mavlink.MAV_CMD_PREFLIGHT_STORAGE: self._storage,
+                mavlink.MAV_CMD_PREFLIGHT_CALIBRATION: self._calibrate}
 
     def _reboot(self, params: list[float]) -> int:
         action = int(params[0])
@@ -284,9 +361,9 @@ class Px4Sim(SimulatedAutopilot):
         if action == 1:
             self.after_ack(lambda: self._start_save(time.monotonic()))  # ACK first, save on the worker
             return ACCEPTED
-        if action == 3:
+        if action == 3:  # ParamResetSensorFactory: CAL_ACC*, CAL_GYRO*, CAL_MAG* reset, saved, rebooted
             for name in self.table.names:
-                if name.startswith("CAL_MAG"):
+                if name.startswith(("CAL_ACC", "CAL_GYRO", "CAL_MAG")):
                     self.table.set(name, self.table.specs[name].default)
             self._start_save(time.monotonic())
             self.request_reboot(self.REBOOT_DELAY_S)
@@ -318,6 +395,12 @@ class Px4Sim(SimulatedAutopilot):
                     f"(Type: 0x{sensor.device_id >> 16 & 0xFF:02X}, bus {sensor.device_id >> 3 & 0x1F})\n"
                     f"    x: {raw[0]:.5f}\n    y: {raw[1]:.5f}\n    z: {raw[2]:.5f}\n    temperature: 25.00000\n"
                     f"    error_count: 0\n    is_external: {sensor.external}\n")
+        if words == ["bsondump", FACTORY_STORE]:
+            if self.faults.no_factory_partition or not self.factory_path.exists():
+                return f"ERROR [bsondump] open '{FACTORY_STORE}' failed (2)\n"
+            rows = [f"BSON_INT32:  {n} = {int(v)}" if self.table.specs[n].is_int else f"BSON_DOUBLE: {n} = {v:.6f}"
+                    for n, v in sorted(self.factory_store().items()) if n in self.table.specs]
+            return "\n".join([*rows, "BSON_EOO"]) + "\n"
         return f"nsh: {words[0]}: command not found\n"
 
     def _shell_reply(self, text: str) -> None:

@@ -98,6 +98,8 @@ def persistence_rows(persistence: dict[str, Any] | None) -> list[tuple[str, str]
     if not persistence:
         return []
     rows = [("power cycle", str(persistence.get("method") or "—"))]
+    if persistence.get("store"):
+        rows.append(("calibration kept in", str(persistence["store"])))
     for key, value in (persistence.get("figures") or {}).items():
         words, unit = key_words(key)
         rows.append((words, value_words(value, unit)))

@@ -503,12 +503,17 @@ class Sequencer:
         report = self.plugins.hook.magline_verify_persistence(run=run, persisted=run.persisted)
         run.record.params_read_back = dict(report.read_back)
         run.record.persistence = {"method": report.method, "figures": report.figures,
-                                  "sensor_present": report.sensor_present, "mismatches": report.mismatches}
+                                  "sensor_present": report.sensor_present, "mismatches": report.mismatches,
+                                  "store": report.store or run.persisted.store}
         if not report.sensor_present:
             missing = ", ".join(report.missing) or f"magnetometer {run.unit.selected_sensor}"
             raise PhaseFailed(f"{missing} missing after power cycle")
         if report.mismatches:
             raise PhaseFailed("calibration did not survive the power cycle: " + "; ".join(report.mismatches))
+        factory = run.persisted.factory
+        if factory is not None and not factory.get("written"):  # proven as parameters, not where it was asked
+            raise StationFault(f"the factory calibration store was not written ({factory.get('said')}); the "
+                               "calibration is proven as ordinary parameters only — test the unit again")
         interference.prove(run)  # the current compensation written, proven by a second sweep
 
     def _record(self, run: RunContext) -> None:

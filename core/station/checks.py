@@ -63,6 +63,13 @@ def _plugin_problems(data: dict, text: str, name: str, plugins: Plugins) -> list
                 unknown(("products", part, "backend"), "DUT backend", backend, plugins.dut_backends)
             out += _option_problems(plugins, ("dut backend", backend), product.get("options"),
                                     ("products", part, "options"), text, name)
+            store = product.get("persist", "parameters")
+            stores = plugins.calibration_stores.get(backend, {"parameters": ""})
+            if backend in plugins.dut_backends and isinstance(store, str) and store not in stores:
+                why = "; ".join(f"{kept}: {words}" for kept, words in stores.items() if words)
+                out.append(f"{name}:{line_of(text, ('products', part, 'persist'))}: products.{part}.persist: the "
+                           f"{backend} backend has no {store} (it keeps a calibration in {', '.join(stores)}"
+                           f"{' — ' + why if why else ''})")
         power = product.get("power")
         if isinstance(power, dict):
             method = power.get("method", "mavlink-reboot")

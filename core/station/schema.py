@@ -207,6 +207,15 @@ class Product(_Strict):
     # gimbal at constant rates): ``learn`` (from this station's own passing units of the part, once
     # enough have determined theirs), ``none`` (each unit on its own tumble), or ``{ms, sigma_ms}``
     time_skew: Literal["learn", "none"] | TimeSkew = "learn"
+    # where the calibration is kept: ``parameters`` (the firmware's parameter storage, which a customer's
+    # "reset to defaults" erases) or ``factory-storage`` (PX4's factory calibration store, loaded at boot
+    # under the user's parameters: a reset brings it back); a backend without such a store refuses it
+    persist: Literal["parameters", "factory-storage"] = "parameters"
+    # factory-storage: the SYS_FAC_CAL_MODE the unit is left with (0: later calibrations by the user do
+    # not overwrite the factory store), and whether to prove the store by resetting the unit's calibration
+    # parameters and seeing the factory values come back after a reboot (a second reboot per unit)
+    factory_cal_mode_after: Annotated[int, Field(ge=0, le=2)] = 0
+    prove_factory_restore: bool = False
     # the serial rule of this part (see core/serials.py): a full-match regular expression and a length
     serial_pattern: str | None = None
     serial_max_length: Annotated[int, Field(ge=1, le=256)] = 64

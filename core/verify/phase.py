@@ -1,6 +1,7 @@
 """The default verify phase (entry point ``core_verify``): power-cycle the unit through the station's
 power control, prove the new boot, read every written parameter back, ask the firmware what it says
-is wrong, and prove the calibration it applies (:mod:`.calibrated_output`).  ``trylast``: a plugin
+is wrong, prove the calibration it applies (:mod:`.calibrated_output`), and where the product keeps it
+in the firmware's factory store, prove the store (:mod:`.factory_store`).  ``trylast``: a plugin
 implementing ``magline_verify_persistence`` replaces it.
 """
 
@@ -15,6 +16,7 @@ from magline.core.plugins import hookimpl
 from magline.core.record import PersistReport, VerifyReport
 from magline.core.sequencer.context import RunContext
 from magline.core.verify.calibrated_output import calibrated_output_problems
+from magline.core.verify.factory_store import factory_store_problems
 
 
 @hookimpl(trylast=True)
@@ -38,5 +40,8 @@ def magline_verify_persistence(run: RunContext, persisted: PersistReport) -> Ver
     if present:
         mismatches += [f"autopilot reports: {text}" for text in dut.persistence_problems()]
         mismatches += calibrated_output_problems(run, dut, figures)
+    store_problems, store = factory_store_problems(run, dut, persisted) if not mismatches and present else ([], "")
+    mismatches += store_problems
     return VerifyReport(read_back=read_back, mismatches=mismatches, sensor_present=present,
-                        method=method, figures={k: float(v) for k, v in figures.items()}, missing=missing)
+                        method=method, figures={k: float(v) for k, v in figures.items()}, missing=missing,
+                        store=store)

@@ -21,4 +21,7 @@ def create_ardupilot_dut(product: Product, options: ArduPilotOptions) -> ArduPil
 
 @hookimpl
 def magline_register_dut_backends(register):
-    register("ardupilot", create_ardupilot_dut, options=ArduPilotOptions)
+    register("ardupilot", create_ardupilot_dut, options=ArduPilotOptions, stores={
+        "parameters": "COMPASS_OFS/DIA/ODI/MOT in the parameter storage; ArduPilot's persistent parameters in "
+                      "the bootloader sector hold IMU temperature calibration, accelerometer ids and OpenDroneID "
+                      "only (AP_HAL_ChibiOS/Util.cpp), no factory store for the compass"})

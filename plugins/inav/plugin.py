@@ -19,4 +19,5 @@ def create_inav_dut(product: Product, options: InavOptions) -> InavDut:
 
 @hookimpl
 def magline_register_dut_backends(register):
-    register("inav", create_inav_dut, options=InavOptions)
+    register("inav", create_inav_dut, options=InavOptions, stores={
+        "parameters": "magzero/maggain/align_mag in INAV's EEPROM settings; INAV has no factory calibration store"})

@@ -45,6 +45,7 @@ from magline.plugin import (
     require_same_vehicle,
     untruncate_mg,
 )
+from magline.plugins.px4 import factory_store
 from magline.plugins.px4.calibration import (
     PRIO_EXTERNAL,
     PRIO_INTERNAL,
@@ -103,6 +104,7 @@ class Px4Dut:
         self.system_id = 0
         self.uid = 0
         self._found: list[tuple[int, bool]] = []  # (device id, external) per sensor_mag instance, from the shell
+        self._written_names: list[str] = []  # every parameter this run wrote (the factory store's proof reads them)
 
     # ------------------------------------------------------------------ link
     def connect(self) -> UnitInfo:
@@ -115,6 +117,9 @@ class Px4Dut:
         # reports 0.0.0 whatever it has, and a version string proves nothing (docs/firmware.md, *Versions*)
         self.with_odiag = self._has_param("CAL_MAG0_XODIAG")
         self.with_euler = self._has_param("CAL_MAG0_ROLL")
+        if self.product.persist == "factory-storage" and not self._has_param(factory_store.MODE_PARAM):
+            raise DutError(f"this PX4 has no {factory_store.MODE_PARAM}: it cannot keep a factory calibration, and "
+                           "the product asks for persist: factory-storage (nothing was written)")
         slot_ids = [int(self.link.get(f"CAL_MAG{n}_ID", True)) for n in range(SLOTS)]
         self.ident = self._identify(slot_ids)
         self.device_id, self.instance = self.ident.device_id, self.ident.instance
@@ -163,7 +168,7 @@ class Px4Dut:
         known = self._param_known
         if name not in known:
             try:
-                self.link.get(name, False)
+                self.link.get(name, is_int_param(name))
                 known[name] = True
             except DutError:
                 known[name] = False
@@ -394,6 +399,7 @@ class Px4Dut:
     def write_params(self, params: dict[str, ParamValue]) -> dict[str, ParamValue]:
         if "CAL_MAG_COMP_TYP" in params:
             self._saved_comp_typ = None  # the calibration's own value now: restore must not put the old one back
+        self._written_names += [n for n in params if n not in self._written_names]
         return {n: self.link.set(n, v, is_int_param(n)) for n, v in params.items()}
 
     def commit(self) -> None:
@@ -405,6 +411,30 @@ class Px4Dut:
         if self.opts.force_save:  # param1 = 1 saves; 3 would reset every calibration
             self.link.require_accepted(MAV_CMD_PREFLIGHT_STORAGE, "forced parameter save", 1)
             self._saved_at = time.monotonic()
+
+    # ------------------------------------------------------------------ factory calibration store
+    def store_factory_calibration(self, mode_after: int) -> str:
+        said = factory_store.copy_into_store(self.link, mode_after, self.opts.factory_store_timeout_s)
+        self._saved_at = time.monotonic()
+        return said
+
+    def factory_store_contents(self, written: dict[str, ParamValue]) -> dict[str, ParamValue | None] | None:
+        """The store over the MAVLink shell (``bsondump``); None where the shell does not answer (POSIX
+        builds) — the station then says the store was not read back."""
+        if not self.shell_answers:
+            return None
+        try:
+            out = self.link.shell(f"bsondump {factory_store.FACTORY_STORE}", self.opts.shell_timeout_s)
+        except StationFault:
+            return None
+        return factory_store.store_contents(out, written)
+
+    def restore_from_factory_store(self, since: float) -> dict[str, ParamValue]:
+        names = [n for n in self._written_names if factory_store.held_by_store(n)]
+        factory_store.reset_calibration(self.link)
+        self.link.close()
+        self.await_boot(since)
+        return factory_store.read_named(self.link, names)
 
     # ------------------------------------------------------------------ power cycle and proof
     def reboot(self) -> None:

@@ -23,3 +23,5 @@ class Px4Options(BaseModel):
     sensor_instance: Annotated[int, Field(ge=0, le=2)] | None = None
     shell_timeout_s: Annotated[float, Field(gt=0)] = 2.0  # a shell that says nothing by then is not used
     stream_probe_s: Annotated[float, Field(gt=0)] = 1.0  # how long each SCALED_IMU stream is watched
+    # persist: factory-storage — how long the gyro calibration that writes the factory store may take
+    factory_store_timeout_s: Annotated[float, Field(gt=0)] = 30.0
