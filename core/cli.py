@@ -118,7 +118,12 @@ def main(argv: list[str] | None = None) -> int:
     spc.add_argument("--baseline-since", type=instant_argument, metavar="WHEN", help="a baseline by date: its start")
     spc.add_argument("--baseline-until", type=until_argument, metavar="WHEN",
                      help="a baseline by date: its end (a date: that day included)")
-    spc.add_argument("--by", metavar="NAME", help="who freezes the limits (default: this computer's user)")
+    spc.add_argument("--by", metavar="NAME", help="with --freeze (required): who is responsible for the limits")
+    spc.add_argument("--exclude", action="append", metavar="SERIAL",
+                     help="with --freeze: leave this unit out of the baseline (its cause known; repeat)")
+    spc.add_argument("--accept-unstable", action="store_true",
+                     help="with --freeze: freeze a baseline whose own charts signal (needs --reason)")
+    spc.add_argument("--reason", metavar="TEXT", help="with --accept-unstable: why, kept with the version")
     spc.add_argument("--html", metavar="FILE", help="also write the charts as one self-contained HTML page")
     spc.add_argument("--with-reports", action="store_true",
                      help="with --html: also write the unit report of every charted unit that has none yet (into the "

@@ -419,11 +419,18 @@ def test_a_frozen_baseline_judges_later_units_and_its_stability_is_checked(make_
     after = [p for p in chart["points"][30:] if p["signals"]]
     assert after and not [p for p in chart["points"][:30] if p["signals"]]  # the step, and only the step
 
-    assert main(["spc", "--station", str(station), "--freeze", "--baseline", "45", "--by", "qe-anna"]) == 0
+    # the step is a signal of the 45-unit baseline: refused as it is, frozen as v2 once accepted with the reason
+    assert main(["spc", "--station", str(station), "--freeze", "--baseline", "45", "--by", "qe-anna"]) == 1
+    assert main(["spc", "--station", str(station), "--freeze", "--baseline", "45", "--by", "qe-anna",
+                 "--accept-unstable", "--reason", "the new supplier's level"]) == 0
     assert "v2" in capsys.readouterr().out.splitlines()[0]
 
 
 def test_a_baseline_too_short_or_unstable_is_said(make_station, capsys):
+    """Issue 64: an unstable Phase I is refused unless its units are left out or it is accepted with a reason;
+    ``--by`` is required; both are kept with the version."""
+    import json
+
     from magline.core.cli import main
 
     station = make_station()
@@ -431,13 +438,39 @@ def test_a_baseline_too_short_or_unstable_is_said(make_station, capsys):
     values[20] = 46.0  # one unit far out: a special cause in the baseline
     _units(station, values.tolist())
     capsys.readouterr()
-    assert main(["spc", "--station", str(station), "--freeze", "--baseline", "20"]) == 2
+    assert main(["spc", "--station", str(station), "--freeze", "--baseline", "20", "--by", "qe-anna"]) == 2
     err = capsys.readouterr().err
     assert ("a baseline needs at least 25 judged units (AIAG SPC manual: 25 subgroups); the first 20 judged units of "
             "part MOCK-100 hold 20: nothing frozen") in err
-    assert main(["spc", "--station", str(station), "--freeze", "--baseline", "30"]) == 0
+    # an unstable baseline is refused, naming the signal and its unit, and nothing is frozen
+    assert main(["spc", "--station", str(station), "--freeze", "--baseline", "30", "--by", "qe-anna"]) == 1
+    err = capsys.readouterr().err
+    assert "is NOT stable, nothing frozen: hard_iron_norm_ut: beyond_3sigma at P-020" in err
+    assert "--exclude P-020" in err and "--accept-unstable --reason" in err
+    assert main(["spc", "--station", str(station), "--json"]) == 0
+    assert '"frozen": null' in capsys.readouterr().out
+    # who is responsible must be said; an acceptance must say why
+    assert main(["spc", "--station", str(station), "--freeze", "--baseline", "30"]) == 2
+    assert "--freeze needs --by NAME" in capsys.readouterr().err
+    assert main(["spc", "--station", str(station), "--freeze", "--baseline", "30", "--by", "qe-anna",
+                 "--accept-unstable"]) == 2
+    assert "--accept-unstable needs --reason" in capsys.readouterr().err
+    # the unit whose cause is known left out: stable, frozen, and the exclusion kept with the version
+    assert main(["spc", "--station", str(station), "--freeze", "--baseline", "30", "--by", "qe-anna",
+                 "--exclude", "p-020"]) == 0
     out = capsys.readouterr().out
-    assert "NOT STABLE: beyond_3sigma at P-020" in out and "the baseline was NOT stable" in out
+    assert "from the first 30 judged units, P-020 left out" in out and "left out of the baseline: P-020" in out
+    assert "the baseline was stable" in out
+    # or accepted as it is, with the reason kept with the version
+    assert main(["spc", "--station", str(station), "--freeze", "--baseline", "30", "--by", "qe-anna",
+                 "--accept-unstable", "--reason", "P-020 was the dropped unit, re-tested"]) == 0
+    out = capsys.readouterr().out
+    assert "NOT STABLE: beyond_3sigma at P-020" in out
+    assert "accepted as it is by qe-anna: P-020 was the dropped unit, re-tested" in out
+    assert main(["spc", "--station", str(station), "--json"]) == 0
+    frozen = json.loads(capsys.readouterr().out)["measurements"][0]["frozen"]
+    assert frozen["version"] == 2 and frozen["acceptance"] == {
+        "excluded": [], "accepted_unstable": True, "reason": "P-020 was the dropped unit, re-tested"}
 
 
 def test_yield_and_failure_causes_trend_per_shift_station_operator_product_and_compass(make_station, capsys,

@@ -5,14 +5,16 @@ results store (:mod:`magline.core.results.control_limits`), where every later ``
 Why frozen: limits computed from the very units they judge can never show that the process moved
 while those units were made; a line establishes them once from a stable stretch (≥ 25 units, the
 AIAG SPC manual's minimum) and then holds the process to them (Phase II) until an engineer freezes a
-new version.  A baseline with rule signals is still stored — the engineer may accept a known cause —
-but each signal is named with its unit, and the summary says the baseline was not stable.
+new version.  A baseline with rule signals is refused, each signal named with its unit: limits from an
+unstable stretch would judge every later unit against a process that was not in control.  The engineer
+either leaves the units whose cause is known out (``--exclude SERIAL``) or accepts the baseline as it is
+with a reason (``--accept-unstable --reason "…"``); who froze it (``--by``, required) and how it was
+accepted are kept with the version.
 """
 
 from __future__ import annotations
 
-import getpass
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -27,6 +29,24 @@ from magline.core.results.control_limits import EVERY_STATION, FrozenLimits, fre
 
 class BaselineRefused(ValueError):
     """No limits can be frozen from this baseline (too few units, nothing to chart): the sentence says why."""
+
+
+class BaselineUnstable(BaselineRefused):
+    """The baseline's own charts signal: refused unless its units are excluded or it is accepted with a reason."""
+
+
+@dataclass(frozen=True)
+class Acceptance:
+    """Who freezes the limits and how the baseline was accepted (kept with the version)."""
+
+    by: str
+    excluded: tuple[str, ...] = ()
+    accept_unstable: bool = False
+    reason: str = ""
+    extra: dict = field(default_factory=dict)
+
+    def stored(self) -> dict:
+        return {"excluded": list(self.excluded), "accepted_unstable": self.accept_unstable, "reason": self.reason}
 
 
 @dataclass(frozen=True)
@@ -46,9 +66,10 @@ def baseline_words(first: int | None, since: str | None, until: str | None) -> s
 
 
 def freeze_baseline(engine: object, report: SpcReport, part: str, station_id: str | None, words: str,
-                    by: str | None) -> Frozen:
+                    accepted: Acceptance) -> Frozen:
     """Store the limits of every chart of ``report`` (built over the baseline's units alone, each point
-    in the baseline) as the next version; raise :class:`BaselineRefused` when nothing can be frozen."""
+    in the baseline) as the next version; raise :class:`BaselineRefused` when nothing can be frozen, and
+    :class:`BaselineUnstable` when the baseline signals and was not accepted as it is."""
     runs = report.series.runs
     judged = [r for r in runs if r["verdict"] in ("pass", "fail")]
     if len(judged) < MIN_UNITS:
@@ -66,7 +87,16 @@ def freeze_baseline(engine: object, report: SpcReport, part: str, station_id: st
             measurement=m.name, centre=c.centre, sigma_within=c.sigma, mr_bar=c.mr_bar, n=c.baseline, baseline=words,
             first_run=int(used[0]["id"]), last_run=int(used[-1]["id"]),
             signals=[{"rule": rule, "serial": run["serial"], "run_id": run["id"]} for rule, run in signalled]))
-    who = by or getpass.getuser()
+    unstable = [f"{item.measurement}: {s['rule']} at {s['serial']} (run {s['run_id']})"
+                for item in limits for s in item.signals]
+    if unstable and not accepted.accept_unstable:
+        serials = sorted({s["serial"] for item in limits for s in item.signals})
+        raise BaselineUnstable(
+            f"the baseline of part {part} ({words}) is NOT stable, nothing frozen: " + "; ".join(unstable)
+            + f". Find each cause; then leave those units out (--exclude {' --exclude '.join(serials)}) or freeze the "
+            "baseline as it is, saying why (--accept-unstable --reason \"…\")")
+    who = accepted.by
+    limits = [FrozenLimits(**{**vars(item), "acceptance": accepted.stored()}) for item in limits]
     with engine.begin() as conn:  # type: ignore[attr-defined]
         version = freeze(conn, part, station_id or EVERY_STATION, limits, who, now_iso(), __version__)
     stored = [FrozenLimits(**{**vars(item), "version": version, "frozen_by": who,
@@ -87,7 +117,11 @@ def frozen_text(frozen: Frozen, part: str, station_id: str | None) -> str:
                                   POSSIBLE.get(base_name(item.measurement), (-np.inf, np.inf)))
         lines.append(f"  {item.measurement:<28} n {item.n:>4}  centre {item.centre:.6g}  σ {item.sigma_within:.4g}  "
                      f"LCL {lcl:.6g}  UCL {ucl:.6g}  {state}")
+    acceptance = frozen.limits[0].acceptance if frozen.limits else {}
+    if acceptance.get("excluded"):
+        lines.append(f"left out of the baseline: {', '.join(acceptance['excluded'])}")
+    lines.append(f"frozen by {frozen.limits[0].frozen_by}" if frozen.limits else "")
     lines.append("the baseline was stable: every later spc judges units against these limits" if frozen.stable else
-                 "the baseline was NOT stable: find the cause of each signal, then freeze a baseline without it; "
-                 "these limits are stored and judge later units until then")
-    return "\n".join(lines)
+                 f"the baseline was NOT stable, accepted as it is by {frozen.limits[0].frozen_by}: "
+                 f"{acceptance.get('reason', '')}; these limits judge later units until a new version is frozen")
+    return "\n".join(line for line in lines if line)

@@ -10,9 +10,18 @@ from difflib import get_close_matches
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from magline.core.faults import StationFault
 from magline.core.measurements import CATALOGUE, base_name, known_limit_name
-from magline.core.quality.baseline import BaselineRefused, baseline_words, freeze_baseline, frozen_text
+from magline.core.quality.baseline import (
+    Acceptance,
+    BaselineRefused,
+    BaselineUnstable,
+    baseline_words,
+    freeze_baseline,
+    frozen_text,
+)
 from magline.core.quality.spc import CSV_COLUMNS, build, csv_rows, format_text, to_json
 from magline.core.results.contract import KeepsSeries, ReadsInSql
 from magline.core.results.control_limits import newest
@@ -50,16 +59,42 @@ def _freeze(store: Any, station: Station, part: str, args: argparse.Namespace, s
     words = baseline_words(first, args.baseline_since, args.baseline_until)
     where = RunFilter(part=part, station_id=args.station_id, since=args.baseline_since, until=args.baseline_until,
                       verdicts=("pass", "fail"))
-    series = _with_station_limits(store.series(where, names=args.measurement, first=first), station, part)
+    if not (args.by or "").strip():
+        print("--freeze needs --by NAME: who is responsible for the limits frozen", file=sys.stderr)
+        return 2
+    if args.accept_unstable and not (args.reason or "").strip():
+        print("--accept-unstable needs --reason \"…\": why limits from an unstable baseline may judge later units",
+              file=sys.stderr)
+        return 2
+    excluded = tuple(dict.fromkeys(s.strip().upper() for s in args.exclude or () if s.strip()))
+    series = _without(_with_station_limits(store.series(where, names=args.measurement, first=first), station, part),
+                      excluded)
+    if excluded:
+        words += f", {', '.join(excluded)} left out"
     report = build(series, f"baseline of part {part}", args.measurement, baseline=max(len(series), 1),
                    stop_determined=stop_determined)
+    accepted = Acceptance(by=args.by.strip(), excluded=excluded, accept_unstable=args.accept_unstable,
+                          reason=(args.reason or "").strip())
     try:
-        frozen = freeze_baseline(store.engine, report, part, args.station_id, words, args.by)
+        frozen = freeze_baseline(store.engine, report, part, args.station_id, words, accepted)
+    except BaselineUnstable as exc:
+        print(str(exc), file=sys.stderr)
+        return 1
     except BaselineRefused as exc:
         print(str(exc), file=sys.stderr)
         return 2
     print(frozen_text(frozen, part, args.station_id))
     return 0
+
+
+def _without(series: Any, serials: tuple[str, ...]) -> Any:
+    """The series with the runs of ``serials`` (any case) left out."""
+    if not serials:
+        return series
+    keep = [i for i, run in enumerate(series.runs) if str(run.get("serial", "")).strip().upper() not in serials]
+    series.runs = [series.runs[i] for i in keep]
+    series.values = {name: np.asarray(values)[keep] for name, values in series.values.items()}
+    return series
 
 
 def unknown_measurements(names: list[str] | None) -> str | None:

@@ -336,7 +336,8 @@ def to_json(report: SpcReport) -> dict:
             "capability": m.capability.to_dict(), "limits_from": m.limits_from,
             "frozen": None if m.frozen is None else {"version": m.frozen.version, "frozen_by": m.frozen.frozen_by,
                                                      "frozen_at": m.frozen.frozen_at, "baseline": m.frozen.baseline,
-                                                     "station_id": m.frozen.station_id, "n": m.frozen.n},
+                                                     "station_id": m.frozen.station_id, "n": m.frozen.n,
+                                                     "acceptance": m.frozen.acceptance},
             "signals": [{"rule": s.rule, "serial": serial(c.index[s.point]), "value": float(c.values[s.point])}
                         for s in c.signals],
             "baseline": c.baseline, "mr_bar": c.mr_bar, "mr_ucl": c.mr_ucl,

@@ -36,6 +36,8 @@ class FrozenLimits:
     frozen_by: str = ""
     frozen_at: str = ""
     software_version: str = ""
+    # how the baseline was accepted: the serials left out of it, and an unstable one's reason
+    acceptance: dict = field(default_factory=dict)
 
     def words(self) -> str:
         where = f"station {self.station_id}" if self.station_id else "every station"
@@ -53,7 +55,8 @@ def freeze(conn: Connection, part: str, station_id: str, limits: list[FrozenLimi
     for item in limits:
         row = asdict(item)
         row.update(part=part, station_id=station_id, version=version, frozen_by=by, frozen_at=at,
-                   software_version=software_version, signals=json.dumps(item.signals))
+                   software_version=software_version, signals=json.dumps(item.signals),
+                   acceptance=json.dumps(item.acceptance))
         rows.append(row)
     if rows:
         conn.execute(control_limits.insert(), rows)
@@ -77,6 +80,7 @@ def newest(conn: Connection, part: str, station_id: str | None) -> dict[str, Fro
             data.pop("id")
             data.pop("part")
             data["signals"] = json.loads(data["signals"] or "[]")
+            data["acceptance"] = json.loads(data.get("acceptance") or "{}")
             found[data["measurement"]] = FrozenLimits(**data)
         return found
     return {}

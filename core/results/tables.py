@@ -116,5 +116,6 @@ control_limits = Table(
     Column("first_run", Integer), Column("last_run", Integer),  # the baseline's first and last run ids
     Column("signals", Text),  # JSON: the run rules' signals on the baseline itself [{rule, serial, run_id}]
     Column("frozen_by", Text), Column("frozen_at", Text), Column("software_version", Text),
+    Column("acceptance", Text),  # JSON: {"excluded": [serials], "accepted_unstable": bool, "reason": str}
     Index("control_limits_lookup", "part", "station_id", "measurement", "version", unique=True),
 )
