@@ -18,9 +18,15 @@ capability does the same):
    ``scipy.stats.boxcox``) makes normal: the normal indices of the transformed values against the
    transformed limits (the transformation is increasing, so the limits keep their order);
 3. else the ISO 22514-2 percentile method on the best-fitting shape (3-parameter gamma, log-normal
-   or Weibull, Johnson SU, by AIC, as ``scipy.stats`` fits them): Ppk = min((USL − X₅₀)/(X₉₉.₈₆₅ −
-   X₅₀), (X₅₀ − LSL)/(X₅₀ − X₀.₁₃₅)), an overall index only (there is no within-process σ of a fitted
-   shape) and no interval.
+   or Weibull, Johnson SU, by AIC, as ``scipy.stats`` fits them) among those whose parameters lie inside
+   their domain with a margin (:func:`_refusal`: where the likelihood can run away at the threshold, the
+   threshold below the minimum by 5 % of the range — 1 % for a log-normal —, a scale above the data's
+   resolution, tails within 3 ranges of the data): Ppk = min((USL − X₅₀)/(X₉₉.₈₆₅
+   − X₅₀), (X₅₀ − LSL)/(X₅₀ − X₀.₁₃₅)), an overall index only (there is no within-process σ of a fitted
+   shape) and no interval;
+4. else no capability figure, with the reason (never 0.00).
+
+Box-Cox's λ is bounded to [−5, 5].
 
 The method is always said with the index.  Written here because no maintained Python library
 computes the indices; the normal quantile is the standard library's ``statistics.NormalDist``,
@@ -140,7 +146,8 @@ def _box_cox(x: np.ndarray, low: float | None, high: float | None, normal: Capab
 
     if np.any(x <= 0) or (high is not None and high <= 0):
         return None
-    y, lam = stats.boxcox(x)
+    lam = bounded_box_cox_lambda(x)
+    y = stats.boxcox(x, lam)
     shape = anderson_darling(y)
     if shape is None or not shape.normal:
         return None
@@ -159,6 +166,21 @@ def _box_cox(x: np.ndarray, low: float | None, high: float | None, normal: Capab
                       box_cox_lambda=float(lam), transformed=(mean, overall),
                       method_words=(f"Box-Cox λ = {lam:.2f} (not normal: Anderson–Darling p {normal.normality.p_words}"
                                     f"; transformed: p {shape.p_words})"), normality=normal.normality)
+
+
+# Box-Cox's λ is sought within these bounds (Minitab's own).  Why bounded: on 30 values all within
+# 0.28–0.32 against an upper limit of 1.0 the unbounded maximum likelihood went to λ = −11.6, where the
+# transformed limit crowds the data, and stated Ppk 1.01 for a characteristic with room for 20σ.
+LAMBDA_BOUNDS = (-5.0, 5.0)
+
+
+def bounded_box_cox_lambda(x: np.ndarray) -> float:
+    """The maximum-likelihood Box-Cox λ within :data:`LAMBDA_BOUNDS` (``scipy.stats.boxcox_llf``)."""
+    from scipy import optimize, stats
+
+    found = optimize.minimize_scalar(lambda lam: -stats.boxcox_llf(lam, x), bounds=LAMBDA_BOUNDS, method="bounded",
+                                     options={"xatol": 1e-6})
+    return float(found.x)
 
 
 # The Box-Cox intervals come from a parametric bootstrap of the whole procedure: this many data sets drawn
@@ -262,48 +284,104 @@ SHAPE_NAMES = {"gamma": "3-parameter gamma", "lognorm": "3-parameter log-normal"
 FIT_VALUES = 2000
 
 
-def best_shape(x: np.ndarray) -> tuple[str, object] | None:
-    """(name, frozen scipy distribution) of the candidate shape with the lowest AIC; None if none fits."""
+# A fitted shape is a description of the data only where its parameters lie inside their domain with a
+# margin: a likelihood that runs away — a threshold drawn up to the smallest value (a gamma or Weibull of
+# shape < 1 there has an infinite density), a scale shrunk below the data's own resolution (quantised
+# values) — is not a fit.  The rules, stated with the index:
+# A gamma's or Weibull's density is infinite at its threshold where its shape is below 1, and the
+# likelihood then grows without bound as the threshold reaches the smallest value: such a fit must keep
+# its threshold this share of the range below the minimum (a log-normal's, whose likelihood runs away
+# the same way as its threshold closes in, the smaller share).
+THRESHOLD_MARGIN = {"gamma": 0.05, "weibull_min": 0.05, "lognorm": 0.01}
+TAIL_RANGES = 3.0  # its 0.135 % and 99.865 % points within this many sample ranges of the sample's extremes
+
+
+@dataclass(frozen=True)
+class ShapeFit:
+    name: str
+    dist: object | None
+    aic: float
+    refused: str = ""  # why the fit is not a shape of the data ("" : it is)
+
+
+def resolution(x: np.ndarray) -> float:
+    """The smallest step between distinct values (the data's quantisation); 0 for fewer than two."""
+    steps = np.diff(np.unique(x))
+    return float(steps.min()) if steps.size else 0.0
+
+
+def _refusal(name: str, dist: object, params: tuple, x: np.ndarray) -> str:
+    spread = float(x.max() - x.min())
+    if spread <= 0:
+        return "the values do not vary"
+    scale = float(params[-1])
+    if scale <= resolution(x):
+        return f"its scale {scale:.3g} is below the data's resolution {resolution(x):.3g}"
+    runaway = name == "lognorm" or (name in THRESHOLD_MARGIN and float(params[0]) < 1.0)
+    margin = THRESHOLD_MARGIN.get(name, 0.0)
+    if runaway and float(params[-2]) > x.min() - margin * spread:
+        return (f"its threshold {float(params[-2]):.4g} is not below the smallest value {x.min():.4g} by "
+                f"{margin:.0%} of the range (shape {float(params[0]):.2f}: its likelihood runs away there)")
+    lower, upper = (float(q) for q in dist.ppf([0.00135, 0.99865]))  # type: ignore[attr-defined]
+    if not (np.isfinite(lower) and np.isfinite(upper)) or lower < x.min() - TAIL_RANGES * spread \
+            or upper > x.max() + TAIL_RANGES * spread:
+        return (f"its 0.135 %–99.865 % points ({lower:.4g}, {upper:.4g}) lie beyond {TAIL_RANGES:g} ranges of the "
+                "data")
+    return ""
+
+
+def shape_fits(x: np.ndarray) -> list[ShapeFit]:
+    """Every candidate shape fitted by maximum likelihood (``scipy.stats``), each with its AIC and, where it
+    is not a shape of the data, why (:func:`_refusal`)."""
     import warnings
 
     from scipy import stats
 
     if x.size > FIT_VALUES:
         x = x[np.linspace(0, x.size - 1, FIT_VALUES).round().astype(int)]
-    best: tuple[float, str, object] | None = None
+    out = []
     for name in SHAPES:
         family = getattr(stats, name)
         with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # the optimiser's own complaints; a failed fit is skipped
+            warnings.simplefilter("ignore")  # the optimiser's own complaints; a failed fit is said
             try:
                 params = family.fit(x)
                 dist = family(*params)
                 log_likelihood = float(np.sum(dist.logpdf(x)))
             except (ValueError, RuntimeError, FloatingPointError):
+                out.append(ShapeFit(name, None, math.inf, "the fit did not converge"))
                 continue
         if not np.isfinite(log_likelihood):
+            out.append(ShapeFit(name, None, math.inf, "its likelihood is not finite"))
             continue
-        aic = 2 * len(params) - 2 * log_likelihood
-        if best is None or aic < best[0]:
-            best = (aic, name, dist)
-    return None if best is None else (best[1], best[2])
+        out.append(ShapeFit(name, dist, 2 * len(params) - 2 * log_likelihood, _refusal(name, dist, params, x)))
+    return out
+
+
+def best_shape(x: np.ndarray, fits: list[ShapeFit] | None = None) -> tuple[str, object] | None:
+    """(name, frozen scipy distribution) of the accepted shape with the lowest AIC; None if none is."""
+    accepted = [f for f in fits or shape_fits(x) if not f.refused]
+    best = min(accepted, key=lambda f: f.aic, default=None)
+    return None if best is None else (best.name, best.dist)
 
 
 def _percentile(x: np.ndarray, low: float | None, high: float | None, normal: Capability) -> Capability:
     """ISO 22514-2's percentile Ppk on the best-fitting shape (no Cpk, no interval)."""
-    chosen = best_shape(x)
+    fits = shape_fits(x)
+    chosen = best_shape(x, fits)
+    tried = "; ".join(f"{SHAPE_NAMES[f.name]} refused: {f.refused}" for f in fits if f.refused)
     if chosen is None:
         return Capability(n=normal.n, mean=normal.mean, sigma_within=normal.sigma_within,
                           sigma_overall=normal.sigma_overall, cpk=None, ppk=None, method="percentile",
-                          method_words="not normal, and no shape fits: no capability stated",
-                          normality=normal.normality)
+                          method_words=f"no capability figure: not normal, not made normal by Box-Cox, and no "
+                                       f"shape describes the data ({tried})", normality=normal.normality)
     name, dist = chosen
     lower, median, upper = (float(q) for q in dist.ppf([0.00135, 0.5, 0.99865]))  # type: ignore[attr-defined]
     sides = [(high - median) / (upper - median)] if high is not None and upper > median else []
     sides += [(median - low) / (median - lower)] if low is not None and median > lower else []
     words = (f"ISO 22514-2 percentiles of a fitted {SHAPE_NAMES[name]}, the best of {len(SHAPES)} shapes by AIC "
              f"(not normal: Anderson–Darling p {normal.normality.p_words if normal.normality else '—'}); "
-             "Ppk only, no interval")
+             "Ppk only, no interval" + (f"; {tried}" if tried else ""))
     ppk = Index(min(sides), None, None) if sides and all(map(math.isfinite, sides)) else None
     return Capability(n=normal.n, mean=normal.mean, sigma_within=normal.sigma_within,
                       sigma_overall=normal.sigma_overall, cpk=None, ppk=ppk, method="percentile",
