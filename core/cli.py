@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import sys
 from collections.abc import Callable, Iterator
 from importlib.resources import as_file, files
@@ -579,7 +580,8 @@ def _history(args: argparse.Namespace, plugins: Plugins) -> int:
         cal = run.get("calibration") or {}
         offsets = (" offset [" + ", ".join(fmt(v) for v in cal["hard_iron_ut"]) + "] µT") if cal.get(
             "hard_iron_ut") else ""
-        print(f"#{run['id']} {run['started'][:19]} station {run['station_id']} {run['part']} "
+        started = re.sub(r"\.\d+(?=[+-]\d\d:\d\d$|Z$)", "", str(run["started"]))  # to the second, with its offset
+        print(f"#{run['id']} {started} station {run['station_id']} {run['part']} "
               f"{run['verdict'].upper()}{where_aborted}{offsets} attempts [{cov}] {run['cause'] or ''}".rstrip())
         for f in run["failed"]:
             print(f"    ✗ {f['name']} = {fmt(f['value'], f['unit'])}  limits [{fmt(f['low'])}, {fmt(f['high'])}]")

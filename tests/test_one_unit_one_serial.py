@@ -5,6 +5,7 @@ two stations in two folders, the batch line, and the console's last word on each
 from __future__ import annotations
 
 import json
+import re
 import threading
 from importlib.resources import as_file, files
 
@@ -102,7 +103,10 @@ def test_serials_are_one_unit_whatever_the_case_typed_and_found_so(make_station,
     assert stored_serials(tmp_path / "magline-demo-results.sqlite") == ["SN-LOWER-01", "SN-LOWER-01"]
     capsys.readouterr()
     assert main(["history", "Sn-Lower-01", "--station", str(path)]) == 0
-    assert capsys.readouterr().out.count(" PASS") == 2
+    out = capsys.readouterr().out
+    assert out.count(" PASS") == 2
+    # its times to the second with their offset, as every other command prints them
+    assert len(re.findall(r"^#\d+ \d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\+00:00 station ", out, re.M)) == 2, out
     assert main(["show", "sn-lower-01", "--station", str(path), "--json"]) == 0
     assert '"serial": "SN-LOWER-01"' in capsys.readouterr().out
     assert main(["report", "sn-lower-01", "--station", str(path), "-o", str(tmp_path / "r.html")]) == 0
