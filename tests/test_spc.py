@@ -626,3 +626,32 @@ def test_the_bootstrap_s_lambdas_are_scipy_s_maximum_likelihood_lambdas():
         assert np.abs(found - [stats.boxcox(row)[1] for row in sets]).max() < 1e-3
     far = rng.lognormal(0.0, 0.3, size=(3, 100))  # the data's λ 4 away: each row beyond the grid goes to scipy
     assert np.abs(box_cox_lambdas(far, 4.0) - [stats.boxcox(row)[1] for row in far]).max() < 1e-6
+
+
+def test_the_study_says_what_it_is_before_its_figures(make_station, capsys, tmp_path):
+    """Issue 64: the demo's units are one simulated board tested again and again (each test starts from the
+    previous one's calibration): a repeatability study, said so in the text, --json and the page, with the
+    product, specification, reference, responsible person and window; a board's chain is told from the
+    parameters before each test."""
+    import json
+
+    from magline.core.cli import main
+    from magline.core.quality.study import count_boards
+
+    station = make_station()
+    for i in range(6):
+        assert main(["run", str(station), "--serial", f"STUDY-{i}"]) == 0
+    capsys.readouterr()
+    assert main(["spc", "--station", str(station), "--json", "--html", str(tmp_path / "spc.html")]) == 0
+    study = json.loads(capsys.readouterr().out)["study"]
+    assert study["repeatability"] and study["boards"] == 1 and study["units"] == 6
+    assert study["kind"].startswith("REPEATABILITY STUDY, not process capability: 1 board(s) behind 6 units")
+    assert study["product"] == "MOCK-100" and study["reference"].startswith("fixed field source")
+    assert study["responsible"].startswith("nobody yet: the limits are provisional")
+    assert study["specification"].startswith("limit set ") and "(1 in the window)" in study["specification"]
+    assert "REPEATABILITY STUDY" in (tmp_path / "spc.html").read_text(encoding="utf-8")
+    # the chains: a new board starts from its factory values, a re-tested one from its last calibration
+    new, again, other = {"X": 0.0}, {"X": 1.5}, {"X": 7.25}
+    params = {1: {"before": new, "written": again}, 2: {"before": again, "written": {"X": 1.6}},
+              3: {"before": new, "written": other}, 4: {}}
+    assert count_boards(params, [1, 2, 3, 4]) == 2 and count_boards({}, [1]) is None

@@ -87,6 +87,33 @@ def _freeze(store: Any, station: Station, part: str, args: argparse.Namespace, s
     return 0
 
 
+def _study(store: Any, station: Station, part: str, args: argparse.Namespace, series: Any, frozen: dict) -> Any:
+    """What the study is (core/quality/study.py): the station file's product and reference, the limit sets
+    the runs were judged against, who froze the limits in use, the window asked, the boards behind it."""
+    from magline.core.quality.study import StudyHeader, count_boards
+    from magline.core.results.reading import params_by_stage
+
+    runs = series.runs
+    hashes = list(dict.fromkeys(str(r.get("limit_hash") or "—") for r in reversed(runs)))
+    source = station.field_source
+    reference = f"{source.type} field source" + "".join(
+        f", {k} {v}" for k, v in (source.options or {}).items() if k in ("field_ut", "inclination_deg", "model"))
+    by = sorted({f.frozen_by for f in frozen.values() if f.frozen_by})
+    boards = None
+    if isinstance(store, ReadsInSql):
+        ids = [int(r["id"]) for r in runs]
+        with store.engine.connect() as conn:
+            boards = count_boards(params_by_stage(conn, ids), ids)
+    window = ", ".join(f"{k} {v}" for k, v in (("since", args.since), ("until", args.until)) if v) or "every run"
+    return StudyHeader(product=part, station_file=str(args.station or "the embedded demo station"),
+                       specification="limit set " + ", ".join(hashes[:3]) + (" …" if len(hashes) > 3 else "")
+                       + f" ({len(hashes)} in the window)", reference=reference,
+                       responsible=(f"limits frozen by {', '.join(by)}" if by else
+                                    "nobody yet: the limits are provisional (spc --freeze --by NAME)"),
+                       window=f"{window}, the latest {args.last} at most", points=len(runs),
+                       units=len({str(r['serial']).upper() for r in runs}), boards=boards)
+
+
 def _without(series: Any, serials: tuple[str, ...]) -> Any:
     """The series with the runs of ``serials`` (any case) left out."""
     if not serials:
@@ -139,6 +166,7 @@ def spc(store: Any, station: Station, args: argparse.Namespace, station_dir: Pat
         return 2
     report = build(series, title, args.measurement, args.baseline, stop_determined=stop_determined, frozen=frozen,
                    shifts=getattr(args, "shifts", None))
+    report.study = _study(store, station, part, args, series, frozen)
     if getattr(args, "json", False):
         print(json.dumps(to_json(report), default=float))
     elif getattr(args, "csv", False):

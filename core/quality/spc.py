@@ -11,6 +11,7 @@ from __future__ import annotations
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -19,6 +20,7 @@ from magline.core.quality.capability import MIN_UNITS, MIN_UNITS_SOURCE, Capabil
 from magline.core.quality.charts import ImrChart, frozen_chart, imr_chart
 from magline.core.quality.parallel import capabilities
 from magline.core.quality.rules import RULES
+from magline.core.quality.study import plausibility_note
 from magline.core.quality.trends import Shifts, Trends, trends
 from magline.core.quality.yields import YieldRow, ranked_causes, yields
 from magline.core.results.control_limits import EVERY_STATION, FrozenLimits
@@ -97,6 +99,7 @@ class SpcReport:
     unlimited: list[str] = field(default_factory=list)  # not charted by default: no limit describes them
     trends: Trends | None = None  # yield and failure causes per day or shift, per station, operator, product, compass
     by_shift: bool = False  # the trends' periods are the line's shifts, not days
+    study: Any = None  # what the study is (core/quality/study.py StudyHeader), said before its figures
 
 
 def _order(name: str) -> tuple[int, str]:
@@ -203,7 +206,8 @@ def format_text(report: SpcReport) -> str:
     runs = report.series.runs
     lines = [report.title,
              f"{len(runs)} runs" + (f", {runs[0]['started']} → {runs[-1]['started']}" if runs else "")
-             + (f" (from {report.series.source})" if report.series.source else ""), ""]
+             + (f" (from {report.series.source})" if report.series.source else ""),
+             *(report.study.lines() if report.study is not None else []), ""]
     if not runs:
         return "\n".join([*lines, "no runs match"])
     # the indices' columns as wide as their widest entry: a capable process's "538.97 [362.81, 715.13]"
@@ -334,6 +338,8 @@ def to_json(report: SpcReport) -> dict:
             "cpk": None if m.capability.cpk is None else vars(m.capability.cpk),
             "ppk": None if m.capability.ppk is None else vars(m.capability.ppk),
             "capability": m.capability.to_dict(), "limits_from": m.limits_from,
+            "plausibility": plausibility_note(max((i.value for i in (m.capability.cpk, m.capability.ppk) if i),
+                                                  default=None)),
             "frozen": None if m.frozen is None else {"version": m.frozen.version, "frozen_by": m.frozen.frozen_by,
                                                      "frozen_at": m.frozen.frozen_at, "baseline": m.frozen.baseline,
                                                      "station_id": m.frozen.station_id, "n": m.frozen.n,
@@ -350,6 +356,7 @@ def to_json(report: SpcReport) -> dict:
                                          "started": str(runs[i]["started"]), "value": 1.0, "signals": []}
                                         for i in a.units]})
     return {"title": report.title, "runs": len(runs), "measurements": measurements,
+            "study": None if report.study is None else report.study.to_dict(),
             "constants": [{"name": n, "value": v, "unit": u} for n, v, u in report.constants],
             "station_figures": report.station_figures, "unlimited": report.unlimited,
             "capability_needs": {"units": MIN_UNITS, "source": MIN_UNITS_SOURCE},

@@ -32,6 +32,11 @@ def write_spc_page(report: SpcReport, path: Path, reports: Path | None = None) -
                 + (f"; from {html.escape(report.series.source)}" if report.series.source else "")
                 + ". Centre line and 3σ limits from the first judged units (baseline); rules: "
                 + html.escape("; ".join(RULES.values())) + ".</p>"]
+    if report.study is not None:  # what the study is, before its figures
+        first, *rest = report.study.lines()
+        warn = " style='color:#b00;font-weight:bold'" if report.study.repeatability else ""
+        sections += [f"<h2{warn}>{html.escape(first.removeprefix('study: '))}</h2>",
+                     "<ul class=study>" + "".join(f"<li>{html.escape(line)}</li>" for line in rest) + "</ul>"]
 
     rows = [(m.name, m.chart.values.size, fmt(m.chart.centre, m.unit), fmt(m.chart.sigma, m.unit),
              f"[{fmt(m.limit.low)}, {fmt(m.limit.high)}]", index_words(m.capability.cpk),

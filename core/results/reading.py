@@ -177,3 +177,16 @@ def serial_attempts(conn: Connection, serial: str) -> list[dict[str, Any]]:
     for (rid,) in conn.execute(select(runs.c.id).where(same_serial(conn, serial)).order_by(runs.c.id)):
         found += [{"run_id": rid, **a} for a in run_attempts(conn, rid, with_samples=True)]
     return found
+
+
+def params_by_stage(conn: Any, run_ids: list[int]) -> dict[int, dict[str, dict[str, float]]]:
+    """Each run's parameters by stage ("before", "written", …) for ``run_ids`` (read in chunks)."""
+    from magline.core.results.tables import params
+
+    out: dict[int, dict[str, dict[str, float]]] = {}
+    for start in range(0, len(run_ids), 500):
+        chunk = run_ids[start:start + 500]
+        for row in conn.execute(select(params.c.run_id, params.c.stage, params.c.name, params.c.value)
+                                .where(params.c.run_id.in_(chunk))):
+            out.setdefault(int(row.run_id), {}).setdefault(str(row.stage), {})[str(row.name)] = float(row.value)
+    return out
