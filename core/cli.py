@@ -271,6 +271,8 @@ def _run(args: argparse.Namespace, plugins: Plugins) -> int:
                         continue
                     for record in records:
                         batch.add(record)
+                        for fault in record.listener_faults:  # the verdict stands; the plugin's author is told
+                            _err(f"warning: a listener failed on {record.serial}: {fault}")
                     if sequencer.abort.requested is not None:
                         break
                     if sequencer.stopped is not None:

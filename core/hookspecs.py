@@ -414,4 +414,10 @@ def magline_unit_judged(run: RunContext, measurements: list[Numeric]) -> None:
 
 @hookspec
 def magline_unit_finished(run: RunContext, record: RunRecord) -> None:
-    """The unit's run is complete and stored; ``record`` holds the verdict and everything measured."""
+    """The unit's run is complete and stored; ``record`` holds the verdict and everything measured.
+
+    A listener (a plant feed, a screen): an exception it raises is caught and said — which plugin, which
+    hook, the message — in ``record.listener_faults`` and as a warning; the verdict, the exit code and a
+    ``--loop`` batch go on.  (The same holds for ``magline_phase_started`` and ``magline_phase_finished``.)
+    Every product's units are heard: a plugin keeps to its own by ``run.part`` or ``record.part``.
+    Keeping a record is ``magline_record_unit``'s, whose failure is the unit's ERROR."""

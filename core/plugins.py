@@ -12,6 +12,7 @@ The :class:`Plugins` façade lets the core read like the procedure it runs
 
 from __future__ import annotations
 
+import logging
 import os
 from collections.abc import Callable
 from importlib.metadata import entry_points
@@ -25,7 +26,13 @@ from magline.core.dut import DutFactory
 
 hookimpl = pluggy.HookimplMarker("magline")
 ENTRY_POINT_GROUP = "magline"
+log = logging.getLogger("magline.plugins")
 DISABLE_ENV = "MAGLINE_DISABLE_PLUGINS"
+
+
+def _plugin_name(impl: Any) -> str:
+    """A plugin's name; one registered without a name (a test's or an application's object) by its class."""
+    return impl.plugin_name if not impl.plugin_name.isdigit() else type(impl.plugin).__name__
 
 
 class PluginError(RuntimeError):
@@ -66,7 +73,7 @@ class Plugins:
         which plugin registers what."""
         for impl in reversed(hook.get_hookimpls()):
             # a plugin registered without a name (a test's or an application's object) is called by its class
-            by = impl.plugin_name if not impl.plugin_name.isdigit() else type(impl.plugin).__name__
+            by = _plugin_name(impl)
 
             def register(name: str, factory: Any, options: type | None = None, _by: str = by,
                          stores: dict[str, str] | None = None) -> None:
@@ -86,6 +93,21 @@ class Plugins:
                     self.calibration_stores[name] = dict(stores)
 
             impl.function(register=register)
+
+    def notify(self, hook_name: str, faults: list[str] | None = None, **kwargs: Any) -> None:
+        """Call a listener hook's implementations one by one: one that raises is said (which plugin, which
+        hook, the message) in ``faults`` and the log, and the others still hear.  Why: a listener — a plant
+        feed whose file is not writable, a screen gone — must never touch the verdict, the exit code or a
+        batch; a results store failing is not a listener (``magline_record_unit``) and stays an ERROR.  An
+        abort (``UnitAborted``, a ``BaseException``) still goes through."""
+        for impl in reversed(getattr(self.hook, hook_name).get_hookimpls()):
+            try:
+                impl.function(**{name: kwargs[name] for name in impl.argnames if name in kwargs})
+            except Exception as exc:
+                text = f"plugin {_plugin_name(impl)!r}, {hook_name}: {type(exc).__name__}: {exc}"
+                log.warning("a listener failed (the unit's verdict stands): %s", text)
+                if faults is not None:
+                    faults.append(text)
 
     def options(self, kind: str, name: str, raw: dict[str, Any], owner: str) -> Any:
         """A factory's options: ``raw`` validated against the model the plugin registered for

@@ -126,6 +126,9 @@ class RunRecord:
     report_error: str = ""  # why the report the station should have written is missing
     slot: str | None = None  # the fixture position on a station with slots
     slot_group: str | None = None  # the units that shared the motion with this one carry the same id
+    # listeners that raised while the unit ran (which plugin, which hook, the message): warnings, the verdict
+    # stands (core/plugins.py Plugins.notify)
+    listener_faults: list[str] = field(default_factory=list)
 
     def sensor_titles(self) -> dict[str, str]:
         """Each calibrated magnetometer's section title by measurement prefix (``""`` the primary,

@@ -179,14 +179,15 @@ class Sequencer:
                 record.cause = f"{record.cause} — {note}" if record.cause else note
                 if record.verdict in (Outcome.PASS, Outcome.FAIL):
                     record.verdict = Outcome.ERROR  # a judgement nobody can trace does not count
-            self.plugins.hook.magline_unit_finished(run=run, record=record)  # reports, screens, … listen
+            # reports, screens, plant feeds … listen; one that raises is a warning on the record, never the verdict
+            self.plugins.notify("magline_unit_finished", record.listener_faults, run=run, record=record)
         return record
 
     def _run_phase(self, run: RunContext, name: str, step: Callable[[RunContext], Any]) -> Outcome:
         result = PhaseResult(name=name)
         run._phase = result
         run.record.phases.append(result)
-        self.plugins.hook.magline_phase_started(run=run, phase=name)
+        self.plugins.notify("magline_phase_started", run.record.listener_faults, run=run, phase=name)
         start = time.monotonic()
         run.phase_started_at = start
         try:
@@ -219,7 +220,7 @@ class Sequencer:
         if result.message:
             result.log.append(result.message)
         run._phase = None
-        self.plugins.hook.magline_phase_finished(run=run, phase=name, result=result)
+        self.plugins.notify("magline_phase_finished", run.record.listener_faults, run=run, phase=name, result=result)
         return result.outcome
 
     def _conclude(self, record: RunRecord, verdict: Outcome) -> Outcome:
