@@ -280,6 +280,8 @@ def _run(args: argparse.Namespace, plugins: Plugins) -> int:
                         break
             except UnitAborted as exc:  # at the serial prompt: nothing to restore
                 console.note(f"{exc.reason}: no unit under test")
+                if batch.units == 0:
+                    return 2  # that one line says it all
     except ValueError as exc:  # --serial that does not fit the station
         _err(str(exc))
         return 2

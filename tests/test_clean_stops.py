@@ -181,3 +181,47 @@ def test_a_signal_during_a_slot_load_aborts_every_slot_and_keeps_each_ones_readi
     for serial in ("SL-A", "SL-B"):
         (attempt,) = attempt_rows(tmp_path / "magline-demo-results.sqlite", serial)
         assert attempt["samples"] > 0 and attempt["refused"].startswith("interrupted: stopped by")
+
+
+def test_ctrl_c_while_the_command_starts_is_one_line_and_the_abort_s_exit_code(monkeypatch, capsys):
+    """Issue 65: a Ctrl-C in the half second of imports before ``magline run --loop`` reached its prompt
+    printed a Python traceback.  The entry point holds the handler before anything heavy is imported: an
+    interrupt inside the command's imports, or inside any command, ends with one line and exit 2."""
+    import importlib.abc
+
+    from magline.core import entry
+
+    class InterruptedImport(importlib.abc.MetaPathFinder):
+        def find_spec(self, name, path, target=None):
+            if name == "magline.core.cli":
+                raise KeyboardInterrupt
+            return None
+
+    monkeypatch.delitem(sys.modules, "magline.core.cli", raising=False)
+    monkeypatch.setattr(sys, "meta_path", [InterruptedImport(), *sys.meta_path])
+    assert entry.main() == entry.ABORT_EXIT
+    err = capsys.readouterr().err
+    assert err == "magline: interrupted (Ctrl-C): nothing more was done\n"
+
+
+def test_ctrl_c_at_the_serial_prompt_is_one_line_and_exit_2(tmp_path):
+    """At the prompt: the prompt's line says it, and nothing else is printed."""
+    import signal
+
+    proc = subprocess.Popen([sys.executable, "-m", "magline.core.entry", "run", "--loop"], cwd=tmp_path,
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        seen = ""
+        while "Scan the unit's serial number" not in seen:  # the prompt is what it waits for, not a time
+            char = proc.stdout.read(1)
+            assert char, proc.stderr.read()
+            seen += char
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert proc.returncode == 2
+    lines = (seen + out).strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("Scan the unit's serial number")
+    assert lines[0].endswith("stopped by Ctrl-C: no unit under test")
+    assert "Traceback" not in err and err.strip() == ""
