@@ -206,3 +206,43 @@ def test_the_batch_report_reads_like_a_capability_study_and_a_point_opens_its_un
     assert plots_with_data(opened.page)  # its charts drew with the plotly.js it shares with the folder
     assert opened.outside(OFFLINE) == []
     screenshot(opened.page, tmp_path / "study.png")
+
+
+def test_the_capability_table_keeps_each_figure_on_one_line_and_the_text_table_says_units(make_station, tmp_path,
+                                                                                           browser, capsys):
+    """Issue 64: on a laptop-wide page the capability table's figures wrapped mid-figure ("µT" under its
+    number, "[—, 150]" over two lines); the text table had no units.  Measured in Chromium: each figure's text
+    is one line box."""
+    for i, serial in enumerate(("W-1", "W-2", "W-3")):
+        station = make_station(seed=70 + i)
+        assert main(["run", str(station), "--serial", serial]) == 0
+    page = tmp_path / "spc.html"
+    assert main(["spc", "--station", str(station), "--html", str(page)]) == 0
+    out = capsys.readouterr().out
+    header = next(line for line in out.splitlines() if line.startswith("measurement ") and " σ within " in line)
+    assert header.split()[:3] == ["measurement", "unit", "n"]
+    assert any(line.startswith("hard_iron_norm_ut") and " µT " in line for line in out.splitlines())
+    opened = open_page(browser, page.as_uri(), viewport=(900, 800))
+    wrapped = opened.page.evaluate("""() => {
+        const table = [...document.querySelectorAll('h2')].find(h => h.textContent === 'Capability').nextElementSibling;
+        return [...table.querySelectorAll('td.num')].filter(td => {
+            const range = document.createRange(); range.selectNodeContents(td);
+            return new Set([...range.getClientRects()].map(r => Math.round(r.top))).size > 1;
+        }).map(td => td.textContent);
+    }""")
+    assert wrapped == []
+
+
+def test_two_groups_at_the_same_yield_both_stay_visible():
+    """Issue 64: carol's first-pass-yield point sat exactly under dave's.  Each group's markers are a size
+    smaller and of their own symbol, drawn over the one before."""
+    from types import SimpleNamespace
+
+    from magline.core.reports.trend_figures import yield_over_time
+
+    point = SimpleNamespace(period="2026-11-20", first_pass=3, first_runs=3)
+    trends = SimpleNamespace(fpy={"operator": {"carol": [point], "dave": [point]}})
+    fig = yield_over_time(trends, "operator", by_shift=False)
+    carol, dave = fig.data
+    assert carol.y == dave.y  # the same yield, the same place …
+    assert carol.marker.size > dave.marker.size and carol.marker.symbol != dave.marker.symbol  # … both seen

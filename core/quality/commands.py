@@ -98,6 +98,10 @@ def _study(store: Any, station: Station, part: str, args: argparse.Namespace, se
     source = station.field_source
     reference = f"{source.type} field source" + "".join(
         f", {k} {v}" for k, v in (source.options or {}).items() if k in ("field_ut", "inclination_deg", "model"))
+    fields = [float(r["reference_field_ut"]) for r in runs if r.get("reference_field_ut") is not None]
+    if fields:  # what the units were really measured against (a fluxgate's checks move it)
+        reference += (f"; the runs measured against {min(fields):.2f}–{max(fields):.2f} µT" if max(fields) > min(fields)
+                      else f"; the runs measured against {fields[0]:.2f} µT")
     by = sorted({f.frozen_by for f in frozen.values() if f.frozen_by})
     boards = None
     if isinstance(store, ReadsInSql):

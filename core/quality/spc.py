@@ -214,7 +214,7 @@ def format_text(report: SpcReport) -> str:
     # pushed the normality columns out of line
     cpk_w = max([20, *(len(index_words(m.capability.cpk)) for m in report.measurements)])
     ppk_w = max([20, *(len(index_words(m.capability.ppk)) for m in report.measurements)])
-    header = (f"{'measurement':<24} {'n':>6} {'centre':>11} {'σ within':>10} {'LCL':>10} {'UCL':>10} "
+    header = (f"{'measurement':<24} {'unit':<5} {'n':>6} {'centre':>11} {'σ within':>10} {'LCL':>10} {'UCL':>10} "
               f"{'limits':>18}  {'Cpk [95% CI]':<{cpk_w}} {'Ppk [95% CI]':<{ppk_w}} {'AD p':>6} {'method':<16} "
               "signals")
     lines += [header, "-" * len(header)]
@@ -225,8 +225,8 @@ def format_text(report: SpcReport) -> str:
         latest = c.signals[-1] if c.signals else None
         where = (f"{len(c.signals)}: latest {latest.rule} at {runs[c.index[latest.point]]['serial']}"
                  if latest else "none")
-        lines.append(f"{m.name:<24} {c.values.size:>6} {fmt(c.centre):>11} {fmt(c.sigma):>10} {fmt(c.lcl):>10} "
-                     f"{fmt(c.ucl):>10} {limits:>18}  {index_words(m.capability.cpk):<{cpk_w}} "
+        lines.append(f"{m.name:<24} {m.unit or '—':<5} {c.values.size:>6} {fmt(c.centre):>11} {fmt(c.sigma):>10} "
+                     f"{fmt(c.lcl):>10} {fmt(c.ucl):>10} {limits:>18}  {index_words(m.capability.cpk):<{cpk_w}} "
                      f"{index_words(m.capability.ppk):<{ppk_w}} {_ad_p(m.capability):>6} "
                      f"{m.capability.method_short:<16} {where}")
     if report.missing:

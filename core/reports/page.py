@@ -21,7 +21,7 @@ body { font-family: system-ui, sans-serif; margin: 1.5em; color: #1d1d1f; }
 h1 { margin-bottom: 0.2em; } h2 { margin-top: 1.6em; border-bottom: 1px solid #ccc; }
 table { border-collapse: collapse; margin: 0.5em 0; font-size: 0.92em; }
 th, td { border: 1px solid #ddd; padding: 0.25em 0.6em; text-align: left; }
-td.num { text-align: right; font-variant-numeric: tabular-nums; }
+td.num { text-align: right; font-variant-numeric: tabular-nums; white-space: nowrap; }
 .verdict { display: inline-block; padding: 0.2em 0.8em; border-radius: 0.3em; color: white; font-weight: bold; }
 .pass { background: #1a7f37; } .fail { background: #cf222e; } .error, .aborted, .incomplete { background: #9a6700; }
 .review { background: #d4a72c; color: black; } tr.fail td { background: #ffebe9; } tr.review td { background: #fff8c5; }

@@ -8,6 +8,7 @@ from pathlib import Path
 from magline.core.quality.capability import MIN_UNITS, MIN_UNITS_SOURCE, index_words
 from magline.core.quality.rules import RULES
 from magline.core.quality.spc import SpcReport
+from magline.core.quality.study import plausibility_note
 from magline.core.reports.capability_figures import (
     CLICK_SCRIPT,
     capability_rows,
@@ -40,11 +41,13 @@ def write_spc_page(report: SpcReport, path: Path, reports: Path | None = None) -
 
     rows = [(m.name, m.chart.values.size, fmt(m.chart.centre, m.unit), fmt(m.chart.sigma, m.unit),
              f"[{fmt(m.limit.low)}, {fmt(m.limit.high)}]", index_words(m.capability.cpk),
-             index_words(m.capability.ppk), m.capability.method_words, len(m.chart.signals))
+             index_words(m.capability.ppk), "; ".join(filter(None, (m.capability.method_words, plausibility_note(
+                 max((i.value for i in (m.capability.cpk, m.capability.ppk) if i), default=None))))),
+             len(m.chart.signals))
             for m in report.measurements]
     sections += ["<h2>Capability</h2>",
                  table(("measurement", "n", "centre", "σ within", "limits", "Cpk [95% CI]", "Ppk [95% CI]",
-                        "shape and method", "rule signals"), rows, numeric=(1, 2, 3, 8))]
+                        "shape and method", "rule signals"), rows, numeric=(1, 2, 3, 4, 5, 6, 8))]
     judged = max((m.capability.n for m in report.measurements), default=0)
     if judged < MIN_UNITS:
         sections.append(f"<p class=note>n = {judged}: capability needs at least {MIN_UNITS} judged units "

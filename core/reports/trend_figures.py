@@ -17,6 +17,9 @@ MARGIN = {"l": 60, "r": 60, "t": 50, "b": 90}
 PERIOD_WORD = {True: "shift", False: "day"}
 
 
+MARKER_SYMBOLS = ("circle", "diamond", "square", "triangle-up", "x", "cross")
+
+
 def yield_over_time(trends: Trends, grouping: str, by_shift: bool) -> go.Figure | None:
     """FPY per period for every group of ``grouping`` (``all``: with the judged first runs as bars);
     None where the grouping has a single group (the ``all`` figure says it already)."""
@@ -29,9 +32,12 @@ def yield_over_time(trends: Trends, grouping: str, by_shift: bool) -> go.Figure 
         (points,) = groups.values()
         fig.add_trace(go.Bar(x=[p.period for p in points], y=[p.first_runs for p in points],
                              name="first runs judged", marker={"color": "#d0d7de"}), secondary_y=False)
-    for group, points in groups.items():
+    for rank, (group, points) in enumerate(groups.items()):
+        # each group's markers a size smaller and of their own symbol, drawn over the one before: two groups
+        # at the same yield in a period (carol's 100 % under dave's) both stay visible
         fig.add_trace(go.Scatter(
             x=[p.period for p in points], y=[100.0 * p.first_pass / p.first_runs for p in points],
+            marker={"size": max(14 - 3 * rank, 5), "symbol": MARKER_SYMBOLS[rank % len(MARKER_SYMBOLS)]},
             mode="lines+markers", name=f"FPY {group}" if grouping != "all" else "first-pass yield",
             customdata=[[p.first_pass, p.first_runs] for p in points],
             hovertemplate=f"{group}<br>%{{x}}<br>FPY %{{y:.1f}} % (%{{customdata[0]}} of %{{customdata[1]}})"
