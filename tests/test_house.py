@@ -107,8 +107,8 @@ def test_a_station_screen_on_a_taken_port_says_so_before_announcing_anything(tmp
 
 # The executive's contracts and its entry points; every other concept has a room (a folder) of its own:
 # links (core/links), acquisition (core/acquisition), the sequencer, fit, mounting, results, quality …
-CORE_TOP = {"__init__", "cli", "dut", "faults", "hookspecs", "measurements", "phases", "plugins", "power", "record",
-            "serials", "text"}
+CORE_TOP = {"__init__", "cli", "dut", "entry", "faults", "hookspecs", "measurements", "phases", "plugins", "power",
+            "record", "serials", "text"}
 
 
 def test_cores_top_holds_only_the_modules_decided():
