@@ -45,7 +45,8 @@ def test_on_a_two_axis_gimbal_the_skew_is_not_taken_for_a_turned_sensor(rate_hz)
             estimate_mounting(mag, t, imu, dip_deg=60.0)
         estimate = estimate_mounting(mag, t, imu, dip_deg=60.0, skew_prior=SkewPrior(-35.0, 4.0, "test"))
         error = rotation_angle_deg(estimate.data_to_body, np.eye(3))
-        assert error < 3.0 * estimate.sigma_deg and estimate.sigma_deg < 1.0, (seed, error, estimate.sigma_deg)
+        # 4σ: a rotation's size has a Maxwell tail (ROTATION_Z in core/acquisition/tumble_stop.py)
+        assert error < 4.0 * estimate.sigma_deg and estimate.sigma_deg < 1.0, (seed, error, estimate.sigma_deg)
         # the prior decides the skew: the tumble alone says next to nothing of it
         assert estimate.skew_sigma_ms == pytest.approx(4.0, rel=0.01) and estimate.own_skew_sigma_ms > 20.0
 
@@ -100,7 +101,7 @@ def test_a_good_px4_unit_on_a_two_axis_gimbal_at_a_loaded_host_s_rate_passes_wit
     record, truth_ms = px4_two_axis_unit(tmp_path, 2, {"time_skew": {"ms": -31.0, "sigma_ms": 4.0}})
     assert record.verdict is Outcome.PASS, record.cause
     mounting, sigma = measured(record, "mounting_error_deg").value, measured(record, "mounting_sigma_deg").value
-    assert mounting < 3.0 * sigma and sigma < 1.0
+    assert mounting < 4.0 * sigma and sigma < 1.0
     assert abs(measured(record, "time_skew_ms").value - truth_ms) < 3.0 * 4.0
     report = record.unit_info["mounting"]["mag1"]["skew_prior"]
     assert report == {"skew_ms": -31.0, "sigma_ms": 4.0, "source": "the station file"}
@@ -160,3 +161,31 @@ def test_the_two_axis_motion_keeps_gravity_to_the_inner_axis_plane_and_shows_the
     gravity = two_axis_attitude(t).inv().apply([0.0, 0.0, 1.0])
     assert np.abs(gravity[:, 1]).max() < 1e-9
     assert coverage_of(two_axis_attitude(t).inv().apply(earth_field_ned(48.0, 60.0)), 100) >= 0.6
+
+
+@pytest.mark.parametrize("rate_hz", [16.0, 50.0])
+def test_a_turntable_at_a_loaded_host_s_rate_needs_no_prior(rate_hz):
+    """A turntable spins about the vertical, where a skew turns the field about gravity and leaves the
+    gravity–field angle alone; its cradle's tilts between the spins show the skew.  At 16 and 50 readings a
+    second, PX4's skew (−30 ms and up to 10 ms more) and irregular messages: the mounting within the σ it
+    states, without the line's skew."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(int(rate_hz))
+    tilts = np.array([(0, 0), (90, 0), (-90, 0), (0, 90), (0, -90), (180, 0), (45, 45)], float)
+    hold = 6.0
+    t = np.cumsum(rng.uniform(0.5, 1.5, int(hold * len(tilts) * rate_hz)) / rate_hz)
+
+    def attitude(when):
+        k = np.clip((when // hold).astype(int), 0, len(tilts) - 1)
+        moved = np.clip(when - k * hold, 0.0, 1.0)[:, None]  # the cradle takes a second to its next tilt
+        tilt = tilts[np.maximum(k - 1, 0)] + (tilts[k] - tilts[np.maximum(k - 1, 0)]) * moved
+        return Rotation.from_euler("z", 90.0 * when[:, None], degrees=True) * Rotation.from_euler("xy", tilt,
+                                                                                                  degrees=True)
+
+    accel = attitude(t).inv().apply([0.0, 0.0, -9.80665]) + rng.normal(0.0, 0.05, (len(t), 3))
+    taken = t - 0.030 - rng.uniform(0.0, 0.010, len(t))
+    mag = attitude(taken).inv().apply(earth_field_ned(48.0, 60.0)) + rng.normal(0.0, 0.3, (len(t), 3))
+    estimate = estimate_mounting(mag, t * 1000.0, ImuSeries(t_ms=t * 1000.0, accel_mss=accel), dip_deg=60.0)
+    error = rotation_angle_deg(estimate.data_to_body, np.eye(3))
+    assert error < 4.0 * estimate.sigma_deg and estimate.sigma_deg < 0.5, (error, estimate.sigma_deg)  # ROTATION_Z
