@@ -648,6 +648,7 @@ def test_the_study_says_what_it_is_before_its_figures(make_station, capsys, tmp_
     assert study["kind"].startswith("REPEATABILITY STUDY, not process capability: 1 board(s) behind 6 units")
     assert study["product"] == "MOCK-100" and study["reference"].startswith("fixed field source")
     assert "the runs measured against 48.00 µT" in study["reference"]
+    assert ", revision " in study["station_file"]  # the station file's content hash: which configuration judged
     assert study["responsible"].startswith("nobody yet: the limits are provisional")
     assert study["specification"].startswith("limit set ") and "(1 in the window)" in study["specification"]
     assert "REPEATABILITY STUDY" in (tmp_path / "spc.html").read_text(encoding="utf-8")

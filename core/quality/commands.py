@@ -109,7 +109,10 @@ def _study(store: Any, station: Station, part: str, args: argparse.Namespace, se
         with store.engine.connect() as conn:
             boards = count_boards(params_by_stage(conn, ids), ids)
     window = ", ".join(f"{k} {v}" for k, v in (("since", args.since), ("until", args.until)) if v) or "every run"
-    return StudyHeader(product=part, station_file=str(args.station or "the embedded demo station"),
+    revisions = list(dict.fromkeys(str(r.get("station_hash") or "—")[:12] for r in reversed(runs)))
+    station_file = str(args.station or "the embedded demo station") + f", revision {revisions[0]}" + (
+        f" ({len(revisions)} revisions in the window)" if len(revisions) > 1 else "")
+    return StudyHeader(product=part, station_file=station_file,
                        specification="limit set " + ", ".join(hashes[:3]) + (" …" if len(hashes) > 3 else "")
                        + f" ({len(hashes)} in the window)", reference=reference,
                        responsible=(f"limits frozen by {', '.join(by)}" if by else

@@ -21,7 +21,7 @@ from magline.core.results.reading import RunFilter
 from magline.core.results.tables import attempts, measurements, runs
 
 RUN_FIELDS = ("id", "run_uuid", "serial", "part", "station_id", "line", "operator", "started", "verdict", "cause",
-              "earlier_runs", "limit_hash", "reference_field_ut")
+              "earlier_runs", "limit_hash", "reference_field_ut", "station_hash")
 
 
 @dataclass
