@@ -109,9 +109,9 @@ def testing_section() -> list[str]:
         if inspect.isfunction(obj):
             out += [f"### `{name}`", "", "```python", _signature(obj), "```", "", _doc(obj), ""]
     out += ["### Fixtures (pytest plugin `magline.testing.plugin`)", ""]
-    for name, fn in inspect.getmembers(plugin, inspect.isfunction):
-        if name.startswith("magline_"):
-            out += [f"- `{name}`: {_doc(fn)}"]
+    # pytest wraps a fixture in its own object (not a function): every public ``magline_*`` name is one
+    for name in sorted(n for n in dir(plugin) if n.startswith("magline_")):
+        out += [f"- `{name}`: {_doc(getattr(plugin, name))}"]
     return [*out, ""]
 
 

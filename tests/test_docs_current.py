@@ -20,3 +20,14 @@ def test_the_reference_holds_every_hook_and_the_lifecycle_contracts():
     for contract in ("in RAM *and* storage", "never invent readings", "gives up at the first error",
                      "persistence.method", "Run ids:", "check_result_sink"):
         assert contract in text, contract
+
+
+def test_the_reference_lists_every_fixture_of_the_testing_kit():
+    """Issue 66: the contract page's "Fixtures" section was empty (pytest wraps a fixture in an object that is
+    not a function, and the generator looked for functions)."""
+    import magline.testing.plugin as kit
+
+    text = generate()
+    section = text.split("### Fixtures (pytest plugin `magline.testing.plugin`)", 1)[1].split("## ", 1)[0]
+    fixtures = [n for n in dir(kit) if n.startswith("magline_")]
+    assert fixtures and all(f"- `{name}`: " in section for name in fixtures)
