@@ -57,6 +57,7 @@ TURN_WINDOW_RAD = 0.5
 TURN_WINDOW_MAX_MS = 150.0
 TURN_WINDOW_PERIODS = 1.5
 SKEW_EVIDENCE = 3.0  # how many standard errors the skew's own information must stand out by (_information)
+SKEW_DOMINATES = 2.0  # an undetermined skew may at most double the mounting's σ before the mounting is a guess
 
 
 class MountingUnobservable(ValueError):
@@ -275,7 +276,10 @@ def estimate_mounting(mag_cal: NDArray, t_mag_ms: NDArray, imu: ImuSeries | None
     held = _covariance(information[:4, :4])  # the skew taken as known
     sigma_rot = _largest_sigma_deg(cov[:3, :3])
     sigma_incl = float(np.degrees(np.sqrt(max(cov[3, 3], 0.0)))) if np.isfinite(cov[3, 3]) else float("inf")
-    if not np.isfinite(sigma_rot) or sigma_rot > MAX_SIGMA_DEG:
+    # a skew the tumble does not determine, no prior, and most of the mounting's σ is what that skew could
+    # move it by: a mounting judged so is a guess at the skew (a two-axis gimbal's 4.5° on good units)
+    guessed = skew_prior is None and not determined and sigma_rot > SKEW_DOMINATES * _largest_sigma_deg(held[:3, :3])
+    if not np.isfinite(sigma_rot) or sigma_rot > MAX_SIGMA_DEG or guessed:
         if _largest_sigma_deg(held[:3, :3]) <= MAX_SIGMA_DEG:
             what = ("" if skew_prior is None else f", even with the line's skew {skew_prior.describe()}")
             raise MountingUnobservable(
