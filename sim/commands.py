@@ -42,8 +42,9 @@ def add_sim_command(subparsers: argparse._SubParsersAction) -> None:
     board.add_argument("--mags", type=int, default=1, choices=[1, 2, 3], help="number of magnetometers (inav: 1)")
     board.add_argument("--boot-time", type=float, default=2.0, help="seconds silent after a reboot (default 2)")
     board.add_argument("--motion",
-                       help="comma list, one per acquisition (tumble, single_axis, gimbal, still, shared); last "
-                            "repeats (default: tumble, or shared with --gimbal)")
+                       help="comma list, one per acquisition (tumble, single_axis, gimbal, two_axis: a two-axis "
+                            "gimbal at constant rates, still, shared); last repeats (default: tumble, or shared with "
+                            "--gimbal)")
     board.add_argument("--gimbal", metavar="tcp:HOST:PORT",
                        help="the board is mounted on this gimbal simulator and moves with it (motion 'shared')")
     board.add_argument("--turntable", metavar="tcp:HOST:PORT",
