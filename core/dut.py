@@ -160,10 +160,12 @@ class SampleChunk:
     once and says in ``repeats`` how many copies it dropped since the previous chunk.
     """
 
-    mag_ut: NDArray
-    t_ms: NDArray
+    mag_ut: NDArray  # rows of raw readings, µT, on the sensor's axes
+    t_ms: NDArray  # each reading's stamp, ms, on the accelerometer's clock
+    # the sensor's temperature per reading where the stream has it: the fit then tests the warm-up on it
+    # (a drifting offset against temperature, not only against time)
     temp_c: NDArray | None = None
-    repeats: int = 0
+    repeats: int = 0  # copies of a reading the backend dropped since the previous chunk
     # the other magnetometers' distinct readings that arrived meanwhile, by device id (same clock)
     more: dict[int, SampleChunk] = field(default_factory=dict)
     # the unit's accelerometer (and gyro) readings that arrived meanwhile, body axes, same clock

@@ -22,6 +22,10 @@ if TYPE_CHECKING:
 
 
 class Verdict(StrEnum):
+    """A measurement's verdict against its limit: PASS inside it, REVIEW inside but within its marginal
+    band (or flagged by the process review: the unit passes, an engineer looks), FAIL outside (the unit is
+    bad), INFO where no limit is declared (recorded, never judged)."""
+
     PASS = "pass"
     REVIEW = "review"  # inside the limit but within its marginal band
     FAIL = "fail"
@@ -159,6 +163,10 @@ def judge(value: float, limit: Limit | None) -> Verdict:
 
 @dataclass
 class Numeric:
+    """One figure of a unit with its limit and verdict — what a station file limits, ``spc`` charts and
+    ``export`` writes.  Make one with :meth:`Numeric.of`, which looks its unit up and judges it against the
+    station's limits."""
+
     name: str
     value: float
     unit: str = ""
@@ -224,6 +232,9 @@ def prefixed(measurements: list[Measurement], prefix: str, limits: dict[str, Lim
 
 @dataclass
 class Json:
+    """Structured data kept with the record as it is (a report of the mounting, the parameters written):
+    never judged, never charted."""
+
     name: str
     data: Any
 
@@ -235,7 +246,7 @@ class Attachment:
     content: bytes
 
 
-Measurement = Numeric | Array | Json
+Measurement = Numeric | Array | Json  # what a validate hook returns: figures, per-sample data, structured data
 
 
 def verdicts(measurements: list[Measurement]) -> list[Numeric]:

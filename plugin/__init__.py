@@ -128,7 +128,7 @@ from magline.core.links.serial_port import (
     list_ports,
     mavlink2_frame_bytes,
 )
-from magline.core.measurements import Measurement, Numeric, Verdict
+from magline.core.measurements import Array, Json, Measurement, Numeric, Verdict
 from magline.core.motion import Motion, TurnsForTilts
 from magline.core.motion.tilts import Tilt, tilt_words
 from magline.core.mounting import ImuSeries, orientation_matrix
@@ -162,6 +162,7 @@ __all__ = [
     "SERIAL_HINT",
     "SLICE_S",
     "Acquisition",
+    "Array",
     "AttemptRecord",
     "CalibratedBesideRaw",
     "CalibratesSeveral",
@@ -186,6 +187,7 @@ __all__ = [
     "HoldsRecordsInSql",
     "ImuSeries",
     "InstrumentError",
+    "Json",
     "KeepsSeries",
     "LinkError",
     "Magnetometer",

@@ -87,6 +87,45 @@ def _own_summary(name: str, obj: Any) -> str:
     return inspect.cleandoc(own).split("\n\n")[0].replace("\n", " ")
 
 
+TYPES = ("SampleChunk", "ImuSeries", "UnitInfo", "Magnetometer", "Numeric", "Array", "Json", "Verdict", "FitResult")
+FIELD_LINE = r"^    (\w+): ([^=#]+?)(?:\s*=\s*([^#]+?))?\s*(?:#\s*(.*))?$"
+
+
+def types_section() -> list[str]:
+    """The public types a plugin builds or reads, each with its fields: name, type, default and the
+    comment the code gives it."""
+    import re
+
+    import magline.plugin as face
+
+    out = ["## The public types", ""]
+    for name in TYPES:
+        cls = getattr(face, name)
+        out += [f"### `{name}`", "", _doc(cls), ""]
+        rows, above = [], []
+        for line in inspect.getsource(cls).splitlines()[1:]:
+            if line.strip().startswith(("def ", "@")):
+                break
+            if line.startswith("    # "):  # a comment above a field says what it is
+                above.append(line.strip()[2:])
+                continue
+            found = re.match(FIELD_LINE, line)
+            if found and (issubclass(cls, str) or not found.group(1).isupper()):
+                field_name, kind, default, comment = found.groups()
+                what = comment or " ".join(above)
+                rows.append(f"| `{field_name}` | `{_cell(kind.strip())}` | "
+                            f"{('`' + _cell(default.strip()) + '`') if default else ''} | {_cell(what)} |")
+            above = []
+        if rows:
+            out += ["| field | type | default | what |", "|---|---|---|---|", *rows, ""]
+    return out
+
+
+def _cell(text: str) -> str:
+    """Text for a Markdown table cell (a ``|`` of a type union would end the cell)."""
+    return text.replace("|", "\\|")
+
+
 def face_section() -> list[str]:
     """Every name of the public face, with the first line of what it is."""
     import magline.plugin as face
@@ -125,7 +164,7 @@ def generate() -> str:
              *capabilities_section(contract, "result sink", "ResultSink"),
              *protocol_section("Field source", FieldSource),
              *protocol_section("Power control", PowerControl), *protocol_section("Motion", Motion),
-             *testing_section(), *face_section()]
+             *types_section(), *testing_section(), *face_section()]
     return "\n".join(lines).rstrip() + "\n"
 
 

@@ -31,3 +31,17 @@ def test_the_reference_lists_every_fixture_of_the_testing_kit():
     section = text.split("### Fixtures (pytest plugin `magline.testing.plugin`)", 1)[1].split("## ", 1)[0]
     fixtures = [n for n in dir(kit) if n.startswith("magline_")]
     assert fixtures and all(f"- `{name}`: " in section for name in fixtures)
+
+
+def test_the_reference_gives_every_public_type_s_fields_and_the_face_holds_them():
+    """Issue 66: the fields of SampleChunk, ImuSeries and UnitInfo were not on the contract page (a
+    temperature in the stream changes how the fit tests for warm-up, unsaid); Numeric, Verdict and Measurement
+    had no docs; Array and Json were not on the face."""
+    import magline.plugin as face
+
+    text = generate()
+    section = text.split("## The public types", 1)[1].split("## Testing your plugin", 1)[0]
+    for name in ("SampleChunk", "ImuSeries", "UnitInfo", "Numeric", "Array", "Json", "Verdict"):
+        assert f"### `{name}`" in section and hasattr(face, name)
+    assert "| `temp_c` | `NDArray \\| None` | `None` | the sensor's temperature per reading" in section
+    assert "REVIEW inside but within its marginal" in section and "(undocumented)" not in section
