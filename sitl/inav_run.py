@@ -136,6 +136,7 @@ def one_unit(binary: Path, workdir: Path, seed: int, alignment: int | None) -> t
         kept = _settings(list(truth.expected))
     finally:
         sitl.cut()
+        sitl.log.close()
         peer.stop()
     return record, _judge(truth, record, kept, cycle_s, turned=alignment is not None)
 
@@ -191,18 +192,18 @@ def main(argv: list[str] | None = None) -> int:
                    {**os.environ, PRIVATE: "1"})
     subprocess.run(["ip", "link", "set", "lo", "up"], check=True)
     workdir = args.workdir or Path(tempfile.mkdtemp(prefix="magline-sitl-inav-"))
-    client = None
+    firmware = None
     lines, results = [], {}
     for label, alignment in (("good", None), ("turned", args.turned)):
         record, checks = one_unit(args.sitl, workdir / label, args.seed, alignment)
-        if client is None:
-            client = record.get("unit_info", {}).get("firmware", "?")
+        if firmware is None:
+            firmware = record.get("unit_info", {}).get("firmware", "?")
         results[label] = [asdict(c) for c in checks]
         lines += [f"[{label}] {c.line()}" for c in checks]
-    print(f"INAV SITL {args.sitl} — firmware the station saw: {client}; files in {workdir}")
+    print(f"INAV SITL {args.sitl} — firmware the station saw: {firmware}; files in {workdir}")
     print("\n".join(lines))
     if args.json:
-        args.json.write_text(json.dumps({"firmware": client, "checks": results}, indent=2) + "\n")
+        args.json.write_text(json.dumps({"firmware": firmware, "checks": results}, indent=2) + "\n")
     return 0 if all(c["holds"] for checks in results.values() for c in checks) else 1
 
 
