@@ -731,6 +731,50 @@ def test_the_sweep_lowers_only_its_own_stream_rate_to_what_the_line_carries(set_
                                                   "Hz, not 100 (interference.rate_hz unset)"])
 
 
+def test_a_step_read_while_a_held_burst_drains_counts_only_what_the_unit_took_after_its_settle():
+    """The unit's clock is known only as well as the least delayed chunk seen: a link held the unit's
+    output for half a second and delivers it at once, and the station sets the next level while that burst
+    drains.  Judged by the clock as it stood then, the burst's readings (taken at the old level) lay after
+    the settle; the step waits for the settle on the host's clock and chooses its readings with the clock as
+    the prompt chunks after the burst prove it: only what the unit took at the new level counts."""
+    from magline.core.dut import SampleChunk
+    from magline.core.interference.sweep import SweepStep, UnitClock, _read_step
+
+    offset_s = 5.0  # the unit's clock runs 5 s behind the host's
+    change_s, settle_s = 10.0, 0.1
+    host = [0.0]
+
+    def produced(at_s: float) -> SampleChunk:
+        """A chunk the unit completed at host time ``at_s``: ten readings over the 0.1 s before it, and the
+        current it read then (the load's new level from ``change_s`` on)."""
+        stamps = (np.linspace(at_s - 0.09, at_s, 10) - offset_s) * 1000.0
+        new = stamps >= (change_s - offset_s) * 1000.0
+        return SampleChunk(mag_ut=np.where(new[:, None], 1.0, 0.0) * np.ones((10, 3)), t_ms=stamps,
+                           current_a=np.array([20.0 if at_s >= change_s else 0.0]),
+                           current_t_ms=np.array([(at_s - offset_s) * 1000.0]))
+
+    def link():
+        """Chunks completed from 9.6 s to 10.0 s were held and leave at once at 10.0 s (the first two reached
+        the station before it set the level); from then on each arrives 5 ms after the unit completes it."""
+        for at_s in np.arange(9.6, 10.01, 0.1):
+            host[0] = max(host[0], 10.0)
+            yield produced(at_s)
+        for at_s in np.arange(10.1, 12.0, 0.1):
+            host[0] = at_s + 0.005
+            yield produced(at_s)
+
+    clock = UnitClock(now=lambda: host[0])
+    stream = link()
+    for _ in range(2):  # the burst's first chunks, heard before the level was set
+        clock.saw(next(stream))
+    assert clock.offset_ms > (offset_s + 0.3) * 1000.0  # the clock, as the burst shows it, is 0.3 s late
+    step = SweepStep(level=1.0)
+    _read_step(stream, clock, step, change_s + settle_s, 10, [1], deadline=60.0)
+    assert step.firmware_a and set(step.firmware_a) == {20.0}
+    assert len(step.readings[1]) >= 10 and np.all(np.asarray(step.readings[1]) == 1.0)
+    assert host[0] >= change_s + settle_s
+
+
 @pytest.mark.parametrize("flavour", ["ardupilot", "px4"])
 def test_a_link_that_delivers_late_in_bursts_counts_no_reading_at_the_wrong_level(tmp_path, flavour):
     """The board's output held 0.4 s of every second, then delivered at once (a host that reads its port

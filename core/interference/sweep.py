@@ -38,12 +38,40 @@ LEAST_STREAM_HZ = 5.0  # below this a line is refused even for the default: a sw
 
 
 @dataclass
+class HeardInStep:
+    """Everything the unit sent while a step was read, each reading with its stamp on the unit's clock.
+    Why kept whole: which readings came after the step's level settled is decided on the unit's clock as
+    known when the step ends, not as it was known when each reading arrived (:func:`_read_step`)."""
+
+    mag: dict[int, list[tuple[NDArray, NDArray]]] = field(default_factory=dict)  # device id → (stamps, µT rows)
+    current: list[tuple[float, float]] = field(default_factory=list)  # (stamp, the unit's current reading A)
+    accel: list[tuple[NDArray, NDArray]] = field(default_factory=list)  # (stamps, m/s² rows)
+
+    def add(self, chunk: SampleChunk, device_ids: list[int]) -> None:
+        for device_id, readings in ((device_ids[0], chunk), *chunk.more.items()):
+            if device_id in device_ids:
+                self.mag.setdefault(device_id, []).append(
+                    (np.asarray(readings.t_ms, float).ravel(), np.asarray(readings.mag_ut, float).reshape(-1, 3)))
+        currents = np.asarray(chunk.current_a, float).ravel()
+        stamps = np.asarray(chunk.current_t_ms, float).ravel()
+        self.current.extend((float(t), float(a)) for a, t in zip(currents, stamps, strict=False))
+        if chunk.imu is not None and len(chunk.imu.accel_mss):
+            self.accel.append((np.asarray(chunk.imu.t_ms, float).ravel(),
+                               np.asarray(chunk.imu.accel_mss, float).reshape(-1, 3)))
+
+
+def _stamped_from(parts: list[tuple[NDArray, NDArray]], from_ms: float) -> list[NDArray]:
+    return [row for stamps, rows in parts for row in rows[stamps >= from_ms]]
+
+
+@dataclass
 class SweepStep:
-    level: float  # fraction of the top
+    level: float
     source_a: float | None = None  # what the source measured at the end of the step (None: it cannot)
     firmware_a: list[float] = field(default_factory=list)  # the unit's own current readings after the settle
     readings: dict[int, list[NDArray]] = field(default_factory=dict)  # device id → raw readings (µT)
     accel: list[NDArray] = field(default_factory=list)  # accelerometer readings (m/s², body axes)
+    heard: HeardInStep = field(default_factory=HeardInStep, repr=False, compare=False)
 
     def fields(self, device_id: int) -> NDArray:
         return np.array(self.readings.get(device_id, []), float).reshape(-1, 3)
@@ -51,6 +79,13 @@ class SweepStep:
     @property
     def firmware_mean_a(self) -> float | None:
         return float(np.mean(self.firmware_a)) if self.firmware_a else None
+
+    def settled_from(self, from_ms: float) -> None:
+        """The step's readings, current readings and accelerometer: what it heard stamped at ``from_ms`` or
+        later on the unit's clock."""
+        self.readings = {d: _stamped_from(parts, from_ms) for d, parts in self.heard.mag.items()}
+        self.firmware_a = [a for t, a in self.heard.current if t >= from_ms]
+        self.accel = _stamped_from(self.heard.accel, from_ms)
 
 
 @dataclass
@@ -99,11 +134,11 @@ class UnitClock:
             offset = self.now() * 1000.0 - float(max(stamps))
             self.offset_ms = offset if self.offset_ms is None else min(self.offset_ms, offset)
 
-    def in_ms(self, seconds_from_now: float) -> float:
-        """The unit's stamp ``seconds_from_now`` from now (−∞ before the first chunk: take everything)."""
+    def at_ms(self, host_s: float) -> float:
+        """The unit's stamp at the host's time ``host_s`` (−∞ before the first chunk: take everything)."""
         if self.offset_ms is None:
             return float("-inf")
-        return (self.now() + seconds_from_now) * 1000.0 - self.offset_ms
+        return host_s * 1000.0 - self.offset_ms
 
 
 class LevelKeeper:
@@ -155,9 +190,9 @@ def run_sweep(run: RunContext, source: CurrentSource, settings: InterferenceSett
             hold_s.append(0.0)
             keeper.set(level)
             step = SweepStep(level=level)
-            settled_ms = clock.in_ms(settings.settle_s)
+            settle_at = clock.now() + settings.settle_s
             step_started = time.monotonic()
-            _read_step(chunks, clock, step, settled_ms, wanted, device_ids, deadline, keeper)
+            _read_step(chunks, clock, step, settle_at, wanted, device_ids, deadline, keeper)
             while index == 0:  # the compasses' noise at 0 A decides how many readings every step needs,
                 # estimated again from each larger set until the readings in hand are enough
                 most = readings_in_time(step, device_ids, levels, settings, time.monotonic() - step_started,
@@ -170,11 +205,11 @@ def run_sweep(run: RunContext, source: CurrentSource, settings: InterferenceSett
                 run.log(f"sweep: {wanted} readings a step bring the field per amp to ±"
                         f"{settings.target_sigma_ut_per_a:g} µT/A (the compasses' noise at 0 A)"
                         + (f" — or as near as the sweep's {settings.timeout_s:g} s allow" if wanted == most else ""))
-                _read_step(chunks, clock, step, settled_ms, wanted, device_ids, deadline, keeper)
+                _read_step(chunks, clock, step, settle_at, wanted, device_ids, deadline, keeper)
             if goal is not None and index in (settings.steps, len(levels) - 1):  # the top, the last zero: hold
                 step_s = float(np.max(np.diff(began) - hold_s[:-1]))
                 holding = time.monotonic()
-                held, asked = _hold(run, (chunks, clock, keeper), step, steps, levels, index, settled_ms, wanted,
+                held, asked = _hold(run, (chunks, clock, keeper), step, steps, levels, index, settle_at, wanted,
                                     device_ids, goal, (started, step_started, deadline, step_s, began[0] - started),
                                     held)
                 hold_s[-1] = time.monotonic() - holding
@@ -222,7 +257,7 @@ def _first_chunk(dut: DutBackend, rate_hz: float) -> tuple[Iterator[SampleChunk]
 
 
 def _hold(run: RunContext, reading: tuple, step: SweepStep, steps: list[SweepStep], levels: list[float],
-          index: int, settled_ms: float, wanted: int, device_ids: list[int], goal: HoldGoal,
+          index: int, settle_at: float, wanted: int, device_ids: list[int], goal: HoldGoal,
           times: tuple[float, float, float, float, float], held: int) -> tuple[int, int]:
     """Hold the top step or the last zero step for :mod:`.hold`'s goal.  The top is held once, for as many
     readings as the plan gives it if the last zero gets as many; the last zero is then planned afresh from
@@ -259,7 +294,7 @@ def _hold(run: RunContext, reading: tuple, step: SweepStep, steps: list[SweepSte
             break
         run.log(f"sweep {step.level:.0%}: held for {allowed} readings more, to know every compensated slope to "
                 f"{goal.share:.0%} of itself")
-        _read_step(stream, clock, step, settled_ms, slowest + allowed, device_ids, deadline, keeper)
+        _read_step(stream, clock, step, settle_at, slowest + allowed, device_ids, deadline, keeper)
         held += allowed
         if index == top:
             break  # the last zero plans again from the whole sweep
@@ -302,16 +337,25 @@ def _amps(value: float | None) -> str:
     return "—" if value is None else f"{value:.2f} A"
 
 
-def _read_step(stream, clock: UnitClock, step: SweepStep, settled_ms: float, wanted: int, device_ids: list[int],
+def _read_step(stream, clock: UnitClock, step: SweepStep, settle_at: float, wanted: int, device_ids: list[int],
                deadline: float, keep_level: Callable[[], None] = lambda: None) -> None:
-    """Readings of one step: those stamped before ``settled_ms`` (the unit's clock) are dropped — the
-    current and the field still moving —, then ``wanted`` readings of every compass and at least one
-    current reading; ``keep_level`` is called at every chunk (to keep the step's level drawn)."""
-    primary = device_ids[0]
-    settled_at = time.monotonic()
+    """Read one step until it holds ``wanted`` readings of every compass and at least one current reading,
+    all taken once its level had settled: ``settle_at`` is that moment on the host's clock (``clock.now``),
+    turned into the unit's stamp with the unit's clock as known at each chunk.  ``keep_level`` is called at
+    every chunk (to keep the step's level drawn).
+
+    Why not decided reading by reading as each arrives: the unit's clock is known only as well as the least
+    delayed chunk seen so far.  A link that held the unit's output (a USB bus that stalls, a host that reads
+    its port late) delivers what it held at once, every chunk of it late, and the clock is then late by as
+    much until a prompt chunk arrives: on it, readings from before a level change were counted at the new
+    level (a good unit's current sensor then read 7 % low, its linearity FAILed).  So every reading is kept
+    with its stamp and the step's are chosen again at each chunk with the clock as known then; and a step
+    cannot end before ``settle_at`` on the host's clock, since nothing taken after it can have arrived
+    sooner — by then the chunks that prove the clock have arrived too."""
+    settled_at = clock.now()
     unmeasured = 0  # current reports saying "not measured"
     while True:
-        if time.monotonic() > deadline:
+        if clock.now() > deadline:
             have = ", ".join(f"{d}: {len(step.readings.get(d, []))}" for d in device_ids)
             raise StationFault(f"the current sweep outlasted its timeout at the {step.level:.0%} step (readings "
                                f"{have}; unit current readings {len(step.firmware_a)})")
@@ -321,19 +365,11 @@ def _read_step(stream, clock: UnitClock, step: SweepStep, settled_ms: float, wan
             raise DutError("the unit's stream ended during the current sweep") from None
         clock.saw(chunk)
         keep_level()
-        if settled_ms == float("-inf"):  # the first chunk of the sweep: the clock starts with it
-            settled_ms = clock.in_ms(0.0)
-        for device_id, readings in ((primary, chunk), *chunk.more.items()):
-            if device_id in device_ids:
-                keep = np.asarray(readings.t_ms, float) >= settled_ms
-                step.readings.setdefault(device_id, []).extend(np.asarray(readings.mag_ut, float).reshape(-1, 3)[keep])
-        currents = np.asarray(chunk.current_a, float).ravel()
-        stamps = np.asarray(chunk.current_t_ms, float).ravel()
-        step.firmware_a.extend(float(a) for a, t in zip(currents, stamps, strict=False) if t >= settled_ms)
+        step.heard.add(chunk, device_ids)
+        step.settled_from(clock.at_ms(settle_at))
         unmeasured += chunk.current_unmeasured
-        if chunk.imu is not None and len(chunk.imu.accel_mss):
-            keep = np.asarray(chunk.imu.t_ms, float) >= settled_ms
-            step.accel.extend(np.asarray(chunk.imu.accel_mss, float).reshape(-1, 3)[keep])
+        if clock.now() < settle_at:
+            continue
         compasses_done = all(len(step.readings.get(d, [])) >= wanted for d in device_ids)
         if step.firmware_a and compasses_done:
             return
@@ -341,6 +377,6 @@ def _read_step(stream, clock: UnitClock, step: SweepStep, settled_ms: float, wan
             raise StationFault(f"the unit does not measure its current: its battery monitor reports the current as "
                                f"not measured ({unmeasured} reports at the {step.level:.0%} step) — no current "
                                "sensor configured on the primary battery monitor (a voltage-only monitor)")
-        if compasses_done and time.monotonic() > settled_at + NO_CURRENT_S:
+        if compasses_done and clock.now() > settled_at + NO_CURRENT_S:
             raise StationFault(f"the unit reports no current (no BATTERY_STATUS for {NO_CURRENT_S:g} s at the "
                                f"{step.level:.0%} step): no current sensor configured, or no battery monitor")

@@ -98,6 +98,7 @@ def _paired_proof(run: RunContext, read: CalibratedBesideRaw, figures: dict) -> 
     prefix = run.sensor_prefix(device_id).replace(".", "_") if several else ""
     result = found[device_id]
     figures[f"{prefix}applied_difference_ut"] = result.difference_ut
+    figures[f"{prefix}applied_tolerance_ut"] = result.tolerance_ut
     if not matched:
         whose = (f" of any of its compasses (closest: {run.sensor_label(device_id)})" if several else "")
         return [f"the firmware's calibrated output {NOT_MAGLINES}{whose}: it reads {result.firmware_ut:.2f} µT where "
