@@ -15,36 +15,23 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import shutil
 import subprocess
 import sys
 import tempfile
 import threading
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 
 import yaml
 
 from magline.core.links.msp import Msp, MspClient, parse_setting_info
+from magline.sitl.checks import Check, in_private_network, run_station, station_figures, summarise, write_station
 from magline.sitl.inav_xplane import COUNTS_PER_GAUSS, InavTruth, XPlanePeer
 
-PRIVATE = "MAGLINE_SITL_NETNS"  # set in the namespace the run re-executes itself in
 MSP_ADDRESS = "tcp:127.0.0.1:5760"  # SITL's UART1
 ZERO_TOLERANCE_COUNTS = 1  # INAV rounds to whole counts (0.98 mG each): the truth's own rounding
 GAIN_TOLERANCE_COUNTS = 1
-
-
-@dataclass
-class Check:
-    name: str
-    figure: str
-    tolerance: str
-    holds: bool
-
-    def line(self) -> str:
-        return f"{'ok  ' if self.holds else 'FAIL'} {self.name:<34} {self.figure:<28} {self.tolerance}"
 
 
 def _msp(timeout_s: float = 20.0) -> MspClient:
@@ -70,17 +57,10 @@ def _settings(names: list[str]) -> dict[str, int]:
 
 
 def _station(workdir: Path, truth: InavTruth) -> Path:
-    shipped = Path(__file__).resolve().parent.parent / "stations" / "inav-sim.yaml"
-    station = yaml.safe_load(shipped.read_text())
-    product = next(iter(station["products"].values()))
-    product["connection"] = MSP_ADDRESS
-    product["options"]["counts_per_gauss"] = COUNTS_PER_GAUSS
-    station["field_source"] = {"type": "fixed", "options": {"field_ut": truth.field_ut,
-                                                            "inclination_deg": truth.inclination_deg}}
-    station["results"] = {"sink": "sqlite", "path": "results.sqlite"}
-    path = workdir / "station.yaml"
-    path.write_text(yaml.safe_dump(station, sort_keys=False))
-    return path
+    shipped = yaml.safe_load((Path(__file__).resolve().parent.parent / "stations" / "inav-sim.yaml").read_text())
+    options = {**next(iter(shipped["products"].values()))["options"], "counts_per_gauss": COUNTS_PER_GAUSS}
+    return write_station("inav-sim.yaml", workdir, truth.field_ut, truth.inclination_deg,
+                         {"connection": MSP_ADDRESS, "options": options})
 
 
 class Sitl:
@@ -122,15 +102,7 @@ def one_unit(binary: Path, workdir: Path, seed: int, alignment: int | None) -> t
     try:
         sitl.start()
         station = _station(workdir, truth)
-        started = time.monotonic()
-        run = subprocess.run([sys.executable, "-m", "magline.core.cli", "run", str(station), "--serial",
-                              f"SITL-INAV-{seed}"], cwd=workdir, capture_output=True, text=True,
-                             stdin=subprocess.DEVNULL)
-        cycle_s = time.monotonic() - started
-        (workdir / "run.log").write_text(run.stdout + run.stderr)
-        shown = subprocess.run([sys.executable, "-m", "magline.core.cli", "show", "1", "--station", str(station),
-                                "--json"], cwd=workdir, capture_output=True, text=True, check=True)
-        record = json.loads(shown.stdout)
+        record, cycle_s = run_station(station, f"SITL-INAV-{seed}", workdir)
         sitl.cut()  # the hard power cut: what was saved is what the unit keeps
         sitl.start()
         kept = _settings(list(truth.expected))
@@ -139,10 +111,6 @@ def one_unit(binary: Path, workdir: Path, seed: int, alignment: int | None) -> t
         sitl.log.close()
         peer.stop()
     return record, _judge(truth, record, kept, cycle_s, turned=alignment is not None)
-
-
-def _measurement(record: dict, name: str) -> float | None:
-    return next((m["value"] for m in record.get("measurements", []) if m["name"] == name), None)
 
 
 def _judge(truth: InavTruth, record: dict, kept: dict[str, int], cycle_s: float, turned: bool) -> list[Check]:
@@ -164,12 +132,7 @@ def _judge(truth: InavTruth, record: dict, kept: dict[str, int], cycle_s: float,
         checks.append(Check(f"{name} after a power cut", f"{kept[name]} ({off / truth.expected[name] * 100:+.2f} %)",
                             f"±{GAIN_TOLERANCE_COUNTS} count of {truth.expected[name]}",
                             abs(off) <= GAIN_TOLERANCE_COUNTS))
-    for name, limit in (("mounting_error_deg", 3.0), ("inclination_error_deg", 2.0)):
-        value = _measurement(record, name)
-        checks.append(Check(name, "missing" if value is None else f"{value:.2f}°", f"|·| ≤ {limit}°",
-                            value is not None and abs(value) <= limit))
-    checks.append(Check("cycle time", f"{cycle_s:.1f} s", "(figure)", True))
-    return checks
+    return [*checks, *station_figures(record, cycle_s)]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -184,28 +147,14 @@ def main(argv: list[str] | None = None) -> int:
     if not args.sitl.is_file():
         print(f"INAV SITL not found at {args.sitl}: build INAV's SITL target and give its SITL.elf", file=sys.stderr)
         return 2
-    if os.environ.get(PRIVATE) != "1":  # INAV's SITL listens on every interface: keep it off the network
-        if shutil.which("unshare") is None:
-            print("unshare (util-linux) is needed to run INAV's SITL in a private network namespace", file=sys.stderr)
-            return 2
-        os.execvpe("unshare", ["unshare", "-n", sys.executable, "-m", "magline.sitl.inav_run", *argv],
-                   {**os.environ, PRIVATE: "1"})
-    subprocess.run(["ip", "link", "set", "lo", "up"], check=True)
+    refused = in_private_network("magline.sitl.inav_run", argv)  # INAV's SITL listens on every interface
+    if refused:
+        print(refused, file=sys.stderr)
+        return 2
     workdir = args.workdir or Path(tempfile.mkdtemp(prefix="magline-sitl-inav-"))
-    firmware = None
-    lines, results = [], {}
-    for label, alignment in (("good", None), ("turned", args.turned)):
-        record, checks = one_unit(args.sitl, workdir / label, args.seed, alignment)
-        if firmware is None:
-            firmware = record.get("unit_info", {}).get("firmware", "?")
-        results[label] = [asdict(c) for c in checks]
-        lines += [f"[{label}] {c.line()}" for c in checks]
-    print(f"INAV SITL {args.sitl} — firmware the station saw: {firmware}; files in {workdir}")
-    print("\n".join(lines))
-    if args.json:
-        args.json.write_text(json.dumps({"firmware": firmware, "checks": results}, indent=2) + "\n")
-    return 0 if all(c["holds"] for checks in results.values() for c in checks) else 1
-
+    return summarise(f"INAV SITL {args.sitl}", workdir,
+                     {"good": lambda folder: one_unit(args.sitl, folder, args.seed, None),
+                      "turned": lambda folder: one_unit(args.sitl, folder, args.seed, args.turned)}, args.json)
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -1,0 +1,205 @@
+"""A HIL_SENSOR feeder for PX4's SITL (``PX4_SIM_MODEL=none_iris``) that tumbles a compass of known truth.
+
+PX4's ``simulator_mavlink`` connects as a TCP client to port 4560 and takes its sensors from whoever serves
+there: ``HIL_SENSOR`` (accelerometer m/s², gyro rad/s, both forward-right-down; magnetometer in gauss;
+pressure) and ``HIL_GPS``.  Its clock follows ``HIL_SENSOR.time_usec`` (lockstep), so the feeder sends at a
+steady rate and its own elapsed time is the board's.  After a power cut the new PX4 process connects
+again: the feeder accepts it and starts the board's clock afresh, while the unit keeps tumbling.
+
+What the feeder sends is the unit's true motion (still and level first: PX4's estimator and gyro
+calibration want a quiet start) and the compass's reading of the site's field in the unit's body,
+turned by the compass's true mounting and distorted by the truth (``m = S⁻¹·R_mount⁻¹·b + h``).  The
+truth (a JSON file beside the run) holds the distortion, the mounting, the field, and the parameters a
+right calibration writes: ``CAL_MAGn_xOFF = h`` in gauss and the scale matrix ``S`` (PX4 applies
+``S·(raw − OFF)`` in the sensor's axes).
+
+    python -m magline.sitl.px4_hil --truth truth.json [--port 4560] [--speed 0.5] [--seed 1]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import socket
+import sys
+import threading
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+from pymavlink.dialects.v20 import common as mavlink
+from scipy.spatial.transform import Rotation
+
+from magline.sim.truth.attitudes import spiral_attitude
+from magline.sim.truth.sensor import earth_field_ned
+
+HIL_PORT = 4560  # PX4's simulator_mavlink connects here (+ its instance)
+SENSOR_HZ = 250.0  # accelerometer and gyro, as PX4's own simulators send them
+MAG_EVERY = 2  # the magnetometer in every second message: 125 Hz
+GPS_EVERY = 25  # HIL_GPS at 10 Hz
+GRAVITY_MSS = 9.80665
+UT_PER_GAUSS = 100.0
+# HIL_SENSOR.fields_updated: PX4's SensorSource bits (accelerometer, gyro, magnetometer, barometer)
+ACCEL, GYRO, MAG = 0b111, 0b111000, 0b111000000
+BARO = 0b1101000000000
+
+
+@dataclass
+class Px4Truth:
+    """A compass's distortion in its own axes (µT; ``b = S·(m − h)``, ``S`` symmetric as PX4 holds it),
+    the yaw it is really mounted at against the body (0: where the firmware expects it), and the site."""
+
+    hard_iron_ut: list[float]
+    soft_iron: list[list[float]]
+    mounting_yaw_deg: float = 0.0
+    field_ut: float = 48.0
+    inclination_deg: float = 62.0
+    latitude_deg: float = 47.3769
+    longitude_deg: float = 8.5417
+    altitude_m: float = 408.0
+    noise_ut: float = 0.2
+    speed: float = 0.5
+    still_s: float = 8.0  # held level first: PX4's estimator and its sensors' checks settle on a still unit
+    expected: dict[str, float] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        s = np.asarray(self.soft_iron, float)
+        off = np.asarray(self.hard_iron_ut, float) / UT_PER_GAUSS
+        self.expected = {**{f"{a}OFF": float(v) for a, v in zip("XYZ", off, strict=True)},
+                         **{f"{a}SCALE": float(v) for a, v in zip("XYZ", np.diag(s), strict=True)},
+                         "XODIAG": float(s[0, 1]), "YODIAG": float(s[0, 2]), "ZODIAG": float(s[1, 2])}
+
+    @classmethod
+    def drawn(cls, seed: int, **changes) -> Px4Truth:
+        """A plausible board compass: offsets up to ±60 µT, a symmetric soft iron within ±6 % on the
+        diagonal and ±2 % off it."""
+        rng = np.random.default_rng(seed)
+        diag = np.exp(rng.uniform(-0.06, 0.06, 3))
+        s = np.diag(diag)
+        s[0, 1], s[0, 2], s[1, 2] = rng.uniform(-0.02, 0.02, 3)
+        s = np.triu(s) + np.triu(s, 1).T
+        return cls(hard_iron_ut=rng.uniform(-60, 60, 3).round(2).tolist(), soft_iron=s.round(4).tolist(),
+                   **changes)
+
+    def raw_gauss(self, body_to_ned: Rotation, rng: np.random.Generator) -> NDArray:
+        """What the compass reads (gauss, its own axes) with the unit in ``body_to_ned``."""
+        b_body = body_to_ned.inv().apply(earth_field_ned(self.field_ut, self.inclination_deg))
+        b_sensor = Rotation.from_euler("z", self.mounting_yaw_deg, degrees=True).inv().apply(b_body)
+        m = np.linalg.solve(np.asarray(self.soft_iron, float), b_sensor) + np.asarray(self.hard_iron_ut)
+        return (m + rng.normal(scale=self.noise_ut, size=3)) / UT_PER_GAUSS
+
+
+def attitude(truth: Px4Truth, t_s: float) -> Rotation:
+    """Body → NED at motion time ``t_s``: still and level, then the tumble."""
+    return Rotation.identity() if t_s < truth.still_s else spiral_attitude(truth.speed * (t_s - truth.still_s))
+
+
+def hil_sensor(truth: Px4Truth, t_s: float, board_us: int, with_mag: bool, rng: np.random.Generator,
+               dt_s: float = 1.0 / SENSOR_HZ) -> dict[str, float | int]:
+    """HIL_SENSOR's fields with the unit at motion time ``t_s`` and the board's clock at ``board_us``."""
+    now, later = attitude(truth, t_s), attitude(truth, t_s + dt_s)
+    rate = (now.inv() * later).as_rotvec() / dt_s  # body rates, rad/s: the body turns by its own
+    force = now.inv().apply([0.0, 0.0, -GRAVITY_MSS])  # at rest level: −g on Z (forward-right-down)
+    mag = truth.raw_gauss(now, rng) if with_mag else np.zeros(3)
+    pressure_hpa = 1013.25 * (1.0 - 2.25577e-5 * truth.altitude_m) ** 5.25588
+    return {"time_usec": board_us, "xacc": force[0], "yacc": force[1], "zacc": force[2],
+            "xgyro": rate[0], "ygyro": rate[1], "zgyro": rate[2], "xmag": mag[0], "ymag": mag[1], "zmag": mag[2],
+            "abs_pressure": pressure_hpa, "diff_pressure": 0.0, "pressure_alt": truth.altitude_m,
+            "temperature": 25.0, "fields_updated": ACCEL | GYRO | BARO | (MAG if with_mag else 0), "id": 0}
+
+
+class HilFeeder:
+    """Serves PX4's simulator connection: HIL_SENSOR at :data:`SENSOR_HZ`, HIL_GPS at 10 Hz; what PX4
+    sends (actuator outputs, heartbeats) is read and dropped.  One PX4 at a time; a new connection (the
+    board powered again) replaces the old one."""
+
+    def __init__(self, truth: Px4Truth, port: int = HIL_PORT, seed: int = 0) -> None:
+        self.truth = truth
+        self.rng = np.random.default_rng(seed)
+        self.server = socket.create_server(("127.0.0.1", port))
+        self.server.settimeout(0.2)
+        self.mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=mavlink.MAV_COMP_ID_USER1)
+        self.stopped = threading.Event()
+        self.closed = threading.Event()
+        self.connections = 0
+
+    def _drain(self, conn: socket.socket) -> None:
+        conn.settimeout(0.5)
+        while not self.stopped.is_set():
+            try:
+                if not conn.recv(4096):
+                    return
+            except TimeoutError:
+                continue
+            except OSError:
+                return
+
+    def _feed(self, conn: socket.socket, started: float) -> None:
+        """Feed one PX4 process until it goes (a power cut) or the feeder stops."""
+        threading.Thread(target=self._drain, args=(conn,), daemon=True).start()
+        period, booted, n = 1.0 / SENSOR_HZ, time.monotonic(), 0
+        truth = site = self.truth
+        while not self.stopped.is_set():
+            due = booted + n * period
+            wait = due - time.monotonic()
+            if wait > 0:
+                time.sleep(wait)
+            board_us = int(n * period * 1e6) + 1
+            fields = hil_sensor(truth, time.monotonic() - started, board_us, n % MAG_EVERY == 0, self.rng)
+            frames = [self.mav.hil_sensor_encode(**fields).pack(self.mav)]
+            if n % GPS_EVERY == 0:
+                frames.append(self.mav.hil_gps_encode(
+                    board_us, 3, int(site.latitude_deg * 1e7), int(site.longitude_deg * 1e7),
+                    int(site.altitude_m * 1000), 100, 100, 0, 0, 0, 0, 65535, 12).pack(self.mav))
+            try:
+                conn.sendall(b"".join(frames))
+            except OSError:
+                return
+            n += 1
+
+    def serve(self) -> None:
+        """Accept PX4 (again after each power cut) until :meth:`stop`; the motion's clock starts now."""
+        started = time.monotonic()
+        while not self.stopped.is_set():
+            try:
+                conn, _ = self.server.accept()
+            except TimeoutError:
+                continue
+            except OSError:
+                break
+            self.connections += 1
+            with conn:
+                conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                self._feed(conn, started)
+        self.server.close()
+        self.closed.set()
+
+    def stop(self, timeout_s: float = 2.0) -> None:
+        """Stop feeding and free the port."""
+        self.stopped.set()
+        self.closed.wait(timeout_s)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m magline.sitl.px4_hil", description=__doc__.split("\n")[0])
+    parser.add_argument("--truth", type=Path, required=True, help="where the truth is written (JSON)")
+    parser.add_argument("--port", type=int, default=HIL_PORT)
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--speed", type=float, default=0.5, help="the tumble's speed (1: 8 s pole to pole)")
+    parser.add_argument("--mounting-yaw", type=float, default=0.0, help="the compass's true yaw on the body (°)")
+    args = parser.parse_args(argv)
+    truth = Px4Truth.drawn(args.seed, speed=args.speed, mounting_yaw_deg=args.mounting_yaw)
+    args.truth.write_text(json.dumps(asdict(truth), indent=2) + "\n")
+    feeder = HilFeeder(truth, args.port, seed=args.seed)
+    print(f"HIL feeder on tcp:127.0.0.1:{args.port}, truth in {args.truth}", flush=True)
+    try:
+        feeder.serve()
+    except KeyboardInterrupt:
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,165 @@
+"""A good PX4 unit, and one whose compass is turned, through the real ``magline run`` on PX4's own SITL.
+
+The firmware is fed by :mod:`magline.sitl.px4_hil` (a compass of known distortion, tumbled, over
+``HIL_SENSOR``); the station is the shipped ``stations/px4-sim.yaml`` pointed at the SITL, its power cycle
+the process killed and started again on the same storage (:mod:`magline.sitl.px4_power`).  After the run
+the power is cut once more, and the calibration PX4 kept is read over MAVLink and held to the truth.  The
+whole run happens in a private network namespace (``unshare -n``): PX4's MAVLink and simulator ports
+are then reachable on loopback only.
+
+    python -m magline.sitl.px4_run --build PATH/TO/build/px4_sitl_default [--workdir DIR] [--seed 1]
+                                   [--turned 90] [--json OUT]
+
+Prints one line per check (figure against tolerance) and exits 0 when every one holds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import threading
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+import yaml
+from pymavlink import mavutil
+
+from magline.sitl.checks import Check, in_private_network, run_station, station_figures, summarise, write_station
+from magline.sitl.px4_hil import HilFeeder, Px4Truth
+from magline.sitl.px4_power import Px4Process
+
+STATION_LINK = "udpin://0.0.0.0:14550"  # PX4's ground-station link sends to port 14550 on the host
+# The compass HIL_SENSOR id 0 feeds (``simulator_mavlink``'s first PX4Magnetometer).  The station names it: a posix
+# build's MAVLink shell echoes a command and runs none, so it cannot say which sensor SCALED_IMU carries, and
+# PX4's posix startup presets CAL_MAG0_ID and CAL_MAG1_ID for both simulated compasses
+HIL_MAG0_DEVICE_ID = 197388
+PARAM_LINK = "udpin:0.0.0.0:14550"  # the same port, read by pymavlink once the station is done
+OFFSET_TOLERANCE_MG = 0.5  # the tier's goals: hard iron within 0.5 mG, the matrix within 0.002
+MATRIX_TOLERANCE = 0.002
+
+
+def _station(workdir: Path, truth: Px4Truth) -> Path:
+    power = [sys.executable, "-m", "magline.sitl.px4_power"]
+    site = {"latitude_deg": truth.latitude_deg, "longitude_deg": truth.longitude_deg, "altitude_m": truth.altitude_m}
+    shipped = yaml.safe_load((Path(__file__).resolve().parent.parent / "stations" / "px4-sim.yaml").read_text())
+    options = {**next(iter(shipped["products"].values())).get("options", {}), "connect_timeout_s": 60,
+               "boot_timeout_s": 60}
+    return write_station("px4-sim.yaml", workdir, truth.field_ut, truth.inclination_deg, {
+        "connection": STATION_LINK, "magnetometer": HIL_MAG0_DEVICE_ID, "options": options,
+        "power": {"method": "command", "options": {"off": [*power, "off", "--workdir", str(workdir)],
+                                                   "on": [*power, "on", "--workdir", str(workdir)],
+                                                   "off_time_s": 0.5}}},
+        {"station": {**shipped["station"], "location": site}})
+
+
+def read_params(names: list[str], timeout_s: float = 60.0) -> dict[str, float]:
+    """``names`` as PX4 holds them now, over its ground-station link."""
+    link = mavutil.mavlink_connection(PARAM_LINK, source_system=245, source_component=190)
+    try:
+        if link.wait_heartbeat(timeout=timeout_s) is None:
+            raise RuntimeError(f"PX4 sent no heartbeat within {timeout_s:g} s after the power came back")
+        values: dict[str, float] = {}
+        deadline = time.monotonic() + timeout_s
+        while len(values) < len(names):
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"PX4 did not answer for {sorted(set(names) - set(values))}")
+            for name in names:
+                if name not in values:
+                    link.mav.param_request_read_send(link.target_system, link.target_component, name.encode(), -1)
+            ends = time.monotonic() + 1.0
+            while time.monotonic() < ends:
+                msg = link.recv_match(type="PARAM_VALUE", blocking=True, timeout=0.2)
+                if msg is not None and msg.param_id in names:
+                    values[msg.param_id] = float(msg.param_value)
+        return values
+    finally:
+        link.close()
+
+
+def one_unit(build: Path, workdir: Path, seed: int, turned_deg: float) -> tuple[dict, list[Check]]:
+    """Run one unit on a fresh board; its compass sits at ``turned_deg`` of yaw (0: where PX4 expects it)."""
+    if workdir.exists():
+        for stale in ("parameters.bson", "parameters_backup.bson", "results.sqlite"):
+            (workdir / stale).unlink(missing_ok=True)
+    truth = Px4Truth.drawn(seed, mounting_yaw_deg=turned_deg)
+    workdir.mkdir(parents=True, exist_ok=True)
+    (workdir / "truth.json").write_text(json.dumps(asdict(truth), indent=2) + "\n")
+    feeder = HilFeeder(truth, seed=seed)
+    threading.Thread(target=feeder.serve, daemon=True).start()
+    px4 = Px4Process.prepare(build, workdir)
+    try:
+        px4.on()
+        station = _station(workdir, truth)
+        record, cycle_s = run_station(station, f"SITL-PX4-{seed}", workdir)
+        px4.off()  # the hard power cut: what was saved is what the unit keeps
+        px4.on()
+        slots = [f"CAL_MAG{n}_{k}" for n in range(4) for k in ("ID", *truth.expected)]
+        kept = read_params(slots)
+    finally:
+        px4.off()
+        feeder.stop()
+    return record, _judge(truth, record, kept, cycle_s, turned=bool(turned_deg))
+
+
+def _slot(record: dict, kept: dict[str, float]) -> int:
+    """The slot PX4 holds the unit's compass in (by its device id), 0 when none does yet."""
+    device_id = (record.get("unit_info") or {}).get("selected_sensor")
+    for n in range(4):
+        if device_id and int(kept[f"CAL_MAG{n}_ID"]) == int(device_id):
+            return n
+    return 0
+
+
+def _judge(truth: Px4Truth, record: dict, kept: dict[str, float], cycle_s: float, turned: bool) -> list[Check]:
+    verdict, cause = record.get("verdict"), record.get("cause") or ""
+    slot = _slot(record, kept)
+    if turned:
+        written = (record.get("params") or {}).get("written") or {}
+        untouched = all(kept[f"CAL_MAG{slot}_{a}OFF"] == 0.0 for a in "XYZ")
+        return [Check("turned compass FAILs naming its fix", f"{verdict}: {cause[:60]}", "FAIL, 'CAL_MAG'",
+                      verdict == "fail" and "CAL_MAG" in cause),
+                Check("nothing written to a failed unit", f"{len(written)} written, offsets "
+                      f"{'0' if untouched else 'changed'}", "none written, offsets 0", not written and untouched)]
+    checks = [Check("good unit PASSes", f"{verdict} {cause[:40]}", "pass", verdict == "pass")]
+    for axis in "XYZ":
+        name = f"CAL_MAG{slot}_{axis}OFF"
+        off_mg = (kept[name] - truth.expected[f"{axis}OFF"]) * 1000.0
+        checks.append(Check(f"{name} after a power cut", f"{kept[name]:+.5f} G ({off_mg:+.2f} mG)",
+                            f"±{OFFSET_TOLERANCE_MG} mG of {truth.expected[f'{axis}OFF']:+.5f}",
+                            abs(off_mg) <= OFFSET_TOLERANCE_MG))
+    matrix = ("XSCALE", "YSCALE", "ZSCALE", "XODIAG", "YODIAG", "ZODIAG")
+    worst = max(abs(kept[f"CAL_MAG{slot}_{k}"] - truth.expected[k]) for k in matrix)
+    checks.append(Check(f"CAL_MAG{slot} scale matrix after a power cut", f"max |Δ| {worst:.4f}",
+                        f"≤ {MATRIX_TOLERANCE}", worst <= MATRIX_TOLERANCE))
+    return [*checks, *station_figures(record, cycle_s)]
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    parser = argparse.ArgumentParser(prog="python -m magline.sitl.px4_run", description=__doc__.split("\n")[0])
+    parser.add_argument("--build", type=Path, required=True,
+                        help="PX4's build folder of the px4_sitl_default target (holds bin/px4 and etc/)")
+    parser.add_argument("--workdir", type=Path, help="where each unit's files stay (default: a temporary folder)")
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--turned", type=float, default=90.0, help="the turned compass's yaw on the body (°)")
+    parser.add_argument("--json", type=Path, help="write every check here")
+    args = parser.parse_args(argv)
+    if not (args.build / "bin" / "px4").is_file() or not (args.build / "etc").is_dir():
+        print(f"PX4 SITL not found in {args.build}: build PX4's px4_sitl_default target and give its build "
+              "folder (it holds bin/px4 and etc/)", file=sys.stderr)
+        return 2
+    refused = in_private_network("magline.sitl.px4_run", argv)
+    if refused:
+        print(refused, file=sys.stderr)
+        return 2
+    workdir = args.workdir or Path(tempfile.mkdtemp(prefix="magline-sitl-px4-"))
+    build = args.build.resolve()
+    return summarise(f"PX4 SITL {args.build}", workdir,
+                     {"good": lambda folder: one_unit(build, folder, args.seed, 0.0),
+                      "turned": lambda folder: one_unit(build, folder, args.seed, args.turned)}, args.json)
+
+if __name__ == "__main__":
+    sys.exit(main())
