@@ -26,7 +26,7 @@ What is here, by role:
   :class:`ReadsCalibratedFields`, :class:`ReadsRawAndCalibrated` (answering a :class:`CalibratedBesideRaw`),
   :class:`CompensatesCurrent`, :class:`RunsMotorTest`;
 * links to hardware: :func:`get_listening`, :func:`stall_s`, :data:`SLICE_S` (reading a queue while
-  the link may die), :class:`RepeatFilter`, :class:`SensorStreams`, :func:`untruncate_mg`,
+  the link may die), :class:`RepeatFilter`, :class:`ReadingsAtRest`, :class:`SensorStreams`, :func:`untruncate_mg`,
   :data:`INT16_MG_RANGE_UT` (MAVLink's int16 milligauss), :class:`ScpiInstrument`, :class:`InstrumentError`,
   MSP (INAV's protocol): :class:`MspClient`, :class:`MspParser`, :class:`MspFrame`, :func:`encode_msp_v1`,
   :func:`encode_msp_v2`, :func:`crc8_dvb_s2`, :class:`MspRefused`, :class:`MspTimeout`, the command numbers
@@ -117,7 +117,7 @@ from magline.core.links.msp import (
     inav_rotation_in_frd,
     parse_setting_info,
 )
-from magline.core.links.readings import INT16_MG_RANGE_UT, RepeatFilter, SensorStreams, untruncate_mg
+from magline.core.links.readings import INT16_MG_RANGE_UT, ReadingsAtRest, RepeatFilter, SensorStreams, untruncate_mg
 from magline.core.links.scpi import InstrumentError, ScpiInstrument
 from magline.core.links.serial_port import (
     SERIAL_HINT,
@@ -210,6 +210,7 @@ __all__ = [
     "PowerError",
     "Product",
     "RawSamples",
+    "ReadingsAtRest",
     "ReadsCalibratedField",
     "ReadsCalibratedFields",
     "ReadsInSql",

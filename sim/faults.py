@@ -23,6 +23,9 @@ class SimFaults:
     link_loss_at_param_set: str = ""  # the link goes silent when a PARAM_SET of this name arrives (a cable pulled)
     no_persist: list[str] = field(default_factory=list)  # names whose value never reaches storage
     reboot_fails: bool = False  # after a reboot the board never comes back
+    # while the unit rests after a power cycle every compass reads the same value each time (a quiet sensor
+    # whose steps are coarser than its noise, or a SITL whose compass has no noise): no new distinct reading
+    quiet_at_rest: bool = False
     lose_reboot_ack: bool = False  # the reboot command's ACK is lost on the way (the board reboots all the same)
     link_loss_after_s: float | None = None  # the link goes silent this long after a mag stream starts
     # "HOLD_S:EVERY_S": every EVERY_S the board's output is held HOLD_S, then leaves at once — what a station

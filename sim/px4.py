@@ -13,8 +13,8 @@ What it reproduces, because each is a trap for a factory tool:
   carries the latest reading again with a fresh (IMU) timestamp;
 - with SENS_MAG_AUTOCAL = 1 the firmware writes its own calibration into an uncalibrated slot;
 - the device id of each ``sensor_mag`` instance is visible through the MAVLink shell
-  (``listener sensor_mag -i N``), as on a NuttX board; with ``shell=False`` SERIAL_CONTROL is
-  ignored, as POSIX builds (SITL) do: their shell is ``pxh`` and answers nothing over MAVLink;
+  (``listener sensor_mag -i N``), as on a NuttX board; with ``shell=False`` the shell echoes each
+  line and runs none, as POSIX builds (SITL) do over MAVLink (seen on PX4 SITL);
 - ``preset_ids=True``: the slot ids are preset to the detected sensors, as POSIX startup scripts
   do (``param set-default CAL_MAG0_ID …``), so they are defaults, not stored values;
 - the factory calibration storage (``/fs/mtd_caldata``, ``docs/firmware.md`` *Factory calibration
@@ -22,7 +22,12 @@ What it reproduces, because each is a trap for a factory tool:
   param1 = 1, the unit still) exports every ``CAL_*`` but ``CAL_MAG_SIDES`` and ``*_PRIO`` (mode 2: and
   no ``CAL_MAG*``) and every ``TC_*`` there, saying so in STATUSTEXT as PX4 does; a board with the
   partition loads it at boot before the user's parameters; ``bsondump /fs/mtd_caldata`` in the shell
-  prints it; MAV_CMD_PREFLIGHT_STORAGE param1 = 3 resets the calibration parameters, saves and reboots.
+  prints it; MAV_CMD_PREFLIGHT_STORAGE param1 = 3 resets the calibration parameters, saves and reboots;
+- the commander's worker thread: a calibration and a forced save (MAV_CMD_PREFLIGHT_STORAGE) run there,
+  and either command is refused with TEMPORARILY_REJECTED while it is busy — which it still is for
+  ``WORKER_REAP_S`` after a calibration has said "done" or a forced save has ended, until the
+  commander's next cycle collects the result (seen on PX4 SITL: the save asked right after the factory
+  store's gyro calibration was refused).
 """
 
 from __future__ import annotations
@@ -45,6 +50,7 @@ SLOTS = 4
 AXES = ("X", "Y", "Z")
 FACTORY_STORE = "/fs/mtd_caldata"
 GYRO_CAL_S = 2.0  # how long the commander's gyro calibration takes (divided by a sped-up motion's speed)
+WORKER_REAP_S = 0.1  # the worker thread stays busy this long after its task ended (the commander's next cycle)
 CAL_STARTED, CAL_DONE, CAL_FAILED = ("[cal] calibration started: 2 {}", "[cal] calibration done: {}",
                                      "[cal] calibration failed: {}")  # calibration_messages.h
 SHELL_DEVICE = mavlink.SERIAL_CONTROL_DEV_SHELL
@@ -84,7 +90,7 @@ class Px4Sim(SimulatedAutopilot):
     def __init__(self, *args: Any, firmware: str = "1.15.0", autocal_after_s: float = 30.0,
                  autosave_interval_s: float = 2.0, shell: bool = True, preset_ids: bool = False,
                  untagged: bool = False, **kwargs: Any) -> None:
-        self.shell = shell  # False: SERIAL_CONTROL is ignored (a POSIX build's pxh shell)
+        self.shell = shell  # False: the shell echoes each line and runs none (a POSIX build over MAVLink)
         self.preset_ids = preset_ids
         self.firmware_version = tuple(int(x) for x in firmware.split("."))[:3]  # type: ignore[assignment]
         # a build from an untagged tree (SITL, any developer's or custom build) says 0.0.0 in
@@ -97,6 +103,8 @@ class Px4Sim(SimulatedAutopilot):
         self._saving: tuple[float, dict[str, ParamValue]] | None = None  # (finishes at, snapshot)
         self._shell_line = b""
         self._gyro_cal_done_at: float | None = None  # the commander's gyro calibration in progress
+        self._worker_save: float | None = None  # a forced save on the worker thread ends then
+        self._worker_free_at = 0.0  # the worker thread takes a new task from then on
         super().__init__(*args, **kwargs)
 
     @property
@@ -150,6 +158,8 @@ class Px4Sim(SimulatedAutopilot):
         self._saving = None
         self._shell_line = b""
         self._gyro_cal_done_at = None
+        self._worker_save = None
+        self._worker_free_at = 0.0
 
     def _start_save(self, now: float) -> None:
         self._saving = (now + self.save_duration_s, self.table.non_default())
@@ -181,16 +191,21 @@ class Px4Sim(SimulatedAutopilot):
         result in STATUSTEXT when it ends, as the commander's worker thread does."""
         if int(params[0]) != 1 or any(int(p) for p in params[1:6]):
             return UNSUPPORTED
-        if self._gyro_cal_done_at is not None or self._saving is not None:
+        if self._worker_busy(time.monotonic()):
             return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
         self.statustext(mavlink.MAV_SEVERITY_INFO, CAL_STARTED.format("gyro"))
         self._gyro_cal_done_at = time.monotonic() + GYRO_CAL_S / max(1.0, self.motion_speed())
         return ACCEPTED
 
+    def _worker_busy(self, now: float) -> bool:
+        """Whether the commander's worker thread refuses a new task now."""
+        return self._gyro_cal_done_at is not None or self._worker_save is not None or now < self._worker_free_at
+
     def _finish_gyro_calibration(self) -> None:
         """``do_gyro_calibration``: motion fails it; the factory store is opened (its partition must be
         there) whenever SYS_FAC_CAL_MODE ≥ 1, and written after the gyro's parameters."""
         self._gyro_cal_done_at = None
+        self._worker_free_at = time.monotonic() + WORKER_REAP_S
         mode = int(self.table.values.get("SYS_FAC_CAL_MODE", 0))
         ok = True
         if self.faults.moved_during_gyro_cal:
@@ -215,6 +230,9 @@ class Px4Sim(SimulatedAutopilot):
     def tick(self, now: float) -> None:
         if self._gyro_cal_done_at is not None and now >= self._gyro_cal_done_at and self.power is Power.UP:
             self._finish_gyro_calibration()
+        if self._worker_save is not None and now >= self._worker_save:
+            self._worker_save = None
+            self._worker_free_at = now + WORKER_REAP_S
         if self._saving is not None and now >= self._saving[0]:
             self.write_storage(self._saving[1])
             self._saving = None
@@ -355,10 +373,13 @@ class Px4Sim(SimulatedAutopilot):
 
     def _storage(self, params: list[float]) -> int:
         action = int(params[0])
+        if self._worker_busy(time.monotonic()):
+            return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
         if action == 0:
             self.load_from_storage(self.read_storage())
             return ACCEPTED
         if action == 1:
+            self._worker_save = time.monotonic() + self.save_duration_s
             self.after_ack(lambda: self._start_save(time.monotonic()))  # ACK first, save on the worker
             return ACCEPTED
         if action == 3:  # ParamResetSensorFactory: CAL_ACC*, CAL_GYRO*, CAL_MAG* reset, saved, rebooted
@@ -372,12 +393,15 @@ class Px4Sim(SimulatedAutopilot):
 
     # ------------------------------------------------------------------ MAVLink shell
     def handle_other(self, msg: Any) -> None:
-        if msg.get_type() != "SERIAL_CONTROL" or msg.device != SHELL_DEVICE or not self.shell:
+        if msg.get_type() != "SERIAL_CONTROL" or msg.device != SHELL_DEVICE:
             return
         self._shell_line += bytes(msg.data[: msg.count])
         while b"\n" in self._shell_line:
             line, _, self._shell_line = self._shell_line.partition(b"\n")
-            self._shell_reply(self._shell(line.decode(errors="replace").strip()))
+            if self.shell:
+                self._shell_reply(self._shell(line.decode(errors="replace").strip()))
+            else:  # a POSIX build's shell echoes the line and runs nothing (seen on PX4 SITL)
+                self._shell_send(line + b"\n")
 
     def _shell(self, line: str) -> str:
         words = line.split()
@@ -404,7 +428,9 @@ class Px4Sim(SimulatedAutopilot):
         return f"nsh: {words[0]}: command not found\n"
 
     def _shell_reply(self, text: str) -> None:
-        data = (text + "nsh> ").encode()
+        self._shell_send((text + "nsh> ").encode())
+
+    def _shell_send(self, data: bytes) -> None:
         for start in range(0, len(data), 70):
             chunk = data[start:start + 70]
             self.mav.serial_control_send(SHELL_DEVICE, SHELL_REPLY, 0, 0, len(chunk), list(chunk.ljust(70, b"\0")))

@@ -150,6 +150,7 @@ class SimulatedAutopilot(ABC):
         self.field_provider = field_provider  # the board stands in a coil: its field, not a tumble
         self.mag_rate_hz = mag_rate_hz  # overrides the firmware's / driver's sensor rate
         self._held: dict[int, tuple[float, NDArray]] = {}  # device id → (next reading due, latest reading)
+        self._quiet: dict[int, NDArray] = {}  # device id → the reading a quiet compass repeats at rest
         self.table = ParamTable(self.param_specs())
         self.mav = mavlink.MAVLink(_Wire(self), srcSystem=system_id, srcComponent=mavlink.MAV_COMP_ID_AUTOPILOT1)
         self.lock = threading.RLock()
@@ -679,6 +680,10 @@ class SimulatedAutopilot(ABC):
             samples = sensor.read_samples_ut(fields, self.rng)
             reading = (samples.mean(axis=0) + self.warmup_offset_ut(now)
                        + self.WARMUP_DIRECTION * self.faults.mag_offset_after_cut * self.supply_cuts)
+            if self.faults.quiet_at_rest and self.resting is not None:  # the first reading at rest, ever after
+                reading = self._quiet.setdefault(sensor.device_id, reading)
+            else:
+                self._quiet.pop(sensor.device_id, None)
             due = due + period if now - due < period else now + period
             self._held[sensor.device_id] = (due, reading)
         return reading

@@ -3,6 +3,7 @@ runs in, and the record of a station run read back as ``magline show`` gives it.
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import shutil
@@ -13,7 +14,9 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+import numpy as np
 import yaml
+from pymavlink import mavutil
 
 PRIVATE = "MAGLINE_SITL_NETNS"  # set in the namespace a runner re-executes itself in
 
@@ -131,3 +134,79 @@ def write_station(shipped: str, workdir: Path, field_ut: float, inclination_deg:
     written = workdir / "station.yaml"
     written.write_text(yaml.safe_dump(config, sort_keys=False))
     return written
+
+
+def read_params(link: mavutil.mavfile, names: list[str], timeout_s: float = 60.0) -> dict[str, float]:
+    """``names`` as the firmware holds them now, asked over ``link`` (a pymavlink link that heard a heartbeat)
+    until each has answered."""
+    values: dict[str, float] = {}
+    deadline = time.monotonic() + timeout_s
+    while len(values) < len(names):
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"the firmware did not answer for {sorted(set(names) - set(values))}")
+        for name in names:
+            if name not in values:
+                link.mav.param_request_read_send(link.target_system, link.target_component, name.encode(), -1)
+        ends = time.monotonic() + 1.0
+        while time.monotonic() < ends:
+            msg = link.recv_match(type="PARAM_VALUE", blocking=True, timeout=0.2)
+            if msg is not None and msg.param_id in names:
+                values[msg.param_id] = float(msg.param_value)
+    return values
+
+
+def runner_parser(module: str, doc: str, build_flag: str, build_help: str) -> argparse.ArgumentParser:
+    """A runner's command line: where its firmware build is, and the options every runner has."""
+    parser = argparse.ArgumentParser(prog=f"python -m {module}", description=doc.split("\n")[0])
+    parser.add_argument(build_flag, type=Path, required=True, help=build_help)
+    parser.add_argument("--workdir", type=Path, help="where each unit's files stay (default: a temporary folder)")
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--json", type=Path, help="write every check here")
+    return parser
+
+
+MATRIX_GOAL = 0.002  # the tier's goal for every element of a written soft-iron matrix
+OFFSET_GOAL_MG = 0.5  # and for every axis of a written offset
+
+
+def fit_sigmas(record: dict, device_id: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The σ the station states for a compass's offset (µT, per axis) and soft-iron matrix (per element):
+    the primary's, or that of the compass with ``device_id``."""
+    calibration = record.get("calibration") or {}
+    prefix = ""
+    for sensor in (record.get("unit_info") or {}).get("magnetometers") or []:
+        if device_id is not None and int(sensor.get("device_id") or 0) == int(device_id):
+            prefix = str(sensor.get("prefix") or "")
+    fit = calibration if not prefix else calibration["magnetometers"][prefix.rstrip(".")]
+    return np.asarray(fit["hard_iron_sigma_ut"], float), np.asarray(fit["soft_iron_sigma"], float)
+
+
+def true_to_sigma(name: str, errors: np.ndarray, sigmas: np.ndarray, unit: str, goal: float,
+                  quantum: float = 0.0) -> Check:
+    """A written calibration against the truth.  Every element's error must lie within 3σ of the σ the
+    station states for it (plus the firmware's own rounding, ``quantum``): the station is right about
+    what it knows; whether that meets the tier's goal is said beside.  Why not the goal itself: a tumble
+    the station judged determined at 60 % coverage leaves an axis known to ±3 mG, and it says so."""
+    errors, sigmas = np.abs(np.ravel(errors)), np.ravel(sigmas)
+    worst = int(np.argmax(errors / np.maximum(sigmas, 1e-12)))
+    holds = bool(np.all(errors <= TRUE_TO_SIGMA * sigmas + quantum))
+    met = "met" if float(errors.max()) <= goal and float(TRUE_TO_SIGMA * sigmas.max()) <= goal else "not met"
+    figure = f"max |Δ| {errors.max():.4g} {unit} ({errors[worst] / max(sigmas[worst], 1e-12):.1f}σ)"
+    return Check(f"{name} after a power cut", figure, f"≤ {TRUE_TO_SIGMA:g}σ; {goal:g} {unit} goal {met}".strip(),
+                 holds)
+
+
+MATRIX_ELEMENTS = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))  # diagonal, then xy, xz, yz
+
+
+def calibration_checks(record: dict, device_id: int | None, offsets_mg: tuple[np.ndarray, np.ndarray],
+                       matrix: tuple[np.ndarray, np.ndarray], names: tuple[str, str],
+                       offset_quantum_mg: float = 0.0) -> list[Check]:
+    """A compass's written offset (mG: kept after the power cut, and the truth) and its soft-iron matrix
+    (the six elements of :data:`MATRIX_ELEMENTS`, kept and truth), each held to the σ the station states."""
+    hard_sigma_ut, soft_sigma = fit_sigmas(record, device_id)
+    (kept_mg, truth_mg), (kept_m, truth_m) = offsets_mg, matrix
+    element_sigma = np.array([soft_sigma[i, j] for i, j in MATRIX_ELEMENTS])
+    return [true_to_sigma(names[0], np.asarray(kept_mg) - truth_mg, hard_sigma_ut * 10.0, "mG", OFFSET_GOAL_MG,
+                          offset_quantum_mg),
+            true_to_sigma(names[1], np.asarray(kept_m) - truth_m, element_sigma, "", MATRIX_GOAL)]

@@ -97,9 +97,11 @@ def attitude(truth: Px4Truth, t_s: float) -> Rotation:
 
 
 def hil_sensor(truth: Px4Truth, t_s: float, board_us: int, with_mag: bool, rng: np.random.Generator,
-               dt_s: float = 1.0 / SENSOR_HZ) -> dict[str, float | int]:
-    """HIL_SENSOR's fields with the unit at motion time ``t_s`` and the board's clock at ``board_us``."""
-    now, later = attitude(truth, t_s), attitude(truth, t_s + dt_s)
+               dt_s: float = 1.0 / SENSOR_HZ, moving: bool = True) -> dict[str, float | int]:
+    """HIL_SENSOR's fields with the unit at motion time ``t_s`` and the board's clock at ``board_us``;
+    ``moving=False``: the unit rests in the attitude of ``t_s``."""
+    now = attitude(truth, t_s)
+    later = attitude(truth, t_s + dt_s) if moving else now
     rate = (now.inv() * later).as_rotvec() / dt_s  # body rates, rad/s: the body turns by its own
     force = now.inv().apply([0.0, 0.0, -GRAVITY_MSS])  # at rest level: −g on Z (forward-right-down)
     mag = truth.raw_gauss(now, rng) if with_mag else np.zeros(3)
@@ -113,7 +115,8 @@ def hil_sensor(truth: Px4Truth, t_s: float, board_us: int, with_mag: bool, rng: 
 class HilFeeder:
     """Serves PX4's simulator connection: HIL_SENSOR at :data:`SENSOR_HZ`, HIL_GPS at 10 Hz; what PX4
     sends (actuator outputs, heartbeats) is read and dropped.  One PX4 at a time; a new connection (the
-    board powered again) replaces the old one."""
+    board powered again) replaces the old one.  :meth:`rest` sets the unit down where it is (as an operator
+    does when the station says the tumble is done)."""
 
     def __init__(self, truth: Px4Truth, port: int = HIL_PORT, seed: int = 0) -> None:
         self.truth = truth
@@ -124,6 +127,19 @@ class HilFeeder:
         self.stopped = threading.Event()
         self.closed = threading.Event()
         self.connections = 0
+        self.started: float | None = None  # when the motion began (the first serve)
+        self.rested_at: float | None = None  # the motion time the unit was set down at
+
+    def motion_time(self, started: float) -> tuple[float, bool]:
+        """The motion time now, and whether the unit still moves."""
+        if self.rested_at is not None:
+            return self.rested_at, False
+        return time.monotonic() - started, True
+
+    def rest(self) -> None:
+        """Set the unit down in the attitude it has now; it stays there (across power cuts too)."""
+        if self.rested_at is None and self.started is not None:
+            self.rested_at = time.monotonic() - self.started
 
     def _drain(self, conn: socket.socket) -> None:
         conn.settimeout(0.5)
@@ -147,7 +163,8 @@ class HilFeeder:
             if wait > 0:
                 time.sleep(wait)
             board_us = int(n * period * 1e6) + 1
-            fields = hil_sensor(truth, time.monotonic() - started, board_us, n % MAG_EVERY == 0, self.rng)
+            t_s, moving = self.motion_time(started)
+            fields = hil_sensor(truth, t_s, board_us, n % MAG_EVERY == 0, self.rng, moving=moving)
             frames = [self.mav.hil_sensor_encode(**fields).pack(self.mav)]
             if n % GPS_EVERY == 0:
                 frames.append(self.mav.hil_gps_encode(
@@ -161,7 +178,7 @@ class HilFeeder:
 
     def serve(self) -> None:
         """Accept PX4 (again after each power cut) until :meth:`stop`; the motion's clock starts now."""
-        started = time.monotonic()
+        started = self.started = time.monotonic()
         while not self.stopped.is_set():
             try:
                 conn, _ = self.server.accept()

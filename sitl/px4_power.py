@@ -31,10 +31,12 @@ class Px4Process:
         self.pidfile = workdir / "px4.pid"
 
     @classmethod
-    def prepare(cls, build: Path, workdir: Path, env: dict[str, str] | None = None) -> Px4Process:
-        """Write how to start PX4 from ``build`` (``build/px4_sitl_default``) in ``workdir``."""
+    def prepare(cls, build: Path, workdir: Path, env: dict[str, str] | None = None,
+                etc: Path | None = None) -> Px4Process:
+        """Write how to start PX4 from ``build`` (``build/px4_sitl_default``) in ``workdir``; ``etc``: a
+        startup folder other than the build's own."""
         workdir.mkdir(parents=True, exist_ok=True)
-        spec = {"argv": [str(build / "bin" / "px4"), "-d", "-w", str(workdir), str(build / "etc")],
+        spec = {"argv": [str(build / "bin" / "px4"), "-d", "-w", str(workdir), str(etc or build / "etc")],
                 "env": {"PX4_SIM_MODEL": SIM_MODEL, **(env or {})}}
         (workdir / "px4.json").write_text(json.dumps(spec, indent=2) + "\n")
         return cls(workdir)

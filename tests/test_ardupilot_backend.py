@@ -274,3 +274,23 @@ def test_a_float_parameter_equals_its_float32_and_nothing_else():
     assert float32_equal(1.05, 1.0499999523162842) and param_equal(1.05, 1.0499999523162842)
     assert not float32_equal(-4.008e-07, 0.0) and not param_equal(-4.008e-07, 0.0)
     assert not float32_equal(1.0, 1.0000002) and param_equal(7, 7.0) and not param_equal(7, 7.5)
+
+
+def test_a_compass_that_reads_the_same_at_rest_is_proven_with_what_it_reads(tmp_path):
+    """At rest after the power cycle every compass reads the same value in every message (a quiet sensor
+    whose steps are coarser than its noise; ArduPilot's own SITL compass, which has no noise): no new
+    distinct reading comes however long the station waits — it waited for ever, seen on ArduCopter SITL.
+    After a bounded wait the repeats are what the compass reads, and the proof holds them to the reference."""
+    import threading
+
+    done: dict = {}
+    with start_sim(tmp_path, faults=SimFaults(quiet_at_rest=True)) as sim:
+        path = write_station("ardupilot-sim.yaml", tmp_path, sim.address, OPTIONS)
+        worker = threading.Thread(target=lambda: done.setdefault("record", run_unit(path)), daemon=True)
+        worker.start()
+        worker.join(300.0)  # far beyond a unit's time: only a station that waits for ever is still running
+        assert "record" in done, "the station still waits for a new reading from a compass at rest"
+        assert sim.resting is not None  # the proof read a unit lying still
+    record = done["record"]
+    assert record.verdict is Outcome.PASS, record.cause
+    assert record.persistence["figures"]["calibrated_field_ut"] == pytest.approx(sim.field_ut, rel=0.03)

@@ -368,3 +368,14 @@ def test_an_external_compass_turned_by_its_angles_is_checked_and_fixed_in_those_
         record = run_unit(station(tmp_path / "wrong", sim.address))
     assert record.verdict is Outcome.FAIL
     assert "set align_mag_roll = 0, align_mag_pitch = 0, align_mag_yaw = 900" in record.cause, record.cause
+
+
+def test_a_compass_that_reads_the_same_at_rest_is_proven_with_what_it_reads(tmp_path):
+    """At rest after the power cycle the compass reads the same value at every poll (a quiet sensor whose
+    steps are coarser than its noise): the station ended such a unit as an ERROR ("gave 1 distinct
+    readings of the 20 asked").  After a bounded wait the repeats are what the compass reads."""
+    with board(tmp_path, SimFaults(quiet_at_rest=True)) as sim:
+        record = run_unit(station(tmp_path, sim.address))
+        assert sim.resting is not None
+    assert record.verdict is Outcome.PASS, record.cause
+    assert record.persistence["figures"]["calibrated_field_ut"] == pytest.approx(sim.field_ut, rel=0.03)

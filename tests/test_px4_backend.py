@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import time
 from types import SimpleNamespace
 
 import numpy as np
@@ -203,6 +204,41 @@ def test_without_a_shell_a_unit_the_station_names_passes_and_the_record_says_how
         assert sim.param("CAL_MAG0_ID") == device and sim.slot_of(device) == 0
         radius = np.linalg.norm(sim.corrected_sphere(device), axis=1)
         assert abs(radius.mean() - sim.field_ut) < 0.3  # the written slot is the one the firmware applies
+
+
+def test_a_posix_shell_echoes_each_line_and_runs_none(tmp_path):
+    """Seen on PX4's own SITL: over MAVLink its shell sends the command line back and nothing more (no
+    output, no prompt), where a NuttX board answers; the station then waits out its shell timeout."""
+    from pymavlink import mavutil
+
+    def ask(sim, command: str, done) -> bytes:
+        """What the shell sends back until ``done(heard)`` — then for one second more: a POSIX shell sends
+        nothing after its echo, and whatever came late would show."""
+        _, host, port = sim.address.split(":")
+        gcs = mavutil.mavlink_connection(f"udpout:{host}:{port}", source_system=245, source_component=190)
+        try:
+            gcs.mav.heartbeat_send(6, 8, 0, 0, 0)
+            data = (command + "\n").encode()
+            gcs.mav.serial_control_send(mavutil.mavlink.SERIAL_CONTROL_DEV_SHELL,
+                                        mavutil.mavlink.SERIAL_CONTROL_FLAG_RESPOND, 0, 0, len(data),
+                                        list(data.ljust(70, b"\0")))
+            heard, deadline, after = b"", time.monotonic() + 30.0, None
+            while time.monotonic() < (deadline if after is None else after):
+                msg = gcs.recv_match(type="SERIAL_CONTROL", blocking=True, timeout=0.2)
+                if msg is not None:
+                    heard += bytes(msg.data[:msg.count])
+                if after is None and done(heard):
+                    after = time.monotonic() + 1.0
+            return heard
+        finally:
+            gcs.close()
+
+    with start_sim(tmp_path / "posix", shell=False) as sim:
+        assert ask(sim, "listener sensor_mag -i 0 -n 1", lambda heard: b"\n" in heard) == \
+            b"listener sensor_mag -i 0 -n 1\n"
+    with start_sim(tmp_path / "nuttx") as sim:
+        answer = ask(sim, "listener sensor_mag -i 0 -n 1", lambda heard: b"nsh> " in heard).decode()
+        assert "device_id:" in answer and answer.endswith("nsh> ")
 
 
 def test_with_the_shell_the_record_says_so(tmp_path):

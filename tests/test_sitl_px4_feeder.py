@@ -138,3 +138,24 @@ def test_the_power_control_cuts_the_process_and_starts_it_again_on_the_same_fold
     assert px4.pid() not in (None, first) and booted(2)
     px4.off()
     assert px4.pid() is None
+
+
+def test_a_unit_set_down_rests_where_it_was_with_no_turn():
+    """``rest()`` (the station said the tumble is done): the motion time stops where it was, the gyro reads
+    nothing and the accelerometer and compass read the attitude it was set down in."""
+    truth = Px4Truth.drawn(5, still_s=0.0, noise_ut=0.0)
+    feeder = HilFeeder(truth, port=0)
+    try:
+        feeder.started = time.monotonic() - 20.0
+        feeder.rest()
+        rested, moving = feeder.motion_time(feeder.started)
+        assert not moving and rested == pytest.approx(20.0, abs=1.0)
+        resting = hil_sensor(truth, rested, 1000, True, np.random.default_rng(0), moving=False)
+        tumbling = hil_sensor(truth, rested, 1000, True, np.random.default_rng(0))
+        assert (resting["xgyro"], resting["ygyro"], resting["zgyro"]) == (0.0, 0.0, 0.0)
+        assert np.linalg.norm([tumbling["xgyro"], tumbling["ygyro"], tumbling["zgyro"]]) > 0.5
+        assert [resting[k] for k in ("xacc", "yacc", "zacc", "xmag", "ymag", "zmag")] == pytest.approx(
+            [tumbling[k] for k in ("xacc", "yacc", "zacc", "xmag", "ymag", "zmag")])
+        assert feeder.motion_time(feeder.started - 5.0) == (rested, False)  # it stays down
+    finally:
+        feeder.server.close()

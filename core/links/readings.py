@@ -79,6 +79,43 @@ class RepeatFilter:
         return n
 
 
+@dataclass
+class ReadingsAtRest:
+    """``count`` readings of a compass for a proof at rest (after the power cycle).
+
+    Distinct readings are taken first: a stream repeats each reading at its own rate, and its copies
+    are not new readings.  But a unit at rest whose compass reads the same value in every message (a
+    quiet sensor whose steps are coarser than its noise; ArduPilot's SITL compass has no noise at all)
+    gives no new distinct reading however long one waits — the station waited for ever on it.  Once
+    ``patience_s`` has passed, what was heard, repeats included, is what the compass reads: the same
+    value, rightly, in every row."""
+
+    count: int
+    patience_s: float
+    distinct: list[tuple[float, float, float]] = field(default_factory=list)
+    heard: list[tuple[float, float, float]] = field(default_factory=list)
+    started: float = field(default_factory=time.monotonic)
+    _filter: RepeatFilter = field(default_factory=RepeatFilter, repr=False)
+
+    def add(self, x: float, y: float, z: float) -> None:
+        self.heard.append((x, y, z))
+        if self._filter.accept(x, y, z):
+            self.distinct.append((x, y, z))
+
+    @property
+    def patient(self) -> bool:
+        """Still waiting for distinct readings (``patience_s`` not yet over)."""
+        return time.monotonic() - self.started < self.patience_s
+
+    @property
+    def done(self) -> bool:
+        return len(self.distinct) >= self.count or (not self.patient and len(self.heard) >= self.count)
+
+    def rows(self) -> list[tuple[float, float, float]]:
+        """The readings to prove with: ``count`` distinct ones, or else the latest ``count`` heard."""
+        return self.distinct[:self.count] if len(self.distinct) >= self.count else self.heard[-self.count:]
+
+
 class SensorStreams:
     """Several magnetometers and the accelerometer read from one interleaved MAVLink stream, handed
     out as :class:`~magline.core.dut.SampleChunk` s: each sensor's repeats dropped on their own, its

@@ -27,7 +27,7 @@ from magline.plugin import (
     NotRestored,
     ParamValue,
     Product,
-    RepeatFilter,
+    ReadingsAtRest,
     SampleChunk,
     SensorStreams,
     StationFault,
@@ -60,6 +60,7 @@ INT_PARAMS = ("COMPASS_DEV_ID", "COMPASS_PRIO", "COMPASS_LEARN", "COMPASS_OFFS_M
 CHUNK = 10
 CHUNK_WITHIN_S = 0.25  # a slow compass's readings handed on at least this often
 BATTERY_RATE_HZ = 10.0  # BATTERY_STATUS during a current sweep
+COMPASS_HZ = 10.0  # ArduCopter reads its compasses at about 10 Hz, whatever the stream rate
 MOT_RANGE_MG_PER_A = 1000.0  # COMPASS_MOTn_* @Range
 RESTORE_RECONNECT_S = 3.0  # a vehicle that does not answer by then is reported as not restored
 COMPASS_PREARM = "PreArm: Compass"
@@ -396,29 +397,28 @@ class ArduPilotDut:
         kinds = {STREAMS[SETS.index(self._suffix_of(d))]: d for d in sensors if d in self.ids.values()}
         if not kinds:
             return out
-        rows: dict[str, list[tuple[float, float, float]]] = {kind: [] for kind, _ in kinds}
-        filters = {kind: RepeatFilter() for kind, _ in kinds}
+        # each compass reads at 10 Hz: its distinct readings are waited for three times as long as they take
+        rows = {kind: ReadingsAtRest(count, max(self.opts.stream_timeout_s, 3.0 * count / COMPASS_HZ))
+                for kind, _ in kinds}
         self.link.drain()
         started: list[int] = []
         try:
             for _, msg_id in kinds:
                 self.link.set_message_interval(msg_id, 50.0)
                 started.append(msg_id)
-            while waiting := [kind for kind in rows if len(rows[kind]) < count]:
+            while waiting := [kind for kind in rows if not rows[kind].done]:
                 msg = self.link.recv(waiting, self.opts.stream_timeout_s)
                 if msg is None:
                     late = " / ".join(waiting)
                     self.link.require_alive(f"waiting for {late} after the power cycle")
                     raise DutError(f"the vehicle answers but sent no {late} after the power cycle")
-                kind = msg.get_type()
-                if filters[kind].accept(msg.xmag, msg.ymag, msg.zmag):
-                    rows[kind].append((msg.xmag, msg.ymag, msg.zmag))
+                rows[msg.get_type()].add(msg.xmag, msg.ymag, msg.zmag)
         finally:
             for msg_id in started:
                 with contextlib.suppress(DutError):
                     self.link.set_message_interval(msg_id, 0)
         for (kind, _), device_id in kinds.items():
-            out[device_id] = untruncate_mg(np.array(rows[kind][:count], float)) / 10.0
+            out[device_id] = untruncate_mg(np.array(rows[kind].rows(), float)) / 10.0
         return out
 
     def persistence_problems(self) -> list[str]:

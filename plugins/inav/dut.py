@@ -16,6 +16,7 @@ from magline.plugin import (
     NotRestored,
     ParamValue,
     Product,
+    ReadingsAtRest,
     RepeatFilter,
     SampleChunk,
     UnitInfo,
@@ -261,13 +262,8 @@ class InavDut:
         field the written gains were made for; None when this run wrote none."""
         if self._field_ut is None:
             return None
-        repeats, rows = RepeatFilter(), []
-        deadline = time.monotonic() + 2.0 + count * 0.2  # a 10 Hz compass, twice over
-        while len(rows) < count:
-            if time.monotonic() > deadline:
-                raise LinkError(f"INAV's compass gave {len(rows)} distinct readings of the {count} asked")
-            counts = self.link.imu().mag_counts
-            if repeats.accept(*counts):
-                rows.append(output_to_ut(counts, self._field_ut))
+        rows = ReadingsAtRest(count, 2.0 + count * 0.2)  # a 10 Hz compass's distinct readings, twice over
+        while not rows.done:
+            rows.add(*self.link.imu().mag_counts)  # each poll is an answer: a silent link raises on its own
             time.sleep(0.01)
-        return np.array(rows)
+        return np.array([output_to_ut(counts, self._field_ut) for counts in rows.rows()])

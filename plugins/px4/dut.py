@@ -409,7 +409,7 @@ class Px4Dut:
         the save), so the usual power cycle goes straight on; only a supply cut waits, in
         :meth:`release_link`."""
         if self.opts.force_save:  # param1 = 1 saves; 3 would reset every calibration
-            self.link.require_accepted(MAV_CMD_PREFLIGHT_STORAGE, "forced parameter save", 1)
+            self.link.require_accepted_by_worker(MAV_CMD_PREFLIGHT_STORAGE, "forced parameter save", 1)
             self._saved_at = time.monotonic()
 
     # ------------------------------------------------------------------ factory calibration store

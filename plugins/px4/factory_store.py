@@ -23,15 +23,13 @@ import numpy as np
 
 from magline.plugin import DutError, ParamValue, get_listening
 from magline.plugins.px4.calibration import is_int_param
-from magline.plugins.px4.link import RESULTS, Px4Link
+from magline.plugins.px4.link import Px4Link
 
 FACTORY_STORE = "/fs/mtd_caldata"
 MODE_PARAM = "SYS_FAC_CAL_MODE"
 MODE_ALL_SENSORS = 1
 MAV_CMD_PREFLIGHT_CALIBRATION, MAV_CMD_PREFLIGHT_STORAGE = 241, 245
 GYRO = 1.0  # MAV_CMD_PREFLIGHT_CALIBRATION param1: the gyro
-TEMPORARILY_REJECTED = 1  # MAV_RESULT: the commander's worker thread is busy (a save under way)
-BUSY_WAIT_S = 5.0
 RESET_CALIBRATION = 3  # MAV_CMD_PREFLIGHT_STORAGE param1: ParamResetSensorFactory (CAL_ACC/GYRO/MAG*, save, reboot)
 DONE, FAILED, CANCELLED = "[cal] calibration done:", "[cal] calibration failed", "[cal] calibration cancelled"
 PRINTED_HALF_UNIT = 0.5e-6 + 1e-12  # bsondump's %.6f
@@ -58,21 +56,12 @@ def copy_into_store(link: Px4Link, mode_after: int, timeout_s: float) -> str:
         link.unsubscribe(handle)
         link.set(MODE_PARAM, mode_after, is_int_param(MODE_PARAM))
         # the commander holds autosave while it exports: a value set after it ends is saved by asking
-        link.require_accepted(MAV_CMD_PREFLIGHT_STORAGE, "forced parameter save", 1)
+        link.require_accepted_by_worker(MAV_CMD_PREFLIGHT_STORAGE, "forced parameter save", 1)
 
 
 def _start_gyro_calibration(link: Px4Link) -> None:
-    """The commander refuses a calibration while its worker thread is busy (TEMPORARILY_REJECTED) — and the
-    save asked just before runs there: asked again until it is free."""
-    deadline = time.monotonic() + BUSY_WAIT_S
-    while True:
-        result = link.command(MAV_CMD_PREFLIGHT_CALIBRATION, GYRO)
-        if result != TEMPORARILY_REJECTED or time.monotonic() > deadline:
-            break
-        time.sleep(0.1)
-    if result != 0:
-        raise DutError(f"the gyro calibration that writes the factory store was refused by PX4: "
-                       f"{RESULTS.get(result, result)}")
+    link.require_accepted_by_worker(MAV_CMD_PREFLIGHT_CALIBRATION,
+                                    "the gyro calibration that writes the factory store", GYRO)
 
 
 def _verdict(inbox: queue.Queue, timeout_s: float) -> str:
@@ -115,7 +104,7 @@ def store_contents(shell_output: str, written: dict[str, ParamValue]) -> dict[st
 def reset_calibration(link: Px4Link) -> None:
     """PREFLIGHT_STORAGE param1 = 3: the commander resets CAL_ACC*, CAL_GYRO*, CAL_MAG*, saves and reboots —
     the parameters then come back from the store alone."""
-    link.require_accepted(MAV_CMD_PREFLIGHT_STORAGE, "the calibration reset that proves the factory store",
+    link.require_accepted_by_worker(MAV_CMD_PREFLIGHT_STORAGE, "the calibration reset that proves the factory store",
                           RESET_CALIBRATION)
 
 

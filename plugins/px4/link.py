@@ -47,6 +47,8 @@ GCS_SYSTEM, GCS_COMPONENT = 245, 190  # MAVSDK's ground-station identity
 RESULTS = {n: e.name.removeprefix("MAV_RESULT_") for n, e in mavlink.enums["MAV_RESULT"].items()}
 SHELL_PROMPTS = ("nsh> ", "pxh> ")  # NuttX boards; POSIX builds (which rarely answer over MAVLink)
 SILENCE_S = 2.5  # PX4 sends HEARTBEAT at 1 Hz: this long without one means the link is gone
+TEMPORARILY_REJECTED = 1  # MAV_RESULT: the commander's worker thread is busy
+WORKER_BUSY_S = 5.0  # how long a command for the worker thread is asked again while it is busy
 
 _routed = False
 # mavsdk_create / mavsdk_destroy of the native library are not safe to run on several threads at once:
@@ -237,6 +239,21 @@ class Px4Link:
 
     def require_accepted(self, command: int, what: str, *params: float) -> None:
         result = self.command(command, *params)
+        if result != 0:
+            raise DutError(f"{what} refused by the autopilot: {RESULTS.get(result, result)}")
+
+    def require_accepted_by_worker(self, command: int, what: str, *params: float) -> None:
+        """A command the commander runs on its worker thread (a parameter save, a calibration, a reset):
+        refused with TEMPORARILY_REJECTED while that thread is busy — and it stays busy a moment after a
+        calibration has said "done", until the commander's next cycle collects its result (seen on PX4
+        SITL: the save right after the factory store's gyro calibration was refused).  Asked again until
+        it is free, for :data:`WORKER_BUSY_S` at most."""
+        deadline = time.monotonic() + WORKER_BUSY_S
+        while True:
+            result = self.command(command, *params)
+            if result != TEMPORARILY_REJECTED or time.monotonic() > deadline:
+                break
+            time.sleep(0.1)
         if result != 0:
             raise DutError(f"{what} refused by the autopilot: {RESULTS.get(result, result)}")
 
