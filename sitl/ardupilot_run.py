@@ -139,7 +139,7 @@ def _link(timeout_s: float = 60.0) -> mavutil.mavfile:
     deadline = time.monotonic() + timeout_s
     while True:
         try:
-            link = mavutil.mavlink_connection(SERIAL0, source_system=245, source_component=190)
+            link = mavutil.mavlink_connection(SERIAL0, source_system=245, source_component=190, retries=0)
             if link.wait_heartbeat(timeout=10) is not None:
                 return link
             link.close()
