@@ -46,11 +46,18 @@ def readme_sequences() -> list[tuple[str, list[str], str]]:
 
 
 def free_port() -> int:
-    with socket.socket() as tcp, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as udp:
-        tcp.bind(("127.0.0.1", 0))
-        port = tcp.getsockname()[1]
-        udp.bind(("127.0.0.1", port))  # free for both: a station may reach a simulator over either
-        return port
+    """A port free for both TCP and UDP (a station may reach a simulator over either).  The kernel hands
+    out a TCP port free for TCP only: another worker's UDP socket may hold its twin — then another is
+    drawn (seen once in a suite run: "Address already in use")."""
+    while True:
+        with socket.socket() as tcp, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as udp:
+            tcp.bind(("127.0.0.1", 0))
+            port = tcp.getsockname()[1]
+            try:
+                udp.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+            return port
 
 
 @pytest.mark.parametrize(("name", "sims", "run"), readme_sequences(), ids=lambda v: v if isinstance(v, str) else "")
