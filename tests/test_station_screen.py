@@ -349,8 +349,11 @@ def test_idle_screen_second_scan_and_what_to_do_after_the_verdict(screen, browse
     colour = "getComputedStyle(document.querySelector(%r)).%s"
     aborted = page.evaluate(colour % ("#verdict", "backgroundColor"))
     assert aborted == page.evaluate(colour % ("#recent li.aborted", "color")) == "rgb(87, 96, 106)"
-    page.evaluate("document.getElementById('verdict').className = 'error'")
-    assert page.evaluate(colour % ("#verdict", "backgroundColor")) == "rgb(110, 84, 148)" != aborted
+    # set and read in one task: the screen redraws its verdict from the next state in an animation frame,
+    # which ran between two evaluations once and put "aborted" back
+    error = page.evaluate("(() => { const v = document.getElementById('verdict'); v.className = 'error';"
+                          " return getComputedStyle(v).backgroundColor; })()")
+    assert error == "rgb(110, 84, 148)" != aborted
     assert page.inner_text("#shift").startswith("1 unit, ")
     screenshot(page, tmp_path / "aborted-what-to-do.png")
 
