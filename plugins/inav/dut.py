@@ -44,6 +44,20 @@ from magline.plugins.inav.options import InavOptions
 COMPASS = 1  # INAV uses one compass and gives it no device id: magline calls it 1
 EXTERNAL_ANGLES = ("align_mag_roll", "align_mag_pitch", "align_mag_yaw")
 CHUNK_S = 0.1  # readings are handed on every tenth of a second
+
+
+def answered_at(asked: float, least_rtt_s: float) -> float:
+    """When the board read the accelerometer and compass it answers a request with, on the station's
+    clock: the request's departure plus half the least round trip the link has shown.
+
+    Why not the middle of this request's own round trip: INAV answers ``MSP_RAW_IMU`` as its serial
+    task handles it, a near-constant time after the request arrives; a round trip longer than the
+    link's least is the station's own delay in taking the answer (its running fit holding the
+    interpreter, a loaded PC), which happened after the readings were taken.  Stamped at the middle,
+    such delays moved readings by up to half of them at random — tens of milliseconds of a tumble
+    turning 300°/s — and the mounting check could no longer tell the compass's time skew from a
+    turned sensor (a good unit ERRORed)."""
+    return asked + least_rtt_s / 2.0
 COMPASS_NOT_CALIBRATED = 1 << 12  # INAV's ARMING_DISABLED_COMPASS_NOT_CALIBRATED
 
 
@@ -152,11 +166,12 @@ class InavDut:
     def samples(self, rate_hz: float) -> Iterator[SampleChunk]:
         """``MSP_RAW_IMU`` polled at ``rate_hz``: a compass reading is passed once (INAV updates it at
         10 Hz; the copies between are dropped and counted), the accelerometer at every poll, both on the
-        station's clock at the middle of each request's round trip."""
+        station's clock when the board answered: the request's departure plus half the link's least
+        round trip (:func:`answered_at`)."""
         period = 1.0 / rate_hz
         repeats = RepeatFilter(timed=True)
         start = due = handed = time.monotonic()
-        told = 0
+        told, least_rtt = 0, float("inf")
         mags: list[np.ndarray] = []
         times: list[float] = []
         accel: list[np.ndarray] = []
@@ -169,7 +184,8 @@ class InavDut:
             asked = time.monotonic()
             reading = self.link.imu()
             answered = time.monotonic()
-            t_ms = ((asked + answered) / 2.0 - start) * 1000.0
+            least_rtt = min(least_rtt, answered - asked)
+            t_ms = (answered_at(asked, least_rtt) - start) * 1000.0
             accel.append(reading.accel_mss)
             accel_t.append(t_ms)
             if repeats.accept(*reading.mag_counts):
