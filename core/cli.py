@@ -15,29 +15,21 @@ import sys
 from collections.abc import Callable, Iterator
 from importlib.resources import as_file, files
 from pathlib import Path
-from typing import Any
-
-from sqlalchemy.exc import SQLAlchemyError
+from typing import TYPE_CHECKING, Any
 
 from magline.core import __version__
 from magline.core.faults import StationFault, UnitAborted
-from magline.core.fit import FitOptions, FitRefused, fit_calibration
-from magline.core.fit.affine import fit_affine
-from magline.core.fit.geometric import DRIFT_SEPARATION_MIN
-from magline.core.fit.samples_csv import SampleFileError, parse_samples, select_export_rows
-from magline.core.plugins import PluginError, Plugins, load_plugins
-from magline.core.record import Outcome
-from magline.core.results.contract import ClaimsSlots, ForwardsQueued
-from magline.core.results.sinks import close_sink, open_results
-from magline.core.results.store import reason
-from magline.core.serials import Refused, SerialRefused, clean_serial, known_part, one_serial_per_slot
-from magline.core.station import Station, StationError
-from magline.core.station.checks import did_you_mean, station_problems
-from magline.core.station.loader import read_station_text
-from magline.core.text import fmt, percent
+from magline.core.plugins import PluginError, load_plugins
 
-EXIT = {Outcome.PASS: 0, Outcome.FAIL: 1, Outcome.ERROR: 2, Outcome.SKIPPED: 2}
+if TYPE_CHECKING:
+    from magline.core.plugins import Plugins
+    from magline.core.station import Station
+
+# Why so few imports above: every command starts here, and ``magline --help`` or ``magline check`` must
+# answer at once; each command imports what it uses (the fit, the results store's SQLAlchemy) on use.
+
 DEMO = "demo.yaml"
+GAIN_SIGMA = 0.05  # ``magline fit``'s default, the fit's own (FitOptions.gain_sigma; a test holds them equal)
 
 
 DESCRIPTION = ("Calibrate drone magnetometers at the end of a production line: run a station, check a station "
@@ -72,7 +64,7 @@ def main(argv: list[str] | None = None) -> int:
     fit.add_argument("--model", choices=["full", "diagonal", "sphere"], default="full")
     fit.add_argument("--range-ut", type=float, help="sensor range (µT); samples at it are clipped")
     fit.add_argument("--bins", type=int, default=100, help="coverage bins (Fibonacci sphere)")
-    fit.add_argument("--gain-sigma", type=float, default=FitOptions.gain_sigma,
+    fit.add_argument("--gain-sigma", type=float, default=GAIN_SIGMA,
                      help="1σ spread of the raw-to-reference field ratio (with --field-ut)")
     fit.add_argument("--run", help="a magline export --raw file: the run to fit (its UUID or first characters)")
     fit.add_argument("--serial", help="a magline export --raw file: the serial whose run to fit")
@@ -196,6 +188,8 @@ def _err(message: str) -> None:
 def _load(path: str | None, plugins: Plugins) -> tuple[Station, Path]:
     """Load a station file (or the embedded demo) and check the names it uses against the plugins;
     every problem is reported at once."""
+    from magline.core.station import StationError, read_station_text, station_problems
+
     if path is None:  # the embedded demo keeps its files in the directory magline runs in
         with as_file(files("magline.stations") / DEMO) as demo:
             text, name, where = read_station_text(demo), str(demo), Path.cwd()
@@ -227,6 +221,8 @@ def _run(args: argparse.Namespace, plugins: Plugins) -> int:
     from magline.core.sequencer import Sequencer
     from magline.core.sequencer.batch import Batch
     from magline.core.sequencer.hold import StationBusy
+    from magline.core.serials import Refused, known_part
+    from magline.core.station import StationError
 
     console = OperatorConsole()
     plugins.pm.register(console)
@@ -324,6 +320,9 @@ def _slot_batches(args: argparse.Namespace, station: Station) -> Iterator[dict[s
     """Slot id → serial for each load of the fixture: the ``--serial SLOT=SERIAL`` given (slots not
     named stay empty), else the operator is asked slot by slot (an empty answer leaves the slot
     empty); with ``--loop`` asked again for each next load, until every slot is left empty."""
+    from magline.core.serials import clean_serial
+    from magline.core.station.checks import did_you_mean
+
     ids = [slot.id for slot in station.slots]
     given: dict[str, str] = {}
     for item in args.serial or []:
@@ -347,6 +346,8 @@ def _slot_batches(args: argparse.Namespace, station: Station) -> Iterator[dict[s
 
 def _ask_slots(station: Station) -> dict[str, str] | None:
     """One serial per slot from the operator (or a scanner); None when every slot is left empty."""
+    from magline.core.serials import SerialRefused, clean_serial, one_serial_per_slot
+
     load: dict[str, str] = {}
     for slot in station.slots:
         while True:
@@ -413,6 +414,8 @@ def _ask_serial(station: Station) -> str | None:
 
 
 def _check(args: argparse.Namespace, plugins: Plugins) -> int:
+    from magline.core.station import StationError
+
     try:
         station, _ = _load(args.station, plugins)
     except (StationError, PluginError) as exc:
@@ -425,6 +428,10 @@ def _check(args: argparse.Namespace, plugins: Plugins) -> int:
 
 
 def _fit(args: argparse.Namespace, plugins: Plugins) -> int:
+    from magline.core.fit import FitOptions, FitRefused, fit_calibration
+    from magline.core.fit.affine import fit_affine
+    from magline.core.fit.samples_csv import SampleFileError, parse_samples, select_export_rows
+
     try:
         text, chosen = select_export_rows(_read_text(args.csv), args.csv, args.run, args.serial, args.attempt,
                                           args.with_refused, args.sensor)
@@ -459,6 +466,8 @@ def _fit(args: argparse.Namespace, plugins: Plugins) -> int:
 
 
 def _read_text(path: str) -> str:
+    from magline.core.fit.samples_csv import SampleFileError
+
     try:
         return Path(path).read_text(encoding="utf-8")
     except OSError as exc:
@@ -496,6 +505,8 @@ def _fit_summary(doc: dict) -> str:
 def _drift_words(drift: dict) -> str:
     """What the fit's warm-up drift test decided, in a line: a quality engineer must tell "no drift"
     from "could not judge"."""
+    from magline.core.fit.geometric import DRIFT_SEPARATION_MIN
+
     if not drift.get("judged", True) and drift.get("separation", 0.0) >= DRIFT_SEPARATION_MIN:
         return "not judged: the drift model could not be fitted to these readings"
     if not drift.get("judged", True):
@@ -556,6 +567,10 @@ def _ports(args: argparse.Namespace, plugins: Plugins) -> int:
 
 
 def _history(args: argparse.Namespace, plugins: Plugins) -> int:
+    from magline.core.results.sinks import close_sink, open_results
+    from magline.core.station import StationError
+    from magline.core.text import fmt, percent
+
     try:
         station, where = _load(args.station, plugins)
     except (StationError, PluginError) as exc:
@@ -594,7 +609,7 @@ def _history(args: argparse.Namespace, plugins: Plugins) -> int:
 
 def _missing_store(args: argparse.Namespace, station: Station, where: Path) -> str | None:
     """Reading never creates a store: why there is nothing to read, or None (the store it reads is said)."""
-    from magline.core.results.sqlite_sink import results_path
+    from magline.core.results.sqlite_store import results_path
 
     if station.main_results.sink != "sqlite":
         return None
@@ -608,6 +623,8 @@ def _missing_store(args: argparse.Namespace, station: Station, where: Path) -> s
 
 def _open_store(args: argparse.Namespace, plugins: Plugins) -> tuple[Station, Path, Any]:
     """The station, its folder and its results store, for commands that read it (never created by reading)."""
+    from magline.core.results.sinks import open_results
+
     station, where = _load(args.station, plugins)
     missing = _missing_store(args, station, where)
     if missing is not None:
@@ -617,6 +634,10 @@ def _open_store(args: argparse.Namespace, plugins: Plugins) -> tuple[Station, Pa
 
 def _sync(args: argparse.Namespace, plugins: Plugins) -> int:
     """Forward what a station's outbox holds (the station loop does it too, after every unit)."""
+    from magline.core.results.contract import ForwardsQueued
+    from magline.core.results.sinks import open_results
+    from magline.core.station import StationError
+
     try:
         station, where = _load(args.station, plugins)
         sink = open_results(station, where, plugins, main_only=True)
@@ -640,6 +661,11 @@ def _sync(args: argparse.Namespace, plugins: Plugins) -> int:
 def _with_store(args: argparse.Namespace, plugins: Plugins, use: Callable[..., int]) -> int:
     """Open the station's results store for reading, hand it to ``use`` (with the station and its
     folder when ``use`` takes them), close it."""
+    from sqlalchemy.exc import SQLAlchemyError
+
+    from magline.core.results.store import reason
+    from magline.core.station import StationError
+
     try:
         station, where, store = _open_store(args, plugins)
     except (StationError, PluginError, StationFault) as exc:
@@ -661,6 +687,8 @@ def _with_store(args: argparse.Namespace, plugins: Plugins, use: Callable[..., i
 def _slots(args: argparse.Namespace, plugins: Plugins) -> int:
     """Every slot claimed in the store, with its holder: what a line lead checks before a second PC
     starts on the same station file."""
+    from magline.core.results.contract import ClaimsSlots
+
     def use(store: Any, *_: Any) -> int:
         if not isinstance(store, ClaimsSlots):
             print(f"results store {getattr(store, 'where', '')} keeps no slot claims")
@@ -718,6 +746,7 @@ def _report(args: argparse.Namespace, plugins: Plugins) -> int:
 
 def _station(args: argparse.Namespace, plugins: Plugins) -> int:
     from magline.core.operator_ui.screen.serve import serve
+    from magline.core.station import StationError
 
     try:
         station, where = _load(args.station, plugins)

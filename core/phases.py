@@ -10,6 +10,7 @@ makes them autopilot-independent.
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -21,18 +22,20 @@ from magline.core.dut import (
     param_equal,
 )
 from magline.core.faults import StationFault
-from magline.core.fit import FitOptions, FitResult, fit_calibration
-from magline.core.fit.samples_csv import RawSamples
-from magline.core.interference import phase as interference
 from magline.core.measurements import Array, Json, Measurement, Numeric
-from magline.core.mounting import orientation_matrix
 from magline.core.plugins import hookimpl
 from magline.core.record import PersistReport
-from magline.core.sequencer.context import RunContext
+
+if TYPE_CHECKING:
+    from magline.core.fit import FitOptions, FitResult
+    from magline.core.fit.samples_csv import RawSamples
+    from magline.core.sequencer.context import RunContext
 
 
 @hookimpl(trylast=True)
 def magline_fit(run: RunContext, samples: RawSamples, options: FitOptions) -> FitResult:
+    from magline.core.fit import fit_calibration  # on use: every command loads this plugin
+
     return fit_calibration(samples.mag_ut, options, t_ms=samples.t_ms, temp_c=samples.temp_c)
 
 
@@ -79,6 +82,9 @@ def calibration_to_write(run: RunContext, fit: FitResult) -> dict[str, ParamValu
     mounting check asked to fix, and the custom rotations it measured where the product writes them.
     A sensor whose firmware calibrates in its *rotated* frame (ArduPilot)
     gets its fit turned into the new frame with its new orientation: ``h' = P·h``, ``S' = P·S·Pᵀ``."""
+    from magline.core.interference import phase as interference
+    from magline.core.mounting import orientation_matrix
+
     dut = run.require_dut()
     if not run.unit or not run.unit.magnetometers:
         return dict(dut.calibration_params(fit))

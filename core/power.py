@@ -12,12 +12,14 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 from magline.core.dut import DutBackend, OldBootRunning
 from magline.core.faults import StationFault
 from magline.core.plugins import hookimpl
-from magline.core.station.schema import PowerConfig
+
+if TYPE_CHECKING:
+    from magline.core.station.schema import PowerConfig
 
 
 class PowerError(StationFault):

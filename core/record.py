@@ -9,11 +9,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from enum import StrEnum
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from magline.core.dut import ParamValue
-from magline.core.fit.samples_csv import RawSamples
 from magline.core.measurements import Attachment, Measurement
+
+if TYPE_CHECKING:
+    from magline.core.fit.samples_csv import RawSamples
 
 
 class Outcome(StrEnum):

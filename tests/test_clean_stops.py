@@ -16,7 +16,7 @@ import yaml
 from conftest import REPO, deep_update, demo_config
 from simstation import attempt_rows
 
-from magline.core.results.sqlite_sink import SqliteSink
+from magline.core.results.sqlite_store import SqliteSink
 
 
 def realtime_station(tmp_path: Path, changes: dict | None = None) -> Path:

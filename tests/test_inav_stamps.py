@@ -1,10 +1,12 @@
 """When the INAV backend says its readings were taken: INAV answers ``MSP_RAW_IMU`` with the compass and
-accelerometer as its serial task handles the request, so a reading belongs to the request's departure plus
-the link's own transit — not to the middle of a round trip the station itself lengthened by taking the
-answer late (its running fit holding the interpreter, a loaded PC).
+accelerometer as its serial task handles the request — somewhere inside the request's round trip.  An
+answer that came back late (the station took it late, its running fit holding the interpreter; or the
+board answered late) cannot be placed: it is left out, and the next answer, which carries the compass
+reading INAV still holds, places it.
 
-The clock here is the test's own: the link takes the readings one millisecond after each request leaves,
-and the station picks every third answer up 60 ms late, as it does while the running fit computes."""
+The clock here is the test's own: the board takes its readings one millisecond after a request leaves and
+its compass holds each reading for two requests; the station picks every third answer up 60 ms late, and
+the board answers every fifth 60 ms late (taken late)."""
 
 from __future__ import annotations
 
@@ -12,12 +14,12 @@ import numpy as np
 
 from magline.core.station.schema import Product
 from magline.plugins.inav import dut as inav_dut
-from magline.plugins.inav.dut import InavDut
+from magline.plugins.inav.dut import LATE_ANSWER_S, InavDut
 from magline.plugins.inav.link import ImuReading
 from magline.plugins.inav.options import InavOptions
 
 ONE_WAY_S = 0.001
-LATE_TAKEN_S = 0.060
+LATE_S = 0.060
 
 
 class Clock:
@@ -33,33 +35,45 @@ class Clock:
         self.now += max(seconds, 0.0)
 
 
-class LateTakenLink:
-    """Answers each ``MSP_RAW_IMU`` with readings taken ``ONE_WAY_S`` after the request left; the answer
-    is back after another ``ONE_WAY_S``, and every third one sits ``LATE_TAKEN_S`` more before the station
-    takes it.  Each answer carries a new compass reading, so every request is a reading."""
+class LateAnsweringLink:
+    """``MSP_RAW_IMU`` answered as described in the module's docstring; ``taken_at`` holds when each
+    answer's readings were really taken, ``compass`` which compass reading each answer carried."""
 
     def __init__(self, clock: Clock) -> None:
-        self.clock, self.taken_at, self.count = clock, [], 0
+        self.clock, self.taken_at, self.compass, self.count = clock, [], [], 0
 
     def imu(self) -> ImuReading:
         self.count += 1
-        self.taken_at.append(self.clock.now + ONE_WAY_S)
-        self.clock.now += 2 * ONE_WAY_S + (LATE_TAKEN_S if self.count % 3 == 0 else 0.0)
-        return ImuReading(np.array([0.0, 0.0, -9.8]), np.array([100.0 + self.count, 200.0, 300.0]))
+        board_late = LATE_S if self.count % 5 == 0 else 0.0
+        taken = self.clock.now + ONE_WAY_S + board_late
+        self.taken_at.append(taken)
+        self.compass.append((self.count + 1) // 2)  # a new compass reading every second request
+        station_late = LATE_S if self.count % 3 == 0 else 0.0
+        self.clock.now = taken + ONE_WAY_S + station_late
+        return ImuReading(np.array([0.0, 0.0, -9.8]) + self.count * 1e-3,
+                          np.array([100.0 + self.compass[-1], 200.0, 300.0]))
 
 
-def test_readings_are_stamped_when_the_board_took_them_not_when_the_station_picked_the_answer_up(monkeypatch):
+def test_answers_that_came_back_late_are_left_out_and_every_reading_kept_is_placed_where_it_was_taken(monkeypatch):
     clock = Clock()
     monkeypatch.setattr(inav_dut, "time", clock)
     dut = InavDut(Product(backend="inav", connection="tcp:127.0.0.1:1"), InavOptions())
-    link = dut.link = LateTakenLink(clock)
+    link = dut.link = LateAnsweringLink(clock)
     stream = dut.samples(50.0)
     start = clock.now
-    chunks = [next(stream) for _ in range(8)]
-    stamps = np.concatenate([c.t_ms for c in chunks])
-    accel_stamps = np.concatenate([c.imu.t_ms for c in chunks])
-    truth = (np.array(link.taken_at[:len(accel_stamps)]) - start) * 1000.0
-    assert len(stamps) >= 30 and np.isin(stamps, accel_stamps).all()  # a compass reading: its answer's instant
-    # the middle of each round trip put every third answer 30 ms late; the departure plus the least transit
-    # puts each where the board took it
-    assert np.max(np.abs(accel_stamps - truth)) < 1e-6
+    chunks = [next(stream) for _ in range(20)]
+    accel_t = np.concatenate([c.imu.t_ms for c in chunks])
+    accel_z = np.concatenate([c.imu.accel_mss[:, 2] for c in chunks])
+    answer = np.rint((accel_z + 9.8) / 1e-3).astype(int) - 1  # which answer each accelerometer reading came in
+    taken = (np.array(link.taken_at)[answer] - start) * 1000.0
+    late = ((answer + 1) % 3 == 0) | ((answer + 1) % 5 == 0)
+    assert len(accel_t) >= 40 and not late.any()  # no late answer's reading was used …
+    # … and each one used is placed within half the lateness the backend accepts (the old stamps, at the
+    # middle of every round trip, put the late ones 30 ms off)
+    assert np.max(np.abs(accel_t - taken)) <= LATE_ANSWER_S / 2 * 1000.0
+    mag_t = np.concatenate([c.t_ms for c in chunks])
+    mags = np.concatenate([c.mag_ut for c in chunks])
+    assert np.isin(mag_t, accel_t).all()  # a compass reading: the instant of the answer it first came in
+    assert len(np.unique(mags, axis=0)) == len(mags)  # each compass reading once
+    held = set(np.array(link.compass)[answer]) - {link.compass[0]}  # the stream's first: of unknown age
+    assert len(mags) == len(held)  # every compass reading a timely answer carried is kept, none lost

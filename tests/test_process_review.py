@@ -18,7 +18,7 @@ from magline.core.operator_ui.console import OperatorConsole
 from magline.core.plugins import load_plugins
 from magline.core.quality.review import review
 from magline.core.record import Outcome, RunRecord
-from magline.core.results.sqlite_sink import SqliteSink
+from magline.core.results.sqlite_store import SqliteSink
 from magline.core.sequencer import Sequencer
 from magline.core.station import load_station
 

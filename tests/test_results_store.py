@@ -16,7 +16,7 @@ from sqlalchemy import text
 from magline.core.faults import StationFault
 from magline.core.fit.samples_csv import parse_samples
 from magline.core.results import schema_version
-from magline.core.results.sqlite_sink import SqliteSink
+from magline.core.results.sqlite_store import SqliteSink
 
 FIXTURES = Path(__file__).parent / "fixtures"
 LEGACY = FIXTURES / "results-magline-0.1.sqlite"  # written by the hand-written SQLite sink of magline 0.1
@@ -139,7 +139,7 @@ def test_a_newer_schema_is_refused_on_each_engine(store_url):
 
 
 def test_the_server_url_comes_from_the_environment_and_its_password_is_never_shown(make_station, monkeypatch):
-    from magline.core.results.sql_sink import server_store
+    from magline.core.results.sql_store import server_store
 
     with pytest.raises(StationFault, match=r"MAGLINE_NOT_SET .* is not set"):
         server_store("MAGLINE_NOT_SET")
@@ -317,7 +317,7 @@ def test_the_export_has_columns_for_the_compasses_the_units_have_and_says_test_r
     first = run_unit(station, "EX-1")
     again = run_unit(station, "EX-1")
     assert first.verdict.value == again.verdict.value == "pass"
-    from magline.core.results.sqlite_sink import SqliteSink
+    from magline.core.results.sqlite_store import SqliteSink
     from magline.testing import make_record
 
     flagged = make_record("EX-2", part="MOCK-100", verdict="pass")
@@ -388,7 +388,7 @@ def test_a_store_at_the_head_is_opened_without_alembic(tmp_path):
 
     path = tmp_path / "at-head.sqlite"
     SqliteSink(path).close()
-    probe = ("import sys; from pathlib import Path; from magline.core.results.sqlite_sink import SqliteSink; "
+    probe = ("import sys; from pathlib import Path; from magline.core.results.sqlite_store import SqliteSink; "
              f"SqliteSink(Path({str(path)!r})).close(); print('alembic' in sys.modules)")
     assert subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True).stdout.strip() \
         == "False"

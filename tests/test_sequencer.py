@@ -17,7 +17,7 @@ from simstation import attempt_rows
 from magline.core.cli import main
 from magline.core.plugins import hookimpl, load_plugins
 from magline.core.record import Outcome
-from magline.core.results.sqlite_sink import SqliteSink
+from magline.core.results.sqlite_store import SqliteSink
 from magline.core.sequencer import Sequencer
 from magline.core.station import load_station
 

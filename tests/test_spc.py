@@ -167,7 +167,7 @@ def test_magline_spc_reads_the_store_and_flags_a_drifting_offset(make_station, s
 def _thirty_units_one_failure(make_station):
     """30 judged demo units; unit 15 has a large offset σ (outside its limit) and rejected readings."""
     from magline.core.measurements import Numeric, Verdict
-    from magline.core.results.sqlite_sink import SqliteSink
+    from magline.core.results.sqlite_store import SqliteSink
     from magline.testing import make_record
 
     station = make_station()
@@ -370,7 +370,7 @@ def steady(n: int) -> list[float]:
 def _units(station, values: list[float]) -> None:
     """Judged units of the demo part, one per value of hard_iron_norm_ut (limit ≤ 300 µT)."""
     from magline.core.measurements import Numeric, Verdict
-    from magline.core.results.sqlite_sink import SqliteSink
+    from magline.core.results.sqlite_store import SqliteSink
     from magline.testing import make_record
 
     store = SqliteSink(station.parent / "magline-demo-results.sqlite")
@@ -484,7 +484,7 @@ def test_yield_and_failure_causes_trend_per_shift_station_operator_product_and_c
 
     from magline.core.cli import main
     from magline.core.measurements import Numeric, Verdict
-    from magline.core.results.sqlite_sink import SqliteSink
+    from magline.core.results.sqlite_store import SqliteSink
     from magline.testing import make_record
 
     station = make_station()

@@ -10,7 +10,7 @@ import pytest
 
 from magline.core.cli import main
 from magline.core.results.instants import parse_instant, stored_form
-from magline.core.results.sqlite_sink import SqliteSink
+from magline.core.results.sqlite_store import SqliteSink
 from magline.testing import make_record
 
 

@@ -6,6 +6,7 @@ and what it passes on: the words to the operator and the picture for the console
 from __future__ import annotations
 
 from collections import deque
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -13,7 +14,9 @@ from magline.core.dut import SampleChunk
 from magline.core.motion import TurnsForTilts
 from magline.core.motion.guided import Guidance, TiltGuide
 from magline.core.mounting.checks import configured_rotation
-from magline.core.sequencer.context import RunContext
+
+if TYPE_CHECKING:
+    from magline.core.sequencer.context import RunContext
 
 WINDOW_MS = 400.0  # the accelerometer's readings a tilt is judged on
 STEADY_DEG = 4.0  # a unit whose gravity wanders less than this over the window is held still

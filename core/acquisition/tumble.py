@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import time
 from contextlib import closing, nullcontext
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -27,7 +28,10 @@ from magline.core.fit.samples_csv import RawSamples
 from magline.core.motion import TurnsForTilts
 from magline.core.mounting import ImuSeries
 from magline.core.plugins import hookimpl
-from magline.core.sequencer.context import Acquisition, AcquisitionAborted, RunContext
+from magline.core.sequencer.context import Acquisition, AcquisitionAborted
+
+if TYPE_CHECKING:
+    from magline.core.sequencer.context import RunContext
 
 # The running fit is handed the tumble at checkpoints of the primary's count, every 2.5 % more
 # readings (at least 3): at 10 Hz about every half second, at 200 Hz every tenth.  Counts, not

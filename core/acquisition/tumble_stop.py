@@ -6,18 +6,22 @@ the stream are :mod:`magline.core.fit.running`.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
-from magline.core.fit import FitResult
 from magline.core.fit.running import PREDICTED, RunningFit, StopRule
-from magline.core.fit.samples_csv import RawSamples
 from magline.core.measurements import limit_for
-from magline.core.mounting import ImuSeries
 from magline.core.mounting.checks import calibrated, judge_mounting
 from magline.core.mounting.estimate import MAX_SIGMA_DEG as MOUNTING_MAX_SIGMA_DEG
 from magline.core.mounting.estimate import MountingUnobservable, estimate_mounting
 from magline.core.mounting.line_skew import skew_prior
-from magline.core.sequencer.context import RunContext
+
+if TYPE_CHECKING:
+    from magline.core.fit import FitResult
+    from magline.core.fit.samples_csv import RawSamples
+    from magline.core.mounting import ImuSeries
+    from magline.core.sequencer.context import RunContext
 
 
 class Stall:

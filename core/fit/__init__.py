@@ -2,19 +2,16 @@
 
 The sequencer's default fit hook calls :func:`fit_calibration`; a plugin can replace it through
 the ``magline_fit`` hook.
+
+Its names are imported on first use (:mod:`magline.core.lazy`).
 """
 
-from magline.core.fit.coverage import CoverageTracker, coverage_fraction, coverage_of, fibonacci_sphere
-from magline.core.fit.geometric import fit_calibration
-from magline.core.fit.result import FitOptions, FitRefused, FitResult
+from __future__ import annotations
 
-__all__ = [
-    "CoverageTracker",
-    "FitOptions",
-    "FitRefused",
-    "FitResult",
-    "coverage_fraction",
-    "coverage_of",
-    "fibonacci_sphere",
-    "fit_calibration",
-]
+from magline.core.lazy import lazy_names
+
+__all__, __getattr__, __dir__ = lazy_names(__name__, {
+    "magline.core.fit.coverage": ("CoverageTracker", "coverage_fraction", "coverage_of", "fibonacci_sphere"),
+    "magline.core.fit.geometric": ("fit_calibration",),
+    "magline.core.fit.result": ("FitOptions", "FitRefused", "FitResult"),
+})

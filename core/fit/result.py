@@ -7,13 +7,15 @@ all read the same figures; a dataclass with unit-suffixed names is the contract 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
 
-from magline.core.fit.model import SoftIronModel
-from magline.core.fit.radial import RadialUncertainty
+if TYPE_CHECKING:
+    from magline.core.fit.model import SoftIronModel
+    from magline.core.fit.radial import RadialUncertainty
+
 
 
 class FitRefused(ValueError):

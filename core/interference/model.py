@@ -21,10 +21,10 @@ from numpy.typing import NDArray
 from magline.core.faults import StationFault
 from magline.core.interference.hold import known_pct, worth_writing
 from magline.core.interference.line import length_sigma, line_fit
-from magline.core.interference.sweep import Sweep
 
 if TYPE_CHECKING:
     from magline.core.fit import FitResult
+    from magline.core.interference.sweep import Sweep
 
 # The unit's current reading must follow the reference: across the sweep its range at least this share
 # of the reference's (a firmware that reads another battery monitor, or none, stays flat)

@@ -22,10 +22,11 @@ from numpy.typing import NDArray
 
 from magline.core.dut import DutBackend, DutError, SampleChunk
 from magline.core.faults import StationFault, StreamTooFast
-from magline.core.interference.hold import HoldGoal, plan_for_goal, readings_in_budget
-from magline.core.interference.source import CurrentSource
+from magline.core.interference.hold import plan_for_goal, readings_in_budget
 
 if TYPE_CHECKING:
+    from magline.core.interference.hold import HoldGoal
+    from magline.core.interference.source import CurrentSource
     from magline.core.sequencer.context import RunContext
     from magline.core.station.schema import InterferenceSettings
 

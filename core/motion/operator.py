@@ -7,9 +7,12 @@ the slots up so that one tumble serves every unit that needs samples.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from magline.core.plugins import hookimpl
-from magline.core.station.schema import Station
+
+if TYPE_CHECKING:
+    from magline.core.station.schema import Station
 
 
 class OperatorMotion:

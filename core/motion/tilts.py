@@ -13,12 +13,15 @@ hit is the one that brings the calibration closest to determined (the station's 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 from magline.core.fit.coverage import bin_index
+
+if TYPE_CHECKING:
+    from scipy.spatial.transform import Rotation
 
 GRAVITY_MSS = 9.80665
 RING_STEPS = 72  # directions per revolution when a tilt's ring is predicted (5° apart)
@@ -43,6 +46,8 @@ class Tilt:
 
     def rotation(self) -> Rotation:
         """Body → table: the cradle's pitch, then its roll (FRD, ZYX Euler with no yaw)."""
+        from scipy.spatial.transform import Rotation  # on use: SciPy's import costs every command's start
+
         return Rotation.from_euler("ZYX", [0.0, self.pitch_deg, self.roll_deg], degrees=True)
 
     def gravity_body(self) -> NDArray:
@@ -105,6 +110,8 @@ def ring_bins(tilt: Tilt, inclination_deg: float, sensor_to_body: NDArray, n_bin
     incl = np.radians(inclination_deg)
     field = np.array([np.cos(incl), 0.0, np.sin(incl)])  # north and down, in the table's frame
     yaws = np.linspace(0.0, 360.0, RING_STEPS, endpoint=False)
+    from scipy.spatial.transform import Rotation
+
     table = Rotation.from_euler("Z", yaws[:, None], degrees=True)
     body = tilt.rotation().inv().apply(table.inv().apply(field))  # the field in the unit's body at each yaw
     sensor = body @ np.asarray(sensor_to_body, float)  # v_sensor = Rᵀ·v_body, as rows

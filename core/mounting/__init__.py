@@ -5,18 +5,18 @@ wrong orientation parameter) still traces a perfect ellipsoid — no fit residua
 gravity, or another sensor, does.  ``orientations`` names the firmwares' discrete mountings,
 ``estimate`` finds the rotation from a sensor's axes to the body from accelerometer and calibrated
 field pairs, ``agreement`` compares the heading two calibrated sensors give over the tumble.
+
+Its names are imported on first use (:mod:`magline.core.lazy`).
 """
 
-from magline.core.mounting.agreement import HeadingAgreement, heading_agreement
-from magline.core.mounting.estimate import ImuSeries, MountingEstimate, MountingUnobservable, estimate_mounting
-from magline.core.mounting.orientations import (
-    ORIENTATIONS,
-    RIGHT_ANGLE,
-    nearest_right_angle,
-    orientation_matrix,
-    orientation_name,
-)
+from __future__ import annotations
 
-__all__ = ["ORIENTATIONS", "RIGHT_ANGLE", "HeadingAgreement", "ImuSeries", "MountingEstimate",
-           "MountingUnobservable", "estimate_mounting", "heading_agreement", "nearest_right_angle",
-           "orientation_matrix", "orientation_name"]
+from magline.core.lazy import lazy_names
+
+__all__, __getattr__, __dir__ = lazy_names(__name__, {
+    "magline.core.mounting.agreement": ("HeadingAgreement", "heading_agreement"),
+    "magline.core.mounting.estimate": ("ImuSeries", "MountingEstimate", "MountingUnobservable", "estimate_mounting"),
+    "magline.core.mounting.orientations": (
+        "ORIENTATIONS", "RIGHT_ANGLE", "nearest_right_angle", "orientation_matrix", "orientation_name",
+    ),
+})

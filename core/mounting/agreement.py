@@ -24,11 +24,14 @@ per-sensor fit's residual checks' to find.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
-from magline.core.mounting.estimate import ImuSeries
+if TYPE_CHECKING:
+    from magline.core.mounting.estimate import ImuSeries
+
 
 # Headings are compared where the field has a horizontal part to give one: at least this fraction of
 # its length.  Why: a heading is the angle of the field's horizontal part, so near a vertical field a

@@ -36,7 +36,7 @@ from numpy.typing import NDArray
 from magline.core.dut import DutError, ParamValue, WritesOrientation, WritesRotation
 from magline.core.faults import StationFault
 from magline.core.measurements import Json, Measurement, Numeric, Verdict
-from magline.core.mounting.agreement import HeadingAgreement, heading_agreement
+from magline.core.mounting.agreement import heading_agreement
 from magline.core.mounting.estimate import MountingEstimate, MountingUnobservable, estimate_mounting
 from magline.core.mounting.line_skew import OWN_SKEW_DETERMINED_MS, skew_prior
 from magline.core.mounting.orientations import (
@@ -50,6 +50,7 @@ from magline.core.plugins import hookimpl
 if TYPE_CHECKING:
     from magline.core.dut import Magnetometer
     from magline.core.fit import FitResult
+    from magline.core.mounting.agreement import HeadingAgreement
     from magline.core.sequencer.context import RunContext
 
 # Two sensors' skews are taken as one unless their estimates differ by more than this many σ of the

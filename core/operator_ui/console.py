@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import select
 import sys
+from typing import TYPE_CHECKING
 
 from rich.console import Console
 from rich.live import Live
@@ -23,10 +24,13 @@ from magline.core.operator_ui.cradle import cradle_text
 from magline.core.operator_ui.screen.sides import MISSING_WORDS, missing_sides
 from magline.core.operator_ui.verdict_words import closing_line, interference_words, sensor_cards, shown_verdict
 from magline.core.plugins import hookimpl
-from magline.core.record import Outcome, PhaseResult, RunRecord
-from magline.core.sequencer.batch import Batch
-from magline.core.sequencer.context import RunContext
+from magline.core.record import Outcome
 from magline.core.text import fmt, percent, seconds, stop_line
+
+if TYPE_CHECKING:
+    from magline.core.record import PhaseResult, RunRecord
+    from magline.core.sequencer.batch import Batch
+    from magline.core.sequencer.context import RunContext
 
 PHASE_WIDTH = 12  # "interference", the longest phase name: the names right-aligned in one column
 MARK = {Verdict.PASS: "✓", Verdict.FAIL: "✗", Verdict.REVIEW: "!", Verdict.INFO: "·"}

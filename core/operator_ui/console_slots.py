@@ -11,15 +11,19 @@ from __future__ import annotations
 
 import threading
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from rich.columns import Columns
 from rich.console import Console
 from rich.live import Live
 from rich.panel import Panel
 
-from magline.core.record import Outcome, PhaseResult, RunRecord
-from magline.core.sequencer.context import RunContext
+from magline.core.record import Outcome
 from magline.core.text import percent, seconds
+
+if TYPE_CHECKING:
+    from magline.core.record import PhaseResult, RunRecord
+    from magline.core.sequencer.context import RunContext
 
 STYLE = {Outcome.PASS: "green", Outcome.FAIL: "red", Outcome.ERROR: "magenta", Outcome.ABORTED: "yellow",
          Outcome.SKIPPED: "dim", Outcome.INCOMPLETE: "magenta"}

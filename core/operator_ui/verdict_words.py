@@ -8,12 +8,14 @@ must not differ between them.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from magline.core.interference.model import zone_words
 from magline.core.measurements import CATALOGUE, Verdict, base_name, by_sensor, verdicts
-from magline.core.record import RunRecord
 from magline.core.text import fmt
+
+if TYPE_CHECKING:
+    from magline.core.record import RunRecord
 
 
 def shown_verdict(record: RunRecord) -> str:

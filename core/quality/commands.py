@@ -8,7 +8,7 @@ import json
 import sys
 from difflib import get_close_matches
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -26,8 +26,11 @@ from magline.core.quality.spc import CSV_COLUMNS, build, csv_rows, format_text, 
 from magline.core.results.contract import KeepsSeries, ReadsInSql
 from magline.core.results.control_limits import newest
 from magline.core.results.reading import RunFilter
-from magline.core.results.series import Limit, RunSeries
-from magline.core.station import Station
+from magline.core.results.series import Limit
+
+if TYPE_CHECKING:
+    from magline.core.results.series import RunSeries
+    from magline.core.station import Station
 
 
 def part_of(station: Station, part: str | None) -> str:

@@ -10,6 +10,7 @@ station file, or ``MAGLINE_DISABLE_PLUGINS=process_review``).  A flag marks the 
 from __future__ import annotations
 
 import time
+from typing import TYPE_CHECKING
 
 from magline.core.faults import StationFault
 from magline.core.measurements import Numeric, Verdict
@@ -17,8 +18,9 @@ from magline.core.plugins import hookimpl
 from magline.core.quality.review import review
 from magline.core.record import Outcome
 from magline.core.results.contract import KeepsSeries
-from magline.core.results.reading import RunFilter
-from magline.core.sequencer.context import RunContext
+
+if TYPE_CHECKING:
+    from magline.core.sequencer.context import RunContext
 
 
 @hookimpl
@@ -32,6 +34,8 @@ def magline_unit_judged(run: RunContext, measurements: list[Numeric]) -> None:
                                   "keeps no history")
         run.log(run.record.review_note)
         return
+    from magline.core.results.reading import RunFilter  # on use: the store's SQLAlchemy costs every command's start
+
     numeric = [m for m in measurements if m.name not in settings.exclude]
     started = time.monotonic()
     try:

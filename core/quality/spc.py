@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -24,9 +24,12 @@ from magline.core.quality.study import plausibility_note
 from magline.core.quality.trends import Shifts, Trends, trends
 from magline.core.quality.yields import YieldRow, ranked_causes, yields
 from magline.core.results.control_limits import EVERY_STATION, FrozenLimits
-from magline.core.results.series import Limit, RunSeries
+from magline.core.results.series import Limit
 from magline.core.station.schema import NOT_PROCESS_FIGURES
 from magline.core.text import fmt, percent
+
+if TYPE_CHECKING:
+    from magline.core.results.series import RunSeries
 
 
 @dataclass

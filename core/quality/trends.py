@@ -18,10 +18,12 @@ import argparse
 from collections import Counter
 from dataclasses import dataclass, field
 from datetime import datetime, time, timedelta
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from magline.core.measurements import base_name
-from magline.core.results.series import RunSeries
+
+if TYPE_CHECKING:
+    from magline.core.results.series import RunSeries
 
 GROUPINGS = {"station_id": "station", "operator": "operator", "part": "product"}  # run field → people's word
 

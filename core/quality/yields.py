@@ -17,8 +17,11 @@ from __future__ import annotations
 import re
 from collections import Counter
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-from magline.core.results.series import RunSeries
+if TYPE_CHECKING:
+    from magline.core.results.series import RunSeries
+
 
 JUDGED = ("pass", "fail")
 NUMBER = re.compile(r"[-+]?\d+(\.\d+)?")

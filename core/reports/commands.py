@@ -6,15 +6,17 @@ from __future__ import annotations
 import re
 import sys
 from pathlib import Path
-from typing import Any
-
-from sqlalchemy import Connection
+from typing import TYPE_CHECKING, Any
 
 from magline.core.faults import StationFault
 from magline.core.reports.unit_page import write_unit_page
 from magline.core.results.contract import ReadsInSql
 from magline.core.results.reading import attempt_sensor_streams, find_run_or_serial, run_attempts
-from magline.core.station import Station
+
+if TYPE_CHECKING:
+    from sqlalchemy import Connection
+
+    from magline.core.station import Station
 
 UNSAFE = re.compile(r"[^A-Za-z0-9._-]+")
 

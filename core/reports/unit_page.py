@@ -15,13 +15,12 @@ from __future__ import annotations
 import html
 import json
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import plotly.graph_objects as go
 
 from magline.core.fit.coverage import bin_index, covered_bins, fibonacci_sphere
-from magline.core.fit.samples_csv import RawSamples
 from magline.core.reports.page import figure_html, table, write_page
 from magline.core.results.record_words import (
     compass_rows,
@@ -32,6 +31,9 @@ from magline.core.results.record_words import (
     value_words,
 )
 from magline.core.text import fmt, percent, seconds
+
+if TYPE_CHECKING:
+    from magline.core.fit.samples_csv import RawSamples
 
 MAX_POINTS = 3000  # per 3D trace: keeps the page small and the browser quick
 

@@ -9,11 +9,15 @@ same call, show the report's path.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from magline.core.faults import StationFault
 from magline.core.plugins import hookimpl
-from magline.core.record import RunRecord
 from magline.core.results.contract import HoldsRecordsInSql
-from magline.core.sequencer.context import RunContext
+
+if TYPE_CHECKING:
+    from magline.core.record import RunRecord
+    from magline.core.sequencer.context import RunContext
 
 
 @hookimpl(tryfirst=True)

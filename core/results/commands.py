@@ -9,7 +9,7 @@ from __future__ import annotations
 import csv
 import json
 import sys
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 from magline.core.faults import StationFault
 from magline.core.measurements import base_name
@@ -17,7 +17,6 @@ from magline.core.results.contract import ReadsInSql
 from magline.core.results.reading import (
     NUMERIC_NAMES,
     RUN_COLUMNS,
-    RunFilter,
     attempt_sensor_streams,
     export_runs,
     find_run_or_serial,
@@ -33,6 +32,9 @@ from magline.core.results.record_words import (
     value_words,
 )
 from magline.core.text import fmt, seconds, stop_line
+
+if TYPE_CHECKING:
+    from magline.core.results.reading import RunFilter
 
 
 def engine_of(store: Any) -> Any:

@@ -18,9 +18,11 @@ each run, so ``magline show RUN_ID`` finds it; ``save_attempt`` and ``finish`` m
 
 from __future__ import annotations
 
-from typing import Any, Protocol, TypedDict, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, TypedDict, runtime_checkable
 
-from magline.core.record import AttemptRecord, RunRecord
+if TYPE_CHECKING:
+    from magline.core.record import AttemptRecord, RunRecord
+
 
 
 class HistoryAttempt(TypedDict):

@@ -10,10 +10,14 @@ from __future__ import annotations
 
 import json
 from dataclasses import asdict, dataclass, field
+from typing import TYPE_CHECKING
 
-from sqlalchemy import Connection, func, select
+from sqlalchemy import func, select
 
 from magline.core.results.tables import control_limits
+
+if TYPE_CHECKING:
+    from sqlalchemy import Connection
 
 EVERY_STATION = ""  # the station_id of limits frozen over every station writing to the store
 

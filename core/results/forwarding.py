@@ -16,19 +16,23 @@ import threading
 import time
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from sqlalchemy import Connection, create_engine, func, select, update
-from sqlalchemy.engine import URL
+from sqlalchemy import create_engine, func, select, update
 from sqlalchemy.exc import IntegrityError, SQLAlchemyError
 
 from magline.core.faults import StationFault
-from magline.core.record import AttemptRecord, RunRecord
-from magline.core.results.reading import RunFilter
-from magline.core.results.series import RunSeries
-from magline.core.results.sqlite_sink import SqliteSink
+from magline.core.results.sqlite_store import SqliteSink
 from magline.core.results.store import RUNNING, SqlStore, reason
 from magline.core.results.tables import attachments, attempt_streams, attempts, measurements, params, phases, runs
+
+if TYPE_CHECKING:
+    from sqlalchemy import Connection
+    from sqlalchemy.engine import URL
+
+    from magline.core.record import AttemptRecord, RunRecord
+    from magline.core.results.reading import RunFilter
+    from magline.core.results.series import RunSeries
 
 log = logging.getLogger(__name__)
 

@@ -11,14 +11,17 @@ from __future__ import annotations
 import json
 from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from sqlalchemy import Connection, func, select
+from sqlalchemy import func, select
 
 from magline.core.fit.samples_csv import RawSamples
 from magline.core.measurements import CATALOGUE
 from magline.core.results import raw_blob
 from magline.core.results.tables import attempt_streams, attempts, measurements, params, phases, runs
+
+if TYPE_CHECKING:
+    from sqlalchemy import Connection
 
 BATCH = 500
 JSON_COLUMNS = ("unit_info", "calibration", "persistence", "left_changed", "unverified_params", "review")

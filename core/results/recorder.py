@@ -14,10 +14,14 @@ listening to the same hook sees the run id and the record already kept.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from magline.core.plugins import hookimpl
-from magline.core.record import AttemptRecord, RunRecord
 from magline.core.results.contract import SaysWhere
-from magline.core.sequencer.context import RunContext
+
+if TYPE_CHECKING:
+    from magline.core.record import AttemptRecord, RunRecord
+    from magline.core.sequencer.context import RunContext
 
 
 def _store_name(run: RunContext) -> str:

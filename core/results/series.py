@@ -12,13 +12,17 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from sqlalchemy import Connection, case, func, literal, select, true
+from sqlalchemy import case, func, literal, select, true
 
-from magline.core.results.reading import RunFilter
 from magline.core.results.tables import attempts, measurements, runs
+
+if TYPE_CHECKING:
+    from sqlalchemy import Connection
+
+    from magline.core.results.reading import RunFilter
 
 RUN_FIELDS = ("id", "run_uuid", "serial", "part", "station_id", "line", "operator", "started", "verdict", "cause",
               "earlier_runs", "limit_hash", "reference_field_ut", "station_hash")

@@ -10,12 +10,14 @@ take is said with that store's name (the unit is then an ERROR, as for one store
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from magline.core.faults import StationFault
 from magline.core.plugins import Plugins
-from magline.core.record import AttemptRecord, RunRecord
-from magline.core.station.schema import Results, Station
+
+if TYPE_CHECKING:
+    from magline.core.record import AttemptRecord, RunRecord
+    from magline.core.station.schema import Results, Station
 
 
 def open_results(station: Station, station_dir: Path, plugins: Plugins, main_only: bool = False) -> Any:

@@ -13,19 +13,25 @@ import json
 import uuid
 from collections.abc import Sequence
 from dataclasses import asdict
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from sqlalchemy import Engine, select, update
+from sqlalchemy import select, update
 from sqlalchemy.exc import SQLAlchemyError
 
 from magline.core.faults import StationFault
 from magline.core.measurements import Array, Json, Numeric
-from magline.core.record import AttemptRecord, RunRecord
 from magline.core.results import claims, raw_blob, schema_version
 from magline.core.results.processes import alive, owner
-from magline.core.results.reading import RunFilter, same_serial
-from magline.core.results.series import RunSeries, load_series
+from magline.core.results.reading import same_serial
+from magline.core.results.series import load_series
 from magline.core.results.tables import attachments, attempt_streams, attempts, measurements, params, phases, runs
+
+if TYPE_CHECKING:
+    from sqlalchemy import Engine
+
+    from magline.core.record import AttemptRecord, RunRecord
+    from magline.core.results.reading import RunFilter
+    from magline.core.results.series import RunSeries
 
 RUNNING = "running"
 

@@ -1,6 +1,13 @@
-"""The sequencer: runs one unit through identify → … → record, never crashing the station."""
+"""The sequencer: runs one unit through identify → … → record, never crashing the station.
 
-from magline.core.sequencer.context import Acquisition, RunContext
-from magline.core.sequencer.sequencer import PHASES, Sequencer
+Its names are imported on first use (:mod:`magline.core.lazy`).
+"""
 
-__all__ = ["PHASES", "Acquisition", "RunContext", "Sequencer"]
+from __future__ import annotations
+
+from magline.core.lazy import lazy_names
+
+__all__, __getattr__, __dir__ = lazy_names(__name__, {
+    "magline.core.sequencer.context": ("Acquisition", "RunContext"),
+    "magline.core.sequencer.sequencer": ("PHASES", "Sequencer"),
+})

@@ -14,13 +14,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from magline.core.fit.samples_csv import RawSamples
 from magline.core.sequencer.periodic import every
 
 if TYPE_CHECKING:
     from magline.core.dut import DutBackend, Magnetometer, UnitInfo
     from magline.core.field import FieldSource
     from magline.core.fit import FitOptions, FitResult
+    from magline.core.fit.samples_csv import RawSamples
     from magline.core.interference.model import Interference
     from magline.core.mounting import ImuSeries
     from magline.core.plugins import Plugins

@@ -19,7 +19,7 @@ from collections.abc import Callable
 from contextlib import ExitStack
 from functools import partial
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from magline.core import __version__
 from magline.core.dut import CalibratesSeveral, DutError, LinkError, Magnetometer, NotRestored, ReportsUptime
@@ -32,7 +32,7 @@ from magline.core.plugins import Plugins
 from magline.core.record import AttemptRecord, Outcome, PersistReport, PhaseResult, RunRecord, now_iso
 from magline.core.results.sinks import open_results
 from magline.core.sequencer.abort import AbortSwitch
-from magline.core.sequencer.context import Acquisition, AcquisitionAborted, RunContext
+from magline.core.sequencer.context import AcquisitionAborted, RunContext
 from magline.core.sequencer.hold import (
     claimed_in_store,
     fixture_locks,
@@ -46,8 +46,11 @@ from magline.core.sequencer.settling import offset_moved
 from magline.core.sequencer.unit_log import unit_log_capture
 from magline.core.sequencer.warm_up import wait_until_warm
 from magline.core.serials import clean_serial, known_part
-from magline.core.station.schema import Slot, Station
 from magline.core.text import fmt, percent
+
+if TYPE_CHECKING:
+    from magline.core.sequencer.context import Acquisition
+    from magline.core.station.schema import Slot, Station
 
 PHASES = ("identify", "connect", "acquire", "fit", "interference", "validate", "persist", "verify", "record")
 OPTIONAL_PHASES = ("interference",)  # run only for the products that ask for it (``interference`` not off)

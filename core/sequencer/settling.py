@@ -11,10 +11,13 @@ attempt after a warm-up is accepted only where its offset agrees with the previo
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from magline.core.fit import FitResult
+if TYPE_CHECKING:
+    from magline.core.fit import FitResult
+
 
 # the moved offset's statistic (χ² with 3 degrees of freedom) above this is not noise: p = 10⁻³,
 # the drift test's own false-alarm rate

@@ -13,15 +13,17 @@ from __future__ import annotations
 import threading
 import uuid
 from contextlib import ExitStack
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from magline.core.faults import UnitAborted
 from magline.core.record import Outcome, RunRecord
 from magline.core.sequencer.abort import AbortSwitch
 from magline.core.sequencer.hold import claimed_in_store, fixture_locks, holding, unit_locks
-from magline.core.sequencer.sequencer import Sequencer
 from magline.core.serials import clean_serial, one_serial_per_slot
-from magline.core.station.schema import Slot
+
+if TYPE_CHECKING:
+    from magline.core.sequencer.sequencer import Sequencer
+    from magline.core.station.schema import Slot
 
 JOIN_S = 0.2
 

@@ -14,8 +14,11 @@ import logging
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
+from typing import TYPE_CHECKING
 
-from magline.core.record import RunRecord
+if TYPE_CHECKING:
+    from magline.core.record import RunRecord
+
 
 LOGGER = logging.getLogger("magline")
 LOGGER.addHandler(logging.NullHandler())

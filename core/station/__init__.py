@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from magline.core.station.checks import station_problems
 from magline.core.station.loader import StationError, load_station_text, read_station_text
-from magline.core.station.schema import Limit, Product, Station
+
+if TYPE_CHECKING:
+    from magline.core.station.schema import Limit, Product, Station
 
 
 def load_station(path: str | Path, plugins: Any = None) -> Station:

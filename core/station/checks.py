@@ -10,14 +10,16 @@ from __future__ import annotations
 
 import difflib
 from collections.abc import Iterable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import yaml
 from pydantic import BaseModel, ValidationError
 
 from magline.core.plugins import Plugins
 from magline.core.station.loader import StationError, dotted, line_of, load_station_text
-from magline.core.station.schema import Station
+
+if TYPE_CHECKING:
+    from magline.core.station.schema import Station
 
 
 def did_you_mean(word: str, choices: Iterable[str]) -> str:

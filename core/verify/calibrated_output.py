@@ -23,13 +23,15 @@ held to that widened tolerance alone.  Field sources whose reference is the fiel
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from magline.core.dut import CalibratedBesideRaw, ReadsCalibratedField, ReadsCalibratedFields, ReadsRawAndCalibrated
-from magline.core.fit import FitResult
-from magline.core.mounting.checks import configured_rotation
-from magline.core.sequencer.context import RunContext
+
+if TYPE_CHECKING:
+    from magline.core.fit import FitResult
+    from magline.core.sequencer.context import RunContext
 
 CALIBRATED_READINGS = 20
 # How far a right result may be from what it is held to, in units of its own σ: 4.5σ is crossed by a
@@ -114,6 +116,8 @@ def _paired_proof(run: RunContext, read: CalibratedBesideRaw, figures: dict) -> 
 def _magnitude_proof(run: RunContext, dut: ReadsCalibratedField, figures: dict) -> list[str]:
     """Without raw readings beside the calibrated ones: each compass's calibrated magnitude against the
     reference, the raw behind it taken as magline's calibration undone."""
+    from magline.core.mounting.checks import configured_rotation  # on use: every command loads this plugin
+
     several = len(run.magnetometers) > 1
     at_once = several and isinstance(dut, ReadsCalibratedFields)
     read_all = dut.calibrated_fields_ut(CALIBRATED_READINGS, [m.device_id for m in run.magnetometers]) \

@@ -11,10 +11,13 @@ back can only have come from the store.
 from __future__ import annotations
 
 import time
+from typing import TYPE_CHECKING
 
 from magline.core.dut import DutBackend, ParamValue, StoresFactoryCalibration, param_equal
-from magline.core.record import PersistReport
-from magline.core.sequencer.context import RunContext
+
+if TYPE_CHECKING:
+    from magline.core.record import PersistReport
+    from magline.core.sequencer.context import RunContext
 
 
 def factory_store_problems(run: RunContext, dut: DutBackend, persisted: PersistReport) -> tuple[list[str], str]:

@@ -7,16 +7,21 @@ implementing ``magline_verify_persistence`` replaces it.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from magline.core.dut import (
     HasBootTimeout,
     ReportsSensorsPresent,
     param_equal,
 )
 from magline.core.plugins import hookimpl
-from magline.core.record import PersistReport, VerifyReport
-from magline.core.sequencer.context import RunContext
+from magline.core.record import VerifyReport
 from magline.core.verify.calibrated_output import calibrated_output_problems
 from magline.core.verify.factory_store import factory_store_problems
+
+if TYPE_CHECKING:
+    from magline.core.record import PersistReport
+    from magline.core.sequencer.context import RunContext
 
 
 @hookimpl(trylast=True)

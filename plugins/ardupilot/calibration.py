@@ -9,11 +9,15 @@ frame, and *adds* its offsets: ``v = M·(SCALE·(raw + OFS))``.  magline's fit i
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
-from magline.plugin import DutError, FitResult
+from magline.plugin import DutError
+
+if TYPE_CHECKING:
+    from magline.plugin import FitResult
 
 SETS = ("", "2", "3")  # parameter suffix of compass set 1, 2, 3
 AXES = ("X", "Y", "Z")

@@ -15,20 +15,18 @@ from __future__ import annotations
 import contextlib
 import logging
 from collections.abc import Iterator
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from magline.plugin import (
     INT16_MG_RANGE_UT,
     DutError,
-    FitResult,
     LinkError,
     Magnetometer,
     NotRestored,
     ParamValue,
-    Product,
     ReadingsAtRest,
-    SampleChunk,
     SensorStreams,
     StationFault,
     UnansweredRequest,
@@ -47,7 +45,10 @@ from magline.plugins.ardupilot.calibration import (
     set_names,
 )
 from magline.plugins.ardupilot.link import ML, ArduPilotLink
-from magline.plugins.ardupilot.options import ArduPilotOptions
+
+if TYPE_CHECKING:
+    from magline.plugin import FitResult, Product, SampleChunk
+    from magline.plugins.ardupilot.options import ArduPilotOptions
 
 log = logging.getLogger(__name__)
 

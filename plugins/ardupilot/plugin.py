@@ -4,10 +4,11 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from magline.plugin import Product, hookimpl
+from magline.plugin import hookimpl
 from magline.plugins.ardupilot.options import ArduPilotOptions
 
 if TYPE_CHECKING:
+    from magline.plugin import Product
     from magline.plugins.ardupilot.dut import ArduPilotDut
 
 

@@ -16,11 +16,14 @@ into a fixed resistor: ``VOLT`` (its compliance voltage, ``volts``), ``CURR``, `
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from magline.plugin import CurrentSourceConfig, CurrentSourceError, InstrumentError, RunContext, ScpiInstrument
+from magline.plugin import CurrentSourceError, InstrumentError, ScpiInstrument
+
+if TYPE_CHECKING:
+    from magline.plugin import CurrentSourceConfig, RunContext
 
 
 class LoadCommands(BaseModel):

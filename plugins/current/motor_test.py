@@ -17,11 +17,14 @@ from __future__ import annotations
 import shlex
 import subprocess
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from magline.plugin import CurrentSourceConfig, CurrentSourceError, DutError, RunContext, RunsMotorTest
+from magline.plugin import CurrentSourceError, DutError, RunsMotorTest
+
+if TYPE_CHECKING:
+    from magline.plugin import CurrentSourceConfig, RunContext
 
 STOP_S = 1.0  # a 0 % test of this length stops a spinning motor
 

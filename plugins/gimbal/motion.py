@@ -13,11 +13,14 @@ from __future__ import annotations
 
 import contextlib
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import TYPE_CHECKING, Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from magline.plugin import InstrumentError, ScpiInstrument, Station
+from magline.plugin import InstrumentError, ScpiInstrument
+
+if TYPE_CHECKING:
+    from magline.plugin import Station
 
 
 class GimbalOptions(BaseModel):

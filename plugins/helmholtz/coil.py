@@ -8,11 +8,15 @@ never there.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 from numpy.typing import NDArray
 
 from magline.plugin import InstrumentError, ScpiInstrument
-from magline.plugins.helmholtz.options import HelmholtzOptions
+
+if TYPE_CHECKING:
+    from magline.plugins.helmholtz.options import HelmholtzOptions
 
 
 class Channel:

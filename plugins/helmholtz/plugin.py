@@ -10,23 +10,11 @@ from __future__ import annotations
 import time
 from contextlib import closing
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from magline.plugin import (
-    Acquisition,
-    DutError,
-    FitOptions,
-    FitRefused,
-    FitResult,
-    Numeric,
-    RawSamples,
-    RunContext,
-    StopRule,
-    fit_affine,
-    hookimpl,
-    stop_rule,
-)
+from magline.plugin import DutError, Numeric, RawSamples, hookimpl
 from magline.plugins.helmholtz.options import HelmholtzOptions
 from magline.plugins.helmholtz.source import (
     HelmholtzField,
@@ -35,6 +23,9 @@ from magline.plugins.helmholtz.source import (
     create_helmholtz_field,
     schedule,
 )
+
+if TYPE_CHECKING:
+    from magline.plugin import Acquisition, FitOptions, FitResult, RunContext, StopRule
 
 
 @hookimpl
@@ -52,6 +43,8 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition | None:
     station's limits with the margin (the tumble's rule, :func:`magline.plugin.stop_rule`).
     The schedule's order makes every beginning of it well spread; on a slot station the others go on
     without the unit, and the coil is switched off when the last one has left."""
+    from magline.plugin import Acquisition, stop_rule
+
     source = run.field_source
     if not isinstance(source, HelmholtzField):
         return None
@@ -112,6 +105,8 @@ def _determined(rule: StopRule, mag_ut: np.ndarray, applied_ut: np.ndarray, fiel
                 share: float) -> dict[str, dict[str, float]] | None:
     """The rule's predicted figures once the readings so far determine the calibration, else None
     (judged with the schedule's share as the coverage, so a station's ``coverage`` limit holds too)."""
+    from magline.plugin import FitRefused, fit_affine
+
     try:
         fit = fit_affine(mag_ut, applied_ut, field_ut)
     except FitRefused:
@@ -121,6 +116,8 @@ def _determined(rule: StopRule, mag_ut: np.ndarray, applied_ut: np.ndarray, fiel
 
 @hookimpl
 def magline_fit(run: RunContext, samples: RawSamples, options: FitOptions) -> FitResult | None:
+    from magline.plugin import fit_affine
+
     if samples.applied_ut is None:
         return None
     fit = fit_affine(samples.mag_ut, samples.applied_ut, options.field_ut)

@@ -10,11 +10,14 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 from numpy.typing import NDArray
 
 from magline.plugin import wait_or_abort
-from magline.plugins.helmholtz.coil import CoilDriver
+
+if TYPE_CHECKING:
+    from magline.plugins.helmholtz.coil import CoilDriver
 
 
 class SharedSchedule:

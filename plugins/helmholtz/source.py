@@ -11,15 +11,17 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from magline.plugin import FieldSourceError, Fluxgate, fibonacci_sphere
 from magline.plugins.helmholtz.coil import CoilDriver
-from magline.plugins.helmholtz.options import HelmholtzOptions
 from magline.plugins.helmholtz.shared import SharedSchedule
+
+if TYPE_CHECKING:
+    from magline.plugins.helmholtz.options import HelmholtzOptions
 
 AXES = np.eye(3)
 

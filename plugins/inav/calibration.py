@@ -13,6 +13,8 @@ body axes, as ``F·out · B / 1024``.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -22,10 +24,12 @@ from magline.plugin import (
     INAV_COMPASS_DEFAULT_ALIGNMENT,
     INAV_TO_FRD,
     DutError,
-    FitResult,
     inav_rotation_in_frd,
     orientation_matrix,
 )
+
+if TYPE_CHECKING:
+    from magline.plugin import FitResult
 
 OFFSETS = ("magzero_x", "magzero_y", "magzero_z")
 GAINS = ("maggain_x", "maggain_y", "maggain_z")

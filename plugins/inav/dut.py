@@ -4,18 +4,17 @@ from __future__ import annotations
 
 import time
 from collections.abc import Iterator
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from magline.plugin import (
     DutError,
-    FitResult,
     ImuSeries,
     LinkError,
     Magnetometer,
     NotRestored,
     ParamValue,
-    Product,
     ReadingsAtRest,
     RepeatFilter,
     SampleChunk,
@@ -39,25 +38,39 @@ from magline.plugins.inav.calibration import (
     output_to_ut,
 )
 from magline.plugins.inav.link import Identity, InavLink
-from magline.plugins.inav.options import InavOptions
+
+if TYPE_CHECKING:
+    from magline.plugin import FitResult, Product
+    from magline.plugins.inav.options import InavOptions
 
 COMPASS = 1  # INAV uses one compass and gives it no device id: magline calls it 1
 EXTERNAL_ANGLES = ("align_mag_roll", "align_mag_pitch", "align_mag_yaw")
 CHUNK_S = 0.1  # readings are handed on every tenth of a second
 
 
-def answered_at(asked: float, least_rtt_s: float) -> float:
-    """When the board read the accelerometer and compass it answers a request with, on the station's
-    clock: the request's departure plus half the least round trip the link has shown.
+# An answer later than the link's least round trip by more than this cannot be placed in time closely
+# enough to pair its compass with its accelerometer on a turning unit: it is left out (the next answer
+# carries the same compass reading, which INAV holds between its compass task's updates).
+LATE_ANSWER_S = 0.010
 
-    Why not the middle of this request's own round trip: INAV answers ``MSP_RAW_IMU`` as its serial
-    task handles it, a near-constant time after the request arrives; a round trip longer than the
-    link's least is the station's own delay in taking the answer (its running fit holding the
-    interpreter, a loaded PC), which happened after the readings were taken.  Stamped at the middle,
-    such delays moved readings by up to half of them at random — tens of milliseconds of a tumble
-    turning 300°/s — and the mounting check could no longer tell the compass's time skew from a
-    turned sensor (a good unit ERRORed)."""
-    return asked + least_rtt_s / 2.0
+
+def placed_in_time(asked: float, answered: float, least_rtt_s: float) -> float | None:
+    """When the board read the accelerometer and compass it answered a request with, on the station's
+    clock — the middle of the request's round trip — or None when the answer was late.
+
+    Why: INAV answers ``MSP_RAW_IMU`` as its serial task handles the request, and the readings were taken
+    somewhere between the request's arrival and the answer's departure; a round trip longer than the
+    link's least was lengthened on the station's side (its running fit holding the interpreter, a loaded
+    PC) or the board's, and which is unknown.  The middle is then off by up to half of the lengthening: a
+    tumble turning 300°/s turned tens of degrees in it, the accelerometer's track was bent there, and
+    the mounting check could no longer tell the compass's time skew from a turned sensor (a good unit
+    ERRORed on a loaded machine).  So an answer lengthened by more than :data:`LATE_ANSWER_S` is not
+    used at all."""
+    if answered - asked - least_rtt_s > LATE_ANSWER_S:
+        return None
+    return (asked + answered) / 2.0
+
+
 COMPASS_NOT_CALIBRATED = 1 << 12  # INAV's ARMING_DISABLED_COMPASS_NOT_CALIBRATED
 
 
@@ -166,8 +179,8 @@ class InavDut:
     def samples(self, rate_hz: float) -> Iterator[SampleChunk]:
         """``MSP_RAW_IMU`` polled at ``rate_hz``: a compass reading is passed once (INAV updates it at
         10 Hz; the copies between are dropped and counted), the accelerometer at every poll, both on the
-        station's clock when the board answered: the request's departure plus half the link's least
-        round trip (:func:`answered_at`)."""
+        station's clock at the middle of each request's round trip; an answer that came back late is left
+        out (:func:`placed_in_time`)."""
         period = 1.0 / rate_hz
         repeats = RepeatFilter(timed=True)
         start = due = handed = time.monotonic()
@@ -185,7 +198,10 @@ class InavDut:
             reading = self.link.imu()
             answered = time.monotonic()
             least_rtt = min(least_rtt, answered - asked)
-            t_ms = (answered_at(asked, least_rtt) - start) * 1000.0
+            taken = placed_in_time(asked, answered, least_rtt)
+            if taken is None:
+                continue
+            t_ms = (taken - start) * 1000.0
             accel.append(reading.accel_mss)
             accel_t.append(t_ms)
             if repeats.accept(*reading.mag_counts):

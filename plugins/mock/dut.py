@@ -6,15 +6,18 @@ import socket
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
-from magline.plugin import FitResult, ImuSeries, LinkError, NotRestored, ParamValue, SampleChunk, UnitInfo
-from magline.plugins.mock.options import MockOptions
+from magline.plugin import ImuSeries, LinkError, NotRestored, ParamValue, SampleChunk, UnitInfo
 from magline.sim.storage import NvStorage
 from magline.sim.truth import GRAVITY_MSS, SensorTruth, earth_field_ned, gravity_body, motion_directions
 from magline.sim.truth.motions import single_axis
+
+if TYPE_CHECKING:
+    from magline.plugin import FitResult
+    from magline.plugins.mock.options import MockOptions
 
 # The mock's own parameter names: offsets in µT (subtracted), the symmetric matrix S entries.
 OFFSETS = ("MAG_OFS_X", "MAG_OFS_Y", "MAG_OFS_Z")
@@ -35,6 +38,8 @@ class MockDut:
                                  soft_iron=np.array(options.soft_iron), noise_ut=options.noise_ut)
         self.field_ned = earth_field_ned(options.field_ut, options.inclination_deg)
         # sensor frame = body frame rotated by the misalignment: the sensor sees Rᵀ·b
+        from scipy.spatial.transform import Rotation  # on use: SciPy's import costs every command's start
+
         self.to_sensor = Rotation.from_rotvec(np.deg2rad(options.misalignment_deg)).inv()
         self.storage = NvStorage(Path(options.storage))
         self.ram: dict[str, ParamValue] = {}

@@ -4,10 +4,11 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from magline.plugin import Product, hookimpl
+from magline.plugin import hookimpl
 from magline.plugins.mock.options import MockOptions
 
 if TYPE_CHECKING:
+    from magline.plugin import Product
     from magline.plugins.mock.dut import MockDut
 
 

@@ -11,19 +11,14 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import TYPE_CHECKING, Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from magline.plugin import (
-    DutBackend,
-    DutError,
-    InstrumentError,
-    PowerConfig,
-    PowerError,
-    ScpiInstrument,
-    await_boot_after_cut,
-)
+from magline.plugin import DutError, InstrumentError, PowerError, ScpiInstrument, await_boot_after_cut
+
+if TYPE_CHECKING:
+    from magline.plugin import DutBackend, PowerConfig
 
 
 class ScpiSupplyOptions(BaseModel):

@@ -15,11 +15,14 @@ import re
 import subprocess
 import time
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import TYPE_CHECKING, Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from magline.plugin import DutBackend, PowerConfig, PowerError, await_boot_after_cut
+from magline.plugin import PowerError, await_boot_after_cut
+
+if TYPE_CHECKING:
+    from magline.plugin import DutBackend, PowerConfig
 
 
 class UsbHubOptions(BaseModel):

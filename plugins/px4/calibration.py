@@ -7,10 +7,15 @@ OFF = h/100, SCALE = diag(S), XODIAG = S12, YODIAG = S13, ZODIAG = S23 (ODIAG fr
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 from numpy.typing import NDArray
 
-from magline.plugin import DutError, FitResult, ParamValue
+from magline.plugin import DutError, ParamValue
+
+if TYPE_CHECKING:
+    from magline.plugin import FitResult
 
 SLOTS = 4
 AXES = ("X", "Y", "Z")

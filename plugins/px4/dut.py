@@ -22,6 +22,7 @@ import queue
 import re
 import time
 from collections.abc import Iterator
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -29,12 +30,8 @@ from magline.plugin import (
     INT16_MG_RANGE_UT,
     CalibratedBesideRaw,
     DutError,
-    FitResult,
     Magnetometer,
     NotRestored,
-    ParamValue,
-    Product,
-    SampleChunk,
     SensorStreams,
     StationFault,
     UnitInfo,
@@ -59,7 +56,10 @@ from magline.plugins.px4.calibration import (
 )
 from magline.plugins.px4.discovery import Identified, from_shell, without_shell
 from magline.plugins.px4.link import Px4Link
-from magline.plugins.px4.options import Px4Options
+
+if TYPE_CHECKING:
+    from magline.plugin import FitResult, ParamValue, Product, SampleChunk
+    from magline.plugins.px4.options import Px4Options
 
 STREAMS = (("SCALED_IMU", 26), ("SCALED_IMU2", 116), ("SCALED_IMU3", 129))  # uORB sensor_mag instance 0/1/2
 MAV_CMD_SET_MESSAGE_INTERVAL, MAV_CMD_REQUEST_MESSAGE, MAV_CMD_PREFLIGHT_STORAGE = 511, 512, 245

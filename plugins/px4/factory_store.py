@@ -18,12 +18,15 @@ from __future__ import annotations
 import queue
 import re
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from magline.plugin import DutError, ParamValue, get_listening
 from magline.plugins.px4.calibration import is_int_param
-from magline.plugins.px4.link import Px4Link
+
+if TYPE_CHECKING:
+    from magline.plugins.px4.link import Px4Link
 
 FACTORY_STORE = "/fs/mtd_caldata"
 MODE_PARAM = "SYS_FAC_CAL_MODE"

@@ -18,11 +18,14 @@ from __future__ import annotations
 import contextlib
 import time
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import TYPE_CHECKING, Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from magline.plugin import InstrumentError, ScpiInstrument, Station, Tilt
+from magline.plugin import InstrumentError, ScpiInstrument, Tilt
+
+if TYPE_CHECKING:
+    from magline.plugin import Station
 
 REACHED = 0.9  # a table turning at this share of the asked speed has reached it
 

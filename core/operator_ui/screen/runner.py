@@ -5,13 +5,15 @@ DUT restored and closed, the record saying aborted."""
 from __future__ import annotations
 
 import threading
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from magline.core.faults import UnitAborted
 from magline.core.operator_ui.screen.state import ScreenState
-from magline.core.sequencer import Sequencer
 from magline.core.sequencer.hold import StationBusy
 from magline.core.serials import Refused, SerialRefused, clean_serial, known_part, one_serial_per_slot
+
+if TYPE_CHECKING:
+    from magline.core.sequencer import Sequencer
 
 
 class Busy(Exception):

@@ -8,14 +8,16 @@ import socket
 import sys
 import threading
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from magline.core.faults import StationFault
 from magline.core.operator_ui.screen.app import create_app
 from magline.core.operator_ui.screen.runner import UnitRunner
 from magline.core.operator_ui.screen.state import ScreenState
 from magline.core.plugins import Plugins
-from magline.core.station import Station
+
+if TYPE_CHECKING:
+    from magline.core.station import Station
 
 
 def is_loopback(host: str) -> bool:

@@ -14,17 +14,19 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from magline.core.measurements import verdicts
 from magline.core.operator_ui.cradle import cradle_svg
 from magline.core.operator_ui.screen.sides import MISSING_WORDS, SIDES, missing_sides
 from magline.core.operator_ui.verdict_words import sensor_cards, shown_verdict, verdict_items
 from magline.core.plugins import hookimpl
-from magline.core.record import PhaseResult, RunRecord
 from magline.core.sequencer.batch import Batch
 from magline.core.sequencer.sequencer import OPTIONAL_PHASES, PHASES
 from magline.core.text import stop_line
+
+if TYPE_CHECKING:
+    from magline.core.record import PhaseResult, RunRecord
 
 RECENT = 12  # units listed on the screen
 

@@ -1,0 +1,49 @@
+"""How long a ``magline`` command takes to start (issue 65: ``--help`` and ``check`` within 0.3 s).
+
+Each command is run ``--runs`` times as a user runs it (the installed console script, a new process each
+time) and the median and the slowest wall time are printed, beside a bare ``python -c pass`` and the
+imports every command needs whatever it does (NumPy, pydantic, PyYAML, pluggy) for scale.
+
+    python benchmarks/cli_start.py [--runs 10]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+MAGLINE = str(Path(sys.executable).with_name("magline"))
+COMMANDS = {
+    "python -c pass": [sys.executable, "-c", "pass"],
+    "python: numpy, pydantic, yaml, pluggy": [sys.executable, "-c", "import numpy, pydantic, yaml, pluggy"],
+    "magline --help": [MAGLINE, "--help"],
+    "magline check stations/demo.yaml": [MAGLINE, "check", "stations/demo.yaml"],
+    "magline check stations/px4-sim.yaml": [MAGLINE, "check", "stations/px4-sim.yaml"],
+    "magline sim --help": [MAGLINE, "sim", "--help"],
+}
+
+
+def wall_s(argv: list[str]) -> float:
+    started = time.perf_counter()
+    subprocess.run(argv, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, check=True)
+    return time.perf_counter() - started
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--runs", type=int, default=10)
+    args = parser.parse_args()
+    print(f"command start, wall time over {args.runs} runs (median, slowest)")
+    for name, argv in COMMANDS.items():
+        wall_s(argv)  # the first run fills the file cache
+        times = [wall_s(argv) for _ in range(args.runs)]
+        print(f"  {name:<40} {statistics.median(times):6.3f} s  {max(times):6.3f} s", flush=True)
+
+
+if __name__ == "__main__":
+    main()

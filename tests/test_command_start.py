@@ -1,0 +1,47 @@
+"""A command imports what it uses (issue 65): ``magline --help`` and ``magline check`` answer before the
+fit's SciPy and the results store's SQLAlchemy are imported — together most of a second of a command's
+start.  Measured, not timed here: ``python benchmarks/cli_start.py`` prints each command's start."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+from conftest import REPO
+
+HEAVY = ("scipy", "sqlalchemy")
+PROBE = """
+import json, sys, io, contextlib
+sys.argv = ["magline", *json.loads(sys.argv[1])]
+from magline.core.entry import main
+with contextlib.redirect_stdout(io.StringIO()):
+    try:
+        code = main()
+    except SystemExit as exc:
+        code = exc.code
+print(json.dumps({"code": code, "modules": sorted(sys.modules)}))
+"""
+
+
+def imported_by(*argv: str) -> tuple[int, set[str]]:
+    done = subprocess.run([sys.executable, "-c", PROBE, json.dumps(list(argv))], cwd=REPO, capture_output=True,
+                          text=True, timeout=120, check=True)
+    found = json.loads(done.stdout.strip().splitlines()[-1])
+    return found["code"], {name.split(".")[0] for name in found["modules"]}
+
+
+@pytest.mark.parametrize("argv", [("--help",), ("check", "stations/demo.yaml"), ("check", "stations/px4-sim.yaml")])
+def test_a_command_that_needs_no_fit_and_no_store_imports_neither(argv):
+    code, modules = imported_by(*argv)
+    assert code == 0
+    assert not modules & set(HEAVY), f"magline {' '.join(argv)} imported {sorted(modules & set(HEAVY))}"
+
+
+def test_the_commands_that_use_them_still_find_them():
+    """The probe sees imports: ``magline fit`` imports SciPy's optimiser on use, and ``history`` the store."""
+    code, modules = imported_by("fit", "--help")
+    assert code == 0 and "scipy" not in modules  # its help alone needs neither
+    code, modules = imported_by("history", "NO-SUCH-UNIT", "--station", "stations/demo.yaml")
+    assert "sqlalchemy" in modules
