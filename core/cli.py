@@ -724,7 +724,8 @@ def _spc(args: argparse.Namespace, plugins: Plugins) -> int:
     from magline.core.quality.commands import spc
 
     _warm_import("scipy.stats")  # the capability's statistics, imported while the store is opened and checked
-    return _with_store(args, plugins, lambda store, station, where: spc(store, station, args, Path(where)))
+    return _with_store(args, plugins, lambda store, station, where: spc(store, station, args, Path(where),
+                                                                       plugins.measurements))
 
 
 def _warm_import(module: str) -> None:

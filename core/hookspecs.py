@@ -148,6 +148,29 @@ def magline_register_motions(register: Register) -> None:
     """
 
 
+class RegisterMeasurement(Protocol):
+    """What ``magline_register_measurements`` is given: ``register(name, unit=…, meaning=…, possible=…)``."""
+
+    def __call__(self, name: str, unit: str = "", meaning: str = "",
+                 possible: tuple[float, float] = (float("-inf"), float("inf"))) -> None: ...
+
+
+@hookspec
+def magline_register_measurements(register: RegisterMeasurement) -> None:
+    """Declare the measurements the plugin produces.  Called once when the plugin manager starts, before
+    any station file is read.
+
+    :param register: call ``register(name, unit="°C", meaning="…", possible=(low, high))`` once per
+        measurement.  A declared name may be limited in a station file (``limits:`` or a product's, a
+        sensor's ``mag2.<name>``) like magline's own: ``magline check`` validates the limit (and refuses
+        one outside ``possible``), the limit set's hash covers it, the unit is judged on it, and
+        ``magline spc``, ``export``, the report and the screen show it.  The plugin produces it from
+        ``magline_validate`` or ``magline_validate_unit`` with ``run.measured(name, value)`` (judged
+        against the station's limit, in the declared unit).  A name of magline's own, or one another
+        plugin declared, is a :class:`PluginError`.
+    """
+
+
 @hookspec
 def magline_add_commands(subparsers: argparse._SubParsersAction) -> None:
     """Add sub-commands to the ``magline`` command line.  Called once, before arguments are parsed.

@@ -121,6 +121,34 @@ SENSOR_PREFIX = re.compile(r"^(mag[1-9])(?:-(mag[1-9]))?\.")
 ARRAY_MEASUREMENTS: dict[str, str] = {"residual_ut": "µT"}
 AGGREGATIONS = ("mean", "std", "ptp")
 KNOWN_LIMIT_NAMES = frozenset(CATALOGUE) | {f"{a}.{g}" for a in ARRAY_MEASUREMENTS for g in AGGREGATIONS}
+DECLARED_NAME = re.compile(r"^[a-z][a-z0-9_]*$")
+
+
+@dataclass(frozen=True)
+class DeclaredMeasurement:
+    """A plugin's own measurement, declared through ``magline_register_measurements``: a station file may
+    limit it like one of magline's (``limits: {acme_board_temp_c: {le: 60}}``), and the limit is checked,
+    hashed into the limit set, judged, stored, charted by ``magline spc`` and exported like theirs.
+
+    ``possible``: the values it can take at all (a limit outside them is a station-file mistake)."""
+
+    name: str
+    unit: str
+    meaning: str
+    possible: tuple[float, float]
+    plugin: str
+
+    def problem(self) -> str | None:
+        """Why this declaration cannot be taken (None: it can)."""
+        if not isinstance(self.name, str) or not DECLARED_NAME.match(self.name):
+            return (f"measurement name {self.name!r} must be lower-case letters, digits and underscores "
+                    "(a sensor's prefix mag2. is added by magline)")
+        if self.name in KNOWN_LIMIT_NAMES:
+            return f"measurement {self.name!r} is magline's own: a plugin declares names of its own (prefix them)"
+        low, high = self.possible
+        if not low <= high:
+            return f"measurement {self.name!r}: possible must be (low, high) with low <= high"
+        return None
 
 
 def base_name(name: str) -> str:

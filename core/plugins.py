@@ -23,6 +23,7 @@ import pluggy
 
 from magline.core import hookspecs
 from magline.core.dut import DutFactory
+from magline.core.measurements import DeclaredMeasurement
 
 hookimpl = pluggy.HookimplMarker("magline")
 ENTRY_POINT_GROUP = "magline"
@@ -67,6 +68,10 @@ class Plugins:
         self._collect("power control", self.power_controls, self.hook.magline_register_power_controls)
         self._collect("motion", self.motions, self.hook.magline_register_motions)
         self._collect("current source", self.current_sources, self.hook.magline_register_current_sources)
+        # the plugins' own measurements (``magline_register_measurements``), by name: what a station file may
+        # limit beside magline's catalogue
+        self.measurements: dict[str, DeclaredMeasurement] = {}
+        self._declare_measurements()
 
     def _collect(self, kind: str, registry: dict[str, Any], hook: Any) -> None:
         """Call each plugin's registration hook in pluggy's order (last registered first), knowing
@@ -91,6 +96,24 @@ class Plugins:
                         raise PluginError(f"plugin {_by!r}: stores= belongs to a DUT backend, and every backend "
                                           "keeps a calibration in 'parameters'")
                     self.calibration_stores[name] = dict(stores)
+
+            impl.function(register=register)
+
+    def _declare_measurements(self) -> None:
+        for impl in reversed(self.hook.magline_register_measurements.get_hookimpls()):
+            by = _plugin_name(impl)
+
+            def register(name: str, unit: str = "", meaning: str = "",
+                         possible: tuple[float, float] = (float("-inf"), float("inf")), _by: str = by) -> None:
+                declared = DeclaredMeasurement(name, str(unit), str(meaning),
+                                               (float(possible[0]), float(possible[1])), _by)
+                problem = declared.problem()
+                if problem is None and name in self.measurements:
+                    problem = f"measurement {name!r} is declared by plugin {self.measurements[name].plugin!r} already"
+                if problem is not None:
+                    raise PluginError(f"plugin {_by!r}: {problem}")
+                self.measurements[name] = declared
+                self.registered_by[("measurement", name)] = _by
 
             impl.function(register=register)
 

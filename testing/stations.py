@@ -53,15 +53,21 @@ def run_unit(station: str | Path, serial: str = "SN-1", part: str | None = None,
     says).  ``extra``: plugin objects to register for this run (your plugin under test, listeners);
     ``sleep``: what the retry delay does (default: nothing, so tests do not wait)."""
     from magline.core.sequencer import Sequencer
-    from magline.core.station import load_station
 
     path = Path(station)
-    seq = Sequencer(load_station(path), plugins or load_plugins(extra=extra), path.parent,
-                    sleep=sleep or (lambda s: None))
+    plugins = plugins or load_plugins(extra=extra)
+    seq = Sequencer(_station(path, plugins), plugins, path.parent, sleep=sleep or (lambda s: None))
     try:
         return seq.run_unit(serial, part)
     finally:
         seq.close()
+
+
+def _station(path: Path, plugins: Plugins) -> Any:
+    """The station file read as the plugins know it (their own measurements may be limited in it)."""
+    from magline.core.station.loader import load_station_text, read_station_text
+
+    return load_station_text(read_station_text(path), str(path), plugins.measurements)
 
 
 @dataclass(frozen=True)
@@ -103,10 +109,10 @@ class StoredResults:
 
     def __init__(self, station: str | Path, plugins: Plugins | None = None) -> None:
         from magline.core.results.sinks import open_results
-        from magline.core.station import load_station
 
         path = Path(station)
-        self.sink = open_results(load_station(path), path.parent, plugins or load_plugins(), main_only=True)
+        plugins = plugins or load_plugins()
+        self.sink = open_results(_station(path, plugins), path.parent, plugins, main_only=True)
 
     def history(self, serial: str) -> list[dict[str, Any]]:
         return self.sink.history(serial)

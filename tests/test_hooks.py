@@ -8,6 +8,7 @@ The listener hooks share one unit's run (``heard``); the hooks that change the r
 
 from __future__ import annotations
 
+import csv
 import inspect
 import threading
 from pathlib import Path
@@ -285,6 +286,64 @@ def test_magline_validate_unit(tmp_path):
     assert record.verdict is Outcome.PASS, record.cause
     assert seen == [[m["device_id"] for m in record.unit_info["magnetometers"]]]
     assert next(m for m in record.measurements if m.name == "hook_unit_figure").value == 1.0
+
+
+def test_magline_register_measurements(tmp_path, capsys):
+    """A plugin's own measurement is a measurement: a station file limits it (refused, saying how to declare
+    it, where no loaded plugin does), the unit is judged on it in its declared unit, the limit is in the
+    limit set's hash, ``export`` has its column and ``spc --measurement`` takes its name."""
+    from magline.core.cli import main
+    from magline.core.quality.commands import unknown_measurements
+    from magline.core.station import StationError
+
+    class Declares:
+        @hookimpl
+        def magline_register_measurements(self, register):
+            register("hook_board_temp_c", unit="°C", meaning="the board's temperature", possible=(-60.0, 150.0))
+
+        @hookimpl
+        def magline_validate_unit(self, run, fits):
+            return [run.measured("hook_board_temp_c", 72.0)]
+
+    plugins = load_plugins(extra=[Declares()])
+    path = write_station(tmp_path, {"limits": {"hook_board_temp_c": {"le": 60.0}}})
+    with pytest.raises(StationError, match="magline_register_measurements hook"):
+        load_station(path)  # read without the plugin: an unknown name, and how to make it known
+    station = load_station(path, plugins)
+    assert station.limit_hash("MOCK-100") != load_station(
+        write_station(tmp_path, {"limits": {"hook_board_temp_c": {"le": 80.0}}}), plugins).limit_hash("MOCK-100")
+    seq = Sequencer(station, plugins, tmp_path, sleep=lambda s: None)
+    try:
+        record = seq.run_unit("HOOK-T")
+    finally:
+        seq.close()
+    temp = next(m for m in record.measurements if m.name == "hook_board_temp_c")
+    assert (temp.value, temp.unit, temp.high, str(temp.verdict)) == (72.0, "°C", 60.0, "fail")
+    assert record.verdict is Outcome.FAIL and "hook_board_temp_c" in record.cause
+    assert record.params_written == {}  # never written to a unit that failed
+    capsys.readouterr()
+    write_station(tmp_path)  # the same store, read by the command (which loads only the installed plugins)
+    assert main(["export", "--station", str(path)]) == 0
+    header, row = list(csv.reader(capsys.readouterr().out.splitlines()))[:2]
+    assert float(row[header.index("hook_board_temp_c")]) == 72.0
+    assert unknown_measurements(["hook_board_temp_c"], plugins.measurements) is None
+    assert "magline measures" in unknown_measurements(["hook_board_temp_c"])
+
+
+@pytest.mark.parametrize(("name", "why"), [("coverage", "is magline's own"), ("Board Temp", "lower-case letters"),
+                                           ("hook_twice_c", "is declared by plugin")])
+def test_a_measurement_a_plugin_cannot_declare_is_a_plugin_error_naming_it(name, why):
+    from magline.core.plugins import PluginError
+
+    class Declares:
+        @hookimpl
+        def magline_register_measurements(self, register):
+            register(name, unit="°C")
+            if name == "hook_twice_c":
+                register(name, unit="°C")
+
+    with pytest.raises(PluginError, match=why):
+        load_plugins(extra=[Declares()])
 
 
 def test_magline_persist(tmp_path):

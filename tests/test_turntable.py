@@ -416,7 +416,11 @@ def test_a_board_that_learns_of_a_turn_late_sends_its_readings_late_never_wrong(
     stamps = np.array([t for t, _ in fields])
     steps = np.linalg.norm(np.diff([f for _, f in fields], axis=0), axis=1)
     turned = np.linalg.norm(fields[-1][1] - fields[50][1])
-    # 60°/s for 20 ms turns a 48 µT field by at most 1 µT (1.06 through the soft iron), the noise adds about
-    # 0.4 µT and the mG truncation 0.1; the 0.5 s lag made one step of 9.7 µT, 0.4 s into the turn
+    # 60°/s turns a 48 µT field by at most 53 µT/s (1.06 µT in a 20 ms step, through the soft iron), the noise
+    # adds about 0.4 µT and the mG truncation 0.1: each step within what the table's turn allows in the time
+    # between its two messages (a board starved on a loaded machine sends later, not wrong), plus 1.9 µT; the
+    # 0.5 s lag made one step of 9.7 µT in 20 ms, 0.4 s into the turn
     assert turned > 10.0, turned  # the table did turn during the stream
-    assert steps.max() < 3.0, (steps.max(), stamps[np.argmax(steps)] - stamps[50])
+    allowed = 53.0 * np.diff(stamps) / 1000.0 + 1.9
+    worst = int(np.argmax(steps - allowed))
+    assert np.all(steps < allowed), (steps[worst], allowed[worst], stamps[worst + 1] - stamps[worst])

@@ -6,6 +6,7 @@ import argparse
 import csv
 import json
 import sys
+from collections.abc import Iterable
 from difflib import get_close_matches
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -134,21 +135,26 @@ def _without(series: Any, serials: tuple[str, ...]) -> Any:
     return series
 
 
-def unknown_measurements(names: list[str] | None) -> str | None:
-    """Why ``--measurement`` names no measurement magline makes (a sentence, with the nearest names),
-    or None when every name is one."""
-    unknown = [n for n in names or () if not known_limit_name(n)]
+def unknown_measurements(names: list[str] | None, declared: Iterable[str] = ()) -> str | None:
+    """Why ``--measurement`` names no measurement magline or a plugin (``declared``) makes (a sentence,
+    with the nearest names), or None when every name is one."""
+    declared = set(declared)
+    known = [*CATALOGUE, *sorted(declared)]
+    unknown = [n for n in names or () if not known_limit_name(n) and base_name(n) not in declared]
     if not unknown:
         return None
-    hints = [f"{n} (did you mean {close[0]}?)" if (close := get_close_matches(base_name(n), CATALOGUE, 1)) else n
+    hints = [f"{n} (did you mean {close[0]}?)" if (close := get_close_matches(base_name(n), known, 1)) else n
              for n in unknown]
-    return f"--measurement: no measurement is called {', '.join(hints)}; magline measures: {', '.join(CATALOGUE)}"
+    return f"--measurement: no measurement is called {', '.join(hints)}; magline measures: {', '.join(known)}"
 
 
-def spc(store: Any, station: Station, args: argparse.Namespace, station_dir: Path | None = None) -> int:
+def spc(store: Any, station: Station, args: argparse.Namespace, station_dir: Path | None = None,
+        declared: Iterable[str] = ()) -> int:
+    """``magline spc``: ``declared`` are the loaded plugins' own measurement names (``--measurement`` may
+    name them)."""
     if not isinstance(store, KeepsSeries):
         raise StationFault("this station's results sink keeps no history: spc reads SQL stores only")
-    unknown = unknown_measurements(args.measurement)
+    unknown = unknown_measurements(args.measurement, declared)
     if unknown:
         print(unknown, file=sys.stderr)
         return 2

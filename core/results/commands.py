@@ -165,6 +165,7 @@ def export(store: Any, where: RunFilter, fmt_name: str, raw: bool, out: TextIO |
         held = measurement_names(conn, where)
         sensors = ["mag1", *(p for p in ("mag2", "mag3") if any(n.startswith(f"{p}.") for n in held))]
         names = [n for n in NUMERIC_NAMES if _sensor_of(n) in sensors and (not _only_where_held(n) or n in held)]
+        names += sorted(held - set(NUMERIC_NAMES))  # the plugins' own measurements, after magline's
         writer.writerow([*RUN_COLUMNS, "test", *names, *(f"{p}.{c}" if p != "mag1" else c for p in sensors
                                                           for c in SOFT_IRON_COLUMNS),
                          "failed", "review", "params_written"])

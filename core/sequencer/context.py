@@ -22,6 +22,7 @@ if TYPE_CHECKING:
     from magline.core.fit import FitOptions, FitResult
     from magline.core.fit.samples_csv import RawSamples
     from magline.core.interference.model import Interference
+    from magline.core.measurements import Numeric
     from magline.core.mounting import ImuSeries
     from magline.core.plugins import Plugins
     from magline.core.power import PowerControl
@@ -247,6 +248,17 @@ class RunContext:
             if m.device_id == device_id:
                 return f"{m.label} ({device_id})"
         return f"magnetometer {device_id}"
+
+    def measured(self, name: str, value: float) -> Numeric:
+        """A plugin's own measurement (declared with ``magline_register_measurements``; a sensor's with its
+        prefix, ``mag2.<name>``) judged against the station's limit for it, in its declared unit."""
+        from magline.core.measurements import Numeric, base_name
+
+        declared = self.plugins.measurements.get(base_name(name))
+        if declared is None:
+            raise ValueError(f"measurement {name!r} is not declared: a plugin declares its own measurements with "
+                             "the magline_register_measurements hook")
+        return Numeric.of(name, value, self.limits, unit=declared.unit)
 
     def require_unit(self) -> UnitInfo:
         if self.unit is None:

@@ -31,7 +31,7 @@ def did_you_mean(word: str, choices: Iterable[str]) -> str:
 def station_problems(text: str, name: str, plugins: Plugins) -> tuple[Station | None, list[str]]:
     """The station (None when the schema refuses it) and every problem found, in file order."""
     try:
-        station, problems = load_station_text(text, name), []
+        station, problems = load_station_text(text, name, plugins.measurements), []
     except StationError as exc:
         station, problems = None, list(exc.problems)
     try:

@@ -35,7 +35,10 @@ def read_station_text(path: str | Path) -> str:
         raise StationError([f"{path}: cannot read station file: {exc.strerror}"]) from exc
 
 
-def load_station_text(text: str, name: str) -> Station:
+def load_station_text(text: str, name: str, measurements: dict[str, Any] | None = None) -> Station:
+    """The station file's text read and validated; every problem is said at once with file, key and line.
+    ``measurements``: the loaded plugins' own measurements (``Plugins.measurements``), which its limits
+    may name beside magline's."""
     loader = yaml.SafeLoader(text)
     try:
         node = loader.get_single_node()
@@ -54,7 +57,7 @@ def load_station_text(text: str, name: str) -> Station:
     if not isinstance(data, dict):
         raise StationError([f"{name}:1: the station file must be a mapping of sections"])
     try:
-        station = Station.model_validate(data)
+        station = Station.model_validate(data, context={"measurements": measurements or {}})
     except ValidationError as exc:
         problems += [_describe(err, lines, name) for err in exc.errors()]
     if problems:

@@ -73,18 +73,29 @@ class Limit(_Strict):
         return self.range[1] if self.range is not None else self.le
 
 
-def _known_measurement(name: str) -> str:
-    if not known_limit_name(name):
+def declared_measurements(info: ValidationInfo | None) -> dict[str, Any]:
+    """The plugins' own measurements (name → ``DeclaredMeasurement``) the station file is read with: the
+    validation context's ``measurements`` (:func:`~magline.core.station.load_station_text` passes the
+    loaded plugins' declarations), none when read without plugins."""
+    context = info.context if info is not None and isinstance(info.context, dict) else {}
+    return context.get("measurements") or {}
+
+
+def _known_measurement(name: str, info: ValidationInfo) -> str:
+    declared = declared_measurements(info)
+    if not known_limit_name(name) and base_name(name) not in declared:
         import difflib
 
-        close = difflib.get_close_matches(name, sorted(KNOWN_LIMIT_NAMES), n=1, cutoff=0.6)
+        known = sorted(KNOWN_LIMIT_NAMES | set(declared))
+        close = difflib.get_close_matches(name, known, n=1, cutoff=0.6)
         hint = f" (did you mean {close[0]!r}?)" if close else ""
-        raise ValueError(f"unknown measurement {name!r}{hint}; known: {', '.join(sorted(KNOWN_LIMIT_NAMES))} "
-                         "(a sensor's own: mag2.<name>; a pair's: mag1-mag2.<name>)")
+        raise ValueError(f"unknown measurement {name!r}{hint}; known: {', '.join(known)} "
+                         "(a sensor's own: mag2.<name>; a pair's: mag1-mag2.<name>; a plugin's own measurement "
+                         "is known once its plugin declares it with the magline_register_measurements hook)")
     return name
 
 
-def _possible_windows(limits: Any, handler: Any) -> dict[str, Limit]:
+def _possible_windows(limits: Any, handler: Any, info: ValidationInfo) -> dict[str, Limit]:
     """A window no value of the measurement can reach (``coverage: {ge: 1.5}``) fails every unit: said at
     the limit's own line, together with whatever else is wrong in the same limit set (one pass)."""
     impossible = []
@@ -93,7 +104,9 @@ def _possible_windows(limits: Any, handler: Any) -> dict[str, Limit]:
             continue
         low = rule.get("ge", (rule.get("range") or [None, None])[0])
         high = rule.get("le", (rule.get("range") or [None, None])[1])
-        lowest, highest = POSSIBLE.get(base_name(str(name)), (float("-inf"), float("inf")))
+        declared = declared_measurements(info).get(base_name(str(name)))
+        lowest, highest = POSSIBLE.get(base_name(str(name)), declared.possible if declared is not None
+                                       else (float("-inf"), float("inf")))
         numbers = all(v is None or isinstance(v, int | float) for v in (low, high))
         empty = numbers and low is not None and high is not None and low > high  # the Limit itself says so
         if numbers and not empty and ((low is not None and low > highest) or (high is not None and high < lowest)):

@@ -54,3 +54,44 @@ def test_check_names_a_wrong_option_with_its_line(magline_station):
     assert [(p.key, p.message) for p in problems] == [
         ("products.ACME-7.options.boot_timeout", "unknown key (did you mean 'boot_timeout_s'?)")]
     assert problems[0].line > 1
+
+
+def acme_station(magline_station, board, temp_limit: dict) -> str:
+    return magline_station(replace={
+        "products": {"ACME-7": {**ACME_PART, "connection": board.connection,
+                                "limits": {**ACME_PART["limits"], "acme_board_temp_c": temp_limit}}},
+        "default_part": "ACME-7",
+        "acquisition": {"samples": 400, "rate_hz": 100.0, "coverage_bins": 40, "coverage_target": 0.6,
+                        "retries": 1, "retry_delay_s": 0.0, "timeout_s": 20.0},
+        "results": {"sink": "sqlite", "path": "units.sqlite"}})
+
+
+def test_the_plugin_s_own_measurement_is_limited_judged_and_stored_like_magline_s(board, magline_station, magline_run,
+                                                                                  magline_results):
+    station = acme_station(magline_station, board, {"le": 60.0})
+    assert check_station(station) == []
+    record = magline_run(station, "ACME-0002")
+    assert record.verdict == "pass", record.cause
+    temp = next(m for m in record.measurements if m.name == "acme_board_temp_c")
+    assert (temp.value, temp.unit, temp.high, temp.verdict) == (41.5, "°C", 60.0, "pass")
+    stored = magline_results(station).run(record.run_id)
+    assert any(m["name"] == "acme_board_temp_c" and m["value"] == 41.5 for m in stored["measurements"])
+
+
+def test_a_board_running_hot_fails_on_the_plugin_s_limit_and_the_limit_set_s_hash_holds_it(board, magline_station,
+                                                                                          magline_run):
+    board.board_temp_c = 75.0
+    failed = magline_run(acme_station(magline_station, board, {"le": 60.0}), "ACME-0003")
+    assert failed.verdict == "fail"
+    assert "acme_board_temp_c" in failed.cause
+    assert failed.params_written == {}  # never written to a unit that failed
+    passed = magline_run(acme_station(magline_station, board, {"le": 80.0}), "ACME-0004")
+    assert passed.verdict == "pass", passed.cause
+    assert passed.limit_hash != failed.limit_hash
+
+
+def test_a_limit_no_temperature_can_meet_is_refused_by_check_with_its_line(board, magline_station):
+    problems = check_station(acme_station(magline_station, board, {"range": [200.0, 400.0]}))
+    assert [(p.key, p.message.split(":")[0]) for p in problems] == [
+        ("products.ACME-7.limits.acme_board_temp_c", "no value can lie in [200, 400]")]
+    assert problems[0].line > 1

@@ -150,6 +150,10 @@ class AcmeDut:
                 with contextlib.suppress(DutError):  # the link is gone: nothing left streaming
                     self._ask("STOP", "OK")
 
+    def board_temp_c(self) -> float:
+        """The board's own temperature (``TEMP?``): the plugin's own measurement, ``acme_board_temp_c``."""
+        return float(self._ask("TEMP?", "TEMP")[0])
+
     def calibrated_field_ut(self, count: int) -> np.ndarray:
         return np.array([[float(v) for v in self._ask("CAL?", "C")] for _ in range(count)]) * UT_PER_MG
 

@@ -1,5 +1,6 @@
 """Registers the ``acme`` DUT backend and the ``jsonl`` results sink, each with its options model
-(``magline check`` then validates them with file, key and line)."""
+(``magline check`` then validates them with file, key and line), and the plugin's own measurement,
+``acme_board_temp_c``: a station file may limit it (``limits: {acme_board_temp_c: {le: 60}}``)."""
 
 from __future__ import annotations
 
@@ -22,6 +23,20 @@ def create_jsonl_sink(station, station_dir: Path, entry, options: JsonLinesOptio
 @hookimpl
 def magline_register_dut_backends(register):
     register("acme", create_acme_dut, options=AcmeOptions)
+
+
+@hookimpl
+def magline_register_measurements(register):
+    register("acme_board_temp_c", unit="°C", meaning="the board's own temperature after the tumble (a board "
+             "running hot has a part drawing too much current)", possible=(-60.0, 150.0))
+
+
+@hookimpl
+def magline_validate_unit(run, fits):
+    """Every product's units are heard: an ACME board's temperature, the others' nothing."""
+    if run.product.backend != "acme":
+        return []
+    return [run.measured("acme_board_temp_c", run.require_dut().board_temp_c())]
 
 
 @hookimpl

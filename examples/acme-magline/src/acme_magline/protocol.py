@@ -10,6 +10,7 @@
     REBOOT         -> OK REBOOT, then the link closes; the board boots from flash
     UPTIME?        -> UPTIME <seconds>
     CAL?           -> C <x_mG> <y_mG> <z_mG>           (one reading with the calibration applied)
+    TEMP?          -> TEMP <celsius>                  (the board's own temperature sensor)
 
 Calibration as the firmware applies it: ``cal = S · (raw + OFS)``, OFS in milligauss (added),
 S the symmetric matrix ``S_XX … S_YZ``.  ``AUTOCAL`` (1: the firmware learns offsets by itself).

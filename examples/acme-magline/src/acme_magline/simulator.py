@@ -22,8 +22,10 @@ SENSOR_HZ = 100.0
 
 
 class AcmeSim:
-    def __init__(self, flash: Path, port: int = 0, field_ut: float = 48.0, boot_s: float = 0.3, seed: int = 5) -> None:
+    def __init__(self, flash: Path, port: int = 0, field_ut: float = 48.0, boot_s: float = 0.3, seed: int = 5,
+                 board_temp_c: float = 41.5) -> None:
         self.flash = Path(flash)
+        self.board_temp_c = board_temp_c
         self.field_ut = field_ut
         self.boot_s = boot_s
         self.rng = np.random.default_rng(seed)
@@ -91,16 +93,18 @@ class AcmeSim:
                     wire.flush()
 
             def stream(hz: float) -> None:
-                period = 1.0 / min(hz, SENSOR_HZ)
-                n, t0 = 0, time.monotonic()
+                # each of the sensor's samples once, stamped with its own time: a simulator starved of the CPU
+                # sends the samples it owes in order when it wakes (as a board's UART buffer does), never the
+                # same instant twice
+                step = max(1, round(SENSOR_HZ / min(hz, SENSOR_HZ)))
+                index = int((time.monotonic() - self.booted_at) * SENSOR_HZ)
                 while streaming.is_set() and not self._stop.is_set():
-                    index = int((time.monotonic() - self.booted_at) * SENSOR_HZ)
-                    x, y, z = self._reading_mg(index)
-                    ax, ay, az = self._gravity_mg(index)
-                    send(f"M {int((time.monotonic() - self.booted_at) * 1000)} {x:.1f} {y:.1f} {z:.1f} "
-                         f"{ax:.1f} {ay:.1f} {az:.1f}")
-                    n += 1
-                    time.sleep(max(0.0, t0 + n * period - time.monotonic()))
+                    while index <= (time.monotonic() - self.booted_at) * SENSOR_HZ:
+                        x, y, z = self._reading_mg(index)
+                        ax, ay, az = self._gravity_mg(index)
+                        send(f"M {index * 1000 // int(SENSOR_HZ)} {x:.1f} {y:.1f} {z:.1f} {ax:.1f} {ay:.1f} {az:.1f}")
+                        index += step
+                    time.sleep(max(0.0, self.booted_at + index / SENSOR_HZ - time.monotonic()))
 
             for line in wire:
                 parts = line.split()
@@ -139,6 +143,8 @@ class AcmeSim:
                         ofs = np.array([self.ram["OFS_X"], self.ram["OFS_Y"], self.ram["OFS_Z"]])
                         x, y, z = s @ (raw + ofs)
                         send(f"C {x:.2f} {y:.2f} {z:.2f}")
+                    elif head == "TEMP?":
+                        send(f"TEMP {self.board_temp_c:.1f}")
                     elif head == "REBOOT":
                         send("OK REBOOT")
                         streaming.clear()
@@ -155,8 +161,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--port", type=int, default=7000)
     parser.add_argument("--flash", default="acme-flash.json")
+    parser.add_argument("--board-temp-c", type=float, default=41.5, help="what the board's TEMP? answers")
     args = parser.parse_args()
-    sim = AcmeSim(Path(args.flash), args.port).start()
+    sim = AcmeSim(Path(args.flash), args.port, board_temp_c=args.board_temp_c).start()
     print(f"listening on {sim.connection}", flush=True)
     try:
         while True:
