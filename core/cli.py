@@ -721,22 +721,14 @@ def _export(args: argparse.Namespace, plugins: Plugins) -> int:
 
 
 def _spc(args: argparse.Namespace, plugins: Plugins) -> int:
+    from magline.core.lazy import warm_imports
     from magline.core.quality.commands import spc
 
-    _warm_import("scipy.stats")  # the capability's statistics, imported while the store is opened and checked
+    # the capability's statistics (a third of a second) imported while the store is opened and checked (half a
+    # second of SQLite's integrity check, which releases the interpreter's lock): on a second core, at once
+    warm_imports("scipy.stats")
     return _with_store(args, plugins, lambda store, station, where: spc(store, station, args, Path(where),
                                                                        plugins.measurements))
-
-
-def _warm_import(module: str) -> None:
-    """Import ``module`` on a background thread.  Why: ``spc`` spends a third of a second importing
-    scipy.stats and half a second in SQLite's integrity check of a large store, which releases the
-    interpreter's lock — on a second core the two run at once.  The later import of the same module
-    waits for this one (the import system locks per module), so nothing sees it half made."""
-    import importlib
-    import threading
-
-    threading.Thread(target=importlib.import_module, args=(module,), name=f"import {module}", daemon=True).start()
 
 
 def _report(args: argparse.Namespace, plugins: Plugins) -> int:

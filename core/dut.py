@@ -227,7 +227,7 @@ class DutBackend(Protocol):
         """Force the parameters to non-volatile storage."""
 
     def reboot(self) -> None:
-        """Command a reboot over the link (what the ``mavlink-reboot`` power method uses).  A DUT
+        """Command a reboot over the link (what the default ``link-reboot`` power method uses).  A DUT
         without such a command raises :class:`DutError`; its station then names a power control
         that cuts the supply (``scpi-supply``, ``command``), and the record's ``persistence.method``
         says which one proved the power cycle."""

@@ -108,7 +108,7 @@ def magline_register_power_controls(register: Register) -> None:
         station_dir, options)`` receives the product's ``power`` entry, the station's folder and
         ``power.options`` validated against ``Model``, and returns a
         :class:`~magline.plugin.PowerControl`.  The name is what a station file writes under
-        ``products.<part>.power.method``; the core registers ``mavlink-reboot``.  As for backends,
+        ``products.<part>.power.method``; the core registers ``link-reboot``.  As for backends,
         ``options=Model`` lets ``magline check`` validate ``products.<part>.power.options``.
     """
 
@@ -168,6 +168,19 @@ def magline_register_measurements(register: RegisterMeasurement) -> None:
         ``magline_validate`` or ``magline_validate_unit`` with ``run.measured(name, value)`` (judged
         against the station's limit, in the declared unit).  A name of magline's own, or one another
         plugin declared, is a :class:`PluginError`.
+    """
+
+
+@hookspec
+def magline_register_plugin_options(register: Callable[[str, type[BaseModel]], None]) -> None:
+    """Declare a section of the station file's ``plugins:`` for a plugin that is not a registered backend,
+    sink or source — a listener such as a plant feed.  Called once when the plugin manager starts.
+
+    :param register: call ``register(section, Model)``: ``plugins.<section>`` in a station file is
+        validated against the pydantic ``Model`` by ``magline check`` (file, key and line), and the plugin
+        reads it during a run with ``run.plugin_options(section)`` (an instance of ``Model``; None when the
+        station file has no such section: the plugin then does nothing).  A section registered twice, or a
+        ``plugins:`` section no plugin registered, is an error naming it.
     """
 
 

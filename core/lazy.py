@@ -30,3 +30,18 @@ def lazy_names(package: str, homes: dict[str, tuple[str, ...]]) -> tuple[list[st
         return list(names)
 
     return names, __getattr__, __dir__
+
+
+def warm_imports(*modules: str) -> None:
+    """Import ``modules`` on a background thread, now, so that whoever needs them later finds them made.
+    Why: a command imports what it uses on first use, and a first use in the middle of a tumble (the running
+    fit's SciPy) delayed the stop by the import's time — every unit read on for it.  The import system
+    locks per module: a use that comes while one is still being imported waits for it, never sees it half
+    made."""
+    import threading
+
+    def load() -> None:
+        for module in modules:
+            import_module(module)
+
+    threading.Thread(target=load, name="magline-warm-imports", daemon=True).start()

@@ -72,6 +72,9 @@ class Plugins:
         # limit beside magline's catalogue
         self.measurements: dict[str, DeclaredMeasurement] = {}
         self._declare_measurements()
+        # the station file's ``plugins:`` sections, each with the options model its plugin registered
+        self.plugin_sections: dict[str, type] = {}
+        self._plugin_sections()
 
     def _collect(self, kind: str, registry: dict[str, Any], hook: Any) -> None:
         """Call each plugin's registration hook in pluggy's order (last registered first), knowing
@@ -114,6 +117,22 @@ class Plugins:
                     raise PluginError(f"plugin {_by!r}: {problem}")
                 self.measurements[name] = declared
                 self.registered_by[("measurement", name)] = _by
+
+            impl.function(register=register)
+
+    def _plugin_sections(self) -> None:
+        for impl in reversed(self.hook.magline_register_plugin_options.get_hookimpls()):
+            by = _plugin_name(impl)
+
+            def register(section: str, options: type, _by: str = by) -> None:
+                if not isinstance(section, str) or not section:
+                    raise PluginError(f"plugin {_by!r}: a plugins: section must be registered under a non-empty name")
+                if section in self.plugin_sections:
+                    raise PluginError(f"plugins: section {section!r} is registered twice (by plugin "
+                                      f"{self.registered_by[('plugin options', section)]!r} and by plugin {_by!r})")
+                self.plugin_sections[section] = options
+                self.option_models[("plugin options", section)] = options
+                self.registered_by[("plugin options", section)] = _by
 
             impl.function(register=register)
 

@@ -1,10 +1,12 @@
 """Power control: how the verify phase cycles the unit's power, chosen per product in the station file.
 
-Why a plugin point: a MAVLink reboot is not a power cycle — firmware flushes pending writes on a
+Why a plugin point: a commanded reboot is not a power cycle — firmware flushes pending writes on a
 commanded reboot, not when power is cut — and some targets refuse the command.  Real lines cut
 power through the fixture (a programmable supply, a relay, a USB hub).  This module defines the
-protocol and the default method, ``mavlink-reboot``; ``plugins/power/`` adds ``scpi-supply`` and
-``command``.  A power control never talks MAVLink itself: it drives the DUT backend's
+protocol and the default method, ``link-reboot`` (the backend's own reboot command over the unit's
+link: MAVLink's ``MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN``, INAV's ``MSP_REBOOT``, a line protocol's
+``REBOOT``; ``mavlink-reboot``, its former name, is still accepted); ``plugins/power/`` adds
+``scpi-supply`` and ``command``.  A power control never talks MAVLink itself: it drives the DUT backend's
 ``reboot`` / ``release_link`` / ``await_boot``.
 """
 
@@ -58,10 +60,12 @@ def await_boot_after_cut(dut: DutBackend, on_at: float, cut: str, fed_by: str = 
                          f"{fed_by}") from exc
 
 
-class MavlinkReboot:
-    """MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN through the backend (the default; no fixture needed)."""
+class LinkReboot:
+    """The backend's own reboot command over the unit's link (the default; no fixture needed).  Why not
+    called after MAVLink: INAV's and a third party's boards reboot by their own protocols, and a record
+    that said ``mavlink-reboot`` of them said what did not happen."""
 
-    method = "mavlink-reboot"
+    method = "link-reboot"
 
     def power_up(self) -> None:
         return None
@@ -78,12 +82,13 @@ class MavlinkReboot:
         return None
 
 
-def create_mavlink_reboot(config: PowerConfig, station_dir: Path, options: dict) -> MavlinkReboot:
+def create_link_reboot(config: PowerConfig, station_dir: Path, options: dict) -> LinkReboot:
     if config.options:
-        raise ValueError(f"mavlink-reboot takes no options (got {', '.join(config.options)})")
-    return MavlinkReboot()
+        raise ValueError(f"{config.method} takes no options (got {', '.join(config.options)})")
+    return LinkReboot()
 
 
 @hookimpl
 def magline_register_power_controls(register):
-    register("mavlink-reboot", create_mavlink_reboot)
+    register("link-reboot", create_link_reboot)
+    register("mavlink-reboot", create_link_reboot)  # the former name: station files that say it keep working

@@ -62,11 +62,16 @@ def protocol_section(title: str, cls: Any) -> list[str]:
     return out
 
 
-def capabilities_section(contract: Any, what: str, contract_name: str) -> list[str]:
+def capabilities_section(contract: Any, what: str, contract_name: str,
+                         required: dict[type, str] | None = None, suite: str = "") -> list[str]:
     """The optional capabilities of ``contract``'s module: a plugin's object has one by having its
-    member; the core asks ``isinstance(obj, Capability)``."""
+    member; the core asks ``isinstance(obj, Capability)``.  ``required``: those the conformance ``suite``
+    requires nevertheless, with why (said beside each)."""
+    required = required or {}
     out = [f"## Optional {what} capabilities", "", f"A {what} has a capability by having its member (nothing to "
-           f"declare); the core asks `isinstance(obj, Capability)` and does without it otherwise.", ""]
+           f"declare); the core asks `isinstance(obj, Capability)` and does without it otherwise."
+           + (f" Those marked *required by `{suite}`* the conformance suite asks for all the same." if required
+              else ""), ""]
     caps = [obj for _, obj in inspect.getmembers(contract, inspect.isclass)
             if getattr(obj, "_is_runtime_protocol", False) and obj.__module__ == contract.__name__
             and obj.__name__ != contract_name]
@@ -75,6 +80,8 @@ def capabilities_section(contract: Any, what: str, contract_name: str) -> list[s
         fields = list(getattr(cls, "__annotations__", {}).items())
         out += [f"### `magline.plugin.{cls.__name__}`", "", "```python"]
         out += [_signature(m) for _, m in members] + [f"{n}: {t}" for n, t in fields] + ["```", "", _doc(cls), ""]
+        if cls in required:
+            out += [f"*Required by `{suite}`*: {required[cls]}.", ""]
     return out
 
 
@@ -158,9 +165,11 @@ def generate() -> str:
     from magline.core import dut
     from magline.core.results import contract
     from magline.plugin import DutBackend, FieldSource, Motion, PowerControl, ResultSink
+    from magline.testing.conformance import REQUIRED_DUT_CAPABILITIES
 
     lines = [HEADER, *hooks_section(), *protocol_section("DUT backend", DutBackend),
-             *capabilities_section(dut, "DUT backend", "DutBackend"), *protocol_section("Result sink", ResultSink),
+             *capabilities_section(dut, "DUT backend", "DutBackend", REQUIRED_DUT_CAPABILITIES,
+                                   "magline.testing.check_dut_backend"), *protocol_section("Result sink", ResultSink),
              *capabilities_section(contract, "result sink", "ResultSink"),
              *protocol_section("Field source", FieldSource),
              *protocol_section("Power control", PowerControl), *protocol_section("Motion", Motion),

@@ -73,7 +73,7 @@ def test_end_to_end_pass_writes_the_fit_and_it_survives_the_reboot(tmp_path):
         assert np.linalg.norm(h - sim.magnetometers[0].hard_iron_ut) < 1.0
         assert record.params_before["COMPASS_OFS_X"] == 0.0
         assert record.params_read_back == pytest.approx(record.params_written, rel=1e-6, abs=1e-4)
-        assert record.persistence["method"] == "mavlink-reboot"
+        assert record.persistence["method"] == "link-reboot"
         assert record.persistence["figures"]["time_to_heartbeat_s"] > 0
         # proven on the firmware's own terms: its corrected stream reads the reference field
         assert record.persistence["figures"]["calibrated_field_ut"] == pytest.approx(48.0, rel=0.01)

@@ -75,3 +75,32 @@ def test_the_ardupilot_backend_meets_the_contract_on_its_simulator(magline_ardup
     mag = fc.sim.magnetometers[0]
     check_dut_backend(_backend(path, "AP-QUAD-200"), fc.sim.field_ut, rate_hz=200.0,
                       prepare_params=["COMPASS_LEARN"], hard_iron_ut=mag.hard_iron_ut, unsaved_writes="kept")
+
+
+def test_a_backend_without_the_firmware_s_calibrated_output_is_told_what_to_declare_and_the_page_says_so(tmp_path):
+    """The conformance suite requires a capability the core does without (``ReadsCalibratedField``): the
+    contract page, generated from the same table the suite asserts from, marks it required."""
+    from conftest import REPO
+
+    from magline.testing.conformance import REQUIRED_DUT_CAPABILITIES
+
+    class WithoutCalibratedOutput:
+        """The mock backend without ``calibrated_field_ut`` (a new class: ``isinstance`` against a Protocol
+        remembers the classes it has seen)."""
+
+        def __init__(self, dut: MockDut) -> None:
+            self._dut = dut
+
+        def __getattr__(self, name: str):
+            if name == "calibrated_field_ut":
+                raise AttributeError(name)
+            return getattr(self._dut, name)
+
+    options = MockOptions(motions=["hand_tumble"], realtime=True, storage=str(tmp_path / "nv.json"), seed=4)
+    with pytest.raises(AssertionError, match="declare ReadsCalibratedField's method: the firmware's own calibrated"):
+        check_dut_backend(lambda: WithoutCalibratedOutput(MockDut(options)), options.field_ut, rate_hz=200.0,
+                          prepare_params=["MAG_AUTOCAL"])
+    page = (REPO / "docs" / "plugins.md").read_text(encoding="utf-8")
+    for capability, why in REQUIRED_DUT_CAPABILITIES.items():
+        section = page.split(f"### `magline.plugin.{capability.__name__}`")[1].split("### ")[0]
+        assert f"*Required by `magline.testing.check_dut_backend`*: {why}." in section

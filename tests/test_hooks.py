@@ -182,7 +182,7 @@ def test_magline_register_result_sinks(registered):
 
 
 def test_magline_register_power_controls(registered):
-    assert "hook-power" in registered.power_controls and "mavlink-reboot" in registered.power_controls
+    assert "hook-power" in registered.power_controls and "link-reboot" in registered.power_controls
 
 
 def test_magline_register_motions(registered):
@@ -326,8 +326,49 @@ def test_magline_register_measurements(tmp_path, capsys):
     assert main(["export", "--station", str(path)]) == 0
     header, row = list(csv.reader(capsys.readouterr().out.splitlines()))[:2]
     assert float(row[header.index("hook_board_temp_c")]) == 72.0
+    assert main(["report", str(record.run_id), "--station", str(path), "-o", str(tmp_path / "unit.html")]) == 0
+    assert "hook_board_temp_c" in (tmp_path / "unit.html").read_text(encoding="utf-8")
     assert unknown_measurements(["hook_board_temp_c"], plugins.measurements) is None
     assert "magline measures" in unknown_measurements(["hook_board_temp_c"])
+
+
+def test_magline_register_plugin_options(tmp_path):
+    """A listener configured in the station file: ``plugins.<section>`` validated by the plugin's model when
+    the station is read (file, key and line), handed to the plugin by ``run.plugin_options``; a section no
+    plugin registered is refused, naming the loaded ones."""
+    from magline.testing import check_station
+
+    class FeedOptions(BaseModel):
+        model_config = ConfigDict(extra="forbid", strict=True)
+        path: str
+        parts: list[str] | None = None
+
+    heard: list[tuple[str, object]] = []
+
+    class Feed:
+        @hookimpl
+        def magline_register_plugin_options(self, register):
+            register("hook-feed", FeedOptions)
+
+        @hookimpl
+        def magline_unit_finished(self, run, record):
+            heard.append((record.part, run.plugin_options("hook-feed")))
+
+    plugins = load_plugins(extra=[Feed()])
+    path = write_station(tmp_path, {"plugins": {"hook-feed": {"path": "plant/feed.jsonl", "parts": ["MOCK-100"]}}})
+    assert check_station(path, plugins) == []
+    seq = Sequencer(load_station(path, plugins), plugins, tmp_path, sleep=lambda s: None)
+    try:
+        seq.run_unit("HOOK-F")
+    finally:
+        seq.close()
+    (part, options), = heard
+    assert part == "MOCK-100" and isinstance(options, FeedOptions) and options.path == "plant/feed.jsonl"
+    wrong = write_station(tmp_path, {"plugins": {"hook-feed": {"path": 5}, "hook-fed": {}}})
+    problems = [(p.key, p.message) for p in check_station(wrong, plugins)]
+    assert ("plugins.hook-feed.path", "Input should be a valid string (got int 5)") in problems
+    assert [k for k, m in problems if m.startswith("unknown plugins: section 'hook-fed' (did you mean 'hook-feed'")] \
+        == ["plugins.hook-fed"]
 
 
 @pytest.mark.parametrize(("name", "why"), [("coverage", "is magline's own"), ("Board Temp", "lower-case letters"),

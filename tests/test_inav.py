@@ -175,6 +175,7 @@ def test_a_whole_inav_unit_is_calibrated_saved_rebooted_and_proven(tmp_path):
     uid = sim.uid & 0xFFFFFFFF, sim.uid >> 32, sim.system_id  # the unit's identity: the MCU's three words
     assert record.unit_info["uid"] == struct.pack("<III", *uid).hex() and record.unit_info["firmware"] == "9.1.0"
     assert record.params_read_back == record.params_written
+    assert record.persistence["method"] == "link-reboot"  # MSP_REBOOT, not a MAVLink command it never sent
     sigma = np.asarray(record.calibration["hard_iron_sigma_ut"], float)
     zero = np.array([values[f"magzero_{a}"] for a in "xyz"])
     true_zero = np.array(INAV_TO_FRD, float) @ truth.hard_iron_ut * COUNTS_PER_UT  # in INAV's sensor axes

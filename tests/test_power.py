@@ -42,7 +42,7 @@ def px4_sim(workdir, save_duration_s: float = 1.5):
 
 
 def test_the_registry_has_the_three_methods():
-    assert {"mavlink-reboot", "scpi-supply", "command"} <= set(load_plugins().power_controls)
+    assert {"link-reboot", "mavlink-reboot", "scpi-supply", "command"} <= set(load_plugins().power_controls)
 
 
 def test_reboot_keeps_a_running_save_a_power_cut_loses_it(tmp_path):
@@ -51,7 +51,7 @@ def test_reboot_keeps_a_running_save_a_power_cut_loses_it(tmp_path):
     with px4_sim(tmp_path / "reboot" / "fc") as sim:
         record = run_unit(px4_station(tmp_path / "reboot", sim, {"force_save": False}))
         assert record.verdict is Outcome.PASS, record.cause
-        assert record.persistence["method"] == "mavlink-reboot"
+        assert record.persistence["method"] == "link-reboot"
     with px4_sim(tmp_path / "cut" / "fc") as sim, SupplySim("tcp:127.0.0.1:0", board=sim) as supply:
         record = run_unit(px4_station(tmp_path / "cut", sim, {"force_save": False}, supply_power(supply)))
         assert record.verdict is Outcome.FAIL
@@ -80,7 +80,7 @@ def test_a_commanded_reboot_goes_straight_on_after_the_forced_save(tmp_path):
     with px4_sim(tmp_path / "fc") as sim:
         record = run_unit(px4_station(tmp_path, sim, {"save_settle_s": 20.0}))
         assert record.verdict is Outcome.PASS, record.cause
-        assert record.persistence["method"] == "mavlink-reboot"
+        assert record.persistence["method"] == "link-reboot"
     durations = {p.name: p.duration_s for p in record.phases}
     assert durations["persist"] + durations["verify"] < 20.0
 
@@ -166,7 +166,7 @@ def test_station_check_names_an_unknown_power_method_with_its_line(make_station,
     assert main(["check", str(path)]) == 2
     err = capsys.readouterr().err
     assert "products.MOCK-100.power.method: unknown power control 'relay-board'" in err
-    assert f"{path}:" in err and "mavlink-reboot" in err
+    assert f"{path}:" in err and "link-reboot" in err
 
 
 def test_a_third_party_power_control_plugs_in(tmp_path):

@@ -71,7 +71,7 @@ def test_end_to_end_pass_writes_the_fit_and_it_survives_the_reboot(tmp_path):
         assert abs(radius.mean() - sim.field_ut) < 0.3 and radius.std() < 0.6
         assert record.params_before[p + "XOFF"] == 0.0
         assert record.params_read_back == pytest.approx(record.params_written, rel=1e-6, abs=1e-7)
-        assert record.persistence["method"] == "mavlink-reboot"
+        assert record.persistence["method"] == "link-reboot"
         assert sim.param("SENS_MAG_AUTOCAL") == 1  # switched off for the test, then restored
 
 

@@ -361,7 +361,7 @@ def test_show_and_the_unit_report_read_as_a_document_not_as_stored_json(make_sta
     assert not re.search(r"[{}']|\bTrue\b|\bFalse\b|\bNone\b", tail), tail
     assert "magnetometers:\n  mag1  magnetometer, device id " in out
     assert re.search(r"mounting:\n  mag1 +orientation 0 \(configured 0\), \d\.\d\d° ± \d\.\d\d° from it", out)
-    assert ("persistence: power cycle mavlink-reboot; calibration kept in parameters (the autopilot parameter "
+    assert ("persistence: power cycle link-reboot; calibration kept in parameters (the autopilot parameter "
             "storage); time to heartbeat ") in out and "read back as written" in out
 
     page = tmp_path / "doc.html"

@@ -140,7 +140,7 @@ def test_magline_field_sources_meet_the_contract(magline_station):
 
 
 def test_magline_power_controls_meet_the_contract(magline_px4, tmp_path):
-    from magline.core.power import MavlinkReboot
+    from magline.core.power import LinkReboot
     from magline.plugins.mock.dut import MockDut
     from magline.plugins.mock.options import MockOptions
     from magline.plugins.power.scpi_supply import ScpiSupply, ScpiSupplyOptions
@@ -149,7 +149,7 @@ def test_magline_power_controls_meet_the_contract(magline_px4, tmp_path):
     from magline.sim.supply import SupplySim
 
     mock = MockOptions(storage=str(tmp_path / "nv.json"))
-    assert check_power_control(MavlinkReboot, lambda: MockDut(mock))["method"] == "mavlink-reboot"
+    assert check_power_control(LinkReboot, lambda: MockDut(mock))["method"] == "link-reboot"
     fc = magline_px4()
     station = load_station(station_file(tmp_path / "px4", {"products": {"PX4-X500-100": {"connection": fc.connection}}},
                                         base="px4-sim.yaml"))

@@ -48,7 +48,7 @@ def test_a_whole_unit_runs_over_usb_named_by_its_port_across_the_reboot(tmp_path
         record = run_unit(station(flavour, tmp_path, f"serial:{by_path}:115200"))
         nodes = list(board.link.devices)
     assert record.verdict is Outcome.PASS, record.cause
-    assert record.persistence["method"] == "mavlink-reboot" and not record.persistence["mismatches"]
+    assert record.persistence["method"] == "link-reboot" and not record.persistence["mismatches"]
     written, read = record.params_written, record.params_read_back
     assert written and set(read) == set(written)  # every value back as float32 holds it
     assert all(read[n] == pytest.approx(v, rel=1e-6, abs=1e-7) for n, v in written.items())

@@ -249,6 +249,14 @@ class RunContext:
                 return f"{m.label} ({device_id})"
         return f"magnetometer {device_id}"
 
+    def plugin_options(self, section: str) -> Any:
+        """The station file's ``plugins.<section>``, validated by the model its plugin registered
+        (``magline_register_plugin_options``); None when the station file has no such section."""
+        raw = self.station.plugins.get(section)
+        if raw is None:
+            return None
+        return self.plugins.options("plugin options", section, raw, f"plugins.{section}")
+
     def measured(self, name: str, value: float) -> Numeric:
         """A plugin's own measurement (declared with ``magline_register_measurements``; a sensor's with its
         prefix, ``mag2.<name>``) judged against the station's limit for it, in its declared unit."""

@@ -27,6 +27,7 @@ from magline.core.faults import StationFault, UnitAborted
 from magline.core.field import FieldSourceError
 from magline.core.fit import FitRefused, FitResult
 from magline.core.interference import phase as interference
+from magline.core.lazy import warm_imports
 from magline.core.measurements import Json, Verdict, limit_for, prefixed, verdicts
 from magline.core.plugins import Plugins
 from magline.core.record import AttemptRecord, Outcome, PersistReport, PhaseResult, RunRecord, now_iso
@@ -56,6 +57,10 @@ PHASES = ("identify", "connect", "acquire", "fit", "interference", "validate", "
 OPTIONAL_PHASES = ("interference",)  # run only for the products that ask for it (``interference`` not off)
 SHIELDED_PHASES = ("persist",)  # a half-written calibration is worse than a few seconds' wait
 RETEST = "re-test the unit"
+# What a unit's tumble computes with (the running fit, the mounting's estimate): imported when the station
+# starts (:func:`~magline.core.lazy.warm_imports`), since a command imports only what it uses
+TUMBLE_MODULES = ("magline.core.fit.geometric", "magline.core.mounting.estimate", "magline.core.mounting.checks",
+                  "scipy.optimize", "scipy.spatial.transform", "scipy.interpolate")
 
 
 class PhaseFailed(Exception):
@@ -67,6 +72,7 @@ class Sequencer:
 
     def __init__(self, station: Station, plugins: Plugins, station_dir: Path | str = ".",
                  sleep: Callable[[float], None] = time.sleep) -> None:
+        warm_imports(*TUMBLE_MODULES)  # made while the unit connects, not in the middle of its tumble
         self.station = station
         self.plugins = plugins
         self.station_dir = Path(station_dir)

@@ -74,7 +74,7 @@ def _plugin_problems(data: dict, text: str, name: str, plugins: Plugins) -> list
                            f"{' — ' + why if why else ''})")
         power = product.get("power")
         if isinstance(power, dict):
-            method = power.get("method", "mavlink-reboot")
+            method = power.get("method", "link-reboot")
             if isinstance(method, str):
                 if method not in plugins.power_controls:
                     unknown(("products", part, "power", "method"), "power control", method, plugins.power_controls)
@@ -107,6 +107,12 @@ def _plugin_problems(data: dict, text: str, name: str, plugins: Plugins) -> list
     if isinstance(current, dict) and isinstance(current.get("type"), str):
         out += _option_problems(plugins, ("current source", current["type"]), current.get("options"),
                                 ("current_source", "options"), text, name)
+    sections = data.get("plugins")
+    for section, options in (sections.items() if isinstance(sections, dict) else ()):
+        if section not in plugins.plugin_sections:
+            unknown(("plugins", section), "plugins: section", section, plugins.plugin_sections)
+        else:
+            out += _option_problems(plugins, ("plugin options", section), options, ("plugins", section), text, name)
     for section, key, what, registry in (("field_source", "type", "field source", plugins.field_sources),
                                          ("motion", "type", "motion", plugins.motions),
                                          ("current_source", "type", "current source", plugins.current_sources)):

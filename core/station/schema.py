@@ -135,9 +135,10 @@ LimitSet = Annotated[dict[Annotated[str, AfterValidator(_known_measurement)], Li
 
 
 class PowerConfig(_Strict):
-    """How the verify phase cycles power: ``mavlink-reboot`` (default), ``scpi-supply``, ``command``."""
+    """How the verify phase cycles power: ``link-reboot`` (default: the backend's own reboot command), ``scpi-supply``,
+    ``command``, ``usb-hub``."""
 
-    method: str = "mavlink-reboot"
+    method: str = "link-reboot"
     options: dict[str, Any] = Field(default_factory=dict)
 
 
@@ -464,6 +465,9 @@ class Station(_Strict):
     slots: list[Slot] = Field(default_factory=list)
     current_source: CurrentSourceConfig | None = None
     interference: InterferenceSettings = Field(default_factory=InterferenceSettings)
+    # settings of the plugins that listen to the run (a plant feed, a dashboard): ``plugins.<section>``, each
+    # validated by the model its plugin registered (``magline_register_plugin_options``) when plugins load
+    plugins: dict[str, dict[str, Any]] = Field(default_factory=dict)
 
     @model_validator(mode="after")
     def _a_current_source_for_the_sweep(self) -> Station:

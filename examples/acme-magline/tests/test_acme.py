@@ -95,3 +95,37 @@ def test_a_limit_no_temperature_can_meet_is_refused_by_check_with_its_line(board
     assert [(p.key, p.message.split(":")[0]) for p in problems] == [
         ("products.ACME-7.limits.acme_board_temp_c", "no value can lie in [200, 400]")]
     assert problems[0].line > 1
+
+
+def feed_station(magline_station, board, feed: dict) -> str:
+    return magline_station(replace={
+        "products": {"ACME-7": {**ACME_PART, "connection": board.connection}}, "default_part": "ACME-7",
+        "acquisition": {"samples": 400, "rate_hz": 100.0, "coverage_bins": 40, "coverage_target": 0.6,
+                        "retries": 1, "retry_delay_s": 0.0, "timeout_s": 20.0},
+        "results": {"sink": "sqlite", "path": "units.sqlite"}, "plugins": {"acme-feed": feed}})
+
+
+def test_the_plant_feed_writes_each_finished_unit_where_the_station_file_says(board, magline_station, magline_run,
+                                                                             tmp_path):
+    record = magline_run(feed_station(magline_station, board, {"path": "plant/feed.jsonl", "parts": ["ACME-7"]}),
+                         "ACME-0005")
+    assert record.verdict == "pass", record.cause
+    line, = [json.loads(x) for x in (tmp_path / "plant" / "feed.jsonl").read_text().splitlines()]
+    assert (line["serial"], line["part"], line["verdict"]) == ("ACME-0005", "ACME-7", "pass")
+    assert line["measurements"]["hard_iron_norm_ut"] > 0 and line["limit_hash"] == record.limit_hash
+
+
+def test_a_feed_that_cannot_write_is_said_on_the_run_and_the_verdict_stands(board, magline_station, magline_run,
+                                                                             tmp_path):
+    (tmp_path / "plant").write_text("a file where the feed's folder should be")
+    record = magline_run(feed_station(magline_station, board, {"path": "plant/feed.jsonl"}), "ACME-0006")
+    assert record.verdict == "pass", record.cause
+    fault, = record.listener_faults
+    assert "acme-feed" in fault and "magline_unit_finished" in fault
+
+
+def test_check_names_a_wrong_feed_setting_with_its_line(board, magline_station):
+    problems = check_station(feed_station(magline_station, board, {"path": "plant/feed.jsonl", "part": "X"}))
+    assert [(p.key, p.message) for p in problems] == [
+        ("plugins.acme-feed.part", "unknown key (did you mean 'parts'?)")]
+    assert problems[0].line > 1
