@@ -11,13 +11,15 @@ and the mock DUT plugin (an in-process unit) has nothing to do with them.
 from __future__ import annotations
 
 import argparse
+import errno
 import re
 import signal
 import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -130,6 +132,18 @@ def add_sim_command(subparsers: argparse._SubParsersAction) -> None:
     sim.set_defaults(handler=run_sim)
 
 
+@contextmanager
+def _listening(what: str, address: str | None) -> Iterator[None]:
+    """An address that cannot be listened on is named in the error, with what was to listen there: the
+    station's simulators share defaults (INAV's and ArduPilot's are both tcp:127.0.0.1:5760)."""
+    try:
+        yield
+    except OSError as exc:
+        taken = " — another program (another simulator?) listens there: give this one another address" \
+            if exc.errno == errno.EADDRINUSE else ""
+        raise OSError(f"cannot listen on {address} ({what}): {exc.strerror or exc}{taken}") from exc
+
+
 def fault_list() -> str:
     """Every fault :class:`~magline.sim.faults.SimFaults` knows, with what its value says: the help is
     made from the class, so a fault added there is listed here."""
@@ -141,6 +155,8 @@ def fault_list() -> str:
         default = f.default_factory() if callable(f.default_factory) else f.default
         if isinstance(default, bool):
             return f.name
+        if "form" in f.metadata:  # the value's own form, as the fault's comment in SimFaults says it
+            return f"{f.name}={f.metadata['form']}"
         if isinstance(default, list):
             return f"{f.name}=A,B"
         return f"{f.name}=V"
@@ -219,23 +235,28 @@ def run_sim(args: argparse.Namespace) -> int:
         if args.flavour == "px4":
             options.update(firmware=args.firmware, shell=not args.no_shell, preset_ids=args.preset_ids,
                            untagged=args.untagged)
-        sim = create_sim(args.flavour, args.listen, **options)
+        with _listening("the flight controller", args.listen):
+            sim = create_sim(args.flavour, args.listen, **options)
         for mag in sim.magnetometers:
             mag.truth.noise_ut = args.noise_ut
-        sim.start()
+        with _listening("the flight controller", args.listen):
+            sim.start()
         supply = None
         if args.supply:
             from magline.sim.supply import SupplySim
-            supply = SupplySim(args.supply, board=sim, fault=args.supply_fault).start()
+            with _listening("the bench supply", args.supply):
+                supply = SupplySim(args.supply, board=sim, fault=args.supply_fault).start()
             sim.power_off()  # the supply's output starts off
         load = None
         if args.load:
             from magline.sim.load import LoadSim
-            load = LoadSim(args.load, board=sim, fault=args.load_fault, rating_a=args.load_rating).start()
+            with _listening("the electronic load", args.load):
+                load = LoadSim(args.load, board=sim, fault=args.load_fault, rating_a=args.load_rating).start()
         hub = None
         if args.usb_hub:
             from magline.sim.usb_hub import UsbHubSim
-            hub = UsbHubSim(args.usb_hub, boards={args.hub_port: sim}).start()
+            with _listening("the USB hub", args.usb_hub):
+                hub = UsbHubSim(args.usb_hub, boards={args.hub_port: sim}).start()
     except (ValueError, OSError) as exc:
         print(f"magline sim: {exc}", file=sys.stderr)
         return 2
@@ -270,8 +291,10 @@ def run_coil_sim(args: argparse.Namespace) -> int:
     from magline.sim.fluxgate import FluxgateSim
 
     try:
-        coil = CoilSim(args.listen, fault=args.coil_fault, seed=args.seed).start()
-        fluxgate = FluxgateSim(args.fluxgate, coil.true_field_ut, seed=args.seed).start()
+        with _listening("the coil", args.listen):
+            coil = CoilSim(args.listen, fault=args.coil_fault, seed=args.seed).start()
+        with _listening("the fluxgate", args.fluxgate):
+            fluxgate = FluxgateSim(args.fluxgate, coil.true_field_ut, seed=args.seed).start()
     except (ValueError, OSError) as exc:
         print(f"magline sim: {exc}", file=sys.stderr)
         return 2
@@ -290,7 +313,8 @@ def run_gimbal_sim(args: argparse.Namespace) -> int:
     from magline.sim.gimbal import GimbalSim
 
     try:
-        gimbal = GimbalSim(args.listen).start()
+        with _listening("the gimbal", args.listen):
+            gimbal = GimbalSim(args.listen).start()
     except (ValueError, OSError) as exc:
         print(f"magline sim: {exc}", file=sys.stderr)
         return 2
@@ -305,8 +329,9 @@ def run_turntable_sim(args: argparse.Namespace) -> int:
     from magline.sim.turntable import TurntableSim
 
     try:
-        table = TurntableSim(args.listen, operator=args.operator, reaction_s=args.reaction,
-                             fault=args.table_fault).start()
+        with _listening("the turntable", args.listen):
+            table = TurntableSim(args.listen, operator=args.operator, reaction_s=args.reaction,
+                                 fault=args.table_fault).start()
     except (ValueError, OSError) as exc:
         print(f"magline sim: {exc}", file=sys.stderr)
         return 2
@@ -321,7 +346,8 @@ def run_load_sim(args: argparse.Namespace) -> int:
     from magline.sim.load import LoadSim
 
     try:
-        load = LoadSim(args.listen, fault=args.load_fault, rating_a=args.rating).start()
+        with _listening("the electronic load", args.listen):
+            load = LoadSim(args.listen, fault=args.load_fault, rating_a=args.rating).start()
     except (ValueError, OSError) as exc:
         print(f"magline sim: {exc}", file=sys.stderr)
         return 2

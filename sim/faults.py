@@ -31,25 +31,25 @@ class SimFaults:
     # "HOLD_S:EVERY_S": every EVERY_S the board's output is held HOLD_S, then leaves at once — what a station
     # sees of a host that reads its port late (a busy PC) or a USB bus that stalls: bytes late by up to
     # HOLD_S, in bursts, none lost, their stamps unchanged
-    link_stalls: str = ""
+    link_stalls: str = field(default="", metadata={"form": "HOLD_S:EVERY_S"})
     mag_missing_after_reboot: int | None = None  # device id that is not detected on the next boot
     swap_mags_after_reboot: bool = False  # the second sensor enumerates first on the next boot
     # "N:K": magnetometer N (1, 2, 3 in detection order) is mounted in firmware orientation K
     # (2 = Yaw90, 8 = Roll180) while the firmware's parameters still say it is not rotated
-    mag_mounting: list[str] = field(default_factory=list)
+    mag_mounting: list[str] = field(default_factory=list, metadata={"form": "N:K,…"})
     # "N:DEG": magnetometer N is turned DEG degrees about the body's Z axis (two compasses disagree)
-    mag_yaw_error: list[str] = field(default_factory=list)
+    mag_yaw_error: list[str] = field(default_factory=list, metadata={"form": "N:DEG,…"})
     # "N:MS": magnetometer N's readings reach its stream MS ms (firmware time) older than the other
     # compasses' — a compass on a slower bus or read by a slower driver loop, as a second compass of a
     # real board often is: each stream carries its own compass's latest reading at the message's time
-    mag_latency: list[str] = field(default_factory=list)
+    mag_latency: list[str] = field(default_factory=list, metadata={"form": "N:MS,…"})
     # the board's current sensor reads this many % off (−20: 20 % low, a power module's wrong scale)
     current_sensor_pct: float = 0.0
     # the board's battery monitor: "none" measures no current (a voltage-only monitor: BATTERY_STATUS and
     # SYS_STATUS say "not measured", ArduPilot's −1 cA, PX4's −1 A), "bypassed" measures a path the sweep's
     # current does not flow through (the wrong monitor primary, the load upstream of it): the board's own
     # draw only, while the compasses see the whole current
-    current_sensor: str = ""
+    current_sensor: str = field(default="", metadata={"form": "none|bypassed"})
     # µT a magnetised part keeps adding at every compass (along its interference) once a current has flowed
     interference_remanence: float = 0.0
     # °/s the unit turns about its Z axis while it is held still for the current sweep (it slips in its fixture)
@@ -58,7 +58,7 @@ class SimFaults:
     motor_test_refused: bool = False
     # "UT:TAU_S": every compass's offset is UT µT from its settled value while the board is cold and
     # settles with time constant TAU_S as it warms; a reboot keeps it warm (sim/thermal.py)
-    mag_warmup: str = ""
+    mag_warmup: str = field(default="", metadata={"form": "UT:TAU_S"})
     # every compass's offset moves this many µT (along the warm-up's direction) at each cut of the board's
     # supply and stays there: a unit whose offset at the post-power-cycle check is not the one it was
     # calibrated with (a cold board after the cut, a sensor back from power-on in another state).  A
@@ -69,11 +69,11 @@ class SimFaults:
     # "sign" adds the offsets (a release that reads them the other way), "unit" reads them in
     # milligauss, "slot" applies the next slot's calibration to each compass, "none" stores the
     # calibration and never applies it.  The read-back of every parameter still matches.
-    cal_applied: str = ""
+    cal_applied: str = field(default="", metadata={"form": "sign|unit|slot|none"})
     # INAV over MSP: another firmware answers (its MSP_FC_VARIANT, "BTFL" for Betaflight); the unit is armed
     # (INAV refuses MSP_EEPROM_WRITE then, and ignores MSP_REBOOT); the board after the next reboot has
     # another MCU unique id (another board put in the cradle)
-    msp_variant: str = ""
+    msp_variant: str = field(default="", metadata={"form": "VARIANT"})
     armed: bool = False
     uid_changes_at_reboot: bool = False
     # PX4's factory calibration storage (/fs/mtd_caldata): a board without that partition ("cannot open

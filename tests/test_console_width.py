@@ -53,6 +53,22 @@ def test_the_help_speaks_plainly(capsys):
     assert "``" not in out and "Calibrate drone magnetometers" in out
 
 
+def test_a_simulator_s_help_gives_each_fault_s_value_in_the_form_it_takes(capsys):
+    """A fault's value is shown as it is typed (``mag_mounting=N:K,…``: compass N mounted in firmware
+    orientation K), and what the help shows parses: a form that said ``A,B`` sent a reader astray."""
+    from magline.core.cli import main
+    from magline.sim.faults import SimFaults
+
+    with pytest.raises(SystemExit):
+        main(["sim", "px4", "--help"])
+    help_text = re.sub(r"\s+", " ", capsys.readouterr().out)
+    for shown in ("mag_mounting=N:K,…", "mag_yaw_error=N:DEG,…", "mag_latency=N:MS,…", "link_stalls=HOLD_S:EVERY_S",
+                  "mag_warmup=UT:TAU_S", "cal_applied=sign|unit|slot|none", "current_sensor=none|bypassed"):
+        assert shown in help_text, shown
+    faults = SimFaults.parse(["mag_mounting=1:2,2:8", "mag_yaw_error=2:4.5", "mag_warmup=3:2", "link_stalls=0.3:2"])
+    assert faults.mountings() == {0: (2, 0.0), 1: (8, 4.5)} and faults.link_stalls == "0.3:2"
+
+
 def test_a_slot_panel_drops_a_wait_when_it_ends_and_keeps_a_prompt():
     """The slot board shows a wait's count in the slot's panel until the wait says it ended (a gimbal
     station prompts nobody, so nothing else would replace it); readings do not end a wait, and the

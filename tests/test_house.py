@@ -117,6 +117,25 @@ def test_cores_top_holds_only_the_modules_decided():
     assert {p.stem for p in (REPO / "core").glob("*.py")} == CORE_TOP
 
 
+@pytest.mark.parametrize("flavour", ["inav", "ardupilot", "gimbal"])
+def test_a_simulator_on_a_taken_address_names_the_address_and_what_was_to_listen_there(tmp_path, capsys, flavour):
+    """INAV's and ArduPilot's simulators both default to tcp:127.0.0.1:5760: the second one started says
+    where it could not listen, not only the system's "Address already in use"."""
+    import socket
+
+    from magline.core.cli import main
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        assert main(["sim", flavour, "--listen", f"tcp:127.0.0.1:{port}", "--workdir", str(tmp_path)]
+                    if flavour != "gimbal" else ["sim", flavour, "--listen", f"tcp:127.0.0.1:{port}"]) == 2
+    err = capsys.readouterr().err
+    assert f"magline sim: cannot listen on tcp:127.0.0.1:{port} (the " in err
+    assert "Address already in use — another program (another simulator?) listens there" in err
+
+
 def test_plugins_import_only_the_public_face_and_their_own_package():
     """Issue 44: a plugin uses ``magline.plugin`` and its own files, never core's internals nor another
     plugin; the mock DUT is an in-process simulator and also uses the simulators' truth (``magline.sim``)."""
@@ -289,3 +308,24 @@ def test_core_asks_a_results_store_for_a_capability_by_its_protocol_and_a_fan_ou
             assert shared.engine is sql.engine
         finally:
             sql.close()
+
+
+def test_the_readme_s_simulator_synopses_name_only_options_the_simulators_take(capsys):
+    """Each ``magline sim …`` row of the README's command table: every option it shows is one the simulator's
+    own help lists (the INAV row once lacked ``--speed``, which the INAV walk-through uses)."""
+    import re
+
+    from magline.core.cli import main
+
+    rows = [line for line in (REPO / "README.md").read_text(encoding="utf-8").splitlines()
+            if line.startswith("| `magline sim ")]
+    assert rows
+    for row in rows:
+        synopsis = row.split("`")[1]
+        for flavour in re.match(r"magline sim ([\w|\\]+)", synopsis).group(1).replace("\\", "").split("|"):
+            with pytest.raises(SystemExit):
+                main(["sim", flavour, "--help"])
+            known = set(re.findall(r"--[\w-]+", capsys.readouterr().out))
+            shown = set(re.findall(r"--[\w-]+", synopsis))
+            assert shown <= known, (flavour, sorted(shown - known))
+    assert "--speed" in next(r for r in rows if r.startswith("| `magline sim inav"))
