@@ -22,6 +22,23 @@ def fmt(value: float | None, unit: str = "", digits: int = 4) -> str:
     return f"{text} {unit}".rstrip() if unit and unit not in ("%", "°") else f"{text}{unit}"
 
 
+FLOAT32_RULE = "parameters as the firmware holds them: single precision (float32), 7 significant digits"
+
+
+def param_text(value: float | None) -> str:
+    """A parameter's value as the firmware holds it: the shortest decimal that is the same float32.  Why:
+    a value written as 0.95090135 and echoed as the float32 nearest it read "0.9509014" beside "0.9509013"
+    at 7 digits — two values where the firmware holds one, which an auditor queries.  Whole numbers (INAV's
+    integer settings, an orientation) stay whole."""
+    if value is None:
+        return "—"
+    if float(value).is_integer():
+        return str(int(value))
+    import numpy as np
+
+    return np.format_float_positional(np.float32(value), unique=True, trim="-")
+
+
 def percent(fraction: float | None) -> str:
     """0.6234 → ``62%``; None (no base to divide by) → ``—``."""
     return "—" if fraction is None else f"{fraction:.0%}"

@@ -168,7 +168,7 @@ def test_show_and_export_read_the_store_on_each_engine(make_station, store_url, 
 
     assert main(["show", "1", "--station", str(good)]) == 0
     out = capsys.readouterr().out
-    assert "unit X-1" in out and "PASS" in out and "params written:" in out and "params read_back:" in out
+    assert "unit X-1" in out and "PASS" in out and "\n  written: " in out and "\n  read_back: " in out
     assert "attempts:" in out and "not used (coverage" in out  # the demo's first, single-axis attempt
     persistence = next(line for line in out.splitlines() if line.startswith("persistence: "))
     numbers = re.findall(r"-?\d+\.\d+", persistence)
@@ -363,6 +363,16 @@ def test_show_and_the_unit_report_read_as_a_document_not_as_stored_json(make_sta
     assert re.search(r"mounting:\n  mag1 +orientation 0 \(configured 0\), \d\.\d\d° ± \d\.\d\d° from it", out)
     assert ("persistence: power cycle link-reboot; calibration kept in parameters (the autopilot parameter "
             "storage); time to heartbeat ") in out and "read back as written" in out
+    # a short time in ms, as a person reads it (the mock's reboot answers within a millisecond: it said
+    # "0.000124 s")
+    assert re.search(r"time to heartbeat \d+(\.\d+)? (ms|s)\b", out)
+    assert not re.search(r"time to heartbeat 0\.\d+ s\b", out)
+    # what was written and what the firmware echoed are one value where it holds float32: shown as one
+    staged = {stage: dict(item.split("=") for item in values.split(", "))
+              for stage, values in re.findall(r"^  (written|echoed|read_back): (.*)$", out, re.M)}
+    assert "params (parameters as the firmware holds them: single precision (float32)" in out
+    assert staged["written"] and all(staged["echoed"].get(k, v) == v == staged["read_back"].get(k, v)
+                                     for k, v in staged["written"].items())
 
     page = tmp_path / "doc.html"
     assert main(["report", "DOC-1", "--station", str(station), "-o", str(page)]) == 0
@@ -422,3 +432,16 @@ def test_a_series_reads_every_value_back_bit_for_bit_on_each_engine(store_url):
     read = series.values["field_ut"]
     assert [float(v).hex() for v in read[:-1]] == [v.hex() for v in awkward] and np.isnan(read[-1])
     assert series.failed[2] == ["field_ut"] and not any(series.failed[i] for i in (0, 1, 3, 4, 5, 6, 7))
+
+
+def test_a_parameter_is_shown_as_the_float32_the_firmware_holds():
+    """0.95090135 written and its float32 echoed read "0.9509014" beside "0.9509013" at 7 digits."""
+    import numpy as np
+
+    from magline.core.text import param_text
+
+    written = 0.95090135
+    echoed = float(np.float32(written))
+    assert param_text(written) == param_text(echoed) == "0.9509013"
+    assert param_text(2.0) == "2" and param_text(-1500) == "-1500" and param_text(None) == "—"
+    assert float(np.float32(param_text(1e-7 / 3))) == float(np.float32(1e-7 / 3))  # it is that float32

@@ -30,7 +30,7 @@ from magline.core.results.record_words import (
     unit_facts,
     value_words,
 )
-from magline.core.text import fmt, percent, seconds
+from magline.core.text import FLOAT32_RULE, fmt, param_text, percent, seconds
 
 if TYPE_CHECKING:
     from magline.core.fit.samples_csv import RawSamples
@@ -233,9 +233,11 @@ def _params(run: dict[str, Any]) -> str:
     names = sorted({n for stage in stages for n in run["params"].get(stage, {})})
     if not names:
         return "<h2>Parameters</h2><p class=note>nothing was written to the unit</p>"
-    rows = [(n, *(fmt(run["params"].get(stage, {}).get(n), digits=7) for stage in stages)) for n in names]
-    out = ["<h2>Parameters</h2>", table(("parameter", "before", "written", "echoed", "read back after power cycle"),
-                                         rows, numeric=(1, 2, 3, 4))]
+    rows = [(n, *(param_text(run["params"].get(stage, {}).get(n)) for stage in stages)) for n in names]
+    rule = f"<p class=note>{FLOAT32_RULE[:1].upper() + FLOAT32_RULE[1:]}.</p>"
+    out = ["<h2>Parameters</h2>", rule,
+           table(("parameter", "before", "written", "echoed", "read back after power cycle"), rows,
+                 numeric=(1, 2, 3, 4))]
     persistence = persistence_rows(run.get("persistence"))
     if persistence:
         out += ["<h3>Power cycle</h3>", table(None, persistence)]

@@ -31,7 +31,7 @@ from magline.core.results.record_words import (
     unit_facts,
     value_words,
 )
-from magline.core.text import fmt, seconds, stop_line
+from magline.core.text import FLOAT32_RULE, fmt, param_text, seconds, stop_line
 
 if TYPE_CHECKING:
     from magline.core.results.reading import RunFilter
@@ -100,10 +100,12 @@ def show(store: Any, run: str, as_json: bool, out: TextIO | None = None) -> int:
                          f"[{fmt(m['low'])}, {fmt(m['high'])}]  {m['verdict']}")
     lines.append(f"station file {record.get('station_hash') or '—'}, reference field "
                  f"{fmt(record.get('reference_field_ut'), 'µT')}")
+    if any(record["params"].get(stage) for stage in ("before", "written", "echoed", "read_back")):
+        lines.append(f"params ({FLOAT32_RULE}):")
     for stage in ("before", "written", "echoed", "read_back"):
         values = record["params"].get(stage)
         if values:
-            lines.append(f"params {stage}: " + ", ".join(f"{k}={fmt(v, digits=7)}" for k, v in sorted(values.items())))
+            lines.append(f"  {stage}: " + ", ".join(f"{k}={param_text(v)}" for k, v in sorted(values.items())))
     if record.get("persistence"):
         lines.append("persistence: " + "; ".join(f"{name} {words}" for name, words in
                                                  persistence_rows(_rounded(record["persistence"]))))

@@ -33,6 +33,8 @@ def value_words(value: Any, unit: str = "") -> str:
     if isinstance(value, bool):
         return "yes" if value else "no"
     if isinstance(value, int | float):
+        if unit == "s" and 0 < abs(value) < 1.0:  # a short time in ms: "0.124 ms", not "0.000124 s"
+            return fmt(value * 1000.0, "ms")
         return fmt(value, unit)
     if isinstance(value, dict):
         parts = []
