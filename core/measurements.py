@@ -124,6 +124,12 @@ KNOWN_LIMIT_NAMES = frozenset(CATALOGUE) | {f"{a}.{g}" for a in ARRAY_MEASUREMEN
 DECLARED_NAME = re.compile(r"^[a-z][a-z0-9_]*$")
 
 
+# What the loaded plugins' own measurements mean, in their words (name → meaning): what the operator's
+# screen and console say of one that failed, as they say the catalogue's meaning of magline's.  Only words:
+# whether a station may limit a name is decided by the plugins a station file is read with, never here.
+DECLARED_MEANINGS: dict[str, str] = {}
+
+
 @dataclass(frozen=True)
 class DeclaredMeasurement:
     """A plugin's own measurement, declared through ``magline_register_measurements``: a station file may

@@ -23,7 +23,7 @@ import pluggy
 
 from magline.core import hookspecs
 from magline.core.dut import DutFactory
-from magline.core.measurements import DeclaredMeasurement
+from magline.core.measurements import DECLARED_MEANINGS, DeclaredMeasurement
 
 hookimpl = pluggy.HookimplMarker("magline")
 ENTRY_POINT_GROUP = "magline"
@@ -117,6 +117,8 @@ class Plugins:
                     raise PluginError(f"plugin {_by!r}: {problem}")
                 self.measurements[name] = declared
                 self.registered_by[("measurement", name)] = _by
+                if declared.meaning:
+                    DECLARED_MEANINGS[name] = declared.meaning
 
             impl.function(register=register)
 

@@ -321,6 +321,12 @@ def test_magline_register_measurements(tmp_path, capsys):
     assert (temp.value, temp.unit, temp.high, str(temp.verdict)) == (72.0, "°C", 60.0, "fail")
     assert record.verdict is Outcome.FAIL and "hook_board_temp_c" in record.cause
     assert record.params_written == {}  # never written to a unit that failed
+    from magline.core.measurements import verdicts
+    from magline.core.operator_ui.verdict_words import verdict_items
+
+    failed, = [item for item in verdict_items(record, verdicts(record.measurements))
+               if item["name"] == "hook_board_temp_c"]
+    assert (failed["label"], failed["value"]) == ("The board's temperature", "72 °C")  # the operator's words
     capsys.readouterr()
     write_station(tmp_path)  # the same store, read by the command (which loads only the installed plugins)
     assert main(["export", "--station", str(path)]) == 0

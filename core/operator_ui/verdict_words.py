@@ -11,7 +11,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 from magline.core.interference.model import zone_words
-from magline.core.measurements import CATALOGUE, Verdict, base_name, by_sensor, verdicts
+from magline.core.measurements import CATALOGUE, DECLARED_MEANINGS, Verdict, base_name, by_sensor, verdicts
 from magline.core.text import fmt
 
 if TYPE_CHECKING:
@@ -45,9 +45,9 @@ def verdict_items(record: RunRecord, measured: list, owner: bool = True) -> list
 
 
 def label_of(name: str, owner: bool = True) -> str:
-    """A measurement in words (the catalogue's meaning, capitalised), the compass or pair it is of in front
-    unless ``owner`` is False: "compass 2: Hard-iron offset, x"."""
-    meaning = CATALOGUE.get(base_name(name), ("", ""))[1]
+    """A measurement in words (the catalogue's meaning, or the meaning its plugin declared, capitalised), the
+    compass or pair it is of in front unless ``owner`` is False: "compass 2: Hard-iron offset, x"."""
+    meaning = CATALOGUE.get(base_name(name), ("", ""))[1] or DECLARED_MEANINGS.get(base_name(name), "")
     if not meaning:
         return name
     if not owner:
