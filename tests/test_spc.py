@@ -657,3 +657,26 @@ def test_the_study_says_what_it_is_before_its_figures(make_station, capsys, tmp_
     params = {1: {"before": new, "written": again}, 2: {"before": again, "written": {"X": 1.6}},
               3: {"before": new, "written": other}, 4: {}}
     assert count_boards(params, [1, 2, 3, 4]) == 2 and count_boards({}, [1]) is None
+
+
+def test_a_plugin_s_own_measurement_is_charted_like_magline_s(make_station, capsys):
+    """A plugin's declared measurement, stored with its limit on every unit, is a product characteristic
+    for ``spc`` as magline's are: charted by default, with its capability against the stored limit."""
+    from magline.core.cli import main
+    from magline.core.measurements import Numeric, Verdict
+    from magline.core.results.sqlite_store import SqliteSink
+    from magline.testing import make_record
+
+    station = make_station()
+    store = SqliteSink(station.parent / "magline-demo-results.sqlite")
+    rng = np.random.default_rng(66)
+    for i in range(30):
+        store.finish(make_record(f"P-{i:02d}", part="MOCK-100", measurements=[
+            Numeric("acme_board_temp_c", float(rng.normal(41.5, 1.0)), "°C", None, 60.0, Verdict.PASS),
+            Numeric("hard_iron_x_ut", float(rng.normal(35.0, 0.2)), "µT", None, 150.0, Verdict.PASS)]))
+    store.close()
+    capsys.readouterr()
+    assert main(["spc", "--station", str(station), "--json"]) == 0
+    report = __import__("json").loads(capsys.readouterr().out)
+    temp = next(m for m in report["measurements"] if m["name"] == "acme_board_temp_c")
+    assert temp["chart"] is not None and temp["capability"]["n"] == 30
