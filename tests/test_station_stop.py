@@ -56,6 +56,8 @@ def test_sigterm_aborts_the_unit_under_test_records_it_and_exits(tmp_path):
             server.kill()
     assert server.returncode == 0, err
     assert "ASGI callable returned without completing response" not in err
+    # the stop is said once, where a service's log keeps it
+    assert err.count("magline station: stopped by SIGTERM: the unit under test is aborted and recorded first") == 1
     engine = create_engine(f"sqlite:///{tmp_path / 'magline-demo-results.sqlite'}")
     with engine.connect() as conn:
         run = conn.execute(text("SELECT id, verdict, cause, aborted_phase FROM runs WHERE serial = 'STOP-1'")).one()
@@ -65,3 +67,29 @@ def test_sigterm_aborts_the_unit_under_test_records_it_and_exits(tmp_path):
     assert run.verdict == "aborted" and "stopped: the station was shut down" in run.cause
     assert run.aborted_phase == "acquire" and "acquire" in phases and "record" in phases
     assert readings and readings[0] >= 100  # the readings of the interrupted tumble are kept
+
+
+def test_sigterm_on_an_idle_station_says_it_stopped_and_exits(tmp_path):
+    station = tmp_path / "demo.yaml"
+    shutil.copy(REPO / "stations" / "demo.yaml", station)
+    port = free_port()
+    server = subprocess.Popen([MAGLINE, "station", str(station), "--port", str(port)], cwd=tmp_path,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert server.stdout.readline().startswith("station screen on")
+        deadline = time.monotonic() + 60
+        while True:
+            try:
+                call(f"http://127.0.0.1:{port}/api/state")
+                break
+            except OSError:
+                assert server.poll() is None and time.monotonic() < deadline
+                time.sleep(0.1)
+        server.send_signal(signal.SIGTERM)
+        _, err = server.communicate(timeout=60)
+    finally:
+        if server.poll() is None:
+            server.kill()
+    # an idle server ends as the signal ended it (uvicorn re-raises it: what systemd counts a clean stop)
+    assert server.returncode in (0, -signal.SIGTERM), err
+    assert "magline station: stopped by SIGTERM: no unit under test" in err

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import ipaddress
 import secrets
+import signal
 import socket
 import sys
 import threading
@@ -95,9 +96,14 @@ def _station_server(uvicorn: Any, config: Any, runner: UnitRunner) -> Any:
     left INCOMPLETE without phases or readings.  A second signal stops at once."""
 
     class StationServer(uvicorn.Server):
-        stopping = False
+        stopping = said = False
 
         def handle_exit(self, sig: int, frame: Any) -> None:
+            if not self.said:  # said once, where the service's log keeps it
+                self.said, busy = True, runner.busy()
+                print(f"magline station: stopped by {signal.Signals(sig).name}: "
+                      + ("the unit under test is aborted and recorded first" if busy else "no unit under test"),
+                      file=sys.stderr, flush=True)
             if self.stopping or not runner.busy():
                 super().handle_exit(sig, frame)
                 return
