@@ -28,7 +28,8 @@ def call(url: str, body: dict | None = None) -> dict:
         return json.loads(answer.read())
 
 
-def test_sigterm_aborts_the_unit_under_test_records_it_and_exits(tmp_path):
+def started_station(tmp_path) -> tuple[subprocess.Popen, str]:
+    """``magline station`` on the demo station, answering: the process and its address."""
     station = tmp_path / "demo.yaml"
     shutil.copy(REPO / "stations" / "demo.yaml", station)
     port = free_port()
@@ -41,10 +42,18 @@ def test_sigterm_aborts_the_unit_under_test_records_it_and_exits(tmp_path):
         while True:
             try:
                 call(f"{base}/api/state")
-                break
+                return server, base
             except OSError:
                 assert server.poll() is None and time.monotonic() < deadline
                 time.sleep(0.1)
+    except BaseException:
+        server.kill()
+        raise
+
+
+def test_sigterm_aborts_the_unit_under_test_records_it_and_exits(tmp_path):
+    server, base = started_station(tmp_path)
+    try:
         assert call(f"{base}/api/start", {"serial": "STOP-1"})["started"] == "STOP-1"
         while (call(f"{base}/api/state")["run"] or {}).get("samples", 0) < 100:  # the operator is tumbling
             assert server.poll() is None
@@ -70,21 +79,8 @@ def test_sigterm_aborts_the_unit_under_test_records_it_and_exits(tmp_path):
 
 
 def test_sigterm_on_an_idle_station_says_it_stopped_and_exits(tmp_path):
-    station = tmp_path / "demo.yaml"
-    shutil.copy(REPO / "stations" / "demo.yaml", station)
-    port = free_port()
-    server = subprocess.Popen([MAGLINE, "station", str(station), "--port", str(port)], cwd=tmp_path,
-                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    server, _ = started_station(tmp_path)
     try:
-        assert server.stdout.readline().startswith("station screen on")
-        deadline = time.monotonic() + 60
-        while True:
-            try:
-                call(f"http://127.0.0.1:{port}/api/state")
-                break
-            except OSError:
-                assert server.poll() is None and time.monotonic() < deadline
-                time.sleep(0.1)
         server.send_signal(signal.SIGTERM)
         _, err = server.communicate(timeout=60)
     finally:
