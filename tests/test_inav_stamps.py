@@ -77,3 +77,22 @@ def test_answers_that_came_back_late_are_left_out_and_every_reading_kept_is_plac
     assert len(np.unique(mags, axis=0)) == len(mags)  # each compass reading once
     held = set(np.array(link.compass)[answer]) - {link.compass[0]}  # the stream's first: of unknown age
     assert len(mags) == len(held)  # every compass reading a timely answer carried is kept, none lost
+
+
+class AlwaysLateLink(LateAnsweringLink):
+    """After its first answer, every answer comes back late (a link whose least round trip was a lucky one)."""
+
+    def imu(self) -> ImuReading:
+        reading = super().imu()
+        self.clock.now += LATE_S if self.count > 1 else 0.0
+        return reading
+
+
+def test_a_stream_whose_every_answer_is_late_still_hands_on_chunks_so_the_station_can_time_out(monkeypatch):
+    clock = Clock()
+    monkeypatch.setattr(inav_dut, "time", clock)
+    dut = InavDut(Product(backend="inav", connection="tcp:127.0.0.1:1"), InavOptions())
+    dut.link = AlwaysLateLink(clock)
+    stream = dut.samples(50.0)
+    chunks = [next(stream) for _ in range(5)]  # never blocks: each tenth of a second is handed on, empty
+    assert sum(len(c.mag_ut) for c in chunks) == 0 and sum(len(c.imu.t_ms) for c in chunks) <= 1

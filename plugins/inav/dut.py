@@ -199,14 +199,15 @@ class InavDut:
             answered = time.monotonic()
             least_rtt = min(least_rtt, answered - asked)
             taken = placed_in_time(asked, answered, least_rtt)
-            if taken is None:
-                continue
-            t_ms = (taken - start) * 1000.0
-            accel.append(reading.accel_mss)
-            accel_t.append(t_ms)
-            if repeats.accept(*reading.mag_counts):
-                mags.append(self._sensor_ut(reading.mag_counts))
-                times.append(t_ms)
+            if taken is not None:
+                t_ms = (taken - start) * 1000.0
+                accel.append(reading.accel_mss)
+                accel_t.append(t_ms)
+                if repeats.accept(*reading.mag_counts):
+                    mags.append(self._sensor_ut(reading.mag_counts))
+                    times.append(t_ms)
+            # handed on every tenth of a second even when every answer in it came late: the station's own
+            # clock (its timeout, an abort) is looked at between chunks
             if answered - handed >= CHUNK_S:
                 yield SampleChunk(mag_ut=np.array(mags, float).reshape(-1, 3), t_ms=np.array(times, float),
                                   repeats=repeats.repeats - told,
