@@ -9,7 +9,8 @@ benchmark drives the shipped rule with the shipped coverage tracker (40 bins, ta
 * a spin about the vertical axis with a 3° and a 15° hand wobble (the classic mistake; the demo's
   mock makes the 15° one, a fresh turn every 600 readings): it must stall, soon;
 * the simulators' tumble and gimbal at 50 Hz, begun at a random point of their sweep (a turn there
-  and back: no new direction while it retraces): they must not;
+  and back: no new direction while it retraces), at their own speed (a sweep in 400 readings) and
+  slowed to a sweep in 3,000 readings: they must not;
 * an operator's hand tumble through well-spread waypoints, over 600 readings and, slowly, over 3,000:
   they must not.
 
@@ -51,9 +52,15 @@ def stalled_at(directions: np.ndarray, rng: np.random.Generator) -> int | None:
     return None
 
 
-def simulator(motion: str, rng: np.random.Generator) -> np.ndarray:
-    t = rng.uniform(0.0, 32.0) + np.arange(0, 40 * 50) / 50.0  # 40 s at 50 Hz, from anywhere in the sweep
-    return simulator_fields(motion, t, 1.0, FIELD) / np.linalg.norm(FIELD)
+SWEEP_READINGS = 400  # the simulators' pole-to-pole sweep at speed 1: 8 s at 50 Hz
+
+
+def simulator(motion: str, rng: np.random.Generator, sweep_readings: int = SWEEP_READINGS) -> np.ndarray:
+    """The simulators' own motion at 50 Hz, slowed so that one pole-to-pole sweep takes ``sweep_readings``
+    readings, for four sweeps from anywhere in its cycle."""
+    speed = SWEEP_READINGS / sweep_readings
+    t = rng.uniform(0.0, 32.0 / speed) + np.arange(0, 4 * sweep_readings) / 50.0
+    return simulator_fields(motion, t, speed, FIELD) / np.linalg.norm(FIELD)
 
 
 def main() -> None:
@@ -71,7 +78,9 @@ def main() -> None:
         "spin, 3° wobble": lambda: np.vstack([single_axis(600, rng, down, 3.0) for _ in range(8)]),
         "spin, 15° wobble": lambda: np.vstack([single_axis(600, rng, down, 15.0) for _ in range(8)]),
         "simulator tumble 50 Hz": lambda: simulator("tumble", rng),
+        "slow simulator tumble": lambda: simulator("tumble", rng, 3000),
         "simulator gimbal 50 Hz": lambda: simulator("gimbal", rng),
+        "slow simulator gimbal": lambda: simulator("gimbal", rng, 3000),
         "hand tumble (600)": lambda: hand_tumble(600, rng, down),
         "slow hand tumble (3,000)": lambda: hand_tumble(3000, rng, down),
     }
