@@ -391,6 +391,15 @@ def test_a_three_compass_unit_shows_a_card_per_compass_naming_the_one_that_faile
             assert cards[3:] == [{"cls": "sensor pass", "title": "agreement",
                                   "text": "agreement\nPASS\nmag1 and mag2 · mag1 and mag3 · mag2 and mag3"}]
             assert page.inner_text("#verdict-items") == ""  # the failures are in their compass's card, once
+            # the operator is told what to do with the unit; the parameter that fixes it is the technician's,
+            # apart and small, in words (the firmware's orientation 0 is "no rotation", never a bare None)
+            technician = page.inner_text("#verdict-technician")
+            assert technician.startswith("Details for the technician:") and "COMPASS_ORIENT2 = 2" in technician
+            assert "configured no rotation (0)" in technician and "None" not in page.inner_text("#verdict")
+            assert "COMPASS_ORIENT2" not in compasses[1]["text"] and page.inner_text("#verdict-cause") == ""
+            sizes = page.evaluate("""() => [...['verdict-technician', 'verdict-action']].map((id) =>
+                parseFloat(getComputedStyle(document.getElementById(id)).fontSize))""")
+            assert sizes[0] < sizes[1] / 2, sizes
             # issue 43: no catalogue name spills out of its card
             spills = page.evaluate("""() => [...document.querySelectorAll('#verdict-sensors .sensor')]
               .flatMap((card) => {

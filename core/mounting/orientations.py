@@ -75,7 +75,10 @@ def orientation_matrix(value: int) -> NDArray:
 
 
 def orientation_name(value: int) -> str:
-    """``Yaw90``, ``Roll180``, ``None`` — the firmware's own words for a value."""
+    """``Yaw90``, ``Roll180`` — the firmware's own words for a value; its ``None`` (0) as "no rotation",
+    which read as a program's missing value in a sentence ("configured None (0)")."""
+    if int(value) == 0:
+        return "no rotation"
     return _NAMES.get(int(value), f"orientation {value}")
 
 

@@ -36,12 +36,26 @@ def closing_line(record: RunRecord, action: str) -> str:
 
 def verdict_items(record: RunRecord, measured: list, owner: bool = True) -> list[dict[str, str]]:
     """The measurements the operator must see: every FAIL and REVIEW, with why a REVIEW was flagged.
-    ``owner`` False: their words without the compass or pair they are of (a card titled with it)."""
+    ``owner`` False: their words without the compass or pair they are of (a card titled with it).
+    A measurement's note (the parameter that fixes it, the orientation found) is ``detail``: the
+    technician's, shown apart in small type — the operator's job is the unit, not its parameters."""
     flags = {f["name"]: f["reason"] for f in record.review}
     return [{"name": m.name, "label": label_of(m.name, owner), "value": fmt(m.value, m.unit),
              "limit": f"[{fmt(m.low)}, {fmt(m.high)}]", "verdict": str(m.verdict),
-             "why": flags.get(m.name) or (m.note or "within the marginal band" if m.verdict is Verdict.REVIEW else "")}
+             "why": flags.get(m.name) or ("within the marginal band" if m.verdict is Verdict.REVIEW else ""),
+             "detail": m.note or ""}
             for m in measured if m.verdict in (Verdict.FAIL, Verdict.REVIEW)]
+
+
+def technician_details(record: RunRecord) -> str:
+    """What a technician needs beside the operator's verdict: a FAIL's cause (the notes of what failed —
+    the parameter to set, the orientation found) and every flagged measurement's note; "" when none.
+    An ERROR's or an abort's cause stays the operator's line: it says why the station could not judge."""
+    parts = [record.cause] if str(record.verdict) == "fail" and record.cause else []
+    for m in verdicts(record.measurements):
+        if m.note and m.verdict in (Verdict.FAIL, Verdict.REVIEW) and not any(m.note in p for p in parts):
+            parts.append(m.note)
+    return "; ".join(parts)
 
 
 def label_of(name: str, owner: bool = True) -> str:

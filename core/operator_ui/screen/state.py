@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 from magline.core.measurements import verdicts
 from magline.core.operator_ui.cradle import cradle_svg
 from magline.core.operator_ui.screen.sides import MISSING_WORDS, SIDES, missing_sides
-from magline.core.operator_ui.verdict_words import sensor_cards, shown_verdict, verdict_items
+from magline.core.operator_ui.verdict_words import sensor_cards, shown_verdict, technician_details, verdict_items
 from magline.core.plugins import hookimpl
 from magline.core.sequencer.batch import Batch
 from magline.core.sequencer.sequencer import OPTIONAL_PHASES, PHASES
@@ -246,7 +246,11 @@ class ScreenState:
             items = verdict_items(record, verdicts(record.measurements))
             shown = shown_verdict(record)
             result = {"verdict": shown, "serial": record.serial, "part": record.part, "slot": record.slot,
-                      "cause": record.cause, "items": items, "sensors": sensor_cards(record),
+                      # a FAIL's cause is the technician's (its rows say in words what failed); an ERROR's
+                      # is why the station could not judge the unit: the operator's
+                      "cause": "" if str(record.verdict) == "fail" else record.cause,
+                      "technician": technician_details(record),
+                      "items": items, "sensors": sensor_cards(record),
                       "store": record.store or "NOT stored",
                       "action": self.prompts.action(shown),
                       "report": record.report.rsplit("/", 1)[-1] if record.report else None}

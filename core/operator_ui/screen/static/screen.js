@@ -316,6 +316,9 @@ function render(s) {
     $("verdict-sensors").innerHTML = cards.map((c) => `<div class="sensor ${esc(c.verdict)}"><h3>${esc(c.title)}</h3>`
       + `<div class="word">${esc(c.verdict.toUpperCase())}</div><div>${esc(c.detail)}</div>`
       + cardItems(c.items) + "</div>").join("");
+    // the parameter to set, the orientation found: small, below what the operator does with the unit
+    $("verdict-technician").hidden = !v.technician;
+    $("verdict-technician-text").textContent = v.technician || "";
     $("verdict-store").textContent = v.store ? `record: ${v.store}` : "";
     const link = $("verdict-report");
     link.hidden = !v.report;
