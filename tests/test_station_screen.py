@@ -332,7 +332,7 @@ def test_idle_screen_second_scan_and_what_to_do_after_the_verdict(screen, browse
     largest = page.evaluate("Math.max(...[...document.querySelectorAll('body *')].filter((e) => e.offsetParent)"
                             ".map((e) => parseFloat(getComputedStyle(e).fontSize)))")
     assert size >= 32 and size == largest  # the largest text on the idle screen says what to do
-    assert page.inner_text("#idle-shift") == "0 units this shift"
+    assert page.inner_text("#idle-shift") == "0 units today"  # the day: the station file names no shift starts
     page.keyboard.type("SCR-1")
     page.keyboard.press("Enter")
     page.wait_for_selector("#attempt:has-text('attempt 1')")
@@ -630,6 +630,10 @@ def test_a_second_screen_on_a_busy_station_shows_a_refusal_not_a_verdict(screen,
         assert f"folder {tmp_path.resolve()}" in text and "Nothing was recorded" in text
         assert other.is_hidden("#verdict") and other.is_visible("#idle")
         screenshot(other, tmp_path / "second-screen-refused.png")
+        first_runner.abort()  # the other screen's unit ends: its record is in the store, "busy testing" old news
+        first_runner.wait(30)
+        other.wait_for_selector("#refusal", state="hidden", timeout=30_000)
+        assert "BUSY-1 ABORTED" in other.inner_text("#recent")
     finally:
         first_runner.abort()
         first_runner.wait(30)
@@ -672,3 +676,86 @@ def test_a_turntable_s_tilt_is_drawn_under_the_prompt_and_dimmed_while_the_table
     assert page.evaluate("getComputedStyle(document.getElementById('tilt')).opacity") == "0.45"
     assert page.evaluate(draw, {**shown, "state": "stalled", "why": "the cradle was never tilted"}) is True
     assert [line for line in opened.console if line.startswith("error")] == []
+
+
+def test_every_screen_of_a_station_counts_the_units_its_results_store_holds(screen, browser, tmp_path):
+    """A restarted screen, and a second screen of the same station, showed "0 units" beside a store holding
+    the shift's units: the count and the recent units come from the store, and a unit recorded through one
+    screen appears on the other without a reload. A label refused by its rule takes the last verdict off the
+    screen (under a refusal, a FAIL read as the refused label's)."""
+    first, first_runner = screen({"products": {"MOCK-100": {"limits": {"hard_iron_norm_ut": {"le": 1.0}}}}})
+    page = open_page(browser, first.url).page
+
+    def scan(on, serial: str) -> None:
+        on.fill("#serial", serial)
+        on.press("#serial", "Enter")
+        on.wait_for_selector(f"#verdict-serial:has-text('{serial}')", timeout=60_000)
+
+    scan(page, "SHIFT-1")
+    assert page.inner_text("#verdict-word") == "FAIL"
+    page.fill("#serial", "AB/12")  # refused by the label rule: nothing starts, the last FAIL leaves the screen
+    page.press("#serial", "Enter")
+    page.wait_for_selector("#form-error:has-text('AB/12')")
+    page.wait_for_selector("#verdict", state="hidden")
+    assert "last: SHIFT-1 FAIL" in page.inner_text("#idle-last")
+
+    app, runner = build(load_station(tmp_path / "station.yaml"), tmp_path, load_plugins(), None)
+    second = Served(app, free_port())
+    try:
+        other = open_page(browser, second.url).page
+        other.wait_for_selector("#shift:has-text('1 unit,')")  # read from the store: it ran nothing itself
+        assert "SHIFT-1 FAIL" in other.inner_text("#recent") and other.inner_text("#shift-title") == "Today"
+        assert other.inner_text("#idle-shift").startswith("1 unit today")
+        scan(page, "SHIFT-2")
+        other.wait_for_selector("#shift:has-text('2 units,')", timeout=30_000)  # within the store's poll
+        assert other.inner_text("#recent").splitlines()[0].startswith("SHIFT-2 FAIL")
+        assert "first-pass yield 0%" in other.inner_text("#shift")
+    finally:
+        second.stop()
+        runner.close()
+    first.stop()
+    first_runner.close()
+    _, again = screen()  # the first screen restarted: the shift's two units, not none
+    assert again.state.snapshot()[1]["shift"]["units"] == 2
+    assert [r["serial"] for r in again.state.snapshot()[1]["recent"]] == ["SHIFT-2", "SHIFT-1"]
+
+
+def test_a_screen_counts_the_running_shift_from_the_line_s_shift_starts(tmp_path):
+    """``station.shifts``: the units of the shift running now, not of the day — a unit recorded before the
+    shift began is not counted (the store is written directly, as another station's screen would have)."""
+    from datetime import UTC, datetime
+
+    from magline.core.operator_ui.screen.shift_store import ShiftFromStore
+    from magline.core.quality.trends import Shifts
+
+    start = Shifts.parse("06:00,14:00,22:00").start_of(datetime(2026, 11, 29, 15, 30).astimezone())
+    assert (start.hour, start.day) == (14, 29)
+    assert Shifts.parse("06:00,14:00,22:00").start_of(datetime(2026, 11, 29, 3, 0).astimezone()).day == 28
+    assert Shifts().start_of(datetime(2026, 11, 29, 15, 30).astimezone()).hour == 0
+    engine = create_engine(f"sqlite:///{tmp_path / 'store.sqlite'}")
+    from magline.core.results.tables import metadata, runs
+
+    metadata.create_all(engine)
+    now = datetime(2026, 11, 29, 15, 30).astimezone()
+    with engine.begin() as conn:
+        for n, (hour, verdict) in enumerate([(13, "pass"), (14, "fail"), (15, "pass"), (15, "running")]):
+            started = now.replace(hour=hour, minute=10).astimezone(UTC).isoformat(timespec="milliseconds")
+            conn.execute(runs.insert().values(run_uuid=f"u{n}", serial=f"S{n}", part="P", station_id="st",
+                                              started=started, verdict=verdict))
+
+    class Sink:
+        record_engine = None
+
+    class State:
+        got = None
+
+        def units_from_store(self, summary):
+            self.got = summary
+
+    sink, state = Sink(), State()
+    sink.record_engine = engine
+    station = type("S", (), {"station": type("I", (), {"id": "st", "shifts": "06:00,14:00,22:00"})()})()
+    ShiftFromStore(station, sink, state, now=lambda: now).refresh()
+    assert (state.got["units"], state.got["judged"], state.got["fpy"]) == (2, 2, 0.5)
+    assert [r["serial"] for r in state.got["recent"]] == ["S2", "S1"]  # newest first; the 13:10 unit was last shift's
+    engine.dispose()

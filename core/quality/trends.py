@@ -50,6 +50,19 @@ class Shifts:
             raise ValueError("a shift start is given twice")
         return cls(tuple(sorted(starts)))
 
+    def start_of(self, now: datetime) -> datetime:
+        """When the shift running at ``now`` began (local time; aware): the latest start at or before
+        ``now`` — yesterday's last when ``now`` is before today's first; with no starts, local midnight."""
+        local = now.astimezone()
+        midnight = local.replace(hour=0, minute=0, second=0, microsecond=0)
+        if not self.starts:
+            return midnight
+        clock = local.time().replace(tzinfo=None)
+        before = [start for start in self.starts if start <= clock]
+        day = midnight if before else midnight - timedelta(days=1)
+        start = before[-1] if before else self.starts[-1]
+        return day.replace(hour=start.hour, minute=start.minute, second=start.second)
+
     def period(self, started: Any) -> str:
         """The period a run that started at ``started`` (stored UTC text or a datetime) belongs to:
         ``2026-11-27`` or ``2026-11-27 shift 2 (14:00)``."""

@@ -193,3 +193,33 @@ def params_by_stage(conn: Any, run_ids: list[int]) -> dict[int, dict[str, dict[s
                                 .where(params.c.run_id.in_(chunk))):
             out.setdefault(int(row.run_id), {}).setdefault(str(row.stage), {})[str(row.name)] = float(row.value)
     return out
+
+
+def shift_units(conn: Connection, station_id: str, since: str, recent: int) -> dict[str, Any]:
+    """A station's units since ``since`` (stored form), as its screen shows them: how many ran, the
+    first-pass yield (a serial's first run here, judged PASS or FAIL), and the latest ``recent``, newest
+    first, each with the verdict as shown (a PASS with a flagged measurement is REVIEW).
+
+    Why from the store: every screen of the station, and one restarted mid-shift, counts the same units."""
+    found = conn.execute(select(runs.c.id, runs.c.serial, runs.c.part, runs.c.verdict, runs.c.slot, runs.c.finished,
+                                runs.c.review)
+                         .where((runs.c.station_id == station_id) & (runs.c.started >= since)
+                                & (runs.c.verdict != "running")).order_by(runs.c.id)).all()
+    first: dict[str, str] = {}
+    for row in found:
+        first.setdefault(row.serial, row.verdict)
+    judged = [v for v in first.values() if v in ("pass", "fail")]
+    latest = found[-recent:][::-1] if recent else []
+    flagged = {r.run_id for r in conn.execute(
+        select(measurements.c.run_id).where(measurements.c.run_id.in_([row.id for row in latest])
+                                            & measurements.c.verdict.in_(("review", "fail"))).distinct())}
+
+    def shown(row: Any) -> str:
+        review = bool(row.review and json.loads(row.review))
+        return "review" if row.verdict == "pass" and (review or row.id in flagged) else row.verdict
+
+    passed = sum(v == "pass" for v in judged)
+    return {"units": len(found), "first_pass": passed, "judged": len(judged),
+            "fpy": passed / len(judged) if judged else None,
+            "recent": [{"serial": row.serial, "part": row.part, "verdict": shown(row), "slot": row.slot,
+                        "finished": row.finished} for row in latest]}

@@ -41,6 +41,17 @@ class StationInfo(_Strict):
     id: str
     line: str
     location: Location
+    # the line's shift starts, local clock times ("06:00,14:00,22:00"): the station screen counts the units
+    # of the shift running now; unset, of the day
+    shifts: str | None = None
+
+    @field_validator("shifts")
+    @classmethod
+    def _clock_times(cls, text: str | None) -> str | None:
+        from magline.core.quality.trends import Shifts
+
+        Shifts.parse(text)  # ValueError naming the entry that is not a clock time
+        return text
 
 
 class Limit(_Strict):

@@ -129,6 +129,8 @@ def create_app(state: ScreenState, runner: UnitRunner, token: str | None = None,
         except Busy as exc:
             return JSONResponse({"error": str(exc)}, status_code=409)
         except ValueError as exc:  # the slot a refused load's label is to be scanned again for, where named
+            if not runner.busy():  # the last unit's verdict is old news: under the refusal it read as this label's
+                state.forget_result()
             return JSONResponse({"error": str(exc), "slot": getattr(exc, "slot", None)}, status_code=400)
         return JSONResponse({"started": body.get("serial")})
 

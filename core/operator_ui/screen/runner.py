@@ -8,6 +8,7 @@ import threading
 from typing import TYPE_CHECKING, Any
 
 from magline.core.faults import UnitAborted
+from magline.core.operator_ui.screen.shift_store import ShiftFromStore
 from magline.core.operator_ui.screen.state import ScreenState
 from magline.core.sequencer.hold import StationBusy
 from magline.core.serials import Refused, SerialRefused, clean_serial, known_part, one_serial_per_slot
@@ -27,7 +28,9 @@ class UnitRunner:
         self._thread: threading.Thread | None = None
         self._lock = threading.Lock()
         self._slots = None  # the slot runner, made on the first load of a slot station
+        self.shift = ShiftFromStore(sequencer.station, sequencer.sink, state)
         self.standing()
+        self.shift.follow()
 
     def start(self, serial: str, part: str | None, operator: str = "") -> None:
         station = self.sequencer.station
@@ -131,8 +134,10 @@ class UnitRunner:
             except Exception as exc:  # a store that cannot say is shown as such
                 store["error"] = str(exc)
         self.state.update(field=field, store=store)
+        self.shift.refresh()
 
     def close(self) -> None:
+        self.shift.close()
         self.abort()
         self.wait(30)
         self.sequencer.close()

@@ -46,13 +46,15 @@ class ScreenState:
             "missing_words": MISSING_WORDS,
             # refusal: why the station did not start what was asked (not a unit's verdict: nothing recorded)
             "busy": False, "run": None, "result": None, "refusal": None,
-            "recent": [], "shift": {"units": 0, "fpy": None},
+            "recent": [],
+            "shift": {"units": 0, "fpy": None, "word": "this shift" if station.station.shifts else "today"},
             # a station with slots: one run and one result per slot (the page draws one panel each)
             "slots": {}, "round": None,
             "field": {}, "store": {}, "sent_at_ms": 0.0,
             # the operator's yes asked for (the propellers off before a motor test): {"id", "text"} or None
             "question": None,
         }
+        self._from_store = False  # the shift's figures come from the results store (else: counted here)
         self._answers: dict[int, bool] = {}
         self._questions = 0
 
@@ -257,13 +259,37 @@ class ScreenState:
             self.state["recent"] = ([{"serial": record.serial, "part": record.part, "verdict": shown,
                                       "slot": record.slot, "finished": record.finished}]
                                     + self.state["recent"])[:RECENT]
-            self.state["shift"] = {"units": self.batch.units, "first_pass": passed, "judged": judged,
-                                   "fpy": passed / judged if judged else None}
+            if self._from_store:  # one more than the store said, until it is read again (right after this)
+                self.state["shift"] = {**self.state["shift"], "units": self.state["shift"]["units"] + 1}
+            else:
+                self.state["shift"] = {**self.state["shift"], "units": self.batch.units, "first_pass": passed,
+                                       "judged": judged, "fpy": passed / judged if judged else None}
             if record.slot is not None and record.slot in self.state["slots"]:
                 self.state["slots"][record.slot]["result"] = result
             else:
                 self.state["result"] = result
                 self.state["busy"] = False
+            self._changed()
+
+    def forget_result(self) -> None:
+        """A scan refused by a label rule: the previous unit's verdict is taken off the screen (it stays in
+        the recent units), so the refusal is not read as that unit's."""
+        with self._lock:
+            if self.state["result"] is not None or self.state["slots"]:
+                self.state.update(result=None, slots={})
+                self._changed()
+
+    def units_from_store(self, summary: dict[str, Any]) -> None:
+        """The shift's count, first-pass yield and recent units as the results store holds them
+        (:mod:`magline.core.operator_ui.screen.shift_store`): every screen of the station agrees."""
+        with self._lock:
+            self._from_store = True
+            shift = {**self.state["shift"], **{k: summary[k] for k in ("units", "first_pass", "judged", "fpy")}}
+            if shift == self.state["shift"] and summary["recent"] == self.state["recent"]:
+                return
+            if summary["recent"] != self.state["recent"] and not self.state["busy"]:
+                self.state["refusal"] = None  # a unit recorded since: "busy testing …" is old news
+            self.state["shift"], self.state["recent"] = shift, summary["recent"]
             self._changed()
 
     def load_finished(self) -> None:

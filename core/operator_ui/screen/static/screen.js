@@ -251,6 +251,7 @@ function render(s) {
 
   const sh = s.shift || {};
   const units = sh.units || 0;
+  $("shift-title").textContent = sh.word === "today" ? "Today" : "This shift";
   $("shift").textContent = `${units} unit${units === 1 ? "" : "s"}, first-pass yield ${pct(sh.fpy)}`;
   $("recent").innerHTML = (s.recent || []).map((r) => `<li class="${esc(r.verdict)}">${r.slot ? `${esc(r.slot)}: ` : ""}`
     + `${esc(r.serial)} ${esc(r.verdict.toUpperCase())} <small>${esc(r.part)}</small></li>`).join("");
@@ -263,7 +264,7 @@ function render(s) {
   $("refusal-text").textContent = s.refusal || "";
   $("idle").hidden = Boolean(run) || s.busy;
   $("idle-what").textContent = s.station.serial_prompt;
-  $("idle-shift").textContent = `${units} unit${units === 1 ? "" : "s"} this shift`
+  $("idle-shift").textContent = `${units} unit${units === 1 ? "" : "s"} ${sh.word || "this shift"}`
     + (sh.fpy != null ? `, first-pass yield ${pct(sh.fpy)}` : "");
   const last = (s.recent || [])[0];
   $("idle-last").textContent = last ? `last: ${last.serial} ${last.verdict.toUpperCase()}` : "";
