@@ -61,8 +61,6 @@ def add_sim_command(subparsers: argparse._SubParsersAction) -> None:
                             "driver); "
                             "a faster stream repeats readings, as real vehicles do")
     board.add_argument("--seed", type=int, default=7, help="seed of the sensors' distortion and noise")
-    board.add_argument("--fault", action="append", default=[], metavar="NAME[=VALUE]",
-                       help=f"inject a fault (repeat for several): {fault_list()}")
     board.add_argument("--supply", metavar="tcp:HOST:PORT",
                        help="also run a simulated SCPI bench supply that powers this board (it starts off)")
     board.add_argument("--supply-fault", choices=["dead_board", "short", "output_error"])
@@ -86,6 +84,7 @@ def add_sim_command(subparsers: argparse._SubParsersAction) -> None:
     px4.add_argument("--listen", default="udp:127.0.0.1:14550",
                      help="udp:HOST:PORT, tcp:HOST:PORT (default udp:127.0.0.1:14550; port 0 picks a free one) or "
                           "serial:PATH[:BAUD] (a pseudo-terminal linked at PATH: USB without a baud, a UART at BAUD)")
+    add_fault_option(px4, "px4")
     px4.add_argument("--firmware", default="1.15.0", help="firmware version (ODIAG from 1.12)")
     px4.add_argument("--untagged", action="store_true",
                      help="report version 0.0.0, as a build from an untagged tree (SITL) does")
@@ -99,11 +98,13 @@ def add_sim_command(subparsers: argparse._SubParsersAction) -> None:
                            help="tcp:HOST:PORT, udp:HOST:PORT (default tcp:127.0.0.1:5760; port 0 picks a free one) "
                                 "or serial:PATH[:BAUD] (a pseudo-terminal linked at PATH: USB without a baud, a UART "
                                 "at BAUD)")
+    add_fault_option(ardupilot, "ardupilot")
     inav = flavours.add_parser("inav", parents=[board], help="a simulated INAV flight controller (MSP): one compass, "
                                                              "calibrated and aligned in MSP_RAW_IMU (10 Hz)")
     inav.add_argument("--listen", default="tcp:127.0.0.1:5760",
                       help="tcp:HOST:PORT (default tcp:127.0.0.1:5760, as INAV's SITL; port 0 picks a free one) or "
                            "serial:PATH[:BAUD] (a pseudo-terminal linked at PATH)")
+    add_fault_option(inav, "inav")
     coil = flavours.add_parser("coil", help="a 3-axis Helmholtz coil current source with a fluxgate DAQ at its "
                                             "centre (SCPI)")
     coil.add_argument("--listen", default="tcp:127.0.0.1:5026", help="the coil's address (default tcp:127.0.0.1:5026)")
@@ -144,11 +145,15 @@ def _listening(what: str, address: str | None) -> Iterator[None]:
         raise OSError(f"cannot listen on {address} ({what}): {exc.strerror or exc}{taken}") from exc
 
 
-def fault_list() -> str:
-    """Every fault :class:`~magline.sim.faults.SimFaults` knows, with what its value says: the help is
-    made from the class, so a fault added there is listed here."""
-    from dataclasses import fields
+def add_fault_option(parser: argparse.ArgumentParser, board: str) -> None:
+    """``--fault`` with the faults this board's simulator has, each with its value's form."""
+    parser.add_argument("--fault", action="append", default=[], metavar="NAME[=VALUE]",
+                        help=f"inject a fault (repeat for several): {fault_list(board)}")
 
+
+def fault_list(board: str | None = None) -> str:
+    """The faults :class:`~magline.sim.faults.SimFaults` knows for ``board`` (all for None), with what each
+    value says: the help is made from the class, so a fault added there is listed here."""
     from magline.sim.faults import SimFaults
 
     def shown(f: Any) -> str:
@@ -161,7 +166,7 @@ def fault_list() -> str:
             return f"{f.name}=A,B"
         return f"{f.name}=V"
 
-    return ", ".join(shown(f) for f in fields(SimFaults))
+    return ", ".join(shown(f) for f in SimFaults.for_board(board))
 
 
 def default_workdir(flavour: str, listen: str) -> Path:
@@ -228,7 +233,7 @@ def run_sim(args: argparse.Namespace) -> int:
         options: dict[str, Any] = {"workdir": workdir, "mag_count": args.mags, "boot_time_s": args.boot_time,
                                    "motions": motions, "speed": args.speed, "field_ut": args.field_ut,
                                    "inclination_deg": args.inclination_deg, "seed": args.seed,
-                                   "faults": SimFaults.parse(args.fault), "mag_rate_hz": args.mag_rate,
+                                   "faults": SimFaults.parse(args.fault, args.flavour), "mag_rate_hz": args.mag_rate,
                                    "motion_source": args.gimbal or args.turntable,
                                    "usb_aliases": tuple(args.usb_alias),
                                    "usb_powered": args.usb_powered}

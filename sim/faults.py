@@ -11,51 +11,58 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields
 from functools import lru_cache
 
+MAVLINK = ("px4", "ardupilot")  # faults of the MAVLink boards' parameter, command and battery handling
+
 
 @dataclass
 class SimFaults:
     drop_percent: float = 0.0  # each outgoing frame is lost with this probability (%)
-    ignore_param_set: list[str] = field(default_factory=list)  # names ("*" = all) whose PARAM_SET is dropped
-    lose_param_echo: list[str] = field(default_factory=list)  # names whose PARAM_SET takes but its echo is lost
+    # names ("*" = all) whose PARAM_SET is dropped
+    ignore_param_set: list[str] = field(default_factory=list, metadata={"boards": MAVLINK})
+    # names whose PARAM_SET takes but its echo is lost
+    lose_param_echo: list[str] = field(default_factory=list, metadata={"boards": MAVLINK})
     # names this firmware does not have (an older release): reads and writes of them go unanswered, as
     # ArduPilot and PX4 v1.13–v1.16 treat unknown names
-    unknown_params: list[str] = field(default_factory=list)
-    link_loss_at_param_set: str = ""  # the link goes silent when a PARAM_SET of this name arrives (a cable pulled)
+    unknown_params: list[str] = field(default_factory=list, metadata={"boards": MAVLINK})
+    # the link goes silent when a PARAM_SET of this name arrives (a cable pulled)
+    link_loss_at_param_set: str = field(default="", metadata={"boards": MAVLINK})
     no_persist: list[str] = field(default_factory=list)  # names whose value never reaches storage
     reboot_fails: bool = False  # after a reboot the board never comes back
     # while the unit rests after a power cycle every compass reads the same value each time (a quiet sensor
     # whose steps are coarser than its noise, or a SITL whose compass has no noise): no new distinct reading
     quiet_at_rest: bool = False
-    lose_reboot_ack: bool = False  # the reboot command's ACK is lost on the way (the board reboots all the same)
+    # the reboot command's ACK is lost on the way (the board reboots all the same)
+    lose_reboot_ack: bool = field(default=False, metadata={"boards": MAVLINK})
     link_loss_after_s: float | None = None  # the link goes silent this long after a mag stream starts
     # "HOLD_S:EVERY_S": every EVERY_S the board's output is held HOLD_S, then leaves at once — what a station
     # sees of a host that reads its port late (a busy PC) or a USB bus that stalls: bytes late by up to
     # HOLD_S, in bursts, none lost, their stamps unchanged
     link_stalls: str = field(default="", metadata={"form": "HOLD_S:EVERY_S"})
     mag_missing_after_reboot: int | None = None  # device id that is not detected on the next boot
-    swap_mags_after_reboot: bool = False  # the second sensor enumerates first on the next boot
+    # the second sensor enumerates first on the next boot
+    swap_mags_after_reboot: bool = field(default=False, metadata={"boards": MAVLINK})
     # "N:K": magnetometer N (1, 2, 3 in detection order) is mounted in firmware orientation K
     # (2 = Yaw90, 8 = Roll180) while the firmware's parameters still say it is not rotated
     mag_mounting: list[str] = field(default_factory=list, metadata={"form": "N:K,…"})
     # "N:DEG": magnetometer N is turned DEG degrees about the body's Z axis (two compasses disagree)
-    mag_yaw_error: list[str] = field(default_factory=list, metadata={"form": "N:DEG,…"})
+    mag_yaw_error: list[str] = field(default_factory=list, metadata={"boards": MAVLINK, "form": "N:DEG,…"})
     # "N:MS": magnetometer N's readings reach its stream MS ms (firmware time) older than the other
     # compasses' — a compass on a slower bus or read by a slower driver loop, as a second compass of a
     # real board often is: each stream carries its own compass's latest reading at the message's time
-    mag_latency: list[str] = field(default_factory=list, metadata={"form": "N:MS,…"})
+    mag_latency: list[str] = field(default_factory=list, metadata={"boards": MAVLINK, "form": "N:MS,…"})
     # the board's current sensor reads this many % off (−20: 20 % low, a power module's wrong scale)
-    current_sensor_pct: float = 0.0
+    current_sensor_pct: float = field(default=0.0, metadata={"boards": MAVLINK})
     # the board's battery monitor: "none" measures no current (a voltage-only monitor: BATTERY_STATUS and
     # SYS_STATUS say "not measured", ArduPilot's −1 cA, PX4's −1 A), "bypassed" measures a path the sweep's
     # current does not flow through (the wrong monitor primary, the load upstream of it): the board's own
     # draw only, while the compasses see the whole current
-    current_sensor: str = field(default="", metadata={"form": "none|bypassed"})
+    current_sensor: str = field(default="", metadata={"boards": MAVLINK, "form": "none|bypassed"})
     # µT a magnetised part keeps adding at every compass (along its interference) once a current has flowed
-    interference_remanence: float = 0.0
+    interference_remanence: float = field(default=0.0, metadata={"boards": MAVLINK})
     # °/s the unit turns about its Z axis while it is held still for the current sweep (it slips in its fixture)
-    moved_during_sweep: float = 0.0
+    moved_during_sweep: float = field(default=0.0, metadata={"boards": MAVLINK})
     # MAV_CMD_DO_MOTOR_TEST is refused (no RC calibration, a safety switch on)
-    motor_test_refused: bool = False
+    motor_test_refused: bool = field(default=False, metadata={"boards": MAVLINK})
     # "UT:TAU_S": every compass's offset is UT µT from its settled value while the board is cold and
     # settles with time constant TAU_S as it warms; a reboot keeps it warm (sim/thermal.py)
     mag_warmup: str = field(default="", metadata={"form": "UT:TAU_S"})
@@ -69,22 +76,23 @@ class SimFaults:
     # "sign" adds the offsets (a release that reads them the other way), "unit" reads them in
     # milligauss, "slot" applies the next slot's calibration to each compass, "none" stores the
     # calibration and never applies it.  The read-back of every parameter still matches.
-    cal_applied: str = field(default="", metadata={"form": "sign|unit|slot|none"})
+    cal_applied: str = field(default="", metadata={"boards": ("px4",), "form": "sign|unit|slot|none"})
     # INAV over MSP: another firmware answers (its MSP_FC_VARIANT, "BTFL" for Betaflight); the unit is armed
     # (INAV refuses MSP_EEPROM_WRITE then, and ignores MSP_REBOOT); the board after the next reboot has
     # another MCU unique id (another board put in the cradle)
-    msp_variant: str = field(default="", metadata={"form": "VARIANT"})
-    armed: bool = False
-    uid_changes_at_reboot: bool = False
+    msp_variant: str = field(default="", metadata={"boards": ("inav",), "form": "VARIANT"})
+    armed: bool = field(default=False, metadata={"boards": ("inav",)})
+    uid_changes_at_reboot: bool = field(default=False, metadata={"boards": ("inav",)})
     # PX4's factory calibration storage (/fs/mtd_caldata): a board without that partition ("cannot open
     # calibration storage"), an export that fails, a store that keeps the values it held before (a flash
     # write that did not take), and a unit moved during the gyro calibration that writes the store
     # ("Motion during calibration")
-    no_factory_partition: bool = False
-    factory_store_fails: bool = False
-    factory_store_stale: bool = False
-    moved_during_gyro_cal: bool = False
+    no_factory_partition: bool = field(default=False, metadata={"boards": ("px4",)})
+    factory_store_fails: bool = field(default=False, metadata={"boards": ("px4",)})
+    factory_store_stale: bool = field(default=False, metadata={"boards": ("px4",)})
+    moved_during_gyro_cal: bool = field(default=False, metadata={"boards": ("px4",)})
 
+    BOARDS = ("px4", "ardupilot", "inav")  # a fault without ``boards`` in its metadata is every board's
     CAL_APPLIED = ("sign", "unit", "slot", "none")
     CURRENT_SENSOR = ("none", "bypassed")
 
@@ -104,15 +112,22 @@ class SimFaults:
                              f"not {self.current_sensor!r}")
 
     @classmethod
-    def parse(cls, items: list[str]) -> SimFaults:
-        """From ``name[=value]`` strings, as given to ``--fault`` (lists are comma separated)."""
+    def for_board(cls, board: str | None) -> list:
+        """The faults a board's simulator has (all of them for None), as dataclass fields."""
+        return [f for f in fields(cls) if board is None or board in f.metadata.get("boards", cls.BOARDS)]
+
+    @classmethod
+    def parse(cls, items: list[str], board: str | None = None) -> SimFaults:
+        """From ``name[=value]`` strings, as given to ``--fault`` (lists are comma separated); with ``board``,
+        a fault that board's simulator does not have is refused, naming the ones it has."""
         faults = cls()
-        known = {f.name: f for f in fields(cls)}
+        known = {f.name: f for f in cls.for_board(board)}
         for item in items:
             name, _, value = item.partition("=")
             name = name.strip().replace("-", "_")
             if name not in known:
-                raise ValueError(f"unknown fault {name!r}; known: {', '.join(known)}")
+                whose = f"{board}'s simulator has no fault {name!r}" if board else f"unknown fault {name!r}"
+                raise ValueError(f"{whose}; known: {', '.join(known)}")
             current = getattr(faults, name)
             if isinstance(current, bool):
                 setattr(faults, name, value.lower() not in ("0", "false", "no"))

@@ -69,6 +69,28 @@ def test_a_simulator_s_help_gives_each_fault_s_value_in_the_form_it_takes(capsys
     assert faults.mountings() == {0: (2, 0.0), 1: (8, 4.5)} and faults.link_stalls == "0.3:2"
 
 
+@pytest.mark.parametrize(("board", "own", "others"), [
+    ("px4", ["cal_applied=sign|unit|slot|none", "no_factory_partition", "motor_test_refused"],
+     ["msp_variant", "uid_changes_at_reboot"]),
+    ("ardupilot", ["motor_test_refused", "current_sensor=none|bypassed", "mag_mounting=N:K,…"],
+     ["cal_applied", "msp_variant", "factory_store_fails"]),
+    ("inav", ["msp_variant=VARIANT", "armed", "mag_mounting=N:K,…", "link_stalls=HOLD_S:EVERY_S"],
+     ["cal_applied", "motor_test_refused", "ignore_param_set", "mag_yaw_error"])])
+def test_each_simulator_s_help_lists_its_own_faults_and_it_refuses_another_board_s(capsys, board, own, others):
+    """``sim px4 --help`` listed INAV's ``msp_variant`` and ``armed``: each simulator lists the faults it has,
+    and one it has not is refused in one line naming those it has (it did nothing, silently)."""
+    from magline.core.cli import main
+
+    with pytest.raises(SystemExit):
+        main(["sim", board, "--help"])
+    faults = re.sub(r"\s+", " ", capsys.readouterr().out).split("inject a fault", 1)[1].split(" --", 1)[0]
+    assert all(name in faults for name in own), faults
+    assert not any(re.search(rf"\b{name}\b", faults) for name in others), faults
+    assert main(["sim", board, "--listen", "tcp:127.0.0.1:0", "--fault", others[0]]) == 2
+    said = capsys.readouterr().err.strip().splitlines()
+    assert len(said) == 1 and f"{board}'s simulator has no fault {others[0]!r}" in said[0] and own[1].split("=")[0] in said[0]
+
+
 def test_a_slot_panel_drops_a_wait_when_it_ends_and_keeps_a_prompt():
     """The slot board shows a wait's count in the slot's panel until the wait says it ended (a gimbal
     station prompts nobody, so nothing else would replace it); readings do not end a wait, and the
