@@ -91,7 +91,9 @@ def main(argv: list[str] | None = None) -> int:
                      help="one verdict's runs (in any case: PASS, pass)")
     exp.add_argument("--serial", help="one unit's runs (whatever the case it is typed in)")
     exp.add_argument("--format", choices=["csv", "jsonl"], default="csv")
-    exp.add_argument("--raw", action="store_true", help="every raw sample (CSV: a row per sample)")
+    exp.add_argument("--raw", action="store_true",
+                     help="every stored raw sample (CSV: a row per sample); an attempt that read past "
+                          "acquisition.samples short of its coverage is stored thinned to that many")
 
     from magline.core.quality.trends import shifts_argument
     from magline.core.results.instants import instant_argument, until_argument

@@ -45,3 +45,19 @@ def test_the_reference_gives_every_public_type_s_fields_and_the_face_holds_them(
         assert f"### `{name}`" in section and hasattr(face, name)
     assert "| `temp_c` | `NDArray \\| None` | `None` | the sensor's temperature per reading" in section
     assert "REVIEW inside but within its marginal" in section and "(undocumented)" not in section
+
+
+def test_every_link_and_named_file_in_the_docs_is_in_the_repository():
+    """A reader with the repository alone follows every relative link and every backquoted path that
+    leaves it (``../shared/reference/…`` was named to people who do not have it)."""
+    import re
+
+    repo = REPO
+    broken = []
+    for page in [repo / "README.md", *sorted((repo / "docs").glob("*.md"))]:
+        text = page.read_text(encoding="utf-8")
+        for target in re.findall(r"\]\(([^)#\s]+)(?:#[^)]*)?\)", text):
+            if not re.match(r"[a-z]+://|mailto:", target) and not (page.parent / target).exists():
+                broken.append(f"{page.name}: ({target})")
+        broken += [f"{page.name}: `{path}`" for path in re.findall(r"`(\.\./[^`\s]+)`", text)]
+    assert broken == []
