@@ -184,7 +184,9 @@ def _run_filter_arguments(parser: argparse.ArgumentParser, part_help: str) -> No
 
 
 def _err(message: str) -> None:
-    print(message, file=sys.stderr)
+    from magline.core.text import for_terminal
+
+    print(for_terminal(message, sys.stderr), file=sys.stderr)
 
 
 def _load(path: str | None, plugins: Plugins) -> tuple[Station, Path]:

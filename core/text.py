@@ -7,6 +7,7 @@ values; none may show 0.38549133410640546 or 29.6988 s.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 
 def fmt(value: float | None, unit: str = "", digits: int = 4) -> str:
@@ -69,3 +70,18 @@ def stop_line(reason: str, after_s: float, readings: int, moved: bool = True) ->
     if reason == "samples":
         return f"tumble complete: {readings} readings in {after_s:.0f} s"
     return f"the stream ended after {readings} readings"
+
+
+def for_terminal(message: str, stream: Any) -> str:
+    """``message`` wrapped at word boundaries to the width of the terminal ``stream`` is (a terminal wraps a
+    long line wherever its edge falls, mid-word); unchanged when ``stream`` is a pipe or a file, where a
+    log line stays one line for whoever greps it."""
+    isatty = getattr(stream, "isatty", None)
+    if not (callable(isatty) and isatty()):
+        return message
+    import shutil
+    import textwrap
+
+    width = shutil.get_terminal_size().columns
+    return "\n".join(textwrap.fill(line, width, break_long_words=False, break_on_hyphens=False) or line
+                     for line in message.splitlines())

@@ -113,3 +113,40 @@ def test_a_slot_panel_drops_a_wait_when_it_ends_and_keeps_a_prompt():
     board.wait_ended(run)
     board.progress(run, 1, 40, 0.2, 0.5)
     assert board.views["A"].message == "Tumble the unit"
+
+
+class _Terminal(io.StringIO):
+    """What a station's console writes to at an 80-column terminal."""
+
+    def isatty(self) -> bool:
+        return True
+
+
+def test_console_lines_wrap_at_words_on_a_terminal_and_stay_whole_in_a_pipe(monkeypatch):
+    """At an 80-column terminal the turntable's cradle lines and the last line of an ERROR wrapped where the
+    edge fell, mid-word: on a terminal they wrap at words; piped (a log, a service) a line stays one line."""
+    from magline.core.operator_ui.console import OperatorConsole
+
+    sentence = ("cradle 2: nose down 90° — pitch the cradle until its nose points at the floor, roll level "
+                "(still to face the floor: left side, nose, right side)")
+    monkeypatch.setenv("COLUMNS", "80")
+    for stream, terminal in ((_Terminal(), True), (io.StringIO(), False)):
+        monkeypatch.setattr("sys.stdout", stream)
+        OperatorConsole().note(sentence)
+        lines = stream.getvalue().splitlines()
+        if terminal:
+            assert len(lines) > 1 and all(len(line) <= 80 for line in lines)
+            assert " ".join(lines).split() == sentence.split()  # every word whole
+        else:
+            assert lines == [sentence]
+
+
+def test_a_command_s_error_wraps_at_words_on_a_terminal(monkeypatch, capsys):
+    from magline.core.text import for_terminal
+
+    message = ("magline: station file stations/x.yaml: products.AP-QUAD-200.connection (line 14): "
+               "tcp:127.0.0.1:99999 is not an address — give tcp:HOST:PORT with a port from 1 to 65535")
+    monkeypatch.setenv("COLUMNS", "80")
+    wrapped = for_terminal(message, _Terminal())
+    assert all(len(line) <= 80 for line in wrapped.splitlines()) and wrapped.split() == message.split()
+    assert for_terminal(message, io.StringIO()) == message

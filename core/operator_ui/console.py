@@ -41,7 +41,11 @@ class OperatorConsole:
     """Register an instance with the plugin manager (``load_plugins(extra=[console])``)."""
 
     def __init__(self, console: Console | None = None) -> None:
-        self.console = console or Console(highlight=False, soft_wrap=True)  # log lines are never cut
+        # a terminal's lines wrap at words at its width (the terminal itself wraps mid-word); piped or written
+        # to a file, a log line is never cut
+        self.console = console or Console(highlight=False)
+        if console is None:
+            self.console.soft_wrap = not self.console.is_terminal
         self.live = self.console.is_terminal
         self._progress: Progress | None = None
         self._task: TaskID | None = None
