@@ -74,6 +74,8 @@ class ArduPilotSim(SimulatedAutopilot):
     stream_sensor: ClassVar[dict[int, int]] = {mavlink.MAVLINK_MSG_ID_RAW_IMU: 0, mavlink.MAVLINK_MSG_ID_SCALED_IMU: 0,
                      mavlink.MAVLINK_MSG_ID_SCALED_IMU2: 1, mavlink.MAVLINK_MSG_ID_SCALED_IMU3: 2}
     REBOOT_DELAY_S = 0.2
+    # ArduCopter's motor_test.cpp (mavlink_motor_control_check): "%s: RC not calibrated" with "Motor Test"
+    MOTOR_TEST_REFUSAL = "Motor Test: RC not calibrated"
     firmware_mag_rate_hz: ClassVar[float | None] = 10.0  # ArduCopter's update_compass task
 
     def samples_per_reading(self, sensor: SimMagnetometer) -> int:

@@ -769,6 +769,8 @@ class SimulatedAutopilot(ABC):
         next motor after a pause when param5 asks for more; one is enough for the current).  Refused with
         the fault ``motor_test_refused`` (RC not calibrated, a safety switch on)."""
         if self.faults.motor_test_refused:
+            if self.MOTOR_TEST_REFUSAL:  # the firmware's own why, on the link that asked, after the ACK
+                self.after_ack(lambda: self.statustext(mavlink.MAV_SEVERITY_CRITICAL, self.MOTOR_TEST_REFUSAL))
             return DENIED
         if int(params[1]) != 0 or not 0.0 <= params[2] <= 100.0 or params[3] < 0:
             return DENIED
@@ -787,6 +789,7 @@ class SimulatedAutopilot(ABC):
         self._after_ack = action
 
     STATUS_MESSAGES = (mavlink.MAVLINK_MSG_ID_BATTERY_STATUS, mavlink.MAVLINK_MSG_ID_SYS_STATUS)
+    MOTOR_TEST_REFUSAL = ""  # the STATUSTEXT a firmware says a refused motor test's cause in (ArduCopter's)
 
     def send_status(self, msg_id: int, now: float) -> None:
         """BATTERY_STATUS (battery 0, the primary monitor) and SYS_STATUS with the board's measured

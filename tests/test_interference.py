@@ -337,7 +337,7 @@ def test_a_step_that_reads_longer_than_a_motor_test_lasts_keeps_the_motor_spinni
 
 @pytest.mark.parametrize(("interlock_exit", "faults", "cause"), [
     (1, "", "the propeller interlock does not confirm the propellers are off"),
-    (0, "motor_test_refused", "ArduPilot refused the motor test"),
+    (0, "motor_test_refused", 'ArduPilot refused the motor test: "Motor Test: RC not calibrated"'),
 ], ids=["props-not-confirmed", "motor-test-refused"])
 def test_no_confirmed_props_off_or_a_refused_motor_test_is_an_error(tmp_path, interlock_exit, faults, cause):
     with board_with_motors(tmp_path, interlock_exit, faults) as (_, spins, station):

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import time
 from collections.abc import Iterator
 from typing import TYPE_CHECKING
 
@@ -44,7 +45,7 @@ from magline.plugins.ardupilot.calibration import (
     rename_for_set,
     set_names,
 )
-from magline.plugins.ardupilot.link import ML, ArduPilotLink
+from magline.plugins.ardupilot.link import ML, RESULT_NAMES, ArduPilotLink
 
 if TYPE_CHECKING:
     from magline.plugin import FitResult, Product, SampleChunk
@@ -65,6 +66,7 @@ COMPASS_HZ = 10.0  # ArduCopter reads its compasses at about 10 Hz, whatever the
 MOT_RANGE_MG_PER_A = 1000.0  # COMPASS_MOTn_* @Range
 RESTORE_RECONNECT_S = 3.0  # a vehicle that does not answer by then is reported as not restored
 COMPASS_PREARM = "PreArm: Compass"
+MOTOR_TEST_WHY_S = 1.0  # how long a refused motor test's STATUSTEXT is waited for (it follows the ACK)
 
 
 def _firmware(version: int) -> str:
@@ -330,11 +332,26 @@ class ArduPilotDut:
         return {"COMPASS_MOTCT": 2}  # current (0 off, 1 throttle)
 
     def motor_test(self, throttle_pct: float, seconds: float) -> None:
-        """MAV_CMD_DO_MOTOR_TEST: motor 1, throttle in percent, for ``seconds`` (0 % stops it)."""
+        """MAV_CMD_DO_MOTOR_TEST: motor 1, throttle in percent, for ``seconds`` (0 % stops it).  A refusal
+        quotes ArduCopter's own why: its checks (``motor_test.cpp``) say it in a STATUSTEXT on the link that
+        asked ("Motor Test: RC not calibrated"), sent after the ACK."""
+        self.link.statustexts.clear()
         result = self.link.command(ML.MAV_CMD_DO_MOTOR_TEST, 1, 0, throttle_pct, seconds, 1)
         if result != ML.MAV_RESULT_ACCEPTED:
-            raise DutError(f"ArduPilot refused the motor test (MAV_RESULT {result}: RC not calibrated, a safety "
-                           "switch on, or not landed)")
+            why = self._said("Motor Test:", MOTOR_TEST_WHY_S)
+            name = RESULT_NAMES.get(result, result)
+            raise DutError(f'ArduPilot refused the motor test: "{why}"' if why else
+                           f"ArduPilot refused the motor test ({name}) and said no why within "
+                           f"{MOTOR_TEST_WHY_S:g} s")
+
+    def _said(self, prefix: str, within_s: float) -> str:
+        """The first STATUSTEXT starting with ``prefix`` the vehicle sends within ``within_s`` ("" if none)."""
+        deadline = time.monotonic() + within_s
+        while True:
+            said = next((t for t in self.link.statustexts if t.startswith(prefix)), "")
+            if said or time.monotonic() >= deadline:
+                return said
+            self.link.recv("STATUSTEXT", deadline - time.monotonic())
 
     def left_per_amp_ut(self, device_id: int, stream_per_amp_ut: np.ndarray) -> np.ndarray:
         """The stream is the firmware's corrected field undone with the held OFS/DIA/ODI only, so the
