@@ -26,7 +26,9 @@ What is here, by role:
   :class:`ReadsCalibratedFields`, :class:`ReadsRawAndCalibrated` (answering a :class:`CalibratedBesideRaw`),
   :class:`CompensatesCurrent`, :class:`RunsMotorTest`;
 * links to hardware: :func:`get_listening`, :func:`stall_s`, :data:`SLICE_S` (reading a queue while
-  the link may die), :class:`RepeatFilter`, :class:`ReadingsAtRest`, :class:`SensorStreams`, :func:`untruncate_mg`,
+  the link may die), :class:`Refusals` and :data:`NOTHING_LISTENS_S` (a first connection refused that long
+  says nothing listens there, at once), :class:`RepeatFilter`, :class:`ReadingsAtRest`, :class:`SensorStreams`,
+  :func:`untruncate_mg`,
   :data:`INT16_MG_RANGE_UT` (MAVLink's int16 milligauss), :class:`ScpiInstrument`, :class:`InstrumentError`,
   MSP (INAV's protocol): :class:`MspClient`, :class:`MspParser`, :class:`MspFrame`, :func:`encode_msp_v1`,
   :func:`encode_msp_v2`, :func:`crc8_dvb_s2`, :class:`MspRefused`, :class:`MspTimeout`, the command numbers
@@ -87,6 +89,7 @@ _HOME: dict[str, tuple[str, ...]] = {
         "encode_msp_v1", "encode_msp_v2", "encode_setting_info", "inav_external_angles", "inav_external_rotation",
         "inav_rotation_in_frd", "parse_setting_info",
     ),
+    "magline.core.links.refusals": ("NOTHING_LISTENS_S", "Refusals"),
     "magline.core.links.readings": (
         "INT16_MG_RANGE_UT", "ReadingsAtRest", "RepeatFilter", "SensorStreams", "untruncate_mg",
     ),

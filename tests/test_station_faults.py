@@ -55,6 +55,23 @@ def test_no_vehicle_is_an_error_within_the_connect_deadline(tmp_path, backend, t
     assert "Error:" not in record.cause  # no Python class names for the operator
 
 
+@pytest.mark.parametrize(("backend", "example"), [("ardupilot", "ardupilot-sim.yaml"), ("inav", "inav-sim.yaml")])
+def test_an_address_where_nothing_listens_is_told_at_once_not_after_the_connect_timeout(tmp_path, backend, example):
+    """A station started before its simulator (or on a wrong port) waited its whole connect timeout on a
+    refused TCP connection: refused for NOTHING_LISTENS_S on the first connection, the unit is an ERROR
+    that names the address, however long the timeout."""
+    from magline.plugin import NOTHING_LISTENS_S
+
+    with refused_port() as port:
+        address = f"tcp:127.0.0.1:{port}"
+        station = write_station(example, tmp_path, address, {"connect_timeout_s": 60.0, "boot_timeout_s": 60.0})
+        started = time.monotonic()
+        record = run_unit(station)
+        elapsed = time.monotonic() - started
+    assert record.verdict is Outcome.ERROR and f"nothing listens on {address}" in record.cause, record.cause
+    assert NOTHING_LISTENS_S <= elapsed < 60.0  # told when the refusals have lasted, long before the timeout
+
+
 @pytest.mark.parametrize("case", PX4_FAULTS, ids=[c.name for c in PX4_FAULTS])
 def test_each_px4_firmware_fault_fails_the_post_power_cycle_proof(tmp_path, case):
     """Issue 50: the firmware stores and reads back every value as written but applies it otherwise

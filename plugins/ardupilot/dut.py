@@ -22,6 +22,7 @@ import numpy as np
 
 from magline.plugin import (
     INT16_MG_RANGE_UT,
+    NOTHING_LISTENS_S,
     DutError,
     LinkError,
     Magnetometer,
@@ -93,7 +94,7 @@ class ArduPilotDut:
 
     # ------------------------------------------------------------------ link
     def connect(self) -> UnitInfo:
-        heartbeat = self.link.open(self.opts.connect_timeout_s)
+        heartbeat = self.link.open(self.opts.connect_timeout_s, NOTHING_LISTENS_S)
         if heartbeat.autopilot != ML.MAV_AUTOPILOT_ARDUPILOTMEGA:
             self.link.close()
             raise StationFault(f"the vehicle on {self.product.connection} is not ArduPilot "

@@ -27,6 +27,7 @@ from magline.plugin import (
     SLICE_S,
     DutError,
     LinkError,
+    Refusals,
     SerialAddress,
     SerialAddressError,
     SerialPortWatch,
@@ -112,15 +113,19 @@ class ArduPilotLink:
         self.statustexts: list[str] = []
 
     # ------------------------------------------------------------------ connection
-    def open(self, timeout_s: float) -> Any:
-        """Connect and wait for the autopilot's heartbeat; return it."""
+    def open(self, timeout_s: float, nothing_listens_s: float | None = None) -> Any:
+        """Connect and wait for the autopilot's heartbeat; return it.  ``nothing_listens_s``: connections
+        refused that long end it at once (:mod:`magline.core.links.refusals`; a first connection)."""
         deadline = time.monotonic() + timeout_s
         last_error = "no heartbeat"
+        refusals = Refusals(nothing_listens_s)
         while (remaining := deadline - time.monotonic()) > 0:
             try:
                 device = self.port.ready(remaining).device if self.port is not None else self.device
                 self.conn = self._connect(device, remaining)
             except OSError as exc:  # refused while the vehicle boots; try again until the deadline
+                if refusals.over(exc):
+                    raise LinkError(refusals.words(self.connection)) from None
                 last_error = _socket_error(exc)
                 time.sleep(min(0.2, max(deadline - time.monotonic(), 0.0)))
                 continue

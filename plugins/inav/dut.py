@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from magline.plugin import (
+    NOTHING_LISTENS_S,
     DutError,
     ImuSeries,
     LinkError,
@@ -95,7 +96,7 @@ class InavDut:
 
     # ------------------------------------------------------------------ link
     def connect(self) -> UnitInfo:
-        self.link.open(self.opts.connect_timeout_s)
+        self.link.open(self.opts.connect_timeout_s, NOTHING_LISTENS_S)
         self.identity = self.link.identify()
         for name in (*OFFSETS, *GAINS, "align_mag"):
             self.link.info(name)  # a firmware without one cannot hold the calibration: DutError names it

@@ -18,6 +18,7 @@ from magline.plugin import (
     Msp,
     MspClient,
     MspRefused,
+    Refusals,
     SettingInfo,
     StationFault,
     parse_setting_info,
@@ -61,9 +62,11 @@ class InavLink:
         self.client: MspClient | None = None
         self.infos: dict[str, SettingInfo] = {}
 
-    def open(self, timeout_s: float) -> None:
-        """Connect, retrying until ``timeout_s``: a board still booting refuses the connection."""
+    def open(self, timeout_s: float, nothing_listens_s: float | None = None) -> None:
+        """Connect, retrying until ``timeout_s``: a board still booting refuses the connection.
+        ``nothing_listens_s``: connections refused that long end it at once (a first connection)."""
         deadline = time.monotonic() + timeout_s
+        refusals = Refusals(nothing_listens_s)
         while True:
             try:
                 self.client = MspClient.connect(self.address, self.reply_timeout_s, connect_timeout_s=max(
@@ -72,6 +75,8 @@ class InavLink:
                 return
             except LinkError as exc:
                 self.close()
+                if refusals.over(exc):
+                    raise LinkError(refusals.words(self.address)) from None
                 if time.monotonic() >= deadline:
                     raise LinkError(f"no INAV answers MSP on {self.address} within {timeout_s:g} s ({exc})") from None
                 time.sleep(0.1)
