@@ -335,6 +335,9 @@ def magline_acquisition_progress(run: RunContext, attempt: int, samples: int, co
                                  target: float, bins: Sequence[int] | None, n_bins: int | None) -> None:
     """Live acquisition figures, called as samples arrive (coverage is a fraction 0..1).
 
+    :param samples: readings read so far in this attempt; never decreasing (a long tumble keeps at most
+        ``acquisition.samples`` of them, letting every other one go, but the count shown goes on).
+
     :param bins: the direction bins behind ``coverage`` (indices into
         :func:`magline.plugin.fibonacci_sphere` of ``n_bins``), for a view that lights
         them up; a coil's schedule gives the field directions it applied (its schedule is made of
@@ -357,7 +360,8 @@ def magline_acquisition_stopped(run: RunContext, attempt: int, reason: str, afte
         read), ``"timeout"`` (a determined tumble reached ``acquisition.timeout_s`` with readings
         enough to judge), or ``"stream ended"``.
     :param after_s: seconds of tumbling (from the motion's start for this unit).
-    :param readings: distinct readings of the primary magnetometer.
+    :param readings: distinct readings of the primary magnetometer read in the attempt (as the last
+        progress said; a thinned tumble keeps fewer).
     :param predicted: when determined, the running fit's predicted σ per sensor (its measurement
         prefix, ``""`` for the primary) by measurement name (``direction_sigma_deg``,
         ``hard_iron_sigma_ut``, ``mounting_sigma_deg`` …), with the mounting's errors the stop judged

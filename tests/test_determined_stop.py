@@ -28,6 +28,11 @@ RULE = StopRule(min_samples=50, coverage_target=0.5, margin=0.7,
 class StopListener:
     def __init__(self) -> None:
         self.stops: list[dict] = []
+        self.progress: list[int] = []  # the readings count of each progress call
+
+    @hookimpl
+    def magline_acquisition_progress(self, run, attempt, samples, coverage, target, bins, n_bins):
+        self.progress.append(samples)
 
     @hookimpl
     def magline_acquisition_stopped(self, run, attempt, reason, after_s, readings, predicted):
@@ -300,12 +305,19 @@ def test_a_fast_sensor_in_a_slow_hand_is_not_cut_at_its_count_but_thinned_until_
     counted = run_with(make_station(SLOW_HAND | {"acquisition": {"samples": 300, "stop": "samples"}}))
     assert counted.verdict is Outcome.FAIL and "coverage" in counted.cause
     assert all(a.stopped == "samples" and a.coverage < 0.6 for a in counted.attempts)
-    record = run_with(make_station(SLOW_HAND, name="determined.yaml"))
+    listener = StopListener()
+    record = run_with(make_station(SLOW_HAND, name="determined.yaml"), listener)
     assert record.verdict is Outcome.PASS, record.cause
     (attempt,) = record.attempts
+    # the count the operator is shown never goes down (it went 579, then "determined … (451 readings)"),
+    # and the stop says as many as the last progress did: the readings read, not those kept
+    shown = listener.progress
+    assert shown == sorted(shown) and listener.stops[-1]["readings"] == shown[-1] > 300 >= attempt.samples
     assert attempt.stopped == "determined" and attempt.samples <= 300 and attempt.coverage >= 0.6
     t = attempt.raw.t_ms
     assert np.all(np.diff(t) > 0) and t[-1] - t[0] > 300 * 1000.0 / 200.0  # spans more than 300 readings did
+    # the sensor's rate is of every reading received, not of the thinned ones held (half it per thinning)
+    assert attempt.sensor_rate_hz == pytest.approx(200.0, rel=1e-3)
 
 
 def test_a_determined_tumble_out_of_time_is_judged_on_what_it_holds_never_an_error(make_station):

@@ -77,7 +77,7 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
                     coverage = min(coverage, others.setdefault(device_id, CoverageTracker(cfg.coverage_bins))
                                    .add(np.atleast_2d(more.mag_ut)))
                 bins = tracker.bins if not others else min([tracker, *others.values()], key=lambda t: len(t.bins)).bins
-                run.progress(attempt, got.count, coverage, cfg.coverage_target, bins, cfg.coverage_bins)
+                run.progress(attempt, got.seen, coverage, cfg.coverage_target, bins, cfg.coverage_bins)
                 now = time.monotonic()
                 tumble_s = now - started
                 if guiding is not None:  # a turntable: the operator tilts the cradle between the table's turns
@@ -134,7 +134,7 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
     worst = min(result.coverages, key=result.coverages.get) if result.coverages else None
     mags = result.more[worst].mag_ut if worst in result.more else result.samples.mag_ut
     bins = covered_bins(mags, cfg.coverage_bins)  # the end adds its own checkpoint
-    run.progress(attempt, got.count, result.coverage, cfg.coverage_target, bins, cfg.coverage_bins)
+    run.progress(attempt, got.seen, result.coverage, cfg.coverage_target, bins, cfg.coverage_bins)
     run.acquisition_stopped(result)
     return result
 
@@ -155,8 +155,15 @@ class _Stream:
         self.count = 0  # readings held
         self.seen = 0  # readings received (held, or let go by ``thin``)
         self.repeats = 0
+        self.received = 0  # every reading that arrived, a full attempt's let go at once included
+        self.span_ms: tuple[float, float] | None = None  # first and last stamp of every reading that arrived
 
     def add(self, chunk: SampleChunk, room: int | None = None) -> np.ndarray:
+        arrived = np.atleast_1d(chunk.t_ms)
+        stamps = arrived[np.isfinite(arrived)]
+        self.received += len(np.atleast_2d(chunk.mag_ut))
+        if len(stamps):
+            self.span_ms = (float(stamps[0] if self.span_ms is None else self.span_ms[0]), float(stamps[-1]))
         mag = np.atleast_2d(chunk.mag_ut)[:room] if room is not None else np.atleast_2d(chunk.mag_ut)
         self.mags.append(mag)
         self.times.append(np.atleast_1d(chunk.t_ms)[: len(mag)])
@@ -166,6 +173,13 @@ class _Stream:
         self.seen += len(mag)
         self.repeats += chunk.repeats
         return mag
+
+    def rate_hz(self) -> float | None:
+        """Distinct readings per second over every reading that arrived — a thinned attempt keeps fewer, and
+        its held readings' rate was half the sensor's for every thinning (None below two, or without time)."""
+        if self.span_ms is None or self.received < 2 or self.span_ms[1] <= self.span_ms[0]:
+            return None
+        return float((self.received - 1) / ((self.span_ms[1] - self.span_ms[0]) / 1000.0))
 
     def thin(self, n_bins: int) -> None:
         """Let every other reading go, in time order, except in a direction that holds two or fewer:
@@ -238,8 +252,8 @@ class _Readings(_Stream):
         coverages |= {d: coverage_of(s.mag_ut, bins) for d, s in more.items()}
         imu = self.imu_series()
         return Acquisition(attempt=attempt, samples=samples, coverage=min(coverages.values()), target=target,
-                           repeats=self.repeats, sensor_rate_hz=_rate_hz(samples.t_ms), more=more, imu=imu,
-                           coverages=coverages)
+                           repeats=self.repeats, sensor_rate_hz=self.rate_hz(), more=more, imu=imu,
+                           coverages=coverages, read=self.seen)
 
 
 def _rate_hz(t_ms: np.ndarray) -> float | None:

@@ -57,6 +57,9 @@ class Acquisition:
     tumble_s: float | None = None
     predicted: dict[str, dict[str, float]] = field(default_factory=dict)
     advice: str | None = None  # what the operator is told before the next attempt, when the tumble knows why
+    # readings read (held, or let go when a long tumble was thinned; ``samples`` holds at most
+    # ``acquisition.samples``): the count the operator was shown, which never goes down
+    read: int | None = None
 
     @property
     def sufficient(self) -> bool:
@@ -182,14 +185,16 @@ class RunContext:
 
     def acquisition_stopped(self, result: Acquisition) -> None:
         """The tumble of an attempt ended: say why and when to the log and to every listener."""
+        read = result.read if result.read is not None else len(result.samples)
+        kept = f" ({len(result.samples)} kept)" if read != len(result.samples) else ""
         if result.stopped == "determined":
             worst = max(result.predicted.values(), key=lambda f: f.get("direction_sigma_deg", 0.0), default={})
-            self.log(f"determined after {result.tumble_s:.1f} s: {len(result.samples)} readings, predicted heading "
+            self.log(f"determined after {result.tumble_s:.1f} s: {read} readings{kept}, predicted heading "
                      f"σ {worst.get('direction_sigma_deg', float('nan')):.2f}°")
         elif result.stopped == "samples":
-            self.log(f"tumble ended at {len(result.samples)} readings after {result.tumble_s:.1f} s")
+            self.log(f"tumble ended at {read} readings{kept} after {result.tumble_s:.1f} s")
         self.plugins.hook.magline_acquisition_stopped(run=self, attempt=result.attempt, reason=result.stopped or "",
-                                                      after_s=result.tumble_s or 0.0, readings=len(result.samples),
+                                                      after_s=result.tumble_s or 0.0, readings=read,
                                                       predicted=dict(result.predicted))
 
     def progress(self, attempt: int, samples: int, coverage: float, target: float,
