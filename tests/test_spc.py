@@ -540,6 +540,8 @@ def test_yield_and_failure_causes_trend_per_shift_station_operator_product_and_c
                    "causes-per-station"):
         assert f'id="{figure}"' in text, figure
     assert "fpy-per-product" not in text  # one product: its figure would only repeat the first
+    # the page is mailed and opened elsewhere: its store by its name, never this computer's folders
+    assert str(tmp_path) not in text and "; from magline-demo-results.sqlite." in text
     assert main(["spc", "--station", str(station), "--html", str(page), "--with-reports"]) == 0
     assert "0 unit report(s) written" in capsys.readouterr().err
     with pytest.raises(SystemExit) as usage:

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import html
+import os
+import re
 from pathlib import Path
 
 from magline.core.quality.capability import MIN_UNITS, MIN_UNITS_SOURCE, index_words
@@ -22,6 +24,18 @@ from magline.core.reports.trend_figures import causes_by, causes_over_time, yiel
 from magline.core.text import fmt, percent
 
 
+def page_words(source: str) -> str:
+    """A sentence of the page with this computer's files by their names (the store it was drawn from, the
+    station file): the page is mailed and opened on other computers, where this one's folders mean
+    nothing; a server is named as it is."""
+    return re.sub(r"(?<!\S)/(?:[^\s/()]+/)+([^\s/()]+)", r"\1", source)
+
+
+def _beside(folder: Path, page: Path) -> str:
+    """The reports folder as the page's links reach it: relative to the page."""
+    return os.path.relpath(folder.resolve(), page.resolve().parent)
+
+
 def write_spc_page(report: SpcReport, path: Path, reports: Path | None = None) -> Path:
     """The page; ``reports``: the station's unit-report folder, whose files a click on a point opens."""
     serials = [r["serial"] for r in report.series.runs]
@@ -30,14 +44,15 @@ def write_spc_page(report: SpcReport, path: Path, reports: Path | None = None) -
                 f"<p class=note>{len(serials)} runs"
                 + (f", {html.escape(report.series.runs[0]['started'])} → "
                    f"{html.escape(report.series.runs[-1]['started'])}" if serials else "")
-                + (f"; from {html.escape(report.series.source)}" if report.series.source else "")
+                + (f"; from {html.escape(page_words(report.series.source))}" if report.series.source else "")
                 + ". Centre line and 3σ limits from the first judged units (baseline); rules: "
                 + html.escape("; ".join(RULES.values())) + ".</p>"]
     if report.study is not None:  # what the study is, before its figures
         first, *rest = report.study.lines()
         warn = " style='color:#b00;font-weight:bold'" if report.study.repeatability else ""
         sections += [f"<h2{warn}>{html.escape(first.removeprefix('study: '))}</h2>",
-                     "<ul class=study>" + "".join(f"<li>{html.escape(line)}</li>" for line in rest) + "</ul>"]
+                     "<ul class=study>" + "".join(f"<li>{html.escape(page_words(line))}</li>" for line in rest)
+                     + "</ul>"]
 
     rows = [(m.name, m.chart.values.size, fmt(m.chart.centre, m.unit), fmt(m.chart.sigma, m.unit),
              f"[{fmt(m.limit.low)}, {fmt(m.limit.high)}]", index_words(m.capability.cpk),
@@ -78,7 +93,7 @@ def write_spc_page(report: SpcReport, path: Path, reports: Path | None = None) -
                  table(("measurements that failed units", "count"), report.failed or [("none", 0)], numeric=(1,))]
     sections += _trend_sections(report)
     sections.append("<h2>Characteristics</h2><p class=note>each point is a unit (hover: its serial; click: its "
-                    "report" + (", from " + html.escape(str(reports)) if reports else "") + ")</p>")
+                    "report" + (", from " + html.escape(_beside(reports, path)) if reports else "") + ")</p>")
     for m in report.measurements:
         sections += [f"<h3>{html.escape(m.name)}</h3>",
                      f"<div class=imr-chart>{figure_html(imr_figure(m, report.series.runs, links), f'chart-{m.name}')}"
