@@ -138,6 +138,14 @@ def test_a_unit_driven_only_through_the_page_shows_the_retry_and_passes(screen, 
     assert page.evaluate("window.__cues") == ["SCR-1:2"]  # one cue for the retry, none for the first prompt
     sides = page.evaluate("document.getElementById('sphere').data[1].text")
     assert "nose" in sides and "top" in sides  # the same words where they are on the sphere
+    # the body's z points down (forward-right-down): "bottom" is drawn below "top", "right side" on the right
+    # of a camera behind the unit
+    drawn = page.evaluate("(() => { const d = document.getElementById('sphere').data[1];"
+                          " return Object.fromEntries(d.text.map((t, i) => [t, [d.x[i], d.y[i], d.z[i]]])); })()")
+    assert drawn["bottom"][2] < 0 < drawn["top"][2] and drawn["nose"][0] > 0
+    assert page.evaluate("document.getElementById('sphere').layout.scene.camera.eye.x") < 0  # from behind
+    assert drawn["right side"][1] < 0 < drawn["left side"][1]  # y to the left: a turn, not a mirror image
+    assert page.is_visible("#progress")
     page.wait_for_selector("#verdict:not([hidden])", timeout=30_000)
     assert page.inner_text("#verdict-word") == "PASS" and page.inner_text("#verdict-serial") == "SCR-1"
     assert "SCR-1 PASS" in page.inner_text("#recent") and "first-pass yield 100%" in page.inner_text("#shift")
@@ -333,6 +341,7 @@ def test_idle_screen_second_scan_and_what_to_do_after_the_verdict(screen, browse
                             ".map((e) => parseFloat(getComputedStyle(e).fontSize)))")
     assert size >= 32 and size == largest  # the largest text on the idle screen says what to do
     assert page.inner_text("#idle-shift") == "0 units today"  # the day: the station file names no shift starts
+    assert page.is_hidden("#progress")  # no empty grey bar before any unit
     page.keyboard.type("SCR-1")
     page.keyboard.press("Enter")
     page.wait_for_selector("#attempt:has-text('attempt 1')")

@@ -43,13 +43,16 @@ function drawSphere(run, sides) {
     const hit = new Set(bins);
     const colour = centres.map((_, i) => (hit.has(i) ? "#1a7f37" : "#d0d7de"));
     if (!sphereDrawn) {
-      const trace = { type: "scatter3d", mode: "markers", x: centres.map((c) => c[0]), y: centres.map((c) => c[1]),
-                      z: centres.map((c) => c[2]), marker: { size: 9, color: colour }, hoverinfo: "skip" };
+      // the unit's axes are forward-right-down: drawn turned 180° about the nose (forward-left-up), so that
+      // "bottom" is at the bottom of the picture, seen from behind, above and to the left
+      const trace = { type: "scatter3d", mode: "markers", x: centres.map((c) => c[0]), y: centres.map((c) => -c[1]),
+                      z: centres.map((c) => -c[2]), marker: { size: 9, color: colour }, hoverinfo: "skip" };
       const layout = { margin: { l: 0, r: 0, t: 0, b: 0 }, showlegend: false,
-                       scene: { aspectmode: "cube", xaxis: { visible: false }, yaxis: { visible: false }, zaxis: { visible: false } } };
+                       scene: { aspectmode: "cube", xaxis: { visible: false }, yaxis: { visible: false }, zaxis: { visible: false },
+                                camera: { eye: { x: -1.5, y: 1.0, z: 0.9 } } } };
       // the same six words the coverage line names, where they are on the sphere
       const words = { type: "scatter3d", mode: "text", x: sides.map((w) => w.at[0] * 1.3),
-                      y: sides.map((w) => w.at[1] * 1.3), z: sides.map((w) => w.at[2] * 1.3),
+                      y: sides.map((w) => -w.at[1] * 1.3), z: sides.map((w) => -w.at[2] * 1.3),
                       text: sides.map((w) => w.name), textfont: { size: rootPx(), color: "#1d1d1f" }, hoverinfo: "skip" };
       Plotly.newPlot("sphere", [trace, words], layout, { displayModeBar: false, responsive: true });
       sphereDrawn = true;
@@ -117,6 +120,7 @@ function slotPanel(slot, entry) {
       + `<div class="cause">${esc(v.cause || "")}</div>${items}</div>`;
   }
   const running = run.phases.find((p) => p.state === "running");
+  $("progress").hidden = !run;  // idle: no empty bar
   const fraction = progressFraction(run);
   return `<div class="slot" data-slot="${esc(slot.id)}"><h3>slot ${esc(slot.id)} · ${esc(run.serial)} <small>${esc(run.part)}</small></h3>`
     + `<div class="phase">${esc(running ? running.name : "…")}${run.waiting ? ` · ${esc(run.waiting.what)} ${run.waiting.elapsed_s} s` : ""}</div>`
@@ -277,6 +281,7 @@ function render(s) {
   if (tilt && $("tilt").dataset.shown !== tilt.svg) { $("tilt").innerHTML = tilt.svg; $("tilt").dataset.shown = tilt.svg; }
   $("tilt").classList.toggle("turning", Boolean(tilt && tilt.state === "turning"));
   $("attempt").textContent = run && run.attempt ? `attempt ${run.attempt}` : "";
+  $("progress").hidden = !run;  // idle: no empty bar
   const fraction = progressFraction(run);
   $("progress-bar").style.width = `${fraction * 100}%`;
   $("progress-text").textContent = progressLabel(run);
