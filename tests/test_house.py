@@ -237,7 +237,12 @@ def test_the_readme_is_a_front_page_and_every_page_it_points_to_is_in_the_reposi
     import re
 
     readme = (REPO / "README.md").read_text(encoding="utf-8")
-    assert readme.splitlines()[3].startswith("python3 -m venv .venv && .venv/bin/pip install -q -e . && ")
+    lines = readme.splitlines()
+    first = next(n for n, line in enumerate(lines) if line.startswith("python3 -m venv"))
+    assert first <= 6 and lines[first].startswith("python3 -m venv .venv && .venv/bin/pip install -q -e . && ")
+    assert "pip install -q -e '.[test]'" in lines[first + 1]  # the two commands, what magline is above them
+    assert "calibrates drone magnetometers" in " ".join(lines[:first])
+    assert "## Try a real station" in readme and "magline run stations/px4-sim.yaml" in readme
     assert len(readme.splitlines()) < 100
     pages = re.findall(r"\]\((docs/[\w-]+\.md)\)", readme)
     assert {"docs/operator.md", "docs/quality.md", "docs/station-file.md", "docs/firmware.md",
