@@ -339,7 +339,7 @@ class HasBootTimeout(Protocol):
 @runtime_checkable
 class CompensatesCurrent(Protocol):
     """A firmware that reports the current it draws and can cancel its compasses' current interference
-    (issue 46: ArduPilot's COMPASS_MOTCT = 2 with COMPASS_MOTn_*, PX4's CAL_MAG_COMP_TYP with
+    (ArduPilot's COMPASS_MOTCT = 2 with COMPASS_MOTn_*, PX4's CAL_MAG_COMP_TYP with
     CAL_MAGn_xCOMP).
 
     ``measure_current_interference(compensation=False)``: before a sweep — its battery current streamed
@@ -347,18 +347,22 @@ class CompensatesCurrent(Protocol):
     off (what it corrects must not hide the field being measured; :meth:`DutBackend.restore` puts it back
     unless the calibration's write replaced it); ``compensation=True`` (the proof after the power cycle)
     leaves what the firmware holds on and reads whatever the stream needs anew.
+
     ``left_per_amp_ut(device_id, stream_per_amp_ut)``: from the slope the proof sweep saw in the raw
     stream (µT per amp of the unit's reading), what the firmware's *corrected* output still changes per
     amp with the parameters it holds now (body axes) — ArduPilot streams its corrected field, PX4's
     SCALED_IMU is the raw sensor, so only the backend knows which.
+
     ``interference_params(device_id, per_amp_ut, fit)``: the parameters that cancel ``per_amp_ut`` — the
     field change per amp of the firmware's *own* current reading, µT/A, in the frame the backend streams
     its raw readings in — for a sensor calibrated with ``fit``, in the firmware's frame, units and sign;
     raise :class:`DutError` naming what is missing when this firmware cannot hold it.
+
     ``compensation_missing(device_id)``: before the sweep, what this firmware lacks to hold the
     compensation of ``device_id`` (its parameters, by name), or ``None`` when it can — it writes nothing
     and records nothing to be written (a backend may remember the answer for the connection), so a unit
     that cannot be compensated is not held at the sweep's ends for a slope nobody will write.
+
     ``compensation_params()``: what switches the compensation on (written once with the
     calibration)."""
 
@@ -415,7 +419,7 @@ class CalibratedBesideRaw:
 @runtime_checkable
 class ReadsRawAndCalibrated(Protocol):
     """The firmware's calibrated output beside the raw readings it was made from, None where it cannot
-    tell — what proves the firmware *applies* magline's calibration, vector by vector (issue 50)."""
+    tell — what proves the firmware *applies* magline's calibration, vector by vector."""
 
     def raw_and_calibrated_ut(self, count: int) -> CalibratedBesideRaw | None: ...
 

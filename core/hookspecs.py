@@ -115,7 +115,7 @@ def magline_register_power_controls(register: Register) -> None:
 
 @hookspec
 def magline_register_current_sources(register: Register) -> None:
-    """Add current sources (what draws the current of the interference sweep, issue 46) by name.
+    """Add current sources (what draws the current of the interference sweep) by name.
     Called once at start-up.
 
     :param register: call ``register(name, factory, options=Model)``; ``factory(config, station_dir,
@@ -431,7 +431,7 @@ def magline_operator_prompt(run: RunContext, message: str) -> None:
 @hookspec(firstresult=True)
 def magline_operator_confirm(run: RunContext, question: str, timeout_s: float) -> bool | None:
     """The station needs the operator's yes before something that could hurt — the propellers off
-    before a motor test spins them (issue 46).  Called on the unit's thread; an answerer blocks until
+    before a motor test spins them.  Called on the unit's thread; an answerer blocks until
     the operator answers or ``timeout_s`` has passed.
 
     :returns: True (yes), False (no, or no answer in time: never a yes by default), or None when this

@@ -29,8 +29,8 @@ What is here, by role:
   the link may die), :class:`Refusals` and :data:`NOTHING_LISTENS_S` (a first connection refused that long
   says nothing listens there, at once), :class:`RepeatFilter`, :class:`ReadingsAtRest`, :class:`SensorStreams`,
   :func:`untruncate_mg`,
-  :data:`INT16_MG_RANGE_UT` (MAVLink's int16 milligauss), :class:`ScpiInstrument`, :class:`InstrumentError`,
-  MSP (INAV's protocol): :class:`MspClient`, :class:`MspParser`, :class:`MspFrame`, :func:`encode_msp_v1`,
+  :data:`INT16_MG_RANGE_UT` (MAVLink's int16 milligauss), :class:`ScpiInstrument`, :class:`InstrumentError`;
+* MSP (INAV's protocol): :class:`MspClient`, :class:`MspParser`, :class:`MspFrame`, :func:`encode_msp_v1`,
   :func:`encode_msp_v2`, :func:`crc8_dvb_s2`, :class:`MspRefused`, :class:`MspTimeout`, the command numbers
   :class:`Msp`, a setting's description :class:`SettingInfo` (:func:`parse_setting_info`,
   :func:`encode_setting_info`), :data:`INAV_ARMED_FLAG` and INAV's sensor alignments

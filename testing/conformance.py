@@ -189,11 +189,15 @@ def check_dut_backend(open_dut: Callable[[], Any], field_ut: float, *, samples: 
     write; unsaved writes lost on a power cycle; a proven new boot; a committed calibration read
     back after it and the firmware's *calibrated* output reading ``field_ut`` (sign, unit and matrix
     convention of ``calibration_params``); ``restore()`` undoing ``prepare()`` in storage (for the
-    parameters named in ``prepare_params``).  ``power_cycle(dut) -> figures`` defaults to the
+    parameters named in ``prepare_params``).
+
+    ``power_cycle(dut) -> figures`` defaults to the
     ``link-reboot`` method.  ``unsaved_writes``: what a power cycle does to a write that was not
     committed — ``"lost"`` (the firmware saves only on ``commit()``), ``"kept"`` (it stores every
     write at once, as ArduPilot) or ``"unspecified"`` (it saves on its own schedule, as PX4's
-    autosave 300 ms after a change: only ``commit()`` is a guarantee).  Several magnetometers
+    autosave 300 ms after a change: only ``commit()`` is a guarantee).
+
+    Several magnetometers
     (``UnitInfo.magnetometers``): after ``use_magnetometers`` with all of them, each streams in
     ``SampleChunk.more`` on the same clock, in µT; ``accelerometer``: the stream carries gravity in m/s²
     (``SampleChunk.imu``) for the mounting check.  Returns figures (fit, boots) for the author's own

@@ -61,3 +61,47 @@ def test_every_link_and_named_file_in_the_docs_is_in_the_repository():
                 broken.append(f"{page.name}: ({target})")
         broken += [f"{page.name}: `{path}`" for path in re.findall(r"`(\.\./[^`\s]+)`", text)]
     assert broken == []
+
+
+PARAGRAPH_MOST = 1200  # characters a reader takes in at once (the page check the docs are held to)
+
+
+def _paragraphs(text: str) -> list[str]:
+    """Prose paragraphs of a markdown page: code blocks, headings and tables left out; a list item is its own."""
+    import re
+
+    out: list[str] = []
+    current: list[str] = []
+    inside = False
+    for line in text.split("\n"):
+        if line.startswith("```"):
+            inside = not inside
+        if inside or line.startswith("```") or not line.strip() or line.startswith(("#", "|")) or (
+                re.match(r"\s*([-*]|\d+\.)\s", line) and current):
+            if current:
+                out.append(" ".join(current))
+                current = []
+            if inside or line.startswith("```") or not line.strip() or line.startswith(("#", "|")):
+                continue
+        current.append(line.strip())
+    if current:
+        out.append(" ".join(current))
+    return out
+
+
+def test_every_page_s_paragraphs_are_short_enough_to_take_in_and_say_no_work_history():
+    """The docs had a paragraph of 8,300 characters citing "session 30" and "issue 49": every paragraph of
+    the README and docs/ (the generated plugin reference included) is at most PARAGRAPH_MOST characters, and
+    no user page cites a session or an issue — the reasoning and its measurements, dated, are
+    docs/design-notes.md's."""
+    import re
+
+    long, history = [], []
+    for page in [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]:
+        text = page.read_text(encoding="utf-8")
+        long += [f"{page.name}: {len(p)} chars: {p[:60]}…" for p in _paragraphs(text) if len(p) > PARAGRAPH_MOST]
+        if page.name != "design-notes.md":
+            history += [f"{page.name}: {m}" for m in re.findall(r"\b(?:session|issue) #?\d+", text, re.I)]
+    assert long == [] and history == []
+    # the check sees a long paragraph, and a list item as its own
+    assert [len(p) for p in _paragraphs("a " * 700 + "\n\n- x\n- y\n```\n" + "b " * 900 + "\n```")] == [1399, 3, 3]

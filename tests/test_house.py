@@ -61,7 +61,10 @@ def test_each_simulator_lists_its_own_options_and_every_fault(capsys):
     px4, ardupilot, coil = helped("px4"), helped("ardupilot"), helped("coil")
     from dataclasses import fields
 
-    assert all(f.name in px4 and f.name in ardupilot for f in fields(SimFaults))  # mag_mounting, mag_warmup …
+    # each lists every fault its board has (mag_mounting, mag_warmup …), and none of another board's only
+    assert all(f.name in px4 for f in SimFaults.for_board("px4"))
+    assert all(f.name in ardupilot for f in SimFaults.for_board("ardupilot"))
+    assert {f.name for f in fields(SimFaults)} == {f.name for b in SimFaults.BOARDS for f in SimFaults.for_board(b)}
     assert "--firmware" in px4 and "--firmware" not in ardupilot
     assert "--fault" not in coil and "--firmware" not in coil and "--fluxgate" in coil and "--coil-fault" in coil
     assert "default tcp:127.0.0.1:5760" in ardupilot and "default udp:127.0.0.1:14550" in px4

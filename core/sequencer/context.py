@@ -113,7 +113,7 @@ class RunContext:
     # for the tumble's stop and the mounting check (core/mounting/line_skew.py)
     skew_priors: dict[str, Any] = field(default_factory=dict)
     persisted: PersistReport | None = None  # what the persist phase wrote, for the verify phase
-    # the current interference (issue 46): what draws the sweep's current (opened by the interference
+    # the current interference: what draws the sweep's current (opened by the interference
     # phase, closed with the unit) and what the sweep found, for validate, persist and verify
     current_source: Any = None
     interference: Interference | None = None

@@ -154,7 +154,7 @@ class PowerConfig(_Strict):
 
 
 class CurrentSourceConfig(_Strict):
-    """What draws the current for the interference sweep (issue 46): ``electronic-load`` (SCPI, in the unit's
+    """What draws the current for the interference sweep: ``electronic-load`` (SCPI, in the unit's
     power path downstream of its current sensor) or ``motor-test`` (the unit's own motors, props off)."""
 
     type: str
@@ -273,7 +273,7 @@ class Product(_Strict):
     options: dict[str, Any] = Field(default_factory=dict)
     power: PowerConfig = Field(default_factory=PowerConfig)
     limits: LimitSet = Field(default_factory=dict)
-    # the compasses' current interference (issue 46): ``off`` (default), ``measure`` (swept and judged) or
+    # the compasses' current interference: ``off`` (default), ``measure`` (swept and judged) or
     # ``compensate`` (also written as the firmware's current compensation and proven after the power cycle)
     interference: Literal["off", "measure", "compensate"] = "off"
     current_max_a: Annotated[float, Field(gt=0, le=500)] | None = None  # the sweep's top: the unit's hover current

@@ -4,7 +4,7 @@ Why: a read-back only proves that what was written is stored; a calibration writ
 firmware does not apply to this sensor, or with a wrong sign or unit, is stored just as well.
 
 Where the backend reads the firmware's raw and calibrated output side by side
-(``raw_and_calibrated_ut(count)``, PX4), two things are proven (issue 50).  First, that the firmware
+(``raw_and_calibrated_ut(count)``, PX4), two things are proven.  First, that the firmware
 applies magline's calibration: its calibrated vectors equal magline's calibration applied to the same
 raw readings and turned into the body as the firmware turns them, within what noise and the int16
 quantisation leave — a wrong sign, unit, slot, or a
