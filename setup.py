@@ -20,5 +20,6 @@ for folder, installed in ROOTS.items():
 setup(
     packages=packages,
     package_dir=package_dir,
-    package_data={"magline.stations": ["*.yaml"], "magline.core.operator_ui.screen": ["static/*"]},
+    package_data={"magline.stations": ["*.yaml"], "magline.core.operator_ui.screen": ["static/*"],
+                  "magline.core.dashboard": ["static/*"]},
 )

@@ -140,6 +140,19 @@ def main(argv: list[str] | None = None) -> int:
     scr.add_argument("station", nargs="?", help="station file (default: the embedded demo)")
     scr.add_argument("--host", default="127.0.0.1", help="address to bind (any other than loopback needs the token)")
     scr.add_argument("--port", type=int, default=8080)
+    dash = sub.add_parser("dashboard", help="the line's page, read-only over the results store: every station live, "
+                                            "the process, any unit by serial")
+    given = dash.add_mutually_exclusive_group()
+    given.add_argument("--station", help="station file whose results store to read (default: the embedded demo's)")
+    given.add_argument("--store", help="a results store itself: a SQLite file, or a database URL "
+                                       "(postgresql+psycopg://role:password@host/db, a role that can only read)")
+    dash.add_argument("--host", default="127.0.0.1", help="address to bind (any other than loopback needs the token)")
+    dash.add_argument("--port", type=int, default=8090)
+    from magline.core.quality.trends import shifts_argument
+
+    dash.add_argument("--shifts", type=shifts_argument, default=None, metavar="HH:MM,…",
+                      help="the line's shift starts (tiles count the running shift; default: the station file's, "
+                           "else the day)")
     held = sub.add_parser("slots", help="which station holds which slot now, from the results store every "
                                         "computer of the line shares")
     held.add_argument("--station", help="station file naming the results store (default: demo)")
@@ -166,7 +179,7 @@ def main(argv: list[str] | None = None) -> int:
         return args.handler(args)
     handler = {"run": _run, "check": _check, "fit": _fit, "plugins": _plugins, "history": _history,
                "show": _show, "export": _export, "sync": _sync, "spc": _spc, "report": _report,
-               "station": _station, "slots": _slots, "ports": _ports}
+               "station": _station, "slots": _slots, "ports": _ports, "dashboard": _dashboard}
     return _quiet_broken_pipe(lambda: handler[args.command](args, plugins))
 
 
@@ -751,6 +764,25 @@ def _station(args: argparse.Namespace, plugins: Plugins) -> int:
         _err(str(exc))
         return 2
     return serve(station, where, plugins, args.host, args.port)
+
+
+def _dashboard(args: argparse.Namespace, plugins: Plugins) -> int:
+    from magline.core.dashboard.serve import serve, station_store
+    from magline.core.quality.trends import Shifts
+    from magline.core.station import StationError
+
+    shifts = args.shifts
+    if args.store:
+        target = args.store
+    else:
+        try:
+            station, where = _load(args.station, plugins)
+            target = station_store(station, where)
+        except (StationError, PluginError, StationFault) as exc:
+            _err(str(exc))
+            return 2
+        shifts = shifts or Shifts.parse(station.station.shifts)
+    return serve(target, shifts or Shifts(), args.host, args.port)
 
 
 def _quiet_broken_pipe(handler: Callable[[], int]) -> int:

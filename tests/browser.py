@@ -6,10 +6,15 @@ from __future__ import annotations
 
 import base64
 import shutil
+import socket
+import threading
+import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+import uvicorn
 
 # What keeps Chromium from phoning home at start (its own update, sync and field-trial requests),
 # so that the requests a test sees are the page's.
@@ -93,3 +98,38 @@ def colour_pixels(page: Any, selector: str, colours: dict[str, str], within: int
 def screenshot(page: Any, path: Path) -> Path:
     page.screenshot(path=str(path), full_page=True)
     return path
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class Served:
+    """The app on a real socket, in a thread; stoppable and startable again on the same port."""
+
+    def __init__(self, app, port: int) -> None:
+        self.app, self.port = app, port
+        self.start()
+
+    def start(self) -> None:
+        self.app.state.closing.clear()
+        config = uvicorn.Config(self.app, host="127.0.0.1", port=self.port, log_level="warning",
+                                timeout_graceful_shutdown=1)
+        self.server = uvicorn.Server(config)
+        self.thread = threading.Thread(target=self.server.run, daemon=True)
+        self.thread.start()
+        deadline = time.monotonic() + 20
+        while not self.server.started:
+            assert time.monotonic() < deadline, "the screen did not start"
+            time.sleep(0.05)
+
+    def stop(self) -> None:
+        self.app.state.closing.set()
+        self.server.should_exit = True
+        self.thread.join(timeout=20)
+
+    @property
+    def url(self) -> str:
+        return f"http://127.0.0.1:{self.port}/"

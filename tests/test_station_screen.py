@@ -9,17 +9,13 @@ import copy
 import datetime as dt
 import json
 import re
-import socket
-import threading
-import time
 import urllib.error
 import urllib.request
 
 import numpy as np
 import pytest
-import uvicorn
 import yaml
-from browser import colour_pixels, open_page, screenshot
+from browser import Served, colour_pixels, free_port, open_page, screenshot
 from conftest import REPO
 from playwright.sync_api import TimeoutError as PlaywrightTimeout
 from sqlalchemy import create_engine
@@ -35,39 +31,6 @@ from magline.sim.storage import NvStorage
 LOCAL = ("http://127.0.0.1:",)
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-class Served:
-    """The app on a real socket, in a thread; stoppable and startable again on the same port."""
-
-    def __init__(self, app, port: int) -> None:
-        self.app, self.port = app, port
-        self.start()
-
-    def start(self) -> None:
-        self.app.state.closing.clear()
-        config = uvicorn.Config(self.app, host="127.0.0.1", port=self.port, log_level="warning",
-                                timeout_graceful_shutdown=1)
-        self.server = uvicorn.Server(config)
-        self.thread = threading.Thread(target=self.server.run, daemon=True)
-        self.thread.start()
-        deadline = time.monotonic() + 20
-        while not self.server.started:
-            assert time.monotonic() < deadline, "the screen did not start"
-            time.sleep(0.05)
-
-    def stop(self) -> None:
-        self.app.state.closing.set()
-        self.server.should_exit = True
-        self.thread.join(timeout=20)
-
-    @property
-    def url(self) -> str:
-        return f"http://127.0.0.1:{self.port}/"
 
 
 @pytest.fixture

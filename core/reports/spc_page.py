@@ -36,10 +36,13 @@ def _beside(folder: Path, page: Path) -> str:
     return os.path.relpath(folder.resolve(), page.resolve().parent)
 
 
-def write_spc_page(report: SpcReport, path: Path, reports: Path | None = None) -> Path:
-    """The page; ``reports``: the station's unit-report folder, whose files a click on a point opens."""
+def write_spc_page(report: SpcReport, path: Path, reports: Path | None = None, *,
+                   links: dict[int, str] | None = None, plotly_src: str | None = None) -> Path:
+    """The page; ``reports``: the station's unit-report folder, whose files a click on a point opens
+    (``links``: run id → address instead, as the dashboard serves them; ``plotly_src``: as
+    :func:`~magline.core.reports.page.write_page`)."""
     serials = [r["serial"] for r in report.series.runs]
-    links = report_links(report, reports, path)
+    links = report_links(report, reports, path) if links is None else links
     sections = [f"<h1>Process control — {html.escape(report.title)}</h1>",
                 f"<p class=note>{len(serials)} runs"
                 + (f", {html.escape(report.series.runs[0]['started'])} → "
@@ -100,7 +103,7 @@ def write_spc_page(report: SpcReport, path: Path, reports: Path | None = None) -
                      "</div>",
                      figure_html(shape_figure(m), f"shape-{m.name}"), table(None, capability_rows(m))]
     sections.append(CLICK_SCRIPT)
-    return write_page(path, f"magline spc — {report.title}", sections)
+    return write_page(path, f"magline spc — {report.title}", sections, plotly_src)
 
 
 def _trend_sections(report: SpcReport) -> list[str]:

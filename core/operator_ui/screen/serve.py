@@ -49,6 +49,7 @@ def listening_socket(host: str, port: int) -> socket.socket:
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     try:
         sock.bind(address)
+        sock.listen(128)  # a browser opened at the announced address waits for the server, never refused
     except OSError:
         sock.close()
         raise

@@ -1,0 +1,191 @@
+"""The dashboard's web application: "the line now" live, the process of a part, a unit by its serial.
+
+Read-only by construction: every route is a GET, the store is opened read-only
+(:mod:`magline.core.dashboard.store`), and nothing on a page changes a limit, a station or a record.
+Access as the station screen's: bound to loopback no login; bound to any other address every request
+needs the token printed at start.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import html
+import json
+import tempfile
+import threading
+from datetime import UTC, datetime
+from importlib.resources import files
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from fastapi import FastAPI, Request
+from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, PlainTextResponse, Response
+from sse_starlette.sse import EventSourceResponse
+
+from magline.core.dashboard.line import line_now, store_version
+from magline.core.operator_ui.screen.app import TokenRequired, plotly_js_path
+
+if TYPE_CHECKING:
+    from magline.core.dashboard.store import ReadOnlyStore
+    from magline.core.quality.trends import Shifts
+
+STATIC = files("magline.core.dashboard") / "static"
+POLL_S = 0.5  # how often the live pages ask the store whether a unit was recorded
+HEARTBEAT_S = 5.0
+PLOTLY_SRC = "/static/plotly.min.js"
+
+
+def create_app(store: ReadOnlyStore, shifts: Shifts, token: str | None = None,
+               now: Any = lambda: datetime.now(UTC)) -> FastAPI:
+    app = FastAPI(title="magline dashboard", docs_url=None, redoc_url=None, openapi_url=None)
+    app.state.closing = threading.Event()  # set by whoever stops a server run in a thread
+    if token is not None:
+        app.add_middleware(TokenRequired, token=token)
+
+    def line() -> dict[str, Any]:
+        with store.engine.connect() as conn:
+            return {**line_now(conn, now(), shifts), "store": store.where}
+
+    @app.get("/", response_class=HTMLResponse)
+    def page() -> HTMLResponse:
+        return HTMLResponse((STATIC / "line.html").read_text(encoding="utf-8"))
+
+    @app.get("/static/plotly.min.js")
+    def plotly_js() -> FileResponse:
+        return FileResponse(plotly_js_path(), media_type="text/javascript")
+
+    @app.get("/static/{name}")
+    def static(name: str) -> Response:
+        item = STATIC / name
+        if "/" in name or not item.is_file():
+            return PlainTextResponse("not found", status_code=404)
+        kind = {"js": "text/javascript", "css": "text/css"}.get(name.rsplit(".", 1)[-1], "text/plain")
+        return Response(item.read_bytes(), media_type=kind)
+
+    @app.get("/api/line")
+    async def line_json() -> JSONResponse:
+        return JSONResponse(await asyncio.to_thread(line))
+
+    @app.get("/api/events")
+    async def events(request: Request) -> EventSourceResponse:
+        def version() -> tuple:
+            with store.engine.connect() as conn:
+                return store_version(conn)
+
+        async def stream() -> Any:
+            seen, quiet = None, 0.0
+            while not app.state.closing.is_set() and not await request.is_disconnected():
+                current = await asyncio.to_thread(version)
+                if current != seen:
+                    seen, quiet = current, 0.0
+                    yield {"event": "line", "data": json.dumps(await asyncio.to_thread(line))}
+                elif (quiet := quiet + POLL_S) >= HEARTBEAT_S:
+                    quiet = 0.0
+                    yield {"event": "alive", "data": "{}"}
+                await asyncio.sleep(POLL_S)
+        return EventSourceResponse(stream())
+
+    @app.get("/unit", response_class=HTMLResponse)
+    async def unit(serial: str = "") -> HTMLResponse:
+        return HTMLResponse(await asyncio.to_thread(_unit_page, store, serial))
+
+    @app.get("/report/{run}", response_class=HTMLResponse)
+    async def report(run: str) -> Response:
+        text = await asyncio.to_thread(_report_page, store, run)
+        return HTMLResponse(text) if text is not None else PlainTextResponse(f"no run {run!r}", status_code=404)
+
+    @app.get("/process", response_class=HTMLResponse)
+    async def process(request: Request) -> HTMLResponse:
+        return HTMLResponse(await asyncio.to_thread(_process_page, store, dict(request.query_params), shifts))
+
+    return app
+
+
+def _frame(title: str, body: str) -> str:
+    return (f"<!DOCTYPE html><html lang=en><head><meta charset=utf-8><title>{html.escape(title)}</title>"
+            "<link rel=icon href='data:,'><link rel=stylesheet href='/static/dashboard.css'></head><body>"
+            "<nav><a href='/'>the line now</a> · <a href='/process'>the process</a> · "
+            "<form action='/unit' method=get class=search><input name=serial placeholder='serial' "
+            "aria-label=serial><button>find</button></form></nav>"
+            f"<main>{body}</main></body></html>")
+
+
+def _unit_page(store: ReadOnlyStore, serial: str) -> str:
+    """A unit's runs (any case of its serial, as ``magline history``), each linked to its report."""
+    from sqlalchemy import select
+
+    from magline.core.results.reading import same_serial
+    from magline.core.results.tables import runs
+
+    if not serial.strip():
+        return _frame("magline — a unit", "<h1>A unit</h1><p>Type or scan a serial above.</p>")
+    with store.engine.connect() as conn:
+        found = conn.execute(select(runs.c.id, runs.c.serial, runs.c.part, runs.c.station_id, runs.c.started,
+                                    runs.c.verdict, runs.c.cause)
+                             .where(same_serial(conn, serial)).order_by(runs.c.id)).all()
+    if not found:
+        return _frame("magline — a unit", f"<h1>{html.escape(serial)}</h1><p class=note>No run of this serial in "
+                      f"{html.escape(store.where)}.</p>")
+    rows = "".join(f"<tr class='{html.escape(str(r.verdict))}'><td><a href='/report/{r.id}'>run {r.id}</a></td>"
+                   f"<td>{html.escape(str(r.started))}</td><td>{html.escape(str(r.station_id))}</td>"
+                   f"<td>{html.escape(str(r.part))}</td><td>{html.escape(str(r.verdict).upper())}</td>"
+                   f"<td>{html.escape(r.cause or '')}</td></tr>" for r in found)
+    return _frame(f"magline — {found[-1].serial}",
+                  f"<h1>{html.escape(found[-1].serial)}</h1><p class=note>{len(found)} run(s), oldest first</p>"
+                  "<table><tr><th>report</th><th>started</th><th>station</th><th>part</th><th>verdict</th>"
+                  f"<th>cause</th></tr>{rows}</table>")
+
+
+def _report_page(store: ReadOnlyStore, run: str) -> str | None:
+    """The unit report ``magline report`` writes, plotly.js from this server."""
+    from magline.core.reports.commands import stored_run
+    from magline.core.reports.unit_page import write_unit_page
+
+    with store.engine.connect() as conn:
+        found = stored_run(conn, run)
+    if found is None:
+        return None
+    with tempfile.TemporaryDirectory() as folder:
+        return write_unit_page(found, Path(folder) / "unit.html", PLOTLY_SRC).read_text(encoding="utf-8")
+
+
+def _process_page(store: ReadOnlyStore, query: dict[str, str], shifts: Shifts) -> str:
+    """The control charts and capability ``magline spc`` computes for a part (its frozen limits where
+    frozen), filtered as the address says; each point opens its unit's report."""
+    from sqlalchemy import func, select
+
+    from magline.core.quality.spc import build
+    from magline.core.reports.spc_page import write_spc_page
+    from magline.core.results.control_limits import newest
+    from magline.core.results.reading import RunFilter
+    from magline.core.results.series import load_series
+    from magline.core.results.tables import runs
+
+    with store.engine.connect() as conn:
+        parts = [p for (p,) in conn.execute(select(runs.c.part).group_by(runs.c.part)
+                                            .order_by(func.max(runs.c.id).desc())).all()]
+        part = query.get("part") or (parts[0] if parts else None)
+        if part is None:
+            return _frame("magline — the process", "<h1>The process</h1><p>No unit recorded yet.</p>")
+        where = RunFilter(part=part, station_id=query.get("station") or None, line=query.get("line") or None,
+                          since=query.get("since") or None, until=query.get("until") or None)
+        last = int(query["last"]) if query.get("last", "").isdigit() else 500
+        series = load_series(conn, where, last, None, True, True, None)
+        frozen = newest(conn, part, where.station_id)
+    choose = "".join(f"<a href='/process?part={html.escape(p)}'>{html.escape(p)}</a> " for p in parts)
+    if not len(series):
+        return _frame("magline — the process", f"<h1>The process</h1><p>parts: {choose}</p>"
+                      f"<p class=note>No runs of {html.escape(part)} match this filter.</p>")
+    title = f"part {part}" + (f", station {where.station_id}" if where.station_id else ", every station") + \
+        f", latest {len(series)} runs"
+    report = build(series, title, None, 50, frozen=frozen, shifts=shifts)
+    links = {int(r["id"]): f"/report/{r['id']}" for r in series.runs}
+    with tempfile.TemporaryDirectory() as folder:
+        text = write_spc_page(report, Path(folder) / "spc.html", links=links,
+                              plotly_src=PLOTLY_SRC).read_text(encoding="utf-8")
+    signals = "".join(f"<li><a href='/report/{series.runs[m.chart.index[s.point]]['id']}'>"
+                      f"{html.escape(str(series.runs[m.chart.index[s.point]]['serial']))}</a>: {html.escape(m.name)},"
+                      f" rule {html.escape(s.rule)}</li>" for m in report.measurements for s in m.chart.signals)
+    nav = (f"<nav class=process>parts: {choose} · <a href='/'>the line now</a></nav>"
+           + (f"<h2>Signals</h2><ul class=signals>{signals}</ul>" if signals else ""))
+    return text.replace("<body>", "<body>" + nav, 1)

@@ -1,0 +1,94 @@
+""""The line now": one tile per station that recorded units lately — what it tests now, its last units,
+its shift so far — from the results store alone, so any number of stations and dashboards agree.
+
+Why a station's *usual gap*: a line runs units at its own pace; a station is flagged silent when the time
+since its last unit is several times the median gap between its recent units (and no unit is under test),
+not after a fixed time that is long for one product and short for another.
+"""
+
+from __future__ import annotations
+
+import itertools
+import statistics
+from datetime import UTC, datetime, timedelta
+from typing import TYPE_CHECKING, Any
+
+from sqlalchemy import func, select
+
+from magline.core.results.instants import stored_form
+from magline.core.results.reading import shift_units
+from magline.core.results.tables import runs, slot_claims
+
+if TYPE_CHECKING:
+    from sqlalchemy import Connection
+
+    from magline.core.quality.trends import Shifts
+
+RECENT = 6  # units on a tile
+ACTIVE_DAYS = 14  # a station with no unit in this long has no tile
+GAPS = 20  # the gaps a station's usual pace is the median of
+SILENT_TIMES = 3.0  # silent: this many usual gaps since its last unit …
+SILENT_LEAST_S = 600.0  # … and at least this long
+CLAIM_FRESH_S = 120.0  # a slot claim refreshed within this is a unit under test (core/results/claims.py)
+
+
+def line_now(conn: Connection, now: datetime, shifts: Shifts) -> dict[str, Any]:
+    """Every recently active station's tile, by line and station id."""
+    shift_start = shifts.start_of(now)
+    since = stored_form(shift_start)
+    active = stored_form(now - timedelta(days=ACTIVE_DAYS))
+    stations = conn.execute(select(runs.c.station_id, func.max(runs.c.line), func.max(runs.c.id))
+                            .where((runs.c.started >= active) & (runs.c.verdict != "running"))
+                            .group_by(runs.c.station_id)).all()
+    claims = conn.execute(select(slot_claims)).mappings().all()
+    tiles = []
+    for station_id, line, _ in sorted(stations, key=lambda row: (str(row[1]), str(row[0]))):
+        shift = shift_units(conn, station_id, since, RECENT)
+        finished = [row[0] for row in conn.execute(
+            select(runs.c.finished).where((runs.c.station_id == station_id) & runs.c.finished.is_not(None)
+                                          & (runs.c.verdict != "running"))
+            .order_by(runs.c.id.desc()).limit(GAPS + 1)).all()]
+        testing = [{"slot": c["slot"], "serial": c["serial"], "since": c["since"]} for c in claims
+                   if c["station_id"] == station_id and _fresh(c["heartbeat"], now)]
+        tiles.append({"station_id": station_id, "line": line, **shift,
+                      "per_hour": _per_hour(shift["units"], conn.execute(
+                          select(func.min(runs.c.started)).where((runs.c.station_id == station_id)
+                                                                 & (runs.c.started >= since))).scalar(), now),
+                      "testing": testing, **_pace(finished, now, bool(testing))})
+    return {"shift_start": shift_start.isoformat(timespec="minutes"), "now": now.astimezone().isoformat(
+        timespec="seconds"), "shift_word": "this shift" if shifts.starts else "today", "stations": tiles}
+
+
+def _fresh(heartbeat: str | None, now: datetime) -> bool:
+    if not heartbeat:
+        return False
+    return (now - datetime.fromisoformat(heartbeat)).total_seconds() <= CLAIM_FRESH_S
+
+
+def _per_hour(units: int, first_started: str | None, now: datetime) -> float | None:
+    """Units an hour since the shift's first unit began (an idle start of shift is not the line's pace);
+    None below two units."""
+    if units < 2 or not first_started:
+        return None
+    hours = max((now - datetime.fromisoformat(first_started)).total_seconds(), 60.0) / 3600.0
+    return units / hours
+
+
+def _pace(finished: list[str], now: datetime, testing: bool) -> dict[str, Any]:
+    """The station's last unit, its usual gap between units, and whether it is silent beyond it."""
+    if not finished:
+        return {"last_finished": None, "usual_gap_s": None, "silent": False, "silent_s": None}
+    times = [datetime.fromisoformat(f) for f in finished]
+    gaps = [(a - b).total_seconds() for a, b in itertools.pairwise(times) if a > b]
+    usual = statistics.median(gaps) if gaps else None
+    since_last = (now - times[0]).total_seconds()
+    silent = usual is not None and not testing and since_last > max(SILENT_TIMES * usual, SILENT_LEAST_S)
+    return {"last_finished": times[0].astimezone(UTC).isoformat(timespec="seconds"), "usual_gap_s": usual,
+            "silent": silent, "silent_s": since_last if silent else None}
+
+
+def store_version(conn: Connection) -> tuple[Any, ...]:
+    """What changes when any station records a unit (or starts one): the dashboard's live pages follow it."""
+    return tuple(conn.execute(select(func.max(runs.c.id), func.max(runs.c.finished), func.count(runs.c.id))).one()) \
+        + tuple(conn.execute(select(func.count(), func.max(slot_claims.c.since))
+                             .select_from(slot_claims)).one())

@@ -1,0 +1,170 @@
+"""``magline dashboard`` in Debian's Chromium: tiles that follow a real ``magline run``, a process signal
+that opens its unit, the token off loopback, an empty store, a store it cannot open — and a store it never
+writes."""
+
+from __future__ import annotations
+
+import hashlib
+import subprocess
+import sys
+import urllib.error
+import urllib.request
+
+import numpy as np
+import pytest
+from browser import Served, free_port, open_page, screenshot
+from simstation import FAST_SENSOR_HZ, write_station
+
+from magline.core.dashboard.app import create_app
+from magline.core.dashboard.store import open_read_only
+from magline.core.measurements import Numeric, Verdict
+from magline.core.quality.trends import Shifts
+from magline.core.record import Outcome, RunRecord
+from magline.core.results.sqlite_store import SqliteSink
+from magline.sim import create_sim
+
+LOCAL = ("http://127.0.0.1:",)
+
+
+def magline(*args: str, cwd=None, timeout: float = 120.0) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "magline.core.cli", *args], cwd=cwd, capture_output=True, text=True,
+                          timeout=timeout)
+
+
+def recorded(path, serials_values, station_id="st-a", line="L1"):
+    """Units written to a SQLite store as a station records them (hard-iron norms given)."""
+    sink = SqliteSink(path)
+    try:
+        for serial, value in serials_values:
+            record = RunRecord(serial=serial, part="P-1", station_id=station_id, line=line, operator="ann",
+                               software_version="test", limit_hash="x")
+            record.measurements = [Numeric("hard_iron_norm_ut", value, "µT", None, 300.0, Verdict.PASS)]
+            record.verdict = Outcome.PASS
+            sink.begin(record)
+            sink.finish(record)
+    finally:
+        sink.close()
+
+
+@pytest.fixture
+def dashboard():
+    started = []
+
+    def start(target, token=None):
+        store = open_read_only(str(target))
+        served = Served(create_app(store, Shifts(), token), free_port())
+        started.append((served, store))
+        return served
+
+    yield start
+    for served, store in started:
+        served.stop()
+        store.close()
+
+
+def test_a_tile_follows_a_unit_recorded_by_a_real_magline_run_without_a_reload(dashboard, browser, tmp_path):
+    """A simulated PX4 calibrated by ``magline run``: the station's tile counts it, lists its serial first and
+    its first-pass yield, and the page was never reloaded; the store's bytes are as the station left them."""
+    with create_sim("px4", "udp:127.0.0.1:0", mag_rate_hz=FAST_SENSOR_HZ, workdir=tmp_path / "fc", seed=5,
+                    boot_time_s=0.3, speed=5.0) as sim:
+        station = write_station("px4-sim.yaml", tmp_path, sim.address.replace("udp:", "udpout://"),
+                                {"connect_timeout_s": 5.0, "boot_timeout_s": 10.0})
+        first = magline("run", str(station), "--serial", "DASH-1")
+        assert first.returncode == 0, first.stderr[-2000:]
+        served = dashboard(tmp_path / "results.sqlite")
+        opened = open_page(browser, served.url)
+        page = opened.page
+        page.wait_for_selector(".tile[data-station='sim-px4-01'] .units:has-text('1 unit today')")
+        drawn = page.evaluate("window.__shown")
+        second = magline("run", str(station), "--serial", "DASH-2")
+        assert second.returncode == 0, second.stderr[-2000:]
+        page.wait_for_selector(".tile[data-station='sim-px4-01'] .units:has-text('2 units today')")
+    assert page.evaluate("window.__shown") > drawn and page.evaluate("performance.navigation.type") == 0  # no reload
+    tile = page.inner_text(".tile[data-station='sim-px4-01']")
+    assert tile.splitlines()[0].startswith("sim-px4-01") and "first-pass yield 100%" in tile
+    assert [e.strip() for e in page.eval_on_selector_all(".tile .recent li a", "els => els.map(e => e.textContent)")] \
+        == ["DASH-2", "DASH-1"]
+    page.click(".tile .recent li a >> nth=0")  # a unit: its runs, each opening the report `magline report` writes
+    page.wait_for_selector("h1:has-text('DASH-2')")
+    page.click("a:has-text('run 2')")
+    page.wait_for_selector("text=DASH-2")
+    assert "MOCK" not in page.title() and page.url.endswith("/report/2")
+    screenshot(page, tmp_path / "dashboard-unit-report.png")
+    assert opened.outside(LOCAL) == []
+
+
+def test_a_process_signal_links_to_the_unit_behind_it(dashboard, browser, tmp_path):
+    """The process page is ``spc``'s (its charts and rules): a step in a part's offsets signals, and the
+    signal opens the report of the unit that completed it; the filters are in the address."""
+    rng = np.random.default_rng(7)
+    values = [(f"U-{i}", rng.normal(74.0, 0.5) + (3.0 if i >= 60 else 0.0)) for i in range(70)]
+    recorded(tmp_path / "line.sqlite", values)
+    served = dashboard(tmp_path / "line.sqlite")
+    opened = open_page(browser, served.url + "process?part=P-1&station=st-a")
+    page = opened.page
+    page.wait_for_selector("ul.signals li a")
+    signals = page.eval_on_selector_all("ul.signals li a", "els => els.map(a => ({text: a.textContent, "
+                                        "href: a.getAttribute('href')}))")
+    step = [s for s in signals if int(s["text"].split("-")[1]) >= 60]  # the units of the step signal
+    assert step and all(s["href"].startswith("/report/") for s in signals)
+    first = step[0]
+    assert "station st-a" in page.inner_text("h1")
+    page.click(f"ul.signals li a[href='{first['href']}'] >> nth=0")
+    page.wait_for_selector(f"text={first['text']}")
+    assert page.url.endswith(first["href"])
+    assert opened.outside(LOCAL) == []
+
+
+def test_a_page_over_an_empty_store_says_what_to_do_first(dashboard, browser, tmp_path):
+    SqliteSink(tmp_path / "empty.sqlite").close()  # a station's store before its first unit
+    page = open_page(browser, dashboard(tmp_path / "empty.sqlite").url).page
+    page.wait_for_selector("#empty:not([hidden])")
+    assert "magline run" in page.inner_text("#empty") and page.inner_text("#tiles") == ""
+
+
+def test_off_loopback_every_request_needs_the_token_and_the_store_is_never_written(tmp_path):
+    """Bound to another address the dashboard prints its token once; without it nothing is served. The
+    SQLite file is opened read-only: its bytes after the pages were served are the bytes before."""
+    recorded(tmp_path / "line.sqlite", [("T-1", 74.0), ("T-2", 74.2)])
+    before = hashlib.sha256((tmp_path / "line.sqlite").read_bytes()).hexdigest()
+    port = free_port()
+    proc = subprocess.Popen([sys.executable, "-m", "magline.core.cli", "dashboard", "--store",
+                             str(tmp_path / "line.sqlite"), "--host", "0.0.0.0", "--port", str(port)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        said = proc.stdout.readline()
+        assert "token=" in said and "(token shown once)" in said, said
+        token = said.split("token=")[1].split()[0]
+        with pytest.raises(urllib.error.HTTPError) as refused:
+            urllib.request.urlopen(f"http://127.0.0.1:{port}/api/line", timeout=10)
+        assert refused.value.code == 401
+        for path in ("api/line", "unit?serial=t-1", "process", "report/1"):
+            with urllib.request.urlopen(f"http://127.0.0.1:{port}/{path}{'&' if '?' in path else '?'}token={token}",
+                                        timeout=30) as answer:
+                assert answer.status == 200, path
+    finally:
+        proc.terminate()
+        proc.wait(10)
+    assert hashlib.sha256((tmp_path / "line.sqlite").read_bytes()).hexdigest() == before
+
+
+@pytest.mark.parametrize("kind", ["missing", "not-magline", "server-refused"])
+def test_a_store_the_dashboard_cannot_open_is_one_clear_line(tmp_path, kind):
+    from dead_ports import refused_port
+
+    if kind == "missing":
+        target = str(tmp_path / "nowhere.sqlite")
+    elif kind == "not-magline":
+        import sqlite3
+
+        with sqlite3.connect(tmp_path / "other.sqlite") as conn:
+            conn.execute("CREATE TABLE t (x)")
+        target = str(tmp_path / "other.sqlite")
+    with refused_port() as port:
+        if kind == "server-refused":
+            target = f"postgresql+psycopg://reader:secret@127.0.0.1:{port}/magline"
+        done = magline("dashboard", "--store", target, "--port", str(free_port()), timeout=60)
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode == 2 and len(lines) == 1 and lines[0].startswith("magline dashboard: results store"), \
+        done.stderr
+    assert "secret" not in done.stderr and "Traceback" not in done.stderr
