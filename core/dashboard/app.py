@@ -19,11 +19,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from fastapi import FastAPI, Request
-from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, PlainTextResponse, Response
+from fastapi.responses import HTMLResponse, JSONResponse, PlainTextResponse, Response
 from sse_starlette.sse import EventSourceResponse
 
 from magline.core.dashboard.line import line_now, store_version
-from magline.core.operator_ui.screen.app import TokenRequired, plotly_js_path
+from magline.core.operator_ui.screen.app import TokenRequired, add_static_routes
 
 if TYPE_CHECKING:
     from magline.core.dashboard.store import ReadOnlyStore
@@ -50,17 +50,7 @@ def create_app(store: ReadOnlyStore, shifts: Shifts, token: str | None = None,
     def page() -> HTMLResponse:
         return HTMLResponse((STATIC / "line.html").read_text(encoding="utf-8"))
 
-    @app.get("/static/plotly.min.js")
-    def plotly_js() -> FileResponse:
-        return FileResponse(plotly_js_path(), media_type="text/javascript")
-
-    @app.get("/static/{name}")
-    def static(name: str) -> Response:
-        item = STATIC / name
-        if "/" in name or not item.is_file():
-            return PlainTextResponse("not found", status_code=404)
-        kind = {"js": "text/javascript", "css": "text/css"}.get(name.rsplit(".", 1)[-1], "text/plain")
-        return Response(item.read_bytes(), media_type=kind)
+    add_static_routes(app, STATIC)
 
     @app.get("/api/line")
     async def line_json() -> JSONResponse:

@@ -37,6 +37,23 @@ def plotly_js_path() -> Path:
     return Path(plotly.__file__).parent / "package_data" / "plotly.min.js"
 
 
+def add_static_routes(app: FastAPI, folder: Any) -> None:
+    """``/static/plotly.min.js`` from the installed plotly package and ``/static/NAME`` from ``folder``
+    (a page's own scripts and styles): the pages ask nothing of the internet."""
+
+    @app.get("/static/plotly.min.js")
+    def plotly_js() -> FileResponse:
+        return FileResponse(plotly_js_path(), media_type="text/javascript")
+
+    @app.get("/static/{name}")
+    def static(name: str) -> Response:
+        item = folder / name
+        if "/" in name or not item.is_file():
+            return PlainTextResponse("not found", status_code=404)
+        kind = {"js": "text/javascript", "css": "text/css"}.get(name.rsplit(".", 1)[-1], "text/plain")
+        return Response(item.read_bytes(), media_type=kind)
+
+
 class TokenRequired:
     """Plain ASGI middleware (it must not buffer the event stream): 401 without the token; a token
     given in the address is kept in a cookie so the page's own requests carry it."""
@@ -80,17 +97,7 @@ def create_app(state: ScreenState, runner: UnitRunner, token: str | None = None,
     def page() -> HTMLResponse:
         return HTMLResponse((STATIC / "index.html").read_text(encoding="utf-8"))
 
-    @app.get("/static/plotly.min.js")
-    def plotly_js() -> FileResponse:
-        return FileResponse(plotly_js_path(), media_type="text/javascript")
-
-    @app.get("/static/{name}")
-    def static(name: str) -> Response:
-        item = STATIC / name
-        if "/" in name or not item.is_file():
-            return PlainTextResponse("not found", status_code=404)
-        kind = {"js": "text/javascript", "css": "text/css"}.get(name.rsplit(".", 1)[-1], "text/plain")
-        return Response(item.read_bytes(), media_type=kind)
+    add_static_routes(app, STATIC)
 
     @app.get("/api/state")
     def current() -> JSONResponse:
