@@ -168,3 +168,35 @@ def test_a_store_the_dashboard_cannot_open_is_one_clear_line(tmp_path, kind):
     assert done.returncode == 2 and len(lines) == 1 and lines[0].startswith("magline dashboard: results store"), \
         done.stderr
     assert "secret" not in done.stderr and "Traceback" not in done.stderr
+
+
+def test_a_product_page_shows_each_compass_s_distribution_and_the_firmware_its_units_ran(dashboard, browser,
+                                                                                         tmp_path):
+    """Per product, where a design or supplier change shows: each compass's mounting error (a trace per
+    compass: the mast's and the board's never pooled), and the firmware versions the units ran."""
+    rng = np.random.default_rng(3)
+    sink = SqliteSink(tmp_path / "line.sqlite")
+    try:
+        for i in range(40):
+            record = RunRecord(serial=f"F-{i}", part="P-2", station_id="st-b", line="L1", operator="bo",
+                               software_version="test", limit_hash="x")
+            record.measurements = [Numeric("mounting_error_deg", abs(rng.normal(0.3, 0.1)), "°", None, 3.0,
+                                           Verdict.PASS),
+                                   Numeric("mag2.mounting_error_deg", abs(rng.normal(1.2, 0.2)), "°", None, 3.0,
+                                           Verdict.PASS)]
+            record.unit_info = {"firmware": "1.15.0" if i < 30 else "1.16.0"}
+            record.verdict = Outcome.PASS
+            sink.begin(record)
+            sink.finish(record)
+    finally:
+        sink.close()
+    opened = open_page(browser, dashboard(tmp_path / "line.sqlite").url + "product?part=P-2")
+    page = opened.page
+    page.wait_for_function("document.getElementById('hist-mounting_error_deg') && "
+                           "document.getElementById('hist-mounting_error_deg').data")
+    traces = page.evaluate("document.getElementById('hist-mounting_error_deg').data.map(t => t.name)")
+    assert traces == ["mag1 (40)", "mag2 (40)"]
+    rows = page.eval_on_selector_all("table tbody tr", "rows => rows.map(r => r.innerText.split('\\t').slice(0, 2))")
+    assert rows == [["1.15.0", "30"], ["1.16.0", "10"]]
+    assert "not measured on this product" in page.inner_text("body")  # no interference sweep on this part
+    assert opened.outside(LOCAL) == []

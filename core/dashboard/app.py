@@ -88,13 +88,40 @@ def create_app(store: ReadOnlyStore, shifts: Shifts, token: str | None = None,
     async def process(request: Request) -> HTMLResponse:
         return HTMLResponse(await asyncio.to_thread(_process_page, store, dict(request.query_params), shifts))
 
+    @app.get("/product", response_class=HTMLResponse)
+    async def product(part: str = "") -> HTMLResponse:
+        return HTMLResponse(await asyncio.to_thread(_product_page, store, part))
+
     return app
+
+
+def _product_page(store: ReadOnlyStore, part: str) -> str:
+    """:mod:`magline.core.dashboard.product` for ``part`` (the latest recorded part when none is given)."""
+    from sqlalchemy import func, select
+
+    from magline.core.dashboard.product import product_figures, product_sections
+    from magline.core.reports.page import write_page
+    from magline.core.results.tables import runs
+
+    with store.engine.connect() as conn:
+        parts = [p for (p,) in conn.execute(select(runs.c.part).group_by(runs.c.part)
+                                            .order_by(func.max(runs.c.id).desc())).all()]
+        part = part or (parts[0] if parts else "")
+        if not part:
+            return _frame("magline — design and supply", "<h1>Design and supply</h1><p>No unit recorded yet.</p>")
+        figures = product_figures(conn, part)
+    choose = " ".join(f"<a href='/product?part={html.escape(p)}'>{html.escape(p)}</a>" for p in parts)
+    nav = f"<nav class=process>parts: {choose} · <a href='/'>the line now</a></nav>"
+    with tempfile.TemporaryDirectory() as folder:
+        return write_page(Path(folder) / "product.html", f"magline — {part}", [nav, *product_sections(part, figures)],
+                          PLOTLY_SRC).read_text(encoding="utf-8")
 
 
 def _frame(title: str, body: str) -> str:
     return (f"<!DOCTYPE html><html lang=en><head><meta charset=utf-8><title>{html.escape(title)}</title>"
             "<link rel=icon href='data:,'><link rel=stylesheet href='/static/dashboard.css'></head><body>"
             "<nav><a href='/'>the line now</a> · <a href='/process'>the process</a> · "
+            "<a href='/product'>design and supply</a> · "
             "<form action='/unit' method=get class=search><input name=serial placeholder='serial' "
             "aria-label=serial><button>find</button></form></nav>"
             f"<main>{body}</main></body></html>")
