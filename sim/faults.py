@@ -126,7 +126,9 @@ class SimFaults:
             name, _, value = item.partition("=")
             name = name.strip().replace("-", "_")
             if name not in known:
-                whose = f"{board}'s simulator has no fault {name!r}" if board else f"unknown fault {name!r}"
+                owners = [b for b in cls.BOARDS if name in {f.name for f in cls.for_board(b)}]
+                whose = (f"{board}'s simulator has no fault {name!r} ({' and '.join(owners)}'s only)" if owners
+                         else f"unknown fault {name!r}")
                 raise ValueError(f"{whose}; known: {', '.join(known)}")
             current = getattr(faults, name)
             if isinstance(current, bool):

@@ -88,7 +88,7 @@ def test_each_simulator_s_help_lists_its_own_faults_and_it_refuses_another_board
     assert not any(re.search(rf"\b{name}\b", faults) for name in others), faults
     assert main(["sim", board, "--listen", "tcp:127.0.0.1:0", "--fault", others[0]]) == 2
     said = capsys.readouterr().err.strip().splitlines()
-    assert len(said) == 1 and f"{board}'s simulator has no fault {others[0]!r}" in said[0]
+    assert len(said) == 1 and f"{board}'s simulator has no fault {others[0]!r} (" in said[0]
     assert own[1].split("=")[0] in said[0]  # naming the faults it has
 
 
