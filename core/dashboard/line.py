@@ -37,17 +37,15 @@ def line_now(conn: Connection, now: datetime, shifts: Shifts) -> dict[str, Any]:
     shift_start = shifts.start_of(now)
     since = stored_form(shift_start)
     active = stored_form(now - timedelta(days=ACTIVE_DAYS))
-    stations = conn.execute(select(runs.c.station_id, func.max(runs.c.line), func.max(runs.c.id))
-                            .where((runs.c.started >= active) & (runs.c.verdict != "running"))
-                            .group_by(runs.c.station_id)).all()
+    stations = [(station_id, line) for station_id, line, started in _stations(conn) if started and started >= active]
     claims = conn.execute(select(slot_claims)).mappings().all()
     tiles = []
-    for station_id, line, _ in sorted(stations, key=lambda row: (str(row[1]), str(row[0]))):
+    for station_id, line in sorted(stations, key=lambda row: (str(row[1]), str(row[0]))):
         shift = shift_units(conn, station_id, since, RECENT)
         finished = [row[0] for row in conn.execute(
             select(runs.c.finished).where((runs.c.station_id == station_id) & runs.c.finished.is_not(None)
                                           & (runs.c.verdict != "running"))
-            .order_by(runs.c.id.desc()).limit(GAPS + 1)).all()]
+            .order_by(runs.c.started.desc()).limit(GAPS + 1)).all()]
         testing = [{"slot": c["slot"], "serial": c["serial"], "since": c["since"]} for c in claims
                    if c["station_id"] == station_id and _fresh(c["heartbeat"], now)]
         tiles.append({"station_id": station_id, "line": line, **shift,
@@ -57,6 +55,22 @@ def line_now(conn: Connection, now: datetime, shifts: Shifts) -> dict[str, Any]:
                       "testing": testing, **_pace(finished, now, bool(testing))})
     return {"shift_start": shift_start.isoformat(timespec="minutes"), "now": now.astimezone().isoformat(
         timespec="seconds"), "shift_word": "this shift" if shifts.starts else "today", "stations": tiles}
+
+
+def _stations(conn: Connection) -> list[tuple[str, str | None, str | None]]:
+    """Every station id with its line and its latest unit's start, one index probe per station (a skip
+    scan over ``runs_station_started``): a GROUP BY read every run of a million-run store."""
+    found: list[tuple[str, str | None, str | None]] = []
+    after: str | None = None
+    while True:
+        query = select(func.min(runs.c.station_id))
+        station_id = conn.execute(query.where(runs.c.station_id > after) if after is not None else query).scalar()
+        if station_id is None:
+            return found
+        latest = conn.execute(select(runs.c.line, runs.c.started).where(runs.c.station_id == station_id)
+                              .order_by(runs.c.started.desc()).limit(1)).first()
+        found.append((station_id, latest.line if latest else None, latest.started if latest else None))
+        after = station_id
 
 
 def _fresh(heartbeat: str | None, now: datetime) -> bool:
@@ -87,8 +101,13 @@ def _pace(finished: list[str], now: datetime, testing: bool) -> dict[str, Any]:
             "silent": silent, "silent_s": since_last if silent else None}
 
 
+RECENT_RUNS = 200  # the latest runs whose ends the live pages watch (far more than a line runs at once)
+
+
 def store_version(conn: Connection) -> tuple[Any, ...]:
-    """What changes when any station records a unit (or starts one): the dashboard's live pages follow it."""
-    return tuple(conn.execute(select(func.max(runs.c.id), func.max(runs.c.finished), func.count(runs.c.id))).one()) \
-        + tuple(conn.execute(select(func.count(), func.max(slot_claims.c.since))
-                             .select_from(slot_claims)).one())
+    """What changes when any station records a unit (or starts one): the dashboard's live pages follow it.
+    The latest runs by id and their ends, and the slot claims — a few index reads, never a count of runs."""
+    latest = tuple(conn.execute(select(runs.c.id, runs.c.finished).order_by(runs.c.id.desc())
+                                .limit(RECENT_RUNS)).all())
+    return latest + tuple(conn.execute(select(slot_claims.c.station_id, slot_claims.c.slot, slot_claims.c.serial)
+                                       .order_by(slot_claims.c.station_id, slot_claims.c.slot)).all())

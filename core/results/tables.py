@@ -44,6 +44,7 @@ runs = Table(
     Column("review", Text), Column("review_note", Text),  # process-review flags (JSON) and what was compared
     Column("slot", Text), Column("slot_group", Text),  # fixture position; units that shared one motion
     Index("runs_serial", "serial"), Index("runs_part_id", "part", "id"), Index("runs_started", "started"),
+    Index("runs_station_started", "station_id", "started"),  # a station's units by time (the dashboard)
     Index("runs_running", "id", postgresql_where=text("verdict = 'running'"), sqlite_where=text("verdict = 'running'")),
 )
 # a serial looked up whatever the case it is typed in (history, show, report)
