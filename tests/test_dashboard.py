@@ -59,6 +59,7 @@ def dashboard():
     yield start
     for served, store in started:
         served.stop()
+        served.app.state.wakeups.close()
         store.close()
 
 
@@ -200,3 +201,41 @@ def test_a_product_page_shows_each_compass_s_distribution_and_the_firmware_its_u
     assert rows == [["1.15.0", "30"], ["1.16.0", "10"]]
     assert "not measured on this product" in page.inner_text("body")  # no interference sweep on this part
     assert opened.outside(LOCAL) == []
+
+
+def test_on_postgresql_a_recorded_unit_wakes_the_page_by_notification(dashboard, browser, postgres, monkeypatch):
+    """A line's PostgreSQL store: its writers NOTIFY at commit and the dashboard LISTENs, so a unit recorded
+    by any station reaches the tile at once — here with the page's own poll set to a minute, so nothing but
+    the notification can bring it. The dashboard's sessions are read-only whatever its role may do."""
+    from sqlalchemy import create_engine, text
+    from sqlalchemy.exc import InternalError, ProgrammingError
+
+    from magline.core.dashboard import wakeups
+    from magline.core.results.store import SqlStore
+
+    monkeypatch.setattr(wakeups, "POLL_NOTIFIED_S", 60.0)
+    url = postgres.new_database()
+    writer = SqlStore(create_engine(url), "line server")
+
+    def record(serial: str) -> None:
+        unit = RunRecord(serial=serial, part="P-9", station_id="st-pg", line="L9", operator="ann",
+                         software_version="test", limit_hash="x")
+        unit.verdict = Outcome.PASS
+        writer.begin(unit)
+        writer.finish(unit)
+
+    try:
+        record("PG-1")
+        served = dashboard(url)
+        page = open_page(browser, served.url).page
+        page.wait_for_selector(".tile[data-station='st-pg'] .units:has-text('1 unit today')")
+        record("PG-2")
+        page.wait_for_selector(".tile[data-station='st-pg'] .units:has-text('2 units today')", timeout=15_000)
+        store = open_read_only(url)
+        try:
+            with store.engine.connect() as conn, pytest.raises((InternalError, ProgrammingError)):
+                conn.execute(text("DELETE FROM runs"))  # refused: a read-only transaction
+        finally:
+            store.close()
+    finally:
+        writer.close()

@@ -13,6 +13,7 @@ import html
 import json
 import tempfile
 import threading
+import time
 from datetime import UTC, datetime
 from importlib.resources import files
 from pathlib import Path
@@ -23,6 +24,7 @@ from fastapi.responses import HTMLResponse, JSONResponse, PlainTextResponse, Res
 from sse_starlette.sse import EventSourceResponse
 
 from magline.core.dashboard.line import line_now, store_version
+from magline.core.dashboard.wakeups import Wakeups
 from magline.core.operator_ui.screen.app import TokenRequired, add_static_routes
 
 if TYPE_CHECKING:
@@ -30,7 +32,6 @@ if TYPE_CHECKING:
     from magline.core.quality.trends import Shifts
 
 STATIC = files("magline.core.dashboard") / "static"
-POLL_S = 0.5  # how often the live pages ask the store whether a unit was recorded
 HEARTBEAT_S = 5.0
 PLOTLY_SRC = "/static/plotly.min.js"
 
@@ -41,6 +42,8 @@ def create_app(store: ReadOnlyStore, shifts: Shifts, token: str | None = None,
     app.state.closing = threading.Event()  # set by whoever stops a server run in a thread
     if token is not None:
         app.add_middleware(TokenRequired, token=token)
+    wakeups = Wakeups(store)
+    app.state.wakeups = wakeups  # closed by whoever serves the app (its listener connection)
 
     def line() -> dict[str, Any]:
         with store.engine.connect() as conn:
@@ -63,16 +66,16 @@ def create_app(store: ReadOnlyStore, shifts: Shifts, token: str | None = None,
                 return store_version(conn)
 
         async def stream() -> Any:
-            seen, quiet = None, 0.0
+            seen, quiet, woken = None, time.monotonic(), wakeups.count
             while not app.state.closing.is_set() and not await request.is_disconnected():
                 current = await asyncio.to_thread(version)
                 if current != seen:
-                    seen, quiet = current, 0.0
+                    seen, quiet = current, time.monotonic()
                     yield {"event": "line", "data": json.dumps(await asyncio.to_thread(line))}
-                elif (quiet := quiet + POLL_S) >= HEARTBEAT_S:
-                    quiet = 0.0
+                elif time.monotonic() - quiet >= HEARTBEAT_S:
+                    quiet = time.monotonic()
                     yield {"event": "alive", "data": "{}"}
-                await asyncio.sleep(POLL_S)
+                woken = await asyncio.to_thread(wakeups.wait, woken)  # a notification, or the poll due
         return EventSourceResponse(stream())
 
     @app.get("/unit", response_class=HTMLResponse)

@@ -55,10 +55,11 @@ def serve(target: str, shifts: Shifts, host: str, port: int) -> int:
           flush=True)
     if store.kind != "sqlite":
         print(ROLE_HINT, flush=True)
+    app = create_app(store, shifts, token)
     try:
-        uvicorn.Server(uvicorn.Config(create_app(store, shifts, token), host=host, port=port,
-                                      log_level="warning")).run(sockets=[sock])
+        uvicorn.Server(uvicorn.Config(app, host=host, port=port, log_level="warning")).run(sockets=[sock])
     finally:
+        app.state.wakeups.close()
         store.close()
         sock.close()
     return 0

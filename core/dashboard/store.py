@@ -38,6 +38,7 @@ class ReadOnlyStore:
     engine: Any
     where: str
     kind: str  # "sqlite" or the server's dialect
+    url: str | None = None  # a server's connection string, for its notifications (psycopg's form)
 
     def close(self) -> None:
         self.engine.dispose()
@@ -64,7 +65,8 @@ def open_read_only(target: str) -> ReadOnlyStore:
         cursor.close()
         dbapi_connection.commit()
 
-    return _checked(ReadOnlyStore(engine, where, url.get_backend_name()))
+    plain = url.set(drivername=url.get_backend_name()).render_as_string(hide_password=False)
+    return _checked(ReadOnlyStore(engine, where, url.get_backend_name(), plain))
 
 
 def _sqlite(path: Path) -> ReadOnlyStore:

@@ -15,7 +15,7 @@ from collections.abc import Sequence
 from dataclasses import asdict
 from typing import TYPE_CHECKING, Any
 
-from sqlalchemy import select, update
+from sqlalchemy import select, text, update
 from sqlalchemy.exc import SQLAlchemyError
 
 from magline.core.faults import StationFault
@@ -34,6 +34,9 @@ if TYPE_CHECKING:
     from magline.core.results.series import RunSeries
 
 RUNNING = "running"
+
+
+RUNS_CHANNEL = "magline_runs"  # PostgreSQL's NOTIFY channel: a run begun, recorded or a slot claimed
 
 
 class SqlStore:
@@ -62,7 +65,10 @@ class SqlStore:
     def _write(self, what: str, fn: Any) -> Any:
         try:
             with self.engine.begin() as conn:
-                return fn(conn)
+                done = fn(conn)
+                if conn.dialect.name == "postgresql":  # delivered at commit: the dashboards' pages wake
+                    conn.execute(text(f"NOTIFY {RUNS_CHANNEL}"))
+                return done
         except SQLAlchemyError as exc:
             raise StationFault(f"results store {self.where}: {what} failed: {reason(exc)}") from exc
 
