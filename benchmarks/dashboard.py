@@ -7,7 +7,7 @@ page drawn (the tiles drawn, the charts drawn, the load event), the median of ``
 is written to the store as a station writes it and the delay until its tile shows it is timed.
 ``--url postgresql+psycopg://…`` fills and reads that database instead (it must be empty).
 
-    python benchmarks/dashboard.py [--runs 10000] [--repeat 3] [--url URL]
+    python benchmarks/dashboard.py [--runs 10000] [--repeat 3] [--url URL | --postgres]
 
 Goals (issue): ≤ 1 s per page at 1,000,000 runs on PostgreSQL, ≤ 2 s from a record to its tile.
 Figures only, not a test.
@@ -84,7 +84,20 @@ def main() -> None:
     parser.add_argument("--runs", type=int, default=10_000)
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--url", help="a PostgreSQL database to fill and read (default: a SQLite file)")
+    parser.add_argument("--postgres", action="store_true",
+                        help="start a throwaway PostgreSQL cluster (Debian's binaries, as the suite does) and use it")
     args = parser.parse_args()
+    if args.postgres:
+        from pg_server import cluster
+
+        with cluster() as server:
+            args.url = server.new_database()
+            measure(args)
+        return
+    measure(args)
+
+
+def measure(args: argparse.Namespace) -> None:
     rng = np.random.default_rng(68)
     with tempfile.TemporaryDirectory() as tmp:
         target = args.url or str(Path(tmp) / "line.sqlite")
@@ -125,13 +138,16 @@ def main() -> None:
 
 
 def fill_one(engine, run_id: int) -> None:
-    """One more unit, as a station records it now."""
-    now = datetime.now(UTC)
-    with engine.begin() as conn:
-        conn.execute(insert(runs), [{"id": run_id, "run_uuid": str(uuid.uuid4()), "serial": f"NEW-{run_id}",
-                                     "part": PARTS[0], "station_id": STATIONS[0][0], "line": STATIONS[0][1],
-                                     "started": now.isoformat(timespec="milliseconds"),
-                                     "finished": now.isoformat(timespec="milliseconds"), "verdict": "pass"}])
+    """One more unit, written as a station's store writes it (on PostgreSQL: NOTIFY at commit)."""
+    from magline.core.record import Outcome, RunRecord
+    from magline.core.results.store import SqlStore
+
+    record = RunRecord(serial=f"NEW-{run_id}", part=PARTS[0], station_id=STATIONS[0][0], line=STATIONS[0][1],
+                       operator="op", software_version="bench", limit_hash="x")
+    record.verdict = Outcome.PASS
+    store = SqlStore(engine, "benchmark writer")
+    store.begin(record)
+    store.finish(record)
 
 
 if __name__ == "__main__":

@@ -19,7 +19,7 @@ from magline.core.dashboard.app import create_app
 from magline.core.dashboard.store import open_read_only
 from magline.core.measurements import Numeric, Verdict
 from magline.core.quality.trends import Shifts
-from magline.core.record import Outcome, RunRecord
+from magline.core.record import Outcome, RunRecord, now_iso
 from magline.core.results.sqlite_store import SqliteSink
 from magline.sim import create_sim
 
@@ -41,6 +41,7 @@ def recorded(path, serials_values, station_id="st-a", line="L1"):
             record.measurements = [Numeric("hard_iron_norm_ut", value, "µT", None, 300.0, Verdict.PASS)]
             record.verdict = Outcome.PASS
             sink.begin(record)
+            record.finished = now_iso()
             sink.finish(record)
     finally:
         sink.close()
@@ -239,3 +240,30 @@ def test_on_postgresql_a_recorded_unit_wakes_the_page_by_notification(dashboard,
             store.close()
     finally:
         writer.close()
+
+
+def test_many_open_pages_do_not_starve_the_dashboard(dashboard, browser, tmp_path):
+    """Twelve people watching the line (twelve open event streams, more than the server's worker threads on
+    two cores): a unit page still answers, and every page follows a new unit."""
+    recorded(tmp_path / "line.sqlite", [("W-1", 74.0)])
+    served = dashboard(tmp_path / "line.sqlite")
+    contexts = [browser.new_context() for _ in range(12)]  # twelve viewers (a browser holds 6 connections a host)
+    try:
+        pages = [context.new_page() for context in contexts]
+        for page in pages:
+            page.goto(served.url)
+            page.wait_for_selector(".tile .units:has-text('1 unit today')")
+        with urllib.request.urlopen(served.url + "unit?serial=w-1", timeout=30) as answer:
+            assert answer.status == 200 and "W-1" in answer.read().decode()
+        recorded(tmp_path / "line.sqlite", [("W-2", 74.1)])
+        for page in pages:
+            try:
+                page.wait_for_selector(".tile .units:has-text('2 units today')")
+            except Exception:
+                shown = [p.evaluate("[document.querySelector('.tile .units') && document.querySelector('.tile "
+                                    ".units').textContent, window.__shown, !document.getElementById('banner')"
+                                    ".hidden]") for p in pages]
+                raise AssertionError(f"pages: {shown}") from None
+    finally:
+        for context in contexts:
+            context.close()

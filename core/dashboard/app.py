@@ -34,6 +34,7 @@ if TYPE_CHECKING:
 STATIC = files("magline.core.dashboard") / "static"
 HEARTBEAT_S = 5.0
 PLOTLY_SRC = "/static/plotly.min.js"
+WAKE_CHECK_S = 0.05  # how often an open page's stream looks whether the store was written
 
 
 def create_app(store: ReadOnlyStore, shifts: Shifts, token: str | None = None,
@@ -75,7 +76,12 @@ def create_app(store: ReadOnlyStore, shifts: Shifts, token: str | None = None,
                 elif time.monotonic() - quiet >= HEARTBEAT_S:
                     quiet = time.monotonic()
                     yield {"event": "alive", "data": "{}"}
-                woken = await asyncio.to_thread(wakeups.wait, woken)  # a notification, or the poll due
+                # a notification, or the poll due — awaited on the event loop: a thread parked per open page
+                # would exhaust the pool the queries run on once a few people watch the line
+                due = time.monotonic() + wakeups.poll_s
+                while wakeups.count == woken and time.monotonic() < due and not app.state.closing.is_set():
+                    await asyncio.sleep(WAKE_CHECK_S)
+                woken = wakeups.count
         return EventSourceResponse(stream())
 
     @app.get("/unit", response_class=HTMLResponse)

@@ -106,8 +106,9 @@ RECENT_RUNS = 200  # the latest runs whose ends the live pages watch (far more t
 
 def store_version(conn: Connection) -> tuple[Any, ...]:
     """What changes when any station records a unit (or starts one): the dashboard's live pages follow it.
-    The latest runs by id and their ends, and the slot claims — a few index reads, never a count of runs."""
-    latest = tuple(conn.execute(select(runs.c.id, runs.c.finished).order_by(runs.c.id.desc())
+    The latest runs by id with their verdicts and ends, and the slot claims — a few index reads, never a
+    count of runs."""
+    latest = tuple(conn.execute(select(runs.c.id, runs.c.verdict, runs.c.finished).order_by(runs.c.id.desc())
                                 .limit(RECENT_RUNS)).all())
     return latest + tuple(conn.execute(select(slot_claims.c.station_id, slot_claims.c.slot, slot_claims.c.serial)
                                        .order_by(slot_claims.c.station_id, slot_claims.c.slot)).all())

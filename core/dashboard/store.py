@@ -17,6 +17,7 @@ from typing import Any
 from sqlalchemy import create_engine, event, inspect, select
 from sqlalchemy.engine import make_url
 from sqlalchemy.exc import ArgumentError, SQLAlchemyError
+from sqlalchemy.pool import QueuePool
 
 from magline.core.faults import StationFault
 from magline.core.results.store import reason
@@ -77,7 +78,10 @@ def _sqlite(path: Path) -> ReadOnlyStore:
     def connect() -> sqlite3.Connection:
         return sqlite3.connect(f"file:{resolved}?mode=ro", uri=True, check_same_thread=False, timeout=10.0)
 
-    return _checked(ReadOnlyStore(create_engine("sqlite://", creator=connect), str(path), "sqlite"))
+    # a pool of real connections shared by the server's threads: an in-memory URL's default (one connection
+    # per thread, closed behind another's back) crashed the process under a dozen open pages
+    engine = create_engine("sqlite://", creator=connect, poolclass=QueuePool, pool_size=5, max_overflow=20)
+    return _checked(ReadOnlyStore(engine, str(path), "sqlite"))
 
 
 def _checked(store: ReadOnlyStore) -> ReadOnlyStore:

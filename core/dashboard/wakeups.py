@@ -21,7 +21,8 @@ RECONNECT_S = 2.0
 
 
 class Wakeups:
-    """A counter that goes up at every notification; :meth:`wait` returns when it moved or the poll is due."""
+    """A counter that goes up at every notification: a page's stream reads the store again when it moved,
+    or when ``poll_s`` has passed."""
 
     def __init__(self, store: ReadOnlyStore) -> None:
         self.url = store.url if store.kind == "postgresql" else None
@@ -33,12 +34,6 @@ class Wakeups:
         if self.url:
             self._thread = threading.Thread(target=self._listen, name="dashboard-listen", daemon=True)
             self._thread.start()
-
-    def wait(self, seen: int) -> int:
-        """Block until a notification after ``seen`` or ``poll_s``; the count now."""
-        with self._changed:
-            self._changed.wait_for(lambda: self.count != seen or self._stop.is_set(), timeout=self.poll_s)
-            return self.count
 
     def _bump(self) -> None:
         with self._changed:
