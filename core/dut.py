@@ -250,8 +250,10 @@ class DutBackend(Protocol):
     # capability by having the method, nothing to declare.
 
     def persistence_problems(self) -> list[str]:
-        """After a power cycle: what the autopilot itself says is wrong with the calibration
-        (ArduPilot: "Compass not calibrated" when the device id was not saved); empty when fine."""
+        """After a power cycle, once the calibrated output was read: what the autopilot itself says is
+        wrong with the calibration (ArduPilot: "Compass not calibrated" when the device id was not saved);
+        empty when fine.  A backend may ask its firmware as soon as the new boot is proven and read the
+        answer here."""
 
     def restore(self) -> None:
         """Put back what :meth:`prepare` changed, in RAM *and* storage (called at the end of every run,

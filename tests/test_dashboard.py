@@ -267,3 +267,38 @@ def test_many_open_pages_do_not_starve_the_dashboard(dashboard, browser, tmp_pat
     finally:
         for context in contexts:
             context.close()
+
+
+def test_the_process_page_filters_by_operator_and_compass_and_its_address_holds_them(dashboard, browser, tmp_path):
+    """Two operators' units of a two-compass product: ``operator=bo&compass=mag2`` charts only bo's runs and
+    only the second compass's characteristics; the filters are in the address and in the form that made it;
+    a station's tile opens the process of the part that station tests."""
+    rng = np.random.default_rng(9)
+    sink = SqliteSink(tmp_path / "line.sqlite")
+    try:
+        for i in range(30):
+            record = RunRecord(serial=f"C-{i}", part="P-3", station_id="st-c", line="L1",
+                               operator="ann" if i % 3 else "bo", software_version="test", limit_hash="x")
+            record.measurements = [Numeric("hard_iron_norm_ut", rng.normal(74.0, 0.5), "µT", None, 300.0,
+                                           Verdict.PASS),
+                                   Numeric("mag2.hard_iron_norm_ut", rng.normal(30.0, 0.5), "µT", None, 300.0,
+                                           Verdict.PASS)]
+            record.verdict = Outcome.PASS
+            sink.begin(record)
+            record.finished = now_iso()
+            sink.finish(record)
+    finally:
+        sink.close()
+    recorded(tmp_path / "line.sqlite", [("OTHER-1", 74.0)], station_id="st-z")  # another part, recorded last
+    served = dashboard(tmp_path / "line.sqlite")
+    page = open_page(browser, served.url + "process?station=st-c&operator=bo&compass=mag2").page
+    page.wait_for_selector("h1")
+    title = page.inner_text("h1")
+    assert "part P-3, station st-c, operator bo, compass mag2, latest 10 runs" in title, title
+    charts = page.eval_on_selector_all(".imr-chart .plotly-graph-div", "els => els.map(e => e.id)")
+    assert charts == ["chart-mag2.hard_iron_norm_ut"]
+    assert page.input_value("form.filters input[name=operator]") == "bo"
+    page.fill("form.filters input[name=operator]", "ann")
+    page.click("form.filters button")
+    page.wait_for_selector("h1:has-text('operator ann')")
+    assert "operator=ann" in page.url and "compass=mag2" in page.url and "latest 20 runs" in page.inner_text("h1")

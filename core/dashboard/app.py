@@ -23,7 +23,7 @@ from fastapi import FastAPI, Request
 from fastapi.responses import HTMLResponse, JSONResponse, PlainTextResponse, Response
 from sse_starlette.sse import EventSourceResponse
 
-from magline.core.dashboard.line import line_now, store_version
+from magline.core.dashboard.line import distinct, line_now, store_version
 from magline.core.dashboard.wakeups import Wakeups
 from magline.core.operator_ui.screen.app import TokenRequired, add_static_routes
 
@@ -126,6 +126,27 @@ def _product_page(store: ReadOnlyStore, part: str) -> str:
                           PLOTLY_SRC).read_text(encoding="utf-8")
 
 
+FILTERS = (("station", "station"), ("line", "line"), ("operator", "operator"), ("compass", "compass (mag1, mag2 …)"),
+           ("since", "since (ISO time)"), ("until", "until"), ("last", "latest runs"))
+
+
+def _filters(query: dict[str, str], part: str) -> str:
+    """The page's filters as a form whose answer is the page's address (a bookmark, a link in a mail)."""
+    fields = "".join(f"<label>{html.escape(label)} <input name={name} value='{html.escape(query.get(name, ''))}'>"
+                     "</label> " for name, label in FILTERS)
+    shift = " checked" if query.get("shift") == "current" else ""
+    return ("<form class=filters method=get action='/process'>"
+            f"<input type=hidden name=part value='{html.escape(part)}'>{fields}"
+            f"<label><input type=checkbox name=shift value=current{shift}> this shift</label> "
+            "<button>show</button></form>")
+
+
+def _compass_of(name: str) -> str:
+    """``mag2.mounting_error_deg`` → mag2; an unprefixed measurement is the primary's, mag1."""
+    head, dot, _ = name.partition(".")
+    return head if dot and head.startswith("mag") and "-" not in head else "mag1"
+
+
 def _frame(title: str, body: str) -> str:
     return (f"<!DOCTYPE html><html lang=en><head><meta charset=utf-8><title>{html.escape(title)}</title>"
             "<link rel=icon href='data:,'><link rel=stylesheet href='/static/dashboard.css'></head><body>"
@@ -178,23 +199,30 @@ def _report_page(store: ReadOnlyStore, run: str) -> str | None:
 def _process_page(store: ReadOnlyStore, query: dict[str, str], shifts: Shifts) -> str:
     """The control charts and capability ``magline spc`` computes for a part (its frozen limits where
     frozen), filtered as the address says; each point opens its unit's report."""
-    from sqlalchemy import func, select
+    from sqlalchemy import select
 
     from magline.core.quality.spc import build
     from magline.core.reports.spc_page import write_spc_page
     from magline.core.results.control_limits import newest
+    from magline.core.results.instants import stored_form
     from magline.core.results.reading import RunFilter
     from magline.core.results.series import load_series
     from magline.core.results.tables import runs
 
+    station = query.get("station") or None
     with store.engine.connect() as conn:
-        parts = [p for (p,) in conn.execute(select(runs.c.part).group_by(runs.c.part)
-                                            .order_by(func.max(runs.c.id).desc())).all()]
-        part = query.get("part") or (parts[0] if parts else None)
+        parts = distinct(conn, runs.c.part)
+        at_station = conn.execute(select(runs.c.part).where(runs.c.station_id == station)
+                                  .order_by(runs.c.started.desc()).limit(1)).scalar() if station else None
+        latest = conn.execute(select(runs.c.part).order_by(runs.c.id.desc()).limit(1)).scalar()
+        part = query.get("part") or at_station or latest
         if part is None:
             return _frame("magline — the process", "<h1>The process</h1><p>No unit recorded yet.</p>")
-        where = RunFilter(part=part, station_id=query.get("station") or None, line=query.get("line") or None,
-                          since=query.get("since") or None, until=query.get("until") or None)
+        since = query.get("since") or None
+        if query.get("shift") == "current":  # the running shift, as the line's tiles count it
+            since = stored_form(shifts.start_of(datetime.now(UTC)))
+        where = RunFilter(part=part, station_id=station, line=query.get("line") or None,
+                          operator=query.get("operator") or None, since=since, until=query.get("until") or None)
         last = int(query["last"]) if query.get("last", "").isdigit() else 500
         series = load_series(conn, where, last, None, True, True, None)
         frozen = newest(conn, part, where.station_id)
@@ -202,9 +230,12 @@ def _process_page(store: ReadOnlyStore, query: dict[str, str], shifts: Shifts) -
     if not len(series):
         return _frame("magline — the process", f"<h1>The process</h1><p>parts: {choose}</p>"
                       f"<p class=note>No runs of {html.escape(part)} match this filter.</p>")
-    title = f"part {part}" + (f", station {where.station_id}" if where.station_id else ", every station") + \
-        f", latest {len(series)} runs"
-    report = build(series, title, None, 50, frozen=frozen, shifts=shifts)
+    compass = query.get("compass") or None  # mag1 (the primary), mag2 …: that compass's characteristics only
+    names = None if compass is None else [n for n in series.values if _compass_of(n) == compass]
+    title = f"part {part}" + (f", station {station}" if station else ", every station") + "".join(
+        f", {word} {value}" for word, value in (("line", where.line), ("operator", where.operator),
+                                                ("compass", compass)) if value) + f", latest {len(series)} runs"
+    report = build(series, title, names, 50, frozen=frozen, shifts=shifts)
     links = {int(r["id"]): f"/report/{r['id']}" for r in series.runs}
     with tempfile.TemporaryDirectory() as folder:
         text = write_spc_page(report, Path(folder) / "spc.html", links=links,
@@ -212,6 +243,6 @@ def _process_page(store: ReadOnlyStore, query: dict[str, str], shifts: Shifts) -
     signals = "".join(f"<li><a href='/report/{series.runs[m.chart.index[s.point]]['id']}'>"
                       f"{html.escape(str(series.runs[m.chart.index[s.point]]['serial']))}</a>: {html.escape(m.name)},"
                       f" rule {html.escape(s.rule)}</li>" for m in report.measurements for s in m.chart.signals)
-    nav = (f"<nav class=process>parts: {choose} · <a href='/'>the line now</a></nav>"
+    nav = (f"<nav class=process>parts: {choose} · <a href='/'>the line now</a></nav>" + _filters(query, part)
            + (f"<h2>Signals</h2><ul class=signals>{signals}</ul>" if signals else ""))
     return text.replace("<body>", "<body>" + nav, 1)

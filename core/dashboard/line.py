@@ -57,20 +57,26 @@ def line_now(conn: Connection, now: datetime, shifts: Shifts) -> dict[str, Any]:
         timespec="seconds"), "shift_word": "this shift" if shifts.starts else "today", "stations": tiles}
 
 
-def _stations(conn: Connection) -> list[tuple[str, str | None, str | None]]:
-    """Every station id with its line and its latest unit's start, one index probe per station (a skip
-    scan over ``runs_station_started``): a GROUP BY read every run of a million-run store."""
-    found: list[tuple[str, str | None, str | None]] = []
-    after: str | None = None
+def distinct(conn: Connection, column: Any) -> list[Any]:
+    """Every value of an indexed ``column``, one index probe per value (a skip scan): a GROUP BY read every
+    run of a million-run store."""
+    found: list[Any] = []
     while True:
-        query = select(func.min(runs.c.station_id))
-        station_id = conn.execute(query.where(runs.c.station_id > after) if after is not None else query).scalar()
-        if station_id is None:
+        query = select(func.min(column))
+        value = conn.execute(query.where(column > found[-1]) if found else query).scalar()
+        if value is None:
             return found
+        found.append(value)
+
+
+def _stations(conn: Connection) -> list[tuple[str, str | None, str | None]]:
+    """Every station id with its line and its latest unit's start (``runs_station_started``)."""
+    found: list[tuple[str, str | None, str | None]] = []
+    for station_id in distinct(conn, runs.c.station_id):
         latest = conn.execute(select(runs.c.line, runs.c.started).where(runs.c.station_id == station_id)
                               .order_by(runs.c.started.desc()).limit(1)).first()
         found.append((station_id, latest.line if latest else None, latest.started if latest else None))
-        after = station_id
+    return found
 
 
 def _fresh(heartbeat: str | None, now: datetime) -> bool:

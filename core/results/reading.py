@@ -36,6 +36,7 @@ class RunFilter:
     line: str | None = None
     verdict: str | None = None
     serial: str | None = None  # one unit's runs, whatever the case it is typed in (spaces around it ignored)
+    operator: str | None = None
     verdicts: tuple[str, ...] | None = None  # any of these verdicts (judged units: pass and fail)
 
     def apply(self, query: Any) -> Any:
@@ -45,7 +46,7 @@ class RunFilter:
             query = query.where(runs.c.verdict.in_(self.verdicts))
         for column, value, op in ((runs.c.started, self.since, "ge"), (runs.c.started, self.until, "lt"),
                                   (runs.c.part, self.part, "eq"), (runs.c.station_id, self.station_id, "eq"),
-                                  (runs.c.line, self.line, "eq"),
+                                  (runs.c.line, self.line, "eq"), (runs.c.operator, self.operator, "eq"),
                                   (runs.c.verdict, self.verdict, "eq")):
             if value is not None:
                 query = query.where({"ge": column >= value, "lt": column < value, "eq": column == value}[op])

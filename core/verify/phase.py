@@ -42,9 +42,9 @@ def magline_verify_persistence(run: RunContext, persisted: PersistReport) -> Ver
     read_back = dut.read_params(list(persisted.written))
     mismatches = [f"{k}: wrote {v!r}, read back {read_back.get(k)!r}" for k, v in persisted.written.items()
                   if k not in read_back or not param_equal(v, read_back[k])]
-    if present:
-        mismatches += [f"autopilot reports: {text}" for text in dut.persistence_problems()]
+    if present:  # the calibrated output first: a backend may start its own checks at the boot, read them after
         mismatches += calibrated_output_problems(run, dut, figures)
+        mismatches += [f"autopilot reports: {text}" for text in dut.persistence_problems()]
     store_problems, store = factory_store_problems(run, dut, persisted) if not mismatches and present else ([], "")
     mismatches += store_problems
     return VerifyReport(read_back=read_back, mismatches=mismatches, sensor_present=present,

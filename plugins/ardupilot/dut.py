@@ -107,6 +107,7 @@ class ArduPilotDut:
         self.device_id = self._selected_id()
         self.chosen = [self.device_id]
         self.written_sets = {}
+        self._prearm_since: float | None = None  # when the arming checks were asked for after a power cycle
         self._lacks: dict[str, str | None] = {}  # name → why this firmware lacks it (None: it has it), asked once
         self.offs_max_mg = self.link.get("COMPASS_OFFS_MAX")
         self.magnetometers = [self._magnetometer(suffix, dev) for suffix, dev in self.ids.items() if dev]
@@ -390,7 +391,13 @@ class ArduPilotDut:
         require_same_vehicle(self.system_id, self.link.target_system, self.product.connection, self.uid,
                              int(version.uid) if version is not None else 0)
         self._read_ids()
+        self._start_prearm()  # its answers arrive while the proof reads the calibrated field
         return {"time_to_heartbeat_s": reconnected, "uptime_at_reconnect_s": uptime}
+
+    def _start_prearm(self) -> None:
+        self.link.statustexts.clear()
+        self.link.require_accepted(ML.MAV_CMD_RUN_PREARM_CHECKS, "prearm check")
+        self._prearm_since = time.monotonic()
 
     def uptime_s(self) -> float | None:
         msg = self.link.request_message(ML.MAVLINK_MSG_ID_SYSTEM_TIME, "SYSTEM_TIME")
@@ -445,8 +452,14 @@ class ArduPilotDut:
 
         Every compass PreArm text fails the unit: ArduPilot's text does not say which compass, and
         a compass in use that is left uncalibrated blocks arming anyway (disable it with
-        COMPASS_USEn = 0 or calibrate it too)."""
-        self.link.statustexts.clear()
-        self.link.require_accepted(ML.MAV_CMD_RUN_PREARM_CHECKS, "prearm check")
-        self.link.recv("NO_SUCH_MESSAGE", self.opts.prearm_wait_s)  # collect STATUSTEXT meanwhile
+        COMPASS_USEn = 0 or calibrate it too).
+
+        The checks are asked for as soon as the new boot is proven (:meth:`await_boot`): the station reads
+        the calibrated field meanwhile, and the texts have had ``prearm_wait_s`` when they are read here."""
+        if self._prearm_since is None:
+            self._start_prearm()
+        left = self._prearm_since + self.opts.prearm_wait_s - time.monotonic()
+        if left > 0:
+            self.link.recv("NO_SUCH_MESSAGE", left)  # collect STATUSTEXT meanwhile
+        self._prearm_since = None
         return sorted({t for t in self.link.statustexts if t.startswith(COMPASS_PREARM)})
