@@ -31,20 +31,30 @@ def magline(*args: str, cwd=None, timeout: float = 120.0) -> subprocess.Complete
                           timeout=timeout)
 
 
-def recorded(path, serials_values, station_id="st-a", line="L1"):
-    """Units written to a SQLite store as a station records them (hard-iron norms given)."""
+def unit(serial: str, measurements: list, part: str = "P-1", station_id: str = "st-a", line: str = "L1",
+         operator: str = "ann", unit_info: dict | None = None) -> RunRecord:
+    record = RunRecord(serial=serial, part=part, station_id=station_id, line=line, operator=operator,
+                       software_version="test", limit_hash="x")
+    record.measurements, record.verdict, record.unit_info = measurements, Outcome.PASS, unit_info or {}
+    return record
+
+
+def write_units(path, records: list[RunRecord]) -> None:
+    """Units written to a SQLite store as a station records them (begun, then finished with an end time)."""
     sink = SqliteSink(path)
     try:
-        for serial, value in serials_values:
-            record = RunRecord(serial=serial, part="P-1", station_id=station_id, line=line, operator="ann",
-                               software_version="test", limit_hash="x")
-            record.measurements = [Numeric("hard_iron_norm_ut", value, "µT", None, 300.0, Verdict.PASS)]
-            record.verdict = Outcome.PASS
+        for record in records:
             sink.begin(record)
             record.finished = now_iso()
             sink.finish(record)
     finally:
         sink.close()
+
+
+def recorded(path, serials_values, station_id="st-a", line="L1"):
+    """Units of part P-1 with the hard-iron norms given."""
+    write_units(path, [unit(serial, [Numeric("hard_iron_norm_ut", value, "µT", None, 300.0, Verdict.PASS)],
+                            station_id=station_id, line=line) for serial, value in serials_values])
 
 
 @pytest.fixture
@@ -177,21 +187,11 @@ def test_a_product_page_shows_each_compass_s_distribution_and_the_firmware_its_u
     """Per product, where a design or supplier change shows: each compass's mounting error (a trace per
     compass: the mast's and the board's never pooled), and the firmware versions the units ran."""
     rng = np.random.default_rng(3)
-    sink = SqliteSink(tmp_path / "line.sqlite")
-    try:
-        for i in range(40):
-            record = RunRecord(serial=f"F-{i}", part="P-2", station_id="st-b", line="L1", operator="bo",
-                               software_version="test", limit_hash="x")
-            record.measurements = [Numeric("mounting_error_deg", abs(rng.normal(0.3, 0.1)), "°", None, 3.0,
-                                           Verdict.PASS),
-                                   Numeric("mag2.mounting_error_deg", abs(rng.normal(1.2, 0.2)), "°", None, 3.0,
-                                           Verdict.PASS)]
-            record.unit_info = {"firmware": "1.15.0" if i < 30 else "1.16.0"}
-            record.verdict = Outcome.PASS
-            sink.begin(record)
-            sink.finish(record)
-    finally:
-        sink.close()
+    write_units(tmp_path / "line.sqlite", [
+        unit(f"F-{i}", [Numeric("mounting_error_deg", abs(rng.normal(0.3, 0.1)), "°", None, 3.0, Verdict.PASS),
+                        Numeric("mag2.mounting_error_deg", abs(rng.normal(1.2, 0.2)), "°", None, 3.0, Verdict.PASS)],
+             part="P-2", station_id="st-b", operator="bo", unit_info={"firmware": "1.15.0" if i < 30 else "1.16.0"})
+        for i in range(40)])
     opened = open_page(browser, dashboard(tmp_path / "line.sqlite").url + "product?part=P-2")
     page = opened.page
     page.wait_for_function("document.getElementById('hist-mounting_error_deg') && "
@@ -274,21 +274,10 @@ def test_the_process_page_filters_by_operator_and_compass_and_its_address_holds_
     only the second compass's characteristics; the filters are in the address and in the form that made it;
     a station's tile opens the process of the part that station tests."""
     rng = np.random.default_rng(9)
-    sink = SqliteSink(tmp_path / "line.sqlite")
-    try:
-        for i in range(30):
-            record = RunRecord(serial=f"C-{i}", part="P-3", station_id="st-c", line="L1",
-                               operator="ann" if i % 3 else "bo", software_version="test", limit_hash="x")
-            record.measurements = [Numeric("hard_iron_norm_ut", rng.normal(74.0, 0.5), "µT", None, 300.0,
-                                           Verdict.PASS),
-                                   Numeric("mag2.hard_iron_norm_ut", rng.normal(30.0, 0.5), "µT", None, 300.0,
-                                           Verdict.PASS)]
-            record.verdict = Outcome.PASS
-            sink.begin(record)
-            record.finished = now_iso()
-            sink.finish(record)
-    finally:
-        sink.close()
+    write_units(tmp_path / "line.sqlite", [
+        unit(f"C-{i}", [Numeric("hard_iron_norm_ut", rng.normal(74.0, 0.5), "µT", None, 300.0, Verdict.PASS),
+                        Numeric("mag2.hard_iron_norm_ut", rng.normal(30.0, 0.5), "µT", None, 300.0, Verdict.PASS)],
+             part="P-3", station_id="st-c", operator="ann" if i % 3 else "bo") for i in range(30)])
     recorded(tmp_path / "line.sqlite", [("OTHER-1", 74.0)], station_id="st-z")  # another part, recorded last
     served = dashboard(tmp_path / "line.sqlite")
     page = open_page(browser, served.url + "process?station=st-c&operator=bo&compass=mag2").page
