@@ -28,6 +28,7 @@ REPO = Path(__file__).resolve().parents[1]
 FLAVOURS = {"px4": ("px4-sim.yaml", "udp", "udpout://{host}:{port}"),
             "ardupilot": ("ardupilot-sim.yaml", "tcp", "tcp:{host}:{port}")}
 OVERHEAD_TARGET_S = 8.0
+OWN_GOAL_S = 2.0  # the station's own time beyond the tumble and the firmware's boot
 
 
 def station_file(flavour: str, address: str, workdir: Path) -> Path:
@@ -61,16 +62,20 @@ def bench(flavour: str, units: int, boot_time: float) -> None:
     names = ["connect", "acquire", "fit", "validate", "persist", "verify", "record"]
     print(f"\n{flavour}: {units} unit(s), boot time {boot_time:g} s, 600 samples at 50 Hz")
     print("  verdict  " + "  ".join(f"{n:>8}" for n in names) + "  cleanup  overhead  reboot→link")
-    overheads = []
+    overheads, own = [], []
     for verdict, phases, figures, wall in rows:
         overhead = wall - phases.get("acquire", 0.0)
         cleanup = wall - sum(phases.values())
         overheads.append(overhead)
+        own.append(overhead - figures.get("time_to_heartbeat_s", 0.0))
         print(f"  {verdict:7}  " + "  ".join(f"{phases.get(n, 0.0):8.2f}" for n in names)
               + f"  {cleanup:7.2f}  {overhead:8.2f}  {figures.get('time_to_heartbeat_s', float('nan')):11.2f}")
     worst = max(overheads)
     print(f"  overhead median {statistics.median(overheads):.2f} s, worst {worst:.2f} s "
           f"(target ≤ {OVERHEAD_TARGET_S:g} s: {'met' if worst <= OVERHEAD_TARGET_S else 'NOT met'})")
+    print(f"  the station's own, beyond the firmware's reboot and boot (reboot→link): median "
+          f"{statistics.median(own):.2f} s, worst {max(own):.2f} s (goal ≤ {OWN_GOAL_S:g} s: "
+          f"{'met' if max(own) <= OWN_GOAL_S else 'NOT met'})")
 
 
 def main() -> None:
