@@ -291,3 +291,31 @@ def test_the_process_page_filters_by_operator_and_compass_and_its_address_holds_
     page.click("form.filters button")
     page.wait_for_selector("h1:has-text('operator ann')")
     assert "operator=ann" in page.url and "compass=mag2" in page.url and "latest 20 runs" in page.inner_text("h1")
+
+
+def test_a_station_with_slots_has_a_tile_per_slot_saying_what_each_tests_now(dashboard, browser, tmp_path):
+    """Four units on one gimbal are four fixture positions: a tile each, its own units and yield, and the
+    serial its slot claim says is under test there now (a claim the computer keeps refreshing)."""
+    from datetime import UTC, datetime
+
+    from sqlalchemy import create_engine, insert
+
+    from magline.core.results.tables import slot_claims
+
+    records = []
+    for i in range(6):
+        record = unit(f"S-{i}", [], station_id="st-s", line="L2")
+        record.slot = "A" if i % 2 else "B"
+        records.append(record)
+    write_units(tmp_path / "line.sqlite", records)
+    engine = create_engine(f"sqlite:///{tmp_path / 'line.sqlite'}")
+    now = datetime.now(UTC).isoformat(timespec="milliseconds")
+    with engine.begin() as conn:
+        conn.execute(insert(slot_claims).values(station_id="st-s", slot="A", host="pc", pid=1, serial="S-NOW",
+                                                since=now, heartbeat=now))
+    engine.dispose()
+    page = open_page(browser, dashboard(tmp_path / "line.sqlite").url).page
+    page.wait_for_selector(".tile[data-slot='B']")
+    a, b = page.inner_text(".tile[data-slot='A']"), page.inner_text(".tile[data-slot='B']")
+    assert a.startswith("st-s · slot A") and "testing S-NOW" in a and "3 units today" in a
+    assert b.startswith("st-s · slot B") and "no unit under test" in b and "3 units today" in b

@@ -1,5 +1,6 @@
-""""The line now": one tile per station that recorded units lately — what it tests now, its last units,
-its shift so far — from the results store alone, so any number of stations and dashboards agree.
+""""The line now": one tile per station (per slot, on a station with slots) that recorded units lately —
+what it tests now, its last units, its shift so far — from the results store alone, so any number of
+stations and dashboards agree.
 
 Why a station's *usual gap*: a line runs units at its own pace; a station is flagged silent when the time
 since its last unit is several times the median gap between its recent units (and no unit is under test),
@@ -41,20 +42,30 @@ def line_now(conn: Connection, now: datetime, shifts: Shifts) -> dict[str, Any]:
     claims = conn.execute(select(slot_claims)).mappings().all()
     tiles = []
     for station_id, line in sorted(stations, key=lambda row: (str(row[1]), str(row[0]))):
-        shift = shift_units(conn, station_id, since, RECENT)
-        finished = [row[0] for row in conn.execute(
-            select(runs.c.finished).where((runs.c.station_id == station_id) & runs.c.finished.is_not(None)
-                                          & (runs.c.verdict != "running"))
-            .order_by(runs.c.started.desc()).limit(GAPS + 1)).all()]
-        testing = [{"slot": c["slot"], "serial": c["serial"], "since": c["since"]} for c in claims
-                   if c["station_id"] == station_id and _fresh(c["heartbeat"], now)]
-        tiles.append({"station_id": station_id, "line": line, **shift,
-                      "per_hour": _per_hour(shift["units"], conn.execute(
-                          select(func.min(runs.c.started)).where((runs.c.station_id == station_id)
-                                                                 & (runs.c.started >= since))).scalar(), now),
-                      "testing": testing, **_pace(finished, now, bool(testing))})
+        slots = [s for (s,) in conn.execute(select(runs.c.slot).where((runs.c.station_id == station_id)
+                                                                      & (runs.c.started >= active)).distinct())
+                 if s is not None]
+        for slot in sorted(slots) or [None]:  # a station with slots: a tile per fixture position
+            tiles.append(_tile(conn, station_id, line, slot, since, now, claims))
     return {"shift_start": shift_start.isoformat(timespec="minutes"), "now": now.astimezone().isoformat(
         timespec="seconds"), "shift_word": "this shift" if shifts.starts else "today", "stations": tiles}
+
+
+def _tile(conn: Connection, station_id: str, line: str | None, slot: str | None, since: str, now: datetime,
+          claims: list) -> dict[str, Any]:
+    """One station's (or one of its slots') tile."""
+    shift = shift_units(conn, station_id, since, RECENT, slot)
+    chosen = (runs.c.station_id == station_id) & (runs.c.verdict != "running")
+    if slot is not None:
+        chosen = chosen & (runs.c.slot == slot)
+    finished = [row[0] for row in conn.execute(select(runs.c.finished).where(chosen & runs.c.finished.is_not(None))
+                                               .order_by(runs.c.started.desc()).limit(GAPS + 1)).all()]
+    first = conn.execute(select(func.min(runs.c.started)).where(chosen & (runs.c.started >= since))).scalar()
+    testing = [{"slot": c["slot"], "serial": c["serial"], "since": c["since"]} for c in claims
+               if c["station_id"] == station_id and (slot is None or c["slot"] == slot) and _fresh(c["heartbeat"], now)]
+    return {"station_id": station_id, "slot": slot, "line": line, **shift,
+            "per_hour": _per_hour(shift["units"], first, now), "testing": testing,
+            **_pace(finished, now, bool(testing))}
 
 
 def distinct(conn: Connection, column: Any) -> list[Any]:

@@ -196,16 +196,18 @@ def params_by_stage(conn: Any, run_ids: list[int]) -> dict[int, dict[str, dict[s
     return out
 
 
-def shift_units(conn: Connection, station_id: str, since: str, recent: int) -> dict[str, Any]:
+def shift_units(conn: Connection, station_id: str, since: str, recent: int, slot: str | None = None) -> dict[str, Any]:
     """A station's units since ``since`` (stored form), as its screen shows them: how many ran, the
     first-pass yield (a serial's first run here, judged PASS or FAIL), and the latest ``recent``, newest
     first, each with the verdict as shown (a PASS with a flagged measurement is REVIEW).
 
-    Why from the store: every screen of the station, and one restarted mid-shift, counts the same units."""
+    Why from the store: every screen of the station, and one restarted mid-shift, counts the same units.
+    ``slot``: that fixture position's units only."""
+    chosen = (runs.c.station_id == station_id) & (runs.c.started >= since) & (runs.c.verdict != "running")
+    if slot is not None:
+        chosen = chosen & (runs.c.slot == slot)
     found = conn.execute(select(runs.c.id, runs.c.serial, runs.c.part, runs.c.verdict, runs.c.slot, runs.c.finished,
-                                runs.c.review)
-                         .where((runs.c.station_id == station_id) & (runs.c.started >= since)
-                                & (runs.c.verdict != "running")).order_by(runs.c.id)).all()
+                                runs.c.review).where(chosen).order_by(runs.c.id)).all()
     first: dict[str, str] = {}
     for row in found:
         first.setdefault(row.serial, row.verdict)

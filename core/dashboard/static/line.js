@@ -18,8 +18,10 @@ function tile(t, word) {
   const recent = t.recent.map((r) => `<li class="${esc(r.verdict)}"><a href="/unit?serial=${encodeURIComponent(r.serial)}">`
     + `${esc(r.serial)}</a> ${esc(r.verdict.toUpperCase())}${r.slot ? ` <small>slot ${esc(r.slot)}</small>` : ""}</li>`).join("");
   const silent = t.silent ? `<div class="silent">SILENT ${ago(t.silent_s)} — its usual gap is ${ago(t.usual_gap_s)}</div>` : "";
-  return `<section class="tile${t.silent ? " flagged" : ""}" data-station="${esc(t.station_id)}">`
-    + `<h2>${esc(t.station_id)} <small>line ${esc(t.line)}</small></h2>${silent}${testing}`
+  const slot = t.slot ? ` · slot ${esc(t.slot)}` : "";
+  return `<section class="tile${t.silent ? " flagged" : ""}" data-station="${esc(t.station_id)}"`
+    + `${t.slot ? ` data-slot="${esc(t.slot)}"` : ""}>`
+    + `<h2>${esc(t.station_id)}${slot} <small>line ${esc(t.line)}</small></h2>${silent}${testing}`
     + `<div class="figures"><span class="units">${t.units} unit${t.units === 1 ? "" : "s"} ${esc(word)}</span>`
     + ` · first-pass yield <b>${pct(t.fpy)}</b>`
     + (t.per_hour != null ? ` · ${t.per_hour.toFixed(1)} units/h` : "") + `</div>`
