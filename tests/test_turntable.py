@@ -281,7 +281,9 @@ def test_when_the_speaking_slot_s_tumble_ends_the_next_slot_still_reading_speaks
     guide.step("A", level, True, set(), np.eye(3))
     assert guide.step("B", level, True, set(), np.eye(3)).state == "turning"
     table.busy = False
-    clock.now += 2.0  # A's tumble was determined meanwhile: only B still hands its readings over
+    clock.now += 2.0  # A's readings pause (a loaded machine): A still speaks for the cradle
+    assert guide.step("B", level, True, set(), np.eye(3)).prompt is None
+    guide.leave("A")  # A's tumble was determined: only B still reads
     assert guide.step("B", level, True, set(), np.eye(3)).prompt == "Tilt the cradle: on its right side"
 
 
@@ -353,7 +355,7 @@ def test_the_next_tilt_is_asked_in_the_step_of_the_slot_that_speaks_for_the_crad
     """A CI run: the turn ended during slot B's step, B asked the next tilt on the pendant (the operator made
     it) while A spoke for the cradle — and A's tumble ended before its next step, so the tilt was said in
     no record.  Now a turn that ended waits for the speaker's step, which shows and says the next tilt at
-    once; once A has stopped stepping, B speaks."""
+    once; once A's tumble has ended, B speaks."""
     clock, table = Clock(), FakeTable(tilts=[Tilt(0.0, 0.0), Tilt(-45.0, 0.0), Tilt(45.0, 0.0)])
     guide = TiltGuide(table, ["A", "B"], 40, 62.0, clock=clock)
     level = Tilt(0.0, 0.0).gravity_body()
@@ -368,7 +370,8 @@ def test_the_next_tilt_is_asked_in_the_step_of_the_slot_that_speaks_for_the_crad
     assert table.shown == shown  # nothing new on the pendant from B's step
     assert guide.step("A", level, True, set(), np.eye(3)).prompt == "Tilt the cradle: nose down 45°"
     assert table.shown[-1] == "Tilt the cradle: nose down 45°"
-    clock.now += 1.5  # A's tumble ended: it steps no more, and B speaks
+    clock.now += 1.5
+    guide.leave("A")  # A's tumble ended: it steps no more, and B speaks
     nose_down = Tilt(-45.0, 0.0).gravity_body()
     guide.step("B", nose_down, True, set(), np.eye(3))
     clock.now += 0.6

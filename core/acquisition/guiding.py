@@ -68,6 +68,10 @@ class Guiding:
         sensors = run.magnetometers
         self.sensor_to_body = configured_rotation(sensors[0]) if sensors else np.eye(3)
 
+    def ended(self) -> None:
+        """This slot's tumble is over (determined, stalled, aborted): the cradle's words pass to the next."""
+        self.guide.leave(self.run.slot or "")
+
     def step(self, chunk: SampleChunk, taken: int, bins: np.ndarray) -> Guidance:
         self.gravity.add(chunk)
         gravity, steady = self.gravity.latest()

@@ -10,7 +10,7 @@ drives the DUT through the :class:`~magline.core.dut.DutBackend` protocol only.
 from __future__ import annotations
 
 import time
-from contextlib import closing, nullcontext
+from contextlib import ExitStack, closing, nullcontext
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -64,11 +64,14 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
     final = None  # the determination of every reading the tumble ends with
     advice = None  # why the tumble stalled, in the operator's words, when the motion knows
     try:
-        with run.shared_motion() as number, closing(dut.samples(cfg.rate_hz)) as stream, running or nullcontext():
+        with run.shared_motion() as number, closing(dut.samples(cfg.rate_hz)) as stream, running or nullcontext(), \
+                ExitStack() as on_end:
             started = time.monotonic()  # the fixture moves from here (a slot may have waited for the others)
             deadline, checkpoint = started + cfg.timeout_s, cfg.min_samples
             guide = tilt_guide(run, number, cfg.coverage_bins)
             guiding = Guiding(run, guide) if guide is not None else None
+            if guiding is not None:
+                on_end.callback(guiding.ended)  # this slot no longer speaks for the cradle, however it ended
             for chunk in stream:
                 taken = got.add(chunk, room=cfg.samples - got.count)
                 seen = got.seen  # readings received: the checkpoints' clock (thinning never turns it back)

@@ -74,6 +74,7 @@ class TiltGuide:
         self.clock = clock
         self._lock = threading.Lock()
         self._seen: dict[str, _Seen] = {}
+        self._ended: set[str] = set()  # members whose tumble is over (they no longer speak for the cradle)
         self._made_at = clock()
         self.done: list[Tilt] = []  # the tilts turned so far, in order
         self.turns = 0
@@ -176,9 +177,8 @@ class TiltGuide:
         self._state, self._why = "stalled", why
 
     def _guidance(self, slot: str, now: float) -> Guidance:
-        # the first member still reading speaks for the cradle: one whose tumble ended (it stepped, then stopped)
-        # hands it on; one that has not stepped yet is about to (a CI run's second slot stepped first and took
-        # the first words from the first)
+        # the first member still reading speaks for the cradle: one whose tumble ended hands it on; one that has
+        # not stepped yet is about to (a CI run's second slot stepped first and took the first words from the first)
         leader = self._leader(slot, now)
         words = self._words()
         prompt = None
@@ -187,8 +187,16 @@ class TiltGuide:
         return Guidance(state=self._state, tilt=self._tilt, step=len(self.done) + 1, prompt=prompt, leader=leader,
                         found=self._found, why=self._why)
 
+    def leave(self, slot: str) -> None:
+        """``slot``'s tumble ended: it no longer speaks for the cradle."""
+        with self._lock:
+            self._ended.add(slot)
+
     def _leader(self, slot: str, now: float) -> str:
-        reading = [m for m in self.members if m not in self._seen or now - self._seen[m].stepped < 1.0]
+        """The first member whose tumble has not ended.  Why not "stepped within the last second": under a
+        loaded CI the first slot's readings came more than a second apart, the second slot took the words
+        mid-tumble and its record said the first tilt again."""
+        reading = [m for m in self.members if m not in self._ended]
         return reading[0] if reading else slot
 
     def _words(self) -> str:

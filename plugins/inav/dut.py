@@ -212,7 +212,8 @@ class InavDut:
             if answered - handed >= CHUNK_S:
                 yield SampleChunk(mag_ut=np.array(mags, float).reshape(-1, 3), t_ms=np.array(times, float),
                                   repeats=repeats.repeats - told,
-                                  imu=ImuSeries(t_ms=np.array(accel_t, float), accel_mss=np.array(accel, float)))
+                                  imu=ImuSeries(t_ms=np.array(accel_t, float),
+                                                accel_mss=np.array(accel, float).reshape(-1, 3)) if accel else None)
                 told, handed = repeats.repeats, answered
                 mags, times, accel, accel_t = [], [], [], []
 
