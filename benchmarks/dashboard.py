@@ -25,7 +25,7 @@ from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
 import numpy as np
-from sqlalchemy import create_engine, insert
+from sqlalchemy import create_engine, insert, text
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from browser import Served, chromium, free_port
@@ -70,6 +70,9 @@ def fill(engine, count: int, rng: np.random.Generator) -> None:
         with engine.begin() as conn:
             conn.execute(insert(runs), run_rows)
             conn.execute(insert(measurements), m_rows)
+    if engine.dialect.name == "postgresql":  # ids given explicitly: the sequence a station's insert draws from
+        with engine.begin() as conn:
+            conn.execute(text("SELECT setval(pg_get_serial_sequence('runs', 'id'), (SELECT max(id) FROM runs))"))
 
 
 def timed(page, url: str, ready: str) -> float:
