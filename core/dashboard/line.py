@@ -60,11 +60,10 @@ def _tile(conn: Connection, station_id: str, line: str | None, slot: str | None,
         chosen = chosen & (runs.c.slot == slot)
     finished = [row[0] for row in conn.execute(select(runs.c.finished).where(chosen & runs.c.finished.is_not(None))
                                                .order_by(runs.c.started.desc()).limit(GAPS + 1)).all()]
-    first = conn.execute(select(func.min(runs.c.started)).where(chosen & (runs.c.started >= since))).scalar()
     testing = [{"slot": c["slot"], "serial": c["serial"], "since": c["since"]} for c in claims
                if c["station_id"] == station_id and (slot is None or c["slot"] == slot) and _fresh(c["heartbeat"], now)]
     return {"station_id": station_id, "slot": slot, "line": line, **shift,
-            "per_hour": _per_hour(shift["units"], first, now), "testing": testing,
+            "per_hour": _per_hour(shift["units"], shift["first_started"], now), "testing": testing,
             **_pace(finished, now, bool(testing))}
 
 

@@ -28,7 +28,7 @@ class Wakeups:
         self.url = store.url if store.kind == "postgresql" else None
         self.poll_s = POLL_NOTIFIED_S if self.url else POLL_S
         self.count = 0
-        self._changed = threading.Condition()
+        self._lock = threading.Lock()  # the pages read ``count`` without it: an int read is atomic
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         if self.url:
@@ -36,9 +36,8 @@ class Wakeups:
             self._thread.start()
 
     def _bump(self) -> None:
-        with self._changed:
+        with self._lock:
             self.count += 1
-            self._changed.notify_all()
 
     def _listen(self) -> None:
         import psycopg
@@ -56,7 +55,5 @@ class Wakeups:
 
     def close(self) -> None:
         self._stop.set()
-        with self._changed:
-            self._changed.notify_all()
         if self._thread is not None:
             self._thread.join(5)

@@ -207,7 +207,7 @@ def shift_units(conn: Connection, station_id: str, since: str, recent: int, slot
     if slot is not None:
         chosen = chosen & (runs.c.slot == slot)
     found = conn.execute(select(runs.c.id, runs.c.serial, runs.c.part, runs.c.verdict, runs.c.slot, runs.c.finished,
-                                runs.c.review).where(chosen).order_by(runs.c.id)).all()
+                                runs.c.review, runs.c.started).where(chosen).order_by(runs.c.id)).all()
     first: dict[str, str] = {}
     for row in found:
         first.setdefault(row.serial, row.verdict)
@@ -222,7 +222,8 @@ def shift_units(conn: Connection, station_id: str, since: str, recent: int, slot
         return "review" if row.verdict == "pass" and (review or row.id in flagged) else row.verdict
 
     passed = sum(v == "pass" for v in judged)
-    return {"units": len(found), "first_pass": passed, "judged": len(judged),
+    return {"units": len(found), "first_started": min((row.started for row in found), default=None),
+            "first_pass": passed, "judged": len(judged),
             "fpy": passed / len(judged) if judged else None,
             "recent": [{"serial": row.serial, "part": row.part, "verdict": shown(row), "slot": row.slot,
                         "finished": row.finished} for row in latest]}
