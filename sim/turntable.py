@@ -81,7 +81,7 @@ class TurntableSim(ScpiServer):
     # ------------------------------------------------------------------ the table and the cradle
     def angle_at(self, wall: float) -> float:
         with self.lock:
-            return self.angle0 + self.direction * self.speed_dps * (min(wall, self.until) - self.t0) \
+            return self.angle0 + self.direction * self.speed_dps * (min(max(wall, self.t0), self.until) - self.t0) \
                 if self.until > self.t0 else self.angle0
 
     def stalled(self) -> bool:
@@ -100,9 +100,14 @@ class TurntableSim(ScpiServer):
         return Rotation.from_euler("Z", self.angle_at(wall), degrees=True) * self.cradle(wall)
 
     def set_tilt(self, pitch_deg: float, roll_deg: float) -> None:
-        """The operator moves the cradle to this tilt (over ``MOVE_S``)."""
-        now = time.time()
+        """The operator moves the cradle to this tilt (over ``MOVE_S``).
+
+        The move's start is read under the lock: read before it, a thread held back on a loaded machine
+        dated the move before an ``ATT?`` answered meanwhile, and the boards that had sent the cradle
+        standing still for those instants were proven wrong after the fact (a good unit FAILed its
+        mounting at 3–10°)."""
         with self.lock:
+            now = time.time()
             self._from, self._to, self._move_t0 = self.cradle(now), cradle_rotation(pitch_deg, roll_deg), now
             self.tilts_set.append((pitch_deg, roll_deg))
 

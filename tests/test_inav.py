@@ -208,7 +208,7 @@ def test_betaflight_answering_is_an_error_naming_it(tmp_path):
 def test_a_save_that_did_not_persist_fails_the_unit_naming_the_setting(tmp_path):
     with board(tmp_path, SimFaults(no_persist=["magzero_x"])) as sim:
         record = run_unit(station(tmp_path, sim.address))
-    assert record.verdict is Outcome.FAIL and "magzero_x" in record.cause
+    assert record.verdict is Outcome.FAIL and "magzero_x" in record.cause, record.cause
 
 
 def test_another_board_after_the_reboot_is_an_error(tmp_path):

@@ -64,6 +64,12 @@ def log_of(record, phase: str = "acquire") -> list[str]:
     return next(p for p in record.phases if p.name == phase).log
 
 
+def said_in_first_round(log: list[str]) -> list[str]:
+    """The tilts a slot asked for in its first attempt's round."""
+    first = log[:next((i for i, line in enumerate(log) if line.startswith("attempt 1:")), len(log))]
+    return [line.removeprefix("operator: Tilt the cradle: ") for line in first if "Tilt the cradle:" in line]
+
+
 # ---------------------------------------------------------------------------------------------- the tilts
 def test_a_tilt_s_words_gravity_and_picture_agree():
     for tilt in COVERAGE_TILTS:
@@ -234,16 +240,17 @@ def test_two_units_on_one_turntable_share_its_turns_with_the_tilts_their_coverag
         turns, made = table.turns, list(table.tilts_set)
     assert [r.verdict for r in records.values()] == [Outcome.PASS, Outcome.PASS], [r.cause for r in records.values()]
     log = log_of(records["A"])
-    asked = [line.removeprefix("operator: Tilt the cradle: ") for line in log if "Tilt the cradle:" in line]
+    asked, later = said_in_first_round(log), said_in_first_round(log_of(records["B"]))
     assert asked[0] == "level" and len(asked) >= 2
-    # A speaks for the cradle while it reads; a tilt still needed once A's tumble ended is B's to ask
-    later = [line.removeprefix("operator: Tilt the cradle: ") for line in log_of(records["B"])
-             if "Tilt the cradle:" in line]
+    # A speaks for the cradle while it reads; a tilt still needed once A's tumble ended is B's to ask (a slot
+    # that tumbles again is a round of its own, which it speaks for from its first tilt)
     assert "level" not in later  # B never took the first words from A
     # the operator made each tilt asked, and every tilt made was asked in a record (one was once shown on the
     # pendant from B's step just before A's tumble ended, and said nowhere)
-    assert [tilt_words(*m) for m in made] == (asked + later)[1:len(made) + 1]
-    assert 2 <= turns <= len(asked) + 1  # one turn per tilt for both units (and the spin check), not one each
+    first = (asked + later)[1:]
+    assert [tilt_words(*m) for m in made][:len(first)] == first[:len(made)]
+    every = [line for r in records.values() for line in log_of(r) if "Tilt the cradle:" in line]
+    assert 2 <= turns <= len(every) + 1  # one turn per tilt for both units (and the spin check), not one each
     assert not [line for line in log if "never tilted" in line]  # ended by the stop rule or the count, no stall
 
 
@@ -394,6 +401,7 @@ def test_a_board_that_learns_of_a_turn_late_sends_its_readings_late_never_wrong(
     from pymavlink.dialects.v20 import common as ML
 
     from magline.sim import gimbal
+    from magline.sim.px4 import Px4Sim
     from magline.sim.turntable import MOVE_S
 
     monkeypatch.setattr(gimbal, "FOLLOW_S", 0.5)
@@ -419,11 +427,62 @@ def test_a_board_that_learns_of_a_turn_late_sends_its_readings_late_never_wrong(
     stamps = np.array([t for t, _ in fields])
     steps = np.linalg.norm(np.diff([f for _, f in fields], axis=0), axis=1)
     turned = np.linalg.norm(fields[-1][1] - fields[50][1])
-    # 60°/s turns a 48 µT field by at most 53 µT/s (1.06 µT in a 20 ms step, through the soft iron), the noise
-    # adds about 0.4 µT and the mG truncation 0.1: each step within what the table's turn allows in the time
-    # between its two messages (a board starved on a loaded machine sends later, not wrong), plus 1.9 µT; the
-    # 0.5 s lag made one step of 9.7 µT in 20 ms, 0.4 s into the turn
+    # 60°/s turns a 48 µT field by at most 53 µT/s (through the soft iron), the noise adds about 0.4 µT and the
+    # mG truncation 0.1: each step within what the table's turn allows in the time between the two readings,
+    # plus 1.9 µT. That time is the messages' (a board starved on a loaded machine sends later, not wrong),
+    # a millisecond of stamp truncation, and how far apart the compass readings they carry may be: PX4's
+    # SCALED_IMU holds the latest reading of a 50 Hz compass, 28–36 ms old — up to one sensor period and the
+    # age spread more (a step of 3.02 µT in 20 ms was two readings 40 ms apart). The 0.5 s lag made one step
+    # of 9.7 µT in 20 ms, 0.4 s into the turn
     assert turned > 10.0, turned  # the table did turn during the stream
-    allowed = 53.0 * np.diff(stamps) / 1000.0 + 1.9
+    apart_s = np.diff(stamps) / 1000.0 + 0.001 + 1.0 / 50.0 + (Px4Sim.MAG_AGE_S[1] - Px4Sim.MAG_AGE_S[0])
+    allowed = 53.0 * apart_s + 1.9
     worst = int(np.argmax(steps - allowed))
     assert np.all(steps < allowed), (steps[worst], allowed[worst], stamps[worst + 1] - stamps[worst])
+
+
+def test_a_board_that_learnt_of_a_turn_computes_the_instants_before_it_standing_still():
+    """A board held back by a loaded machine computes instants from before a turn after the answer that
+    announced it: the table stood at the turn's starting angle then — it did not run the turn backwards."""
+    import time
+
+    from magline.sim.gimbal import MotionFollower
+
+    table = TurntableSim("tcp:127.0.0.1:0", homed=True).start()
+    follower = MotionFollower(table.address)
+    try:
+        before = time.monotonic()
+        time.sleep(0.3)
+        table.command("ROT:TURN", "1")
+        turned_at = time.monotonic()
+        while follower.known_until < turned_at + 0.1:  # the follower has heard of the turn
+            time.sleep(0.02)
+            assert follower.error is None, follower.error
+        stood = follower.attitude(before)
+        started = follower.attitude(turned_at - 0.001)
+    finally:
+        follower.stop()
+        table.stop()
+    assert stood.magnitude() == pytest.approx(0.0, abs=1e-9) and started.magnitude() < np.radians(0.1)
+
+
+def test_a_cradle_move_never_starts_before_an_answer_the_boards_already_had():
+    """The operator's thread held back (here: the table busy answering) dates its move when it gets the
+    table, not before: an ``ATT?`` answered meanwhile said the cradle stood still, and the boards computed
+    those instants so — a move dated earlier would have proven them wrong after the fact."""
+    import threading
+    import time
+
+    table = TurntableSim("tcp:127.0.0.1:0", homed=True).start()
+    try:
+        with table.lock:
+            operator = threading.Thread(target=table.set_tilt, args=(45.0, 0.0))
+            operator.start()
+            time.sleep(0.2)  # the operator's thread waits for the table
+            table.handle("ATT?")
+            answered = time.time()
+        operator.join(5.0)
+        since = float(table.handle("ATT?").split(",")[9])
+    finally:
+        table.stop()
+    assert since >= answered

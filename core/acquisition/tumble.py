@@ -90,7 +90,10 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
                                                     f"cradle {guidance.tilt.words} when the station asks"
                         break
                 if got.count >= cfg.samples:
-                    if running is None or (coverage >= running.rule.coverage_target
+                    # the coverage the attempt is judged on: that of the readings held — the live figure counts
+                    # readings a thinning let go, and a turntable's attempt stopped at the live 60% was
+                    # judged at 55% and tumbled again
+                    if running is None or (got.coverage(cfg.coverage_bins) >= running.rule.coverage_target
                                            and not running.awaits_drift_test(got.snapshot(run))):
                         reason = "samples"
                         break
@@ -247,6 +250,11 @@ class _Readings(_Stream):
             elif sensor is not None and sensor.device_id in self.more:
                 out[run.sensor_prefix(sensor.device_id)] = self.more[sensor.device_id].samples()
         return out
+
+    def coverage(self, bins: int) -> float:
+        """The worst magnetometer's coverage of the readings held: the attempt's own figure."""
+        return min([coverage_of(self.samples().mag_ut, bins),
+                    *(coverage_of(s.samples().mag_ut, bins) for s in self.more.values())])
 
     def acquisition(self, attempt: int, bins: int, target: float) -> Acquisition:
         samples = self.samples()

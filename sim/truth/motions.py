@@ -104,7 +104,32 @@ def single_axis(n: int, rng: np.random.Generator, field_dir: NDArray, wobble_deg
     return _ring(n, rng, field_dir, np.array([0.0, 0.0, 1.0]), wobble_deg, Rotation.identity())
 
 
+# the cradle tilts a turntable's operator is asked for (pitch nose up, roll right side down, degrees)
+CRADLE_TILTS = ((0, 0), (0, 180), (0, 45), (0, -90), (90, 0), (0, -135), (-45, 0), (45, 180), (0, 90), (-90, 0))
+
+
+def cradle_turns(n: int, rng: np.random.Generator, field_dir: NDArray, hold: float = 1 / 7) -> NDArray:
+    """A turntable's units: one revolution about the vertical at each cradle tilt, in a random order,
+    and the cradle held still in its last attitude while the operator's hands are on it (``hold`` of
+    each ring).  Why: rings about a centre that only their union determines are the readings whose
+    live coverage and the coverage of a thinned attempt part ways."""
+    order = rng.permutation(len(CRADLE_TILTS))
+    per = max(8, n // len(order))
+    turning = int(per * (1.0 - hold))
+    rows = []
+    for index in order:
+        pitch, roll = CRADLE_TILTS[index]
+        cradle = Rotation.from_euler("YX", [pitch, roll], degrees=True)
+        angles = np.linspace(0.0, 360.0, turning, endpoint=False)
+        turned = np.concatenate([angles, np.full(per - turning, angles[-1])])[:, None]
+        att = Rotation.from_euler("Z", turned, degrees=True) * cradle
+        rows.append(att.inv().apply(field_dir))
+    out = np.vstack(rows)
+    return np.vstack([out, np.repeat(out[-1:], max(0, n - len(out)), axis=0)])[:n]
+
+
 MOTIONS: dict[str, Motion] = {
+    "cradle_turns": cradle_turns,
     "full_sphere": full_sphere,
     "hand_tumble": hand_tumble,
     "hemisphere": cap(0.5),
