@@ -116,6 +116,7 @@ class RunRecord:
     run_id: int | None = None
     station_hash: str = ""  # the station file's content hash (which configuration judged the unit)
     reference_field_ut: float | None = None  # the field reference the unit was calibrated against
+    field_check: dict[str, Any] | None = None  # the field source as the unit met it (model, value, last live check)
     store: str = ""  # where the record is kept (the sink's own words: a file, a server)
     aborted_phase: str | None = None  # the phase the operator stopped the unit in
     left_changed: dict[str, str] = field(default_factory=dict)  # DUT parameters not restored: name → state

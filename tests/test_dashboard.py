@@ -5,6 +5,7 @@ writes."""
 from __future__ import annotations
 
 import hashlib
+import re
 import subprocess
 import sys
 import urllib.error
@@ -319,3 +320,47 @@ def test_a_station_with_slots_has_a_tile_per_slot_saying_what_each_tests_now(das
     a, b = page.inner_text(".tile[data-slot='A']"), page.inner_text(".tile[data-slot='B']")
     assert a.startswith("st-s · slot A") and "testing S-NOW" in a and "3 units today" in a
     assert b.startswith("st-s · slot B") and "no unit under test" in b and "3 units today" in b
+
+
+def test_a_forwarding_station_s_tile_says_what_its_outbox_holds_and_when_its_field_was_checked(
+        dashboard, browser, postgres, make_station, monkeypatch, tmp_path):
+    """A station forwarding to the line's PostgreSQL through its outbox, its field checked by a fluxgate before
+    every unit: the tile shows the last check (value, time, units) and what the outbox held when the station
+    last reached the server — empty after a good pass; one record queued when the server refused a run — and
+    the page follows the report without a reload."""
+    from magline.core.plugins import load_plugins
+    from magline.core.results import forwarding
+    from magline.core.sequencer import Sequencer
+    from magline.core.station import load_station
+    from magline.sim.fluxgate import FluxgateSim
+
+    url = postgres.new_database()
+    monkeypatch.setenv("MAGLINE_LINE_URL", url)
+    with FluxgateSim("tcp:127.0.0.1:0", lambda: np.array([0.0, 0.0, 48.02]), noise_ut=0.0) as fluxgate:
+        path = make_station({"results": {"sink": "sql", "url_env": "MAGLINE_LINE_URL", "outbox": "outbox.sqlite"},
+                             "field_source": {"type": "fixed", "options": {
+                                 "field_ut": 48.0, "inclination_deg": 63.0,
+                                 "reference": {"resource": fluxgate.visa_resource, "readings": 2,
+                                               "every_n_units": 1}}}})
+        seq = Sequencer(load_station(path), load_plugins(), path.parent, sleep=lambda s: None)
+        try:
+            assert seq.run_unit("OB-1").verdict is Outcome.PASS
+            served = dashboard(url)
+            page = open_page(browser, served.url).page
+            station_id = seq.station.station.id
+            here = f".tile[data-station='{station_id}']"
+            page.wait_for_selector(f"{here} .outbox:has-text('outbox: empty')")
+            field = page.inner_text(f"{here} .field")
+            assert "surveyed field 48.00 µT" in field and "checked 48.02 µT" in field, field
+            assert "before the batch's unit 1" in field and re.search(r"at \d\d:\d\d,", field), field
+
+            def refused(source, target, run_id, new_id):  # the server refuses this run's rows
+                from sqlalchemy.exc import DataError
+                raise DataError("INSERT INTO phases", {}, ValueError("a value the server refuses"))
+
+            monkeypatch.setattr(forwarding, "copy_children", refused)
+            assert seq.run_unit("OB-2").verdict is Outcome.PASS
+            page.wait_for_selector(f"{here} .outbox.queued:has-text('outbox: 1 record queued since')")
+            assert page.evaluate("performance.navigation.type") == 0
+        finally:
+            seq.close()

@@ -10,6 +10,7 @@ not after a fixed time that is long for one product and short for another.
 from __future__ import annotations
 
 import itertools
+import json
 import statistics
 from datetime import UTC, datetime, timedelta
 from typing import TYPE_CHECKING, Any
@@ -18,7 +19,7 @@ from sqlalchemy import func, select
 
 from magline.core.results.instants import stored_form
 from magline.core.results.reading import shift_units
-from magline.core.results.tables import runs, slot_claims
+from magline.core.results.tables import runs, slot_claims, station_outbox
 
 if TYPE_CHECKING:
     from sqlalchemy import Connection
@@ -40,19 +41,21 @@ def line_now(conn: Connection, now: datetime, shifts: Shifts) -> dict[str, Any]:
     active = stored_form(now - timedelta(days=ACTIVE_DAYS))
     stations = [(station_id, line) for station_id, line, started in _stations(conn) if started and started >= active]
     claims = conn.execute(select(slot_claims)).mappings().all()
+    # what each forwarding station's outbox held when it last reached this store (none: it writes here directly)
+    outboxes = {row["station_id"]: dict(row) for row in conn.execute(select(station_outbox)).mappings()}
     tiles = []
     for station_id, line in sorted(stations, key=lambda row: (str(row[1]), str(row[0]))):
         slots = [s for (s,) in conn.execute(select(runs.c.slot).where((runs.c.station_id == station_id)
                                                                       & (runs.c.started >= active)).distinct())
                  if s is not None]
         for slot in sorted(slots) or [None]:  # a station with slots: a tile per fixture position
-            tiles.append(_tile(conn, station_id, line, slot, since, now, claims))
+            tiles.append(_tile(conn, station_id, line, slot, since, now, claims, outboxes))
     return {"shift_start": shift_start.isoformat(timespec="minutes"), "now": now.astimezone().isoformat(
         timespec="seconds"), "shift_word": "this shift" if shifts.starts else "today", "stations": tiles}
 
 
 def _tile(conn: Connection, station_id: str, line: str | None, slot: str | None, since: str, now: datetime,
-          claims: list) -> dict[str, Any]:
+          claims: list, outboxes: dict[str, dict[str, Any]]) -> dict[str, Any]:
     """One station's (or one of its slots') tile."""
     shift = shift_units(conn, station_id, since, RECENT, slot)
     chosen = (runs.c.station_id == station_id) & (runs.c.verdict != "running")
@@ -64,7 +67,13 @@ def _tile(conn: Connection, station_id: str, line: str | None, slot: str | None,
                if c["station_id"] == station_id and (slot is None or c["slot"] == slot) and _fresh(c["heartbeat"], now)]
     return {"station_id": station_id, "slot": slot, "line": line, **shift,
             "per_hour": _per_hour(shift["units"], shift["first_started"], now), "testing": testing,
-            **_pace(finished, now, bool(testing))}
+            **_pace(finished, now, bool(testing)), "field": _field(conn, chosen), "outbox": outboxes.get(station_id)}
+
+
+def _field(conn: Connection, chosen: Any) -> dict[str, Any] | None:
+    """The field reference as the station's latest unit met it: the model and value, the live check's last."""
+    found = conn.execute(select(runs.c.field_check).where(chosen).order_by(runs.c.started.desc()).limit(1)).scalar()
+    return json.loads(found) if found else None
 
 
 def distinct(conn: Connection, column: Any) -> list[Any]:
@@ -127,4 +136,5 @@ def store_version(conn: Connection) -> tuple[Any, ...]:
     latest = tuple(conn.execute(select(runs.c.id, runs.c.verdict, runs.c.finished).order_by(runs.c.id.desc())
                                 .limit(RECENT_RUNS)).all())
     return latest + tuple(conn.execute(select(slot_claims.c.station_id, slot_claims.c.slot, slot_claims.c.serial)
-                                       .order_by(slot_claims.c.station_id, slot_claims.c.slot)).all())
+                                       .order_by(slot_claims.c.station_id, slot_claims.c.slot)).all()) \
+        + tuple(conn.execute(select(station_outbox).order_by(station_outbox.c.station_id)).all())

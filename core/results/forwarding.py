@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from sqlalchemy import create_engine, func, select, update
-from sqlalchemy.exc import IntegrityError, SQLAlchemyError
+from sqlalchemy.exc import IntegrityError, OperationalError, SQLAlchemyError
 
 from magline.core.faults import StationFault
 from magline.core.results.sqlite_store import SqliteSink
@@ -199,14 +199,33 @@ class ForwardingStore:
             central = self.central()
             forwarded = 0
             if central is not None:
+                reached = True
                 try:
                     forwarded = self._forward_all(central)
                     self.last_error, self._failed_at = None, None
                 except (SQLAlchemyError, OSError) as exc:
                     self.last_error = f"results server {self.server}: {reason(exc)}"
+                    reached = not isinstance(exc, (OperationalError, OSError))  # a run refused, the server there
+                if reached:  # what is left, on the station's tile of the line's dashboard
+                    with contextlib.suppress(StationFault):
+                        central.report_outbox(self._outbox_reports())
             if self.last_error is not None:
                 self._failed_at = time.monotonic()
             return forwarded, self.pending()
+
+    def _outbox_reports(self) -> list[dict[str, Any]]:
+        """Per station of this outbox: the runs still queued and when the oldest of them finished (after a
+        pass that reached the server: what is left is what a later pass will carry)."""
+        with self.outbox.engine.connect() as local:
+            stations = [s for (s,) in local.execute(select(runs.c.station_id).distinct()) if s is not None]
+            reported = datetime.now(UTC).isoformat(timespec="seconds")
+            found = []
+            for station_id in stations:
+                queued, oldest = local.execute(select(func.count(), func.min(runs.c.finished))
+                                               .where(_pending() & (runs.c.station_id == station_id))).one()
+                found.append({"station_id": station_id, "reported": reported, "queued": int(queued),
+                              "oldest": oldest})
+        return found
 
     def _forward_all(self, central: SqlStore) -> int:
         done = 0

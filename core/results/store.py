@@ -24,7 +24,16 @@ from magline.core.results import claims, raw_blob, schema_version
 from magline.core.results.processes import alive, owner
 from magline.core.results.reading import same_serial
 from magline.core.results.series import load_series
-from magline.core.results.tables import attachments, attempt_streams, attempts, measurements, params, phases, runs
+from magline.core.results.tables import (
+    attachments,
+    attempt_streams,
+    attempts,
+    measurements,
+    params,
+    phases,
+    runs,
+    station_outbox,
+)
 
 if TYPE_CHECKING:
     from sqlalchemy import Engine
@@ -71,6 +80,18 @@ class SqlStore:
                 return done
         except SQLAlchemyError as exc:
             raise StationFault(f"results store {self.where}: {what} failed: {reason(exc)}") from exc
+
+    # -------------------------------------------------------------- what a station's outbox holds
+    def report_outbox(self, reports: Sequence[dict[str, Any]]) -> None:
+        """What each station's outbox still holds (``station_id``, ``reported``, ``queued``, ``oldest``),
+        replacing its last report: the line's dashboard shows it on the station's tile."""
+
+        def write(conn: Any) -> None:
+            for report in reports:
+                conn.execute(station_outbox.delete().where(station_outbox.c.station_id == report["station_id"]))
+                conn.execute(station_outbox.insert().values(**report))
+
+        self._write("reporting the outbox", write)
 
     # -------------------------------------------------------------- which station holds which slot
     def claim_slot(self, holder: dict) -> str | None:
@@ -145,6 +166,7 @@ class SqlStore:
                 calibration=json.dumps(record.calibration) if record.calibration else None,
                 persistence=json.dumps(record.persistence), aborted_phase=record.aborted_phase,
                 reference_field_ut=record.reference_field_ut,
+                field_check=json.dumps(record.field_check) if record.field_check else None,
                 review=json.dumps(record.review) if record.review else None, review_note=record.review_note or None,
                 left_changed=json.dumps(record.left_changed) if record.left_changed else None,
                 unverified_params=json.dumps(record.unverified_params) if record.unverified_params else None))

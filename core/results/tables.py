@@ -43,6 +43,7 @@ runs = Table(
     Column("station_hash", Text), Column("reference_field_ut", Float),
     Column("review", Text), Column("review_note", Text),  # process-review flags (JSON) and what was compared
     Column("slot", Text), Column("slot_group", Text),  # fixture position; units that shared one motion
+    Column("field_check", Text),  # the field reference as the unit met it: model, value, last live check (JSON)
     Index("runs_serial", "serial"), Index("runs_part_id", "part", "id"), Index("runs_started", "started"),
     Index("runs_station_started", "station_id", "started"),  # a station's units by time (the dashboard)
     Index("runs_running", "id", postgresql_where=text("verdict = 'running'"), sqlite_where=text("verdict = 'running'")),
@@ -102,6 +103,14 @@ slot_claims = Table(
     Column("host", Text), Column("pid", Integer), Column("serial", Text),
     Column("since", Text), Column("heartbeat", Text),
     Index("slot_claims_serial", "serial", unique=True),  # one serial under test once, across computers
+)
+
+# What a station's outbox still held when it last reached the central store (core/results/forwarding.py):
+# one row per station, rewritten after every forwarding pass — what the line's dashboard shows on its tile.
+station_outbox = Table(
+    "station_outbox", metadata,
+    Column("station_id", Text, primary_key=True), Column("reported", Text), Column("queued", Integer),
+    Column("oldest", Text),  # when the oldest run still queued finished (None: nothing queued)
 )
 
 # Frozen control limits (``magline spc --freeze``, AIAG Phase I): a part's process as a baseline of its units

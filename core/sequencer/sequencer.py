@@ -280,6 +280,9 @@ class Sequencer:
         run.field_source = self.field_source
         with self.shared_lock:
             run.reference_field_ut = run.record.reference_field_ut = self.field_source.reference_field_ut()
+            # what the line's dashboard shows of the cell's field (a source that can say it: the live check's last)
+            describe = getattr(self.field_source, "describe", None)
+            run.record.field_check = describe() if callable(describe) else None
         run.log(f"reference field {run.reference_field_ut:.2f} µT")
         power = run.product.power
         run.power = power_factory(power, self.station_dir, self.plugins.options(

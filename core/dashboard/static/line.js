@@ -11,6 +11,27 @@ function ago(seconds) {
   return `${(seconds / 3600).toFixed(1)} h`;
 }
 
+function clock(iso) { return iso ? new Date(iso).toLocaleTimeString([], { hour: "2-digit", minute: "2-digit", hourCycle: "h23" }) : ""; }
+
+// the field reference as the station's last unit met it: the live fluxgate's last check, else the model alone
+function field(f) {
+  if (!f) { return ""; }
+  const model = `${esc(f.model)} ${Number(f.field_ut).toFixed(2)} µT`;
+  const c = f.last_check;
+  return `<div class="field">field: ${model}`
+    + (c ? ` · checked ${Number(c.measured_ut).toFixed(2)} µT at ${clock(c.at)}, before the batch's unit ${c.after_units + 1}` : " · no live check")
+    + `</div>`;
+}
+
+// what the station's outbox still held when it last reached this store (no row: it writes here directly)
+function outbox(o) {
+  if (!o) { return ""; }
+  const when = `reported ${clock(o.reported)}`;
+  return o.queued
+    ? `<div class="outbox queued">outbox: ${o.queued} record${o.queued === 1 ? "" : "s"} queued since ${clock(o.oldest)} · ${when}</div>`
+    : `<div class="outbox">outbox: empty · ${when}</div>`;
+}
+
 function tile(t, word) {
   const testing = t.testing.length
     ? t.testing.map((c) => `<div class="testing">${c.slot ? `slot ${esc(c.slot)}: ` : ""}testing ${esc(c.serial)}</div>`).join("")
@@ -25,7 +46,7 @@ function tile(t, word) {
     + `<div class="figures"><span class="units">${t.units} unit${t.units === 1 ? "" : "s"} ${esc(word)}</span>`
     + ` · first-pass yield <b>${pct(t.fpy)}</b>`
     + (t.per_hour != null ? ` · ${t.per_hour.toFixed(1)} units/h` : "") + `</div>`
-    + `<ol class="recent">${recent}</ol>`
+    + `<ol class="recent">${recent}</ol>${field(t.field)}${outbox(t.outbox)}`
     + `<a class="process" href="/process?station=${encodeURIComponent(t.station_id)}">its process</a></section>`;
 }
 
