@@ -1,9 +1,10 @@
-"""Station time per unit on the simulated PX4 and ArduPilot: each phase, and the overhead beyond
+"""Station time per unit on the simulated PX4, ArduPilot and INAV: each phase, and the overhead beyond
 acquisition (connect + prepare, write + forced save, power cycle + read-back, record, and the
 restore / close after the phases) measured as the unit's wall time minus its acquisition.
 
 Conditions of the issues: simulated boot time 2 s, 600 samples at 50 Hz (12 s of tumbling), a real
-MAVLink link on loopback (UDP for PX4 through MAVSDK, TCP for ArduPilot through pymavlink).
+MAVLink link on loopback (UDP for PX4 through MAVSDK, TCP for ArduPilot through pymavlink), INAV's MSP over
+TCP.
 Target: overhead ≤ 8 s, of which the simulated boot is 2 s.  Figures only, not a test.
 
     python benchmarks/station_overhead.py [--units 3] [--boot-time 2]
@@ -26,7 +27,8 @@ from magline.sim import create_sim
 
 REPO = Path(__file__).resolve().parents[1]
 FLAVOURS = {"px4": ("px4-sim.yaml", "udp", "udpout://{host}:{port}"),
-            "ardupilot": ("ardupilot-sim.yaml", "tcp", "tcp:{host}:{port}")}
+            "ardupilot": ("ardupilot-sim.yaml", "tcp", "tcp:{host}:{port}"),
+            "inav": ("inav-sim.yaml", "tcp", "tcp:{host}:{port}")}
 OVERHEAD_TARGET_S = 8.0
 OWN_GOAL_S = 2.0  # the station's own time beyond the tumble and the firmware's boot
 
@@ -82,9 +84,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--units", type=int, default=3)
     parser.add_argument("--boot-time", type=float, default=2.0)
-    parser.add_argument("--flavour", choices=[*FLAVOURS, "both"], default="both")
+    parser.add_argument("--flavour", choices=[*FLAVOURS, "all"], default="all")
     args = parser.parse_args()
-    for flavour in FLAVOURS if args.flavour == "both" else [args.flavour]:
+    for flavour in FLAVOURS if args.flavour == "all" else [args.flavour]:
         bench(flavour, args.units, args.boot_time)
 
 

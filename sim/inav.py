@@ -61,6 +61,10 @@ MAV_CW270FLIP = 10  # INAV's CW270FLIP as a MAV_SENSOR_ORIENTATION (Roll180Yaw90
 FLIP = np.array(INAV_TO_FRD, float)  # the engine's axes (forward-right-down) to INAV's (forward-left-up) and back
 COMPASS_NOT_CALIBRATED = 1 << 12  # ARMING_DISABLED_COMPASS_NOT_CALIBRATED (fc/runtime_config.h)
 NEW_TUMBLE_GAP_S = 1.0  # RAW_IMU unasked this long: the operator picks the unit up for another tumble
+# … or asked again after the compass's calibration settings were written (the station sets the neutral
+# calibration before each tumble): a fast station began the next unit within the gap, and the simulated unit,
+# still resting where the last power cycle left it, never turned (coverage 0 %, three attempts)
+CALIBRATION_SETTINGS = ("magzero_x", "magzero_y", "magzero_z", "maggain_x", "maggain_y", "maggain_z")
 
 
 @dataclass(frozen=True)
@@ -143,6 +147,7 @@ class InavSim(SimulatedAutopilot):
         self._parsers_msp: dict[object, MspParser] = {}
         self._alignment = np.array(INAV_ALIGNMENTS[INAV_COMPASS_DEFAULT_ALIGNMENT], float)
         self._last_imu_request = -np.inf
+        self._calibration_written = False  # since the last RAW_IMU request
         self.boot_uid = self.uid
         self.refused: list[int] = []  # commands answered with an error reply (tests read it)
 
@@ -291,13 +296,14 @@ class InavSim(SimulatedAutopilot):
         if not setting.minimum <= value <= setting.maximum:
             return None
         self.table.set(setting.name, value)
+        self._calibration_written |= setting.name in CALIBRATION_SETTINGS
         return b""
 
     def _raw_imu(self, now: float) -> bytes:
-        if now - self._last_imu_request > NEW_TUMBLE_GAP_S:
+        if now - self._last_imu_request > NEW_TUMBLE_GAP_S or self._calibration_written:
             self._motion_index += 1  # the station starts polling again: the operator starts (another) tumble
             self._mag_stream_started = now
-        self._last_imu_request = now
+        self._last_imu_request, self._calibration_written = now, False
         accel_g = FLIP @ self.accel_mg(now) / 1000.0  # the specific force, forward-left-up: +1 g on Z when level
         acc = [int16(round(v * 512)) for v in accel_g]
         mag = [0, 0, 0]

@@ -380,3 +380,19 @@ def test_a_compass_that_reads_the_same_at_rest_is_proven_with_what_it_reads(tmp_
         assert sim.resting is not None
     assert record.verdict is Outcome.PASS, record.cause
     assert record.persistence["figures"]["calibrated_field_ut"] == pytest.approx(sim.field_ut, rel=0.03)
+
+
+def test_a_station_that_begins_the_next_unit_at_once_tumbles_it(tmp_path):
+    """Two units on one simulated board, the second begun within a second of the first's proof: the station
+    writes the neutral calibration before the tumble, and the simulated operator picks the unit up — it
+    rested where the power cycle left it, and three attempts of the second unit read 0 % coverage."""
+    from magline.core.sequencer import Sequencer
+
+    with board(tmp_path) as sim:
+        seq = Sequencer(load_station(station(tmp_path, sim.address)), load_plugins(), tmp_path,
+                        sleep=lambda s: None)
+        try:
+            records = [seq.run_unit(serial) for serial in ("SN-1", "SN-2")]
+        finally:
+            seq.close()
+    assert [r.verdict for r in records] == [Outcome.PASS, Outcome.PASS], [r.cause for r in records]
