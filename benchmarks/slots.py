@@ -166,7 +166,15 @@ def main() -> None:
         per_slot = cpu_s / wall_s / (slots / len(cpu.windows)) * 100
         print(f"station CPU while sampling, {name}: {cpu_s / wall_s * 100:.0f} % of one core, "
               f"{per_slot:.1f} % per slot at 50 Hz (2 cores = 200 %)")
-    print(f"speed-up {one_s / four_s:.1f}×")
+    print(f"speed-up {one_s / four_s:.1f}× (goal ≥ 3.5×)")
+    # where the time goes: each phase per slot (a round waits for every slot's connect before the gimbal moves)
+    names = ["connect", "acquire", "fit", "validate", "persist", "verify", "record"]
+    print("phase seconds per unit   " + "  ".join(f"{n:>8}" for n in names))
+    for name, records in (("1 slot", one_records), ("4 slots", four_records)):
+        for r in records:
+            took = {p.name: p.duration_s for p in r.phases}
+            print(f"  {name:7} {r.slot or '':2} {BOARDS.get(r.slot or '', ''):9}  "
+                  + "  ".join(f"{took.get(n, 0.0):8.2f}" for n in names))
 
 
 if __name__ == "__main__":
