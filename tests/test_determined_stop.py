@@ -140,6 +140,8 @@ def test_a_demo_unit_stops_once_determined_and_the_record_keeps_why_when_and_the
     assert json.loads(rows[1]["predicted"]) == second.predicted and rows[1]["tumble_s"] == pytest.approx(
         second.tumble_s)
     assert any("determined after" in line for p in record.phases for line in p.log)
+    # the log an engineer reads says why the first tumble ended too, not only the attempt's row
+    assert any(line.startswith("tumble stalled after") for p in record.phases for line in p.log)
 
 
 def test_without_an_accelerometer_the_stop_does_not_wait_for_a_mounting_it_cannot_prove(make_station):
@@ -328,6 +330,8 @@ def test_a_determined_tumble_out_of_time_is_judged_on_what_it_holds_never_an_err
     record = run_with(make_station(slow))
     assert record.verdict is not Outcome.ERROR, record.cause
     assert [a.stopped for a in record.attempts] == ["timeout"] * len(record.attempts)
+    assert sum(line.startswith("tumble out of time after") for p in record.phases for line in p.log) \
+        == len(record.attempts)
     assert record.verdict is Outcome.FAIL and "coverage" in record.cause
 
 

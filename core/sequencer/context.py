@@ -193,6 +193,10 @@ class RunContext:
                      f"σ {worst.get('direction_sigma_deg', float('nan')):.2f}°")
         elif result.stopped == "samples":
             self.log(f"tumble ended at {read} readings{kept} after {result.tumble_s:.1f} s")
+        elif result.stopped == "stalled":
+            self.log(f"tumble stalled after {result.tumble_s:.1f} s: {read} readings{kept}, no new direction lately")
+        elif result.stopped == "timeout":
+            self.log(f"tumble out of time after {result.tumble_s:.1f} s: {read} readings{kept}")
         self.plugins.hook.magline_acquisition_stopped(run=self, attempt=result.attempt, reason=result.stopped or "",
                                                       after_s=result.tumble_s or 0.0, readings=read,
                                                       predicted=dict(result.predicted))
