@@ -140,7 +140,7 @@ def test_another_board_in_the_port_after_the_reboot_is_an_error_naming_both(tmp_
         board.link._unplug_node = swapped
         record = run_unit(station(flavour, tmp_path, f"serial:{by_path}:115200"))
     assert record.verdict is Outcome.ERROR, record.cause
-    assert [p.name for p in record.phases if p.outcome is Outcome.ERROR] == ["verify"]
+    assert [p.name for p in record.phases if p.outcome is Outcome.ERROR] == ["verify"], record.cause
     assert f"came back as {other}, not {by_id}" in record.cause
 
 
@@ -233,7 +233,7 @@ def test_a_supply_cut_that_a_usb_powered_board_runs_through_is_an_error_saying_s
                                   products={"PX4-X500-100": {"power": power}}))
         boots = board.boots
     assert record.verdict is Outcome.ERROR, record.cause
-    assert [p.name for p in record.phases if p.outcome is Outcome.ERROR] == ["verify"]
+    assert [p.name for p in record.phases if p.outcome is Outcome.ERROR] == ["verify"], record.cause
     assert "kept running through the supply's cut" in record.cause and "powered by USB as well" in record.cause
     assert boots == 1
 

@@ -23,7 +23,7 @@ from magline.core.dut import (
 )
 from magline.core.faults import StationFault, UnitAborted
 from magline.core.fit import CoverageTracker, coverage_of
-from magline.core.fit.coverage import bin_index, covered_bins, sphere_centre
+from magline.core.fit.coverage import CHECK_EVERY, bin_index, covered_bins, sphere_centre
 from magline.core.fit.samples_csv import RawSamples
 from magline.core.motion import TurnsForTilts
 from magline.core.mounting import ImuSeries
@@ -93,7 +93,8 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
                     # the coverage the attempt is judged on: that of the readings held — the live figure counts
                     # readings a thinning let go, and a turntable's attempt stopped at the live 60% was
                     # judged at 55% and tumbled again
-                    if running is None or (got.coverage(cfg.coverage_bins) >= running.rule.coverage_target
+                    if running is None or (coverage >= running.rule.coverage_target
+                                           and got.coverage(cfg.coverage_bins) >= running.rule.coverage_target
                                            and not running.awaits_drift_test(got.snapshot(run))):
                         reason = "samples"
                         break
@@ -217,6 +218,7 @@ class _Readings(_Stream):
         self.primary_id = primary_id
         self.more: dict[int, _Stream] = {}
         self.imu: list[ImuSeries] = []
+        self._coverage: tuple[int, float] | None = None  # (readings read, the held readings' coverage)
 
     def add(self, chunk: SampleChunk, room: int | None = None) -> np.ndarray:
         for device_id, more in chunk.more.items():
@@ -252,9 +254,14 @@ class _Readings(_Stream):
         return out
 
     def coverage(self, bins: int) -> float:
-        """The worst magnetometer's coverage of the readings held: the attempt's own figure."""
-        return min([coverage_of(self.samples().mag_ut, bins),
-                    *(coverage_of(s.samples().mag_ut, bins) for s in self.more.values())])
+        """The worst magnetometer's coverage of the readings held: the attempt's own figure.  Computed
+        again only every ``CHECK_EVERY`` readings read (its checkpoints): asked at every chunk of a tumble
+        gone past its count, it cost a sphere fit per checkpoint each time, and a fast stream's chunks
+        come by the hundred a second."""
+        if self._coverage is None or self.seen - self._coverage[0] >= CHECK_EVERY:
+            self._coverage = (self.seen, min([coverage_of(self.samples().mag_ut, bins),
+                                              *(coverage_of(s.samples().mag_ut, bins) for s in self.more.values())]))
+        return self._coverage[1]
 
     def acquisition(self, attempt: int, bins: int, target: float) -> Acquisition:
         samples = self.samples()
