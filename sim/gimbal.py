@@ -19,7 +19,7 @@ from scipy.spatial.transform import Rotation
 
 from magline.sim.magnetometers import attitude
 from magline.sim.scpi_server import ScpiServer
-from magline.sim.turntable import cradle_moving
+from magline.sim.turntable import cradle_moving, turned_angle
 
 PATTERNS = ("TUMBLE", "GIMBAL")
 FOLLOW_S = 0.05
@@ -101,9 +101,7 @@ class MotionFollower:
         with self._lock:
             if self._turn is not None:
                 t0, angle0, speed, until, cradle = self._turn
-                # before the turn began the table stood at angle0: a board late to compute an instant from just
-                # before the turn, having already learnt of it, would otherwise run the turn backwards to it
-                angle = angle0 + speed * (min(max(wall, t0), until) - t0) if until > t0 else angle0
+                angle = turned_angle(angle0, t0, speed, until, wall)
                 if self._move is not None:  # the cradle where it was at that instant, not where it is now
                     since, seconds, start, cradle = self._move
                     cradle = cradle_moving(start, cradle, since, seconds, wall)

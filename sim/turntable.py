@@ -46,6 +46,14 @@ def cradle_moving(start: Rotation, to: Rotation, since: float, seconds: float, w
     return Slerp([0.0, 1.0], Rotation.concatenate([start, to]))([max(span, 0.0)])[0]
 
 
+def turned_angle(angle0: float, t0: float, speed_dps: float, until: float, wall: float) -> float:
+    """The table's angle at ``wall`` during a turn from ``angle0`` at ``t0`` until ``until`` (``speed_dps``
+    signed by direction): the table's own state and what a board computes from ``ATT?`` alike.  Before
+    ``t0`` the table stood at ``angle0`` — a board late to compute an instant from just before a turn it
+    had already learnt of ran the turn backwards to it."""
+    return angle0 + speed_dps * (min(max(wall, t0), until) - t0) if until > t0 else angle0
+
+
 class TurntableSim(ScpiServer):
     identity = "magline,SIM-TURNTABLE,0001,1.0"
 
@@ -81,8 +89,7 @@ class TurntableSim(ScpiServer):
     # ------------------------------------------------------------------ the table and the cradle
     def angle_at(self, wall: float) -> float:
         with self.lock:
-            return self.angle0 + self.direction * self.speed_dps * (min(max(wall, self.t0), self.until) - self.t0) \
-                if self.until > self.t0 else self.angle0
+            return turned_angle(self.angle0, self.t0, self.direction * self.speed_dps, self.until, wall)
 
     def stalled(self) -> bool:
         return self.fault == "not_turning" or (self.fault == "stalls" and self.turns > 1)

@@ -183,6 +183,20 @@ def test_a_store_the_dashboard_cannot_open_is_one_clear_line(tmp_path, kind):
     assert "secret" not in done.stderr and "Traceback" not in done.stderr
 
 
+def test_a_store_at_another_schema_version_is_one_line_saying_how_it_is_brought_up_to_date(tmp_path):
+    """Read-only, the dashboard cannot migrate a store: one written by an older magline is named, not read
+    half-way into a page that fails on a missing column."""
+    import sqlite3
+
+    from magline.core.faults import StationFault
+
+    recorded(tmp_path / "old.sqlite", [("OLD-1", 74.0)])
+    with sqlite3.connect(tmp_path / "old.sqlite") as conn:
+        conn.execute("UPDATE alembic_version SET version_num = '0016'")
+    with pytest.raises(StationFault, match=r"schema 0016, this magline reads \d{4} — a station of this version"):
+        open_read_only(str(tmp_path / "old.sqlite"))
+
+
 def test_a_product_page_shows_each_compass_s_distribution_and_the_firmware_its_units_ran(dashboard, browser,
                                                                                          tmp_path):
     """Per product, where a design or supplier change shows: each compass's mounting error (a trace per

@@ -61,19 +61,16 @@ def _tile(conn: Connection, station_id: str, line: str | None, slot: str | None,
     chosen = (runs.c.station_id == station_id) & (runs.c.verdict != "running")
     if slot is not None:
         chosen = chosen & (runs.c.slot == slot)
-    finished = [row[0] for row in conn.execute(select(runs.c.finished).where(chosen & runs.c.finished.is_not(None))
-                                               .order_by(runs.c.started.desc()).limit(GAPS + 1)).all()]
+    latest = conn.execute(select(runs.c.finished, runs.c.field_check).where(chosen & runs.c.finished.is_not(None))
+                          .order_by(runs.c.started.desc()).limit(GAPS + 1)).all()
+    finished = [row.finished for row in latest]
+    # the field reference as the latest unit met it: the model and value, the live check's last
+    field = json.loads(latest[0].field_check) if latest and latest[0].field_check else None
     testing = [{"slot": c["slot"], "serial": c["serial"], "since": c["since"]} for c in claims
                if c["station_id"] == station_id and (slot is None or c["slot"] == slot) and _fresh(c["heartbeat"], now)]
     return {"station_id": station_id, "slot": slot, "line": line, **shift,
             "per_hour": _per_hour(shift["units"], shift["first_started"], now), "testing": testing,
-            **_pace(finished, now, bool(testing)), "field": _field(conn, chosen), "outbox": outboxes.get(station_id)}
-
-
-def _field(conn: Connection, chosen: Any) -> dict[str, Any] | None:
-    """The field reference as the station's latest unit met it: the model and value, the live check's last."""
-    found = conn.execute(select(runs.c.field_check).where(chosen).order_by(runs.c.started.desc()).limit(1)).scalar()
-    return json.loads(found) if found else None
+            **_pace(finished, now, bool(testing)), "field": field, "outbox": outboxes.get(station_id)}
 
 
 def distinct(conn: Connection, column: Any) -> list[Any]:

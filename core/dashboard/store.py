@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from sqlalchemy import create_engine, event, inspect, select, text
+from sqlalchemy import create_engine, event, inspect, select
 from sqlalchemy.engine import make_url
 from sqlalchemy.exc import ArgumentError, SQLAlchemyError
 from sqlalchemy.pool import QueuePool
@@ -92,8 +92,7 @@ def _checked(store: ReadOnlyStore) -> ReadOnlyStore:
             if not inspect(conn).has_table("runs"):
                 raise StationFault(f"results store {store.where}: no magline runs table (is it a magline store?)")
             conn.execute(select(runs.c.id).limit(1)).all()
-            found = conn.execute(text("SELECT version_num FROM alembic_version")).scalar() \
-                if inspect(conn).has_table("alembic_version") else None
+            found = schema_version.recorded_revision(conn) if inspect(conn).has_table("alembic_version") else None
             if found != schema_version.HEAD:
                 # read-only, the dashboard cannot bring the store up to date: a station (or ``magline sync``) does
                 raise StationFault(f"results store {store.where}: schema {found or 'before migrations'}, this "

@@ -215,17 +215,15 @@ class ForwardingStore:
 
     def _outbox_reports(self) -> list[dict[str, Any]]:
         """Per station of this outbox: the runs still queued and when the oldest of them finished (after a
-        pass that reached the server: what is left is what a later pass will carry)."""
+        pass that reached the server: what is left is what a later pass will carry).  One grouped read."""
+        pending = _pending()
+        reported = datetime.now(UTC).isoformat(timespec="seconds")
         with self.outbox.engine.connect() as local:
-            stations = [s for (s,) in local.execute(select(runs.c.station_id).distinct()) if s is not None]
-            reported = datetime.now(UTC).isoformat(timespec="seconds")
-            found = []
-            for station_id in stations:
-                queued, oldest = local.execute(select(func.count(), func.min(runs.c.finished))
-                                               .where(_pending() & (runs.c.station_id == station_id))).one()
-                found.append({"station_id": station_id, "reported": reported, "queued": int(queued),
-                              "oldest": oldest})
-        return found
+            rows = local.execute(select(runs.c.station_id, func.count().filter(pending),
+                                        func.min(runs.c.finished).filter(pending))
+                                 .where(runs.c.station_id.is_not(None)).group_by(runs.c.station_id)).all()
+        return [{"station_id": station_id, "reported": reported, "queued": int(queued), "oldest": oldest}
+                for station_id, queued, oldest in rows]
 
     def _forward_all(self, central: SqlStore) -> int:
         done = 0

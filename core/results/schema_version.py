@@ -80,14 +80,20 @@ def current_revision(connection: Connection) -> str | None:
     return MigrationContext.configure(connection).get_current_revision()
 
 
+def recorded_revision(conn: Connection) -> str | None:
+    """The revision the store says it is at, in one query without alembic (None: none recorded).  Raises
+    the driver's error on a store without ``alembic_version`` (a new or a legacy one)."""
+    found = [row[0] for row in conn.execute(text("SELECT version_num FROM alembic_version"))]
+    return found[0] if len(found) == 1 else None
+
+
 def _at_head(engine: Engine) -> bool:
     """The store's recorded revision is :data:`HEAD` (one query; a store without the table is not)."""
     try:
         with engine.connect() as conn:
-            found = [row[0] for row in conn.execute(text("SELECT version_num FROM alembic_version"))]
+            return recorded_revision(conn) == HEAD
     except SQLAlchemyError:
         return False  # no alembic_version yet: a new or a legacy store, for the full path below
-    return found == [HEAD]
 
 
 def upgrade(engine: Engine, where: str) -> str:

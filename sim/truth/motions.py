@@ -104,7 +104,8 @@ def single_axis(n: int, rng: np.random.Generator, field_dir: NDArray, wobble_deg
     return _ring(n, rng, field_dir, np.array([0.0, 0.0, 1.0]), wobble_deg, Rotation.identity())
 
 
-# the cradle tilts a turntable's operator is asked for (pitch nose up, roll right side down, degrees)
+# ten of the cradle tilts a turntable's operator is asked for (core/motion/tilts.py's COVERAGE_TILTS): pitch nose
+# up, roll right side down, degrees
 CRADLE_TILTS = ((0, 0), (0, 180), (0, 45), (0, -90), (90, 0), (0, -135), (-45, 0), (45, 180), (0, 90), (-90, 0))
 
 
