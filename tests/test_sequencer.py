@@ -57,9 +57,16 @@ def test_demo_command_passes_after_exactly_one_retry(tmp_path):
     # work) the station reads the real-time mock slower than it sends and the 60 s timeout ends the spin
     # first — every one of them a short spin refused for its coverage, which is what this test is about
     assert attempts[0]["stopped"] in ("stalled", "samples", "timeout")
-    assert attempts[1]["stopped"] == "determined" and 100 <= len(raw) == attempts[1]["samples"] < 600
-    predicted = json.loads(attempts[1]["predicted"])[""]
-    assert predicted["direction_sigma_deg"] <= 0.7 * 0.5 and attempts[1]["tumble_s"] > 0
+    # the running fit judges in the background while the real-time mock goes on sending: a quiet machine
+    # hears "determined" at 430-530 readings, a starved one may reach the count (600) first — both end
+    # the tumble with every reading up to the stop kept, and only "determined" carries a prediction
+    assert attempts[1]["stopped"] in ("determined", "samples") and attempts[1]["tumble_s"] > 0
+    assert 100 <= len(raw) == attempts[1]["samples"] <= 600
+    if attempts[1]["stopped"] == "determined":
+        predicted = json.loads(attempts[1]["predicted"])[""]
+        assert predicted["direction_sigma_deg"] <= 0.7 * 0.5 and len(raw) < 600
+    else:
+        assert len(raw) == 600 and attempts[1]["predicted"] is None
     assert "determined after" in proc.stdout
     truth = demo_config()["products"]["MOCK-100"]["options"]
     cal = json.loads(calibration)

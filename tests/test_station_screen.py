@@ -351,8 +351,12 @@ def test_a_three_compass_unit_shows_a_card_per_compass_naming_the_one_that_faile
             page.press("#serial", "Enter")
             page.wait_for_selector("#verdict:not([hidden])", timeout=60_000)
             assert page.inner_text("#verdict-word") == "FAIL", page.inner_text("#verdict")
+            page.wait_for_selector("#verdict-sensors .sensor", state="visible")
+            # a card's lines as it writes them (its title, word, detail, items), not as laid out: innerText is
+            # the bare text of an element the browser has not laid out, and read so it once lost its lines
             cards = page.eval_on_selector_all("#verdict-sensors .sensor", "els => els.map(e => ({cls: e.className, "
-                                              "title: e.querySelector('h3').textContent, text: e.innerText}))")
+                                              "title: e.querySelector('h3').textContent, "
+                                              "text: [...e.children].map((c) => c.textContent).join('\\n')}))")
             compasses = [c for c in cards if c["title"].startswith("compass")]
             assert [c["title"].split(":")[0].split(" (")[0] for c in compasses] == ["compass 1", "compass 2",
                                                                                      "compass 3"]
