@@ -15,6 +15,8 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Literal, Protocol, TypeVar, runtime_checkable
 
@@ -432,6 +434,23 @@ OptionsModel = TypeVar("OptionsModel", bound=BaseModel)
 
 
 FAIR_ATTEMPT_S = 2.0  # the least a reconnect is given once the old boot answered (see await_new_boot)
+# Set while a power control awaits the boot after it cut the power (:func:`after_power_cut`): a backend's
+# ``await_boot`` keeps its signature, and :func:`await_new_boot` learns that an old boot is final.
+_AFTER_CUT: ContextVar[bool] = ContextVar("magline_after_power_cut", default=False)
+
+
+@contextmanager
+def after_power_cut() -> Iterator[None]:
+    """Within it, :func:`await_new_boot` takes the first answer from the old boot as the answer.  Why:
+    after a commanded reboot the old boot may answer for a moment before it goes down, so the wait runs
+    to its timeout; once the power was cut and restored no old boot is about to go down — a board that
+    answers with its old uptime ran through the cut, and waiting out the boot timeout (30 s by default)
+    only kept the operator from the cause."""
+    token = _AFTER_CUT.set(True)
+    try:
+        yield
+    finally:
+        _AFTER_CUT.reset(token)
 
 
 def await_new_boot(reconnect: Callable[[float], None], uptime_s: Callable[[], float | None], started: float,
@@ -466,6 +485,9 @@ def await_new_boot(reconnect: Callable[[float], None], uptime_s: Callable[[], fl
         if uptime is not None and uptime < reconnected:
             return reconnected, uptime
         told = told or uptime is not None
+        if uptime is not None and _AFTER_CUT.get():
+            raise OldBootRunning(f"the vehicle still runs its old boot after the power cut: up {uptime:.0f} s, "
+                                 f"{reconnected:.1f} s after the power came back", uptime)
         if time.monotonic() > deadline:
             if not told:  # no answer is no proof of an old boot: the station could not judge
                 raise LinkError(f"the vehicle answered after the power cycle but never said its uptime within "

@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
-from magline.core.dut import DutBackend, OldBootRunning
+from magline.core.dut import DutBackend, OldBootRunning, after_power_cut
 from magline.core.faults import StationFault
 from magline.core.plugins import hookimpl
 
@@ -54,7 +54,8 @@ def await_boot_after_cut(dut: DutBackend, on_at: float, cut: str, fed_by: str = 
     and what to do) — the USB cable, on a board that takes its power from USB too.  That is the
     fixture's fault, not the unit's: an ERROR, where a refused *commanded* reboot stays a FAIL."""
     try:
-        return dut.await_boot(on_at)
+        with after_power_cut():  # the first answer of an old boot is the answer: it ran through the cut
+            return dut.await_boot(on_at)
     except OldBootRunning as exc:
         raise PowerError(f"the board kept running through the {cut} (its uptime kept counting: {exc.uptime_s:.0f} s): "
                          f"{fed_by}") from exc

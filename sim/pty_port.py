@@ -58,6 +58,7 @@ class PtyServerLink:
         self._out = bytearray()
         self._credit = 0.0
         self._paced_at = time.monotonic()
+        self._busy = False  # bytes were waiting when the line was last paced: it has been sending since
         self.tx_dropped = 0  # messages the transmit buffer had no room for
         self.garbled_bytes = 0  # bytes exchanged at a baud other than the port's
         # … of them, once this node's line had been right: a station that opens the port and sets its baud a
@@ -117,7 +118,7 @@ class PtyServerLink:
             return []
         if not self._connected:
             self._connected = self.new_peer = True
-            self._paced_at, self._credit = time.monotonic(), 0.0
+            self._paced_at, self._credit, self._busy = time.monotonic(), 0.0, False
         self._flush()
         try:
             data = os.read(self.master, 65536)
@@ -167,7 +168,11 @@ class PtyServerLink:
         if self.baud is not None:  # a UART: baud/10 bytes per second (8N1), a FIFO's worth after a pause
             now = time.monotonic()
             rate = self.baud / 10.0
-            self._credit = min(self._credit + (now - self._paced_at) * rate, max(FIFO_BYTES, rate * 0.01))
+            earned = self._credit + (now - self._paced_at) * rate
+            # a line with bytes waiting sent them at its rate however late this thread came back (a UART does
+            # not pause for the firmware's scheduler); an idle one lets a FIFO's worth go at once.  Capped at
+            # one flush's worth, a loaded machine's late thread made the line carry half its baud
+            self._credit = min(earned, size) if self._busy else min(earned, max(FIFO_BYTES, rate * 0.01))
             self._paced_at = now
             size = min(size, int(self._credit))
         if size <= 0:
@@ -182,6 +187,7 @@ class PtyServerLink:
         del self._out[:written]
         if self.baud is not None:
             self._credit -= written
+            self._busy = bool(self._out)
 
     def drop_peers(self) -> None:
         """A reboot or power loss: the node vanishes now; the next one is taken already, so it gets

@@ -269,3 +269,24 @@ def test_a_board_that_ran_through_the_cut_is_told_so_even_when_a_reconnect_is_sl
     monkeypatch.setattr(dut, "time", rebooted)
     with pytest.raises(LinkError, match=r"did not come back within 3 s of the power cycle"):
         await_new_boot(rebooted.reconnect, lambda: rebooted.uptime, 0.0, 3.0)
+
+
+def test_after_a_power_cut_the_first_answer_of_the_old_boot_is_the_answer(monkeypatch):
+    """A commanded reboot's old boot may answer for a moment before it goes down, so that wait runs to its
+    timeout; after the power was cut and restored nothing is about to go down: the first answer with the old
+    uptime says the board ran through the cut, at once — not after a 30 s boot timeout (the test that met it
+    shortened its timeout to 3 s, and a loaded machine's first reconnect outlasted that)."""
+    from magline.core import dut
+    from magline.core.dut import OldBootRunning, after_power_cut, await_new_boot
+
+    board = _SlowReconnects(takes_s=1.2, uptime=100.0)
+    monkeypatch.setattr(dut, "time", board)
+    with after_power_cut(), pytest.raises(OldBootRunning, match="after the power cut: up 100 s") as ran_through:
+        await_new_boot(board.reconnect, lambda: board.uptime, 0.0, 30.0)
+    assert ran_through.value.uptime_s == 100.0 and len(board.budgets) == 1 and board.now < 2.0
+
+    commanded = _SlowReconnects(takes_s=1.2, uptime=100.0)  # the same board after a reboot command
+    monkeypatch.setattr(dut, "time", commanded)
+    with pytest.raises(OldBootRunning, match="30 s after the reboot command"):
+        await_new_boot(commanded.reconnect, lambda: commanded.uptime, 0.0, 30.0)
+    assert commanded.now > 30.0 and len(commanded.budgets) > 1

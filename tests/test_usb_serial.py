@@ -6,6 +6,7 @@ a port another program holds, permission, the cable pulled, another board in the
 
 from __future__ import annotations
 
+import contextlib
 import os
 import subprocess
 import sys
@@ -229,7 +230,7 @@ def test_a_supply_cut_that_a_usb_powered_board_runs_through_is_an_error_saying_s
             SupplySim("tcp:127.0.0.1:0", board=board) as supply:
         power = {"method": "scpi-supply", "options": {"resource": supply.visa_resource, "off_time_s": 0.3,
                                                       "settle_s": 0.1}}
-        record = run_unit(station("px4", tmp_path, f"serial:{by_path}:115200", options={"boot_timeout_s": 3.0},
+        record = run_unit(station("px4", tmp_path, f"serial:{by_path}:115200",
                                   products={"PX4-X500-100": {"power": power}}))
         boots = board.boots
     assert record.verdict is Outcome.ERROR, record.cause
@@ -582,4 +583,53 @@ def test_each_opening_of_a_uart_after_a_reboot_has_its_own_moment_before_the_bau
         assert port.garbled_after_framed > 0
         os.close(again)
     finally:
+        port.close()
+
+
+class _Clock:
+    """The pty's clock, stepped by the test: how late the board's thread comes back is the test's to say."""
+
+    def __init__(self) -> None:
+        self.now = 1024.0
+
+    def monotonic(self) -> float:
+        return self.now
+
+    def sleep(self, seconds: float) -> None:
+        self.now += seconds
+
+
+def test_a_uart_carries_its_baud_however_late_the_boards_thread_comes_back(tmp_path, monkeypatch):
+    """A UART sends what waits in its buffer at baud/10 bytes a second whether or not the firmware's thread
+    looks: the simulated line once let one 10 ms flush's worth go per look, and a loaded machine's thread
+    coming back every 60 ms made a 38400-baud line carry a quarter of its rate (a sweep lost its BATTERY_STATUS
+    for 3 s).  After an idle pause only the FIFO's worth leaves at once."""
+    from magline.sim import pty_port
+
+    clock = _Clock()
+    monkeypatch.setattr(pty_port, "time", clock)
+    port = pty_port.PtyServerLink(str(tmp_path / "ttyFC"), 38400)
+    fd = os.open(tmp_path / "ttyFC", os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+    try:
+        attrs = termios.tcgetattr(fd)
+        attrs[4] = attrs[5] = termios.B38400
+        termios.tcsetattr(fd, termios.TCSANOW, attrs)
+        port.poll(0.0, up=True)  # the station has the port open
+
+        def received() -> int:
+            got = 0
+            with contextlib.suppress(BlockingIOError):
+                while chunk := os.read(fd, 4096):
+                    got += len(chunk)
+            return got
+
+        clock.now += 1.0  # an idle second
+        port.send(b"\x55" * 2000)
+        assert received() == pty_port.FIFO_BYTES  # after a pause, the FIFO's worth at once
+        for _ in range(8):  # the thread looks every 62.5 ms (a binary fraction: the sums are exact)
+            clock.now += 0.0625
+            port.poll(0.0, up=True)
+        assert received() == 3840 // 2  # half a second of a busy line
+    finally:
+        os.close(fd)
         port.close()
