@@ -11,6 +11,7 @@ the board answers every fifth 60 ms late (taken late)."""
 from __future__ import annotations
 
 import numpy as np
+from stepped_clock import SteppedClock
 
 from magline.core.station.schema import Product
 from magline.plugins.inav import dut as inav_dut
@@ -22,24 +23,11 @@ ONE_WAY_S = 0.001
 LATE_S = 0.060
 
 
-class Clock:
-    """``time.monotonic`` and ``time.sleep`` for the backend's module: time passes only when told."""
-
-    def __init__(self) -> None:
-        self.now = 1000.0
-
-    def monotonic(self) -> float:
-        return self.now
-
-    def sleep(self, seconds: float) -> None:
-        self.now += max(seconds, 0.0)
-
-
 class LateAnsweringLink:
     """``MSP_RAW_IMU`` answered as described in the module's docstring; ``taken_at`` holds when each
     answer's readings were really taken, ``compass`` which compass reading each answer carried."""
 
-    def __init__(self, clock: Clock) -> None:
+    def __init__(self, clock: SteppedClock) -> None:
         self.clock, self.taken_at, self.compass, self.count = clock, [], [], 0
 
     def imu(self) -> ImuReading:
@@ -55,7 +43,7 @@ class LateAnsweringLink:
 
 
 def test_answers_that_came_back_late_are_left_out_and_every_reading_kept_is_placed_where_it_was_taken(monkeypatch):
-    clock = Clock()
+    clock = SteppedClock(1000.0)
     monkeypatch.setattr(inav_dut, "time", clock)
     dut = InavDut(Product(backend="inav", connection="tcp:127.0.0.1:1"), InavOptions())
     link = dut.link = LateAnsweringLink(clock)
@@ -89,7 +77,7 @@ class AlwaysLateLink(LateAnsweringLink):
 
 
 def test_a_stream_whose_every_answer_is_late_still_hands_on_chunks_so_the_station_can_time_out(monkeypatch):
-    clock = Clock()
+    clock = SteppedClock(1000.0)
     monkeypatch.setattr(inav_dut, "time", clock)
     dut = InavDut(Product(backend="inav", connection="tcp:127.0.0.1:1"), InavOptions())
     dut.link = AlwaysLateLink(clock)

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 import yaml
 from simstation import FAST_SENSOR_HZ, run_unit, write_station
+from stepped_clock import SteppedClock
 
 from magline.core.motion.guided import TiltGuide
 from magline.core.motion.tilts import (
@@ -111,16 +112,8 @@ class FakeTable:
         return self.busy
 
 
-class Clock:
-    def __init__(self):
-        self.now = 100.0
-
-    def __call__(self):
-        return self.now
-
-
 def test_the_guide_turns_only_on_the_tilt_asked_and_names_a_wrong_one_held_still():
-    clock, table = Clock(), FakeTable(tilts=[Tilt(0.0, 0.0), Tilt(-45.0, 0.0)])
+    clock, table = SteppedClock(100.0), FakeTable(tilts=[Tilt(0.0, 0.0), Tilt(-45.0, 0.0)])
     guide = TiltGuide(table, [""], 40, 62.0, clock=clock)
     level, nose_down, nose_up = (Tilt(p, 0.0).gravity_body() for p in (0.0, -45.0, 45.0))
     assert guide.step("", level, True, set(), np.eye(3)).prompt == "Tilt the cradle: level"
@@ -150,7 +143,7 @@ def test_the_guide_turns_only_on_the_tilt_asked_and_names_a_wrong_one_held_still
 
 
 def test_a_tilt_never_made_stalls_the_round_naming_it_and_slots_turn_only_when_every_unit_agrees():
-    clock, table = Clock(), FakeTable(tilts=[Tilt(0.0, 90.0)], tilt_timeout_s=5.0)
+    clock, table = SteppedClock(100.0), FakeTable(tilts=[Tilt(0.0, 90.0)], tilt_timeout_s=5.0)
     guide = TiltGuide(table, ["A", "B"], 40, 62.0, clock=clock)
     side, level = Tilt(0.0, 90.0).gravity_body(), Tilt(0.0, 0.0).gravity_body()
     guide.step("A", side, True, set(), np.eye(3))
@@ -279,7 +272,7 @@ def test_the_console_draws_the_tilt_asked_with_the_sides_still_to_face_the_floor
 
 
 def test_when_the_speaking_slot_s_tumble_ends_the_next_slot_still_reading_speaks_for_the_cradle():
-    clock, table = Clock(), FakeTable(tilts=[Tilt(0.0, 0.0), Tilt(0.0, 90.0)], settle_s=0.5)
+    clock, table = SteppedClock(100.0), FakeTable(tilts=[Tilt(0.0, 0.0), Tilt(0.0, 90.0)], settle_s=0.5)
     guide = TiltGuide(table, ["A", "B"], 40, 62.0, clock=clock)
     level = Tilt(0.0, 0.0).gravity_body()
     assert guide.step("A", level, True, set(), np.eye(3)).prompt == "Tilt the cradle: level"
@@ -325,7 +318,7 @@ def test_a_turn_is_judged_from_where_the_table_stood_before_it_was_commanded():
 
 def test_the_first_slot_speaks_for_the_cradle_even_when_another_slot_steps_first():
     """A CI run's slot B handed its readings over before slot A's first chunk and took the first words."""
-    clock, table = Clock(), FakeTable(tilts=[Tilt(0.0, 0.0)])
+    clock, table = SteppedClock(100.0), FakeTable(tilts=[Tilt(0.0, 0.0)])
     guide = TiltGuide(table, ["A", "B"], 40, 62.0, clock=clock)
     level = Tilt(0.0, 0.0).gravity_body()
     assert guide.step("B", level, True, set(), np.eye(3)).prompt is None
@@ -338,7 +331,7 @@ def test_the_table_waits_for_every_unit_of_the_round_before_it_turns():
     heard from yet holds the table — for a while: one silent longer has failed and holds nobody."""
     from magline.core.motion.guided import FIRST_STEP_WAIT_S
 
-    clock, table = Clock(), FakeTable(tilts=[Tilt(0.0, 0.0), Tilt(-45.0, 0.0)])
+    clock, table = SteppedClock(100.0), FakeTable(tilts=[Tilt(0.0, 0.0), Tilt(-45.0, 0.0)])
     guide = TiltGuide(table, ["A", "B"], 40, 62.0, clock=clock)
     level = Tilt(0.0, 0.0).gravity_body()
     for _ in range(10):  # B level and still for 2 s, four times the settle time
@@ -350,7 +343,7 @@ def test_the_table_waits_for_every_unit_of_the_round_before_it_turns():
     guide.step("B", level, True, set(), np.eye(3))
     assert guide.step("A", level, True, set(), np.eye(3)).state == "turning" and table.turned == 1
     # a unit that never speaks holds the table no longer than FIRST_STEP_WAIT_S
-    clock, table = Clock(), FakeTable(tilts=[Tilt(0.0, 0.0)])
+    clock, table = SteppedClock(100.0), FakeTable(tilts=[Tilt(0.0, 0.0)])
     guide = TiltGuide(table, ["A", "B"], 40, 62.0, clock=clock)
     while clock.now < 100.0 + FIRST_STEP_WAIT_S + 1.0 and not table.turned:
         guide.step("B", level, True, set(), np.eye(3))
@@ -363,7 +356,7 @@ def test_the_next_tilt_is_asked_in_the_step_of_the_slot_that_speaks_for_the_crad
     it) while A spoke for the cradle — and A's tumble ended before its next step, so the tilt was said in
     no record.  Now a turn that ended waits for the speaker's step, which shows and says the next tilt at
     once; once A's tumble has ended, B speaks."""
-    clock, table = Clock(), FakeTable(tilts=[Tilt(0.0, 0.0), Tilt(-45.0, 0.0), Tilt(45.0, 0.0)])
+    clock, table = SteppedClock(100.0), FakeTable(tilts=[Tilt(0.0, 0.0), Tilt(-45.0, 0.0), Tilt(45.0, 0.0)])
     guide = TiltGuide(table, ["A", "B"], 40, 62.0, clock=clock)
     level = Tilt(0.0, 0.0).gravity_body()
     assert guide.step("A", level, True, set(), np.eye(3)).prompt == "Tilt the cradle: level"

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 from simstation import FAST_SENSOR_HZ, run_unit, stored_attempts, write_station
+from stepped_clock import SteppedClock
 
 from magline.core.record import Outcome
 from magline.sim import SimFaults, create_sim
@@ -586,19 +587,6 @@ def test_each_opening_of_a_uart_after_a_reboot_has_its_own_moment_before_the_bau
         port.close()
 
 
-class _Clock:
-    """The pty's clock, stepped by the test: how late the board's thread comes back is the test's to say."""
-
-    def __init__(self) -> None:
-        self.now = 1024.0
-
-    def monotonic(self) -> float:
-        return self.now
-
-    def sleep(self, seconds: float) -> None:
-        self.now += seconds
-
-
 def test_a_uart_carries_its_baud_however_late_the_boards_thread_comes_back(tmp_path, monkeypatch):
     """A UART sends what waits in its buffer at baud/10 bytes a second whether or not the firmware's thread
     looks: the simulated line once let one 10 ms flush's worth go per look, and a loaded machine's thread
@@ -606,7 +594,7 @@ def test_a_uart_carries_its_baud_however_late_the_boards_thread_comes_back(tmp_p
     for 3 s).  After an idle pause only the FIFO's worth leaves at once."""
     from magline.sim import pty_port
 
-    clock = _Clock()
+    clock = SteppedClock()
     monkeypatch.setattr(pty_port, "time", clock)
     port = pty_port.PtyServerLink(str(tmp_path / "ttyFC"), 38400)
     fd = os.open(tmp_path / "ttyFC", os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
