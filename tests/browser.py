@@ -62,9 +62,11 @@ def open_page(browser: Any, url: str, viewport: tuple[int, int] = (1300, 900)) -
 
 
 def plots_with_data(page: Any) -> dict[str, int]:
-    """Every rendered plotly chart on the page: its div id → how many data points its traces hold, as
-    plotly.js itself decoded them (``_fullData``: the figure's arrays travel base64-encoded)."""
+    """Every plotly chart on the page, once all are drawn (a page draws them one after another, those in
+    view first): its div id → how many data points its traces hold, as plotly.js itself decoded them
+    (``_fullData``: the figure's arrays travel base64-encoded)."""
     page.wait_for_function("document.querySelectorAll('.js-plotly-plot').length > 0 && "
+                           "!document.querySelector('.plot-pending') && "
                            "[...document.querySelectorAll('.js-plotly-plot')].every(e => e._fullData)")
     return page.evaluate("""() => Object.fromEntries([...document.querySelectorAll('.js-plotly-plot')].map(
         e => [e.id, e._fullData.reduce((n, t) => n + ((t.x || t.z || []).length || 0), 0)]))""")

@@ -124,6 +124,34 @@ def test_the_batch_report_draws_every_chart_offline(make_station, tmp_path, brow
     assert "first-pass yield" in opened.page.inner_text("body")
     screenshot(opened.page, tmp_path / "spc.png")
 
+    # the page is painted between two charts (it once showed nothing until its last chart was drawn): a
+    # frame comes between every two, and the first drawn is in view
+    watched = browser.new_page(viewport={"width": 1300, "height": 900})
+    watched.add_init_script("""window.__seen = [];
+        document.addEventListener('plotted', (e) => window.__seen.push(e.target.id));
+        requestAnimationFrame(function tick() { window.__seen.push('frame'); requestAnimationFrame(tick); });""")
+    watched.goto(page.as_uri())
+    watched.wait_for_function("!document.querySelector('.plot-pending')")
+    seen = watched.evaluate("window.__seen")
+    drawn_in_turn = [s for s in seen if s != "frame"]
+    assert sorted(drawn_in_turn) == sorted(plots) and len(drawn_in_turn) == len(set(drawn_in_turn))
+    between = seen[seen.index(drawn_in_turn[0]):seen.index(drawn_in_turn[-1]) + 1]
+    assert all(between[i + 1] == "frame" for i in range(len(between) - 1) if between[i] != "frame"), seen
+    in_view = watched.evaluate("""[...document.querySelectorAll('.plotly-graph-div')].filter((e) => {
+        const box = e.getBoundingClientRect(); return box.bottom > 0 && box.top < innerHeight; }).map((e) => e.id)""")
+    in_order = watched.eval_on_selector_all(".plotly-graph-div", "els => els.map((e) => e.id)")
+    assert drawn_in_turn[:len(in_view)] == in_view if in_view else drawn_in_turn == in_order
+    watched.close()
+    linked = browser.new_page(viewport={"width": 1300, "height": 900})
+    linked.add_init_script("""window.__seen = [];
+        document.addEventListener('plotted', (e) => window.__seen.push(e.target.id));""")
+    linked.goto(page.as_uri() + "#chart-residual_max_ut")  # a link to a chart far down: it is drawn first
+    linked.wait_for_function("!document.querySelector('.plot-pending')")
+    seen = linked.evaluate("window.__seen")
+    # first, or second where the first was picked before the browser scrolled to the link's chart
+    assert seen.index("chart-residual_max_ut") <= 1 and len(seen) == len(plots), seen
+    linked.close()
+
 
 @pytest.mark.parametrize("wanted", ["NO-SUCH-UNIT", "999"])
 def test_report_of_an_unknown_run_says_so(make_station, capsys, wanted):

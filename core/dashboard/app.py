@@ -25,7 +25,7 @@ from sse_starlette.sse import EventSourceResponse
 
 from magline.core.dashboard.line import distinct, line_now, store_version
 from magline.core.dashboard.wakeups import Wakeups
-from magline.core.operator_ui.screen.app import TokenRequired, add_static_routes
+from magline.core.operator_ui.screen.app import TokenRequired, add_static_routes, versioned_plotly_src
 
 if TYPE_CHECKING:
     from magline.core.dashboard.store import ReadOnlyStore
@@ -33,7 +33,7 @@ if TYPE_CHECKING:
 
 STATIC = files("magline.core.dashboard") / "static"
 HEARTBEAT_S = 5.0
-PLOTLY_SRC = "/static/plotly.min.js"
+PLOTLY_SRC = versioned_plotly_src()  # a browser keeps it: its code is compiled once, not at every page
 WAKE_CHECK_S = 0.05  # how often an open page's stream looks whether the store was written
 
 

@@ -242,14 +242,14 @@ def failure_pareto(report: SpcReport) -> go.Figure | None:
 
 
 CLICK_SCRIPT = """<script>
-window.addEventListener('load', function () {
-  document.querySelectorAll('.imr-chart .plotly-graph-div').forEach(function (plot) {
-    plot.on('plotly_click', function (event) {
-      var data = event.points[0].customdata;
-      if (!data) return;
-      if (data[1]) { window.location.href = data[1]; }
-      else { alert(data[0] + ': no report file beside this page yet; write it with ' + data[2]); }
-    });
+document.addEventListener('plotted', function (drawn) {
+  var plot = drawn.target;
+  if (!plot.closest('.imr-chart')) return;
+  plot.on('plotly_click', function (event) {
+    var data = event.points[0].customdata;
+    if (!data) return;
+    if (data[1]) { window.location.href = data[1]; }
+    else { alert(data[0] + ': no report file beside this page yet; write it with ' + data[2]); }
   });
 });
 </script>"""

@@ -34,9 +34,52 @@ def _plotly_js() -> str:
     return get_plotlyjs()
 
 
+PLOTLY_DEFAULT_HEIGHT = 450  # px: what plotly.js draws a figure without a layout height at
+
+
 def figure_html(fig: go.Figure, div_id: str) -> str:
-    return fig.to_html(full_html=False, include_plotlyjs=False, div_id=div_id,
-                       config={"displaylogo": False, "responsive": True})
+    """The figure's ``<div>``, sized as it will be drawn, and its data beside it as JSON; :data:`DRAW_SCRIPT`
+    (added once by :func:`write_page`) draws it.  Why not plotly's own ``to_html``: its script draws each
+    figure where the page is read, so a page of a dozen charts showed nothing until all were drawn
+    (1.5 s of the process page); here the charts in view are drawn first, the page painted between two."""
+    from plotly.io.json import to_json_plotly
+
+    figure = fig.to_plotly_json()
+    height = figure.get("layout", {}).get("height") or PLOTLY_DEFAULT_HEIGHT
+    spec = to_json_plotly({"data": figure.get("data", []), "layout": figure.get("layout", {}),
+                           "config": {"displaylogo": False, "responsive": True}})
+    spec = spec.replace("</", "<\\/")  # inside a script element "</" would end it; "<\\/" is the same JSON
+    return (f'<div id="{html.escape(div_id)}" class="plotly-graph-div plot-pending" '
+            f'style="height:{int(height)}px; width:100%;"></div>'
+            f'<script type="application/json" data-plot="{html.escape(div_id)}">{spec}</script>')
+
+
+# Draws every figure of :func:`figure_html` on the page, one per task after a frame, so the page is painted
+# and answers between two charts: each time the first still undrawn in view (the reader may have scrolled, or
+# come by a link to a chart far down), else the first undrawn in page order.  Each chart's div loses
+# ``plot-pending`` and sends a bubbling ``plotted`` event once drawn (a page's own handlers attach then).
+DRAW_SCRIPT = """<script>
+(function () {
+  var pending = Array.prototype.slice.call(document.querySelectorAll('script[data-plot]'));
+  function inView(spec) {
+    var box = document.getElementById(spec.dataset.plot).getBoundingClientRect();
+    return box.bottom > 0 && box.top < window.innerHeight;
+  }
+  function later() { requestAnimationFrame(function () { setTimeout(drawNext, 0); }); }
+  function drawNext() {
+    var spec = pending.filter(inView)[0] || pending[0];
+    if (!spec) { return; }
+    pending.splice(pending.indexOf(spec), 1);
+    var div = document.getElementById(spec.dataset.plot), figure = JSON.parse(spec.textContent);
+    Plotly.newPlot(div, figure.data, figure.layout, figure.config).then(function () {
+      div.classList.remove('plot-pending');
+      div.dispatchEvent(new CustomEvent('plotted', {bubbles: true}));
+      later();
+    });
+  }
+  later();  // the page's words are painted first, then each chart
+})();
+</script>"""
 
 
 def table(header: Sequence[str] | None, rows: Iterable[Sequence[object]], row_class: Sequence[str] | None = None,
@@ -76,9 +119,10 @@ def write_page(path: Path, title: str, sections: Sequence[str], plotly_src: str 
     path.parent.mkdir(parents=True, exist_ok=True)
     script = (f"<script src='{html.escape(plotly_src)}'></script>" if plotly_src
               else f"<script>{_plotly_js()}</script>")
+    doc_body = "".join(sections)
     doc = (f"<!DOCTYPE html><html lang=en><head><meta charset=utf-8><title>{html.escape(title)}</title>"
            f"<meta name=viewport content='width=device-width, initial-scale=1'><style>{STYLE}</style>"
-           f"{script}</head><body>{''.join(sections)}</body></html>")
+           f"{script}</head><body>{doc_body}{DRAW_SCRIPT if 'data-plot=' in doc_body else ''}</body></html>")
     tmp = path.with_name(path.name + ".part")
     tmp.write_text(doc, encoding="utf-8")
     tmp.replace(path)  # a half-written report is never left under the final name
