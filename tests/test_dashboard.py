@@ -378,3 +378,43 @@ def test_a_forwarding_station_s_tile_says_what_its_outbox_holds_and_when_its_fie
             assert page.evaluate("performance.navigation.type") == 0
         finally:
             seq.close()
+
+
+def test_a_chart_page_sends_its_head_with_plotly_first_and_says_when_it_cannot_be_built():
+    """The browser fetches and compiles plotly.js (a second on a first visit) while the server builds the
+    charts, not after: the head naming plotly.js arrives while the page is still being built.  The page's own
+    title follows; a page that could not be built says why in one line."""
+    import threading
+
+    from fastapi import FastAPI
+
+    from magline.core.dashboard.app import PLOTLY_SRC, _chart_page
+
+    built = threading.Event()
+
+    def page() -> str:
+        assert built.wait(30), "the test never let the page be built"
+        return "<!DOCTYPE html><html><head><title>part P-1 &amp; more</title></head><body><h1>P-1</h1></body></html>"
+
+    def broken() -> str:
+        raise RuntimeError("the store went away")
+
+    app = FastAPI()
+    app.state.closing = threading.Event()
+    app.get("/slow")(lambda: _chart_page("the process", page))
+    app.get("/broken")(lambda: _chart_page("the process", broken))
+    served = Served(app, free_port())
+    try:
+        with urllib.request.urlopen(served.url + "slow", timeout=30) as answer:
+            head = b""
+            while b"</head>" not in head:
+                head += answer.read1(65536)
+            assert f"<script src='{PLOTLY_SRC}'></script>".encode() in head and not built.is_set()
+            built.set()
+            rest = answer.read().decode()
+        assert rest.startswith('<body><script>document.title = "part P-1 & more";</script>') and "<h1>P-1</h1>" in rest
+        with urllib.request.urlopen(served.url + "broken", timeout=30) as answer:
+            text = answer.read().decode()
+        assert text.endswith("<body><p class=note>This page could not be built: the store went away</p></body></html>")
+    finally:
+        served.stop()

@@ -113,16 +113,24 @@ def shared_plotly(folder: Path) -> str:
     return PLOTLY_FILE
 
 
+def page_head(title: str, plotly_src: str | None = None) -> str:
+    """A page's beginning up to ``</head>``: its style and plotly.js (inline, or from ``plotly_src``).  A
+    server may send it before the page's charts are built: the browser fetches and compiles plotly.js
+    meanwhile."""
+    script = (f"<script src='{html.escape(plotly_src)}'></script>" if plotly_src
+              else f"<script>{_plotly_js()}</script>")
+    return (f"<!DOCTYPE html><html lang=en><head><meta charset=utf-8><title>{html.escape(title)}</title>"
+            f"<meta name=viewport content='width=device-width, initial-scale=1'><style>{STYLE}</style>"
+            f"{script}</head>")
+
+
 def write_page(path: Path, title: str, sections: Sequence[str], plotly_src: str | None = None) -> Path:
     """The page: head with the style and plotly.js, then the sections' HTML in order.  ``plotly_src``:
     plotly.js from that file beside the page (:func:`shared_plotly`) instead of inline."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    script = (f"<script src='{html.escape(plotly_src)}'></script>" if plotly_src
-              else f"<script>{_plotly_js()}</script>")
     doc_body = "".join(sections)
-    doc = (f"<!DOCTYPE html><html lang=en><head><meta charset=utf-8><title>{html.escape(title)}</title>"
-           f"<meta name=viewport content='width=device-width, initial-scale=1'><style>{STYLE}</style>"
-           f"{script}</head><body>{doc_body}{DRAW_SCRIPT if 'data-plot=' in doc_body else ''}</body></html>")
+    doc = (f"{page_head(title, plotly_src)}<body>{doc_body}{DRAW_SCRIPT if 'data-plot=' in doc_body else ''}"
+           "</body></html>")
     tmp = path.with_name(path.name + ".part")
     tmp.write_text(doc, encoding="utf-8")
     tmp.replace(path)  # a half-written report is never left under the final name
