@@ -274,3 +274,19 @@ def test_two_groups_at_the_same_yield_both_stay_visible():
     carol, dave = fig.data
     assert carol.y == dave.y  # the same yield, the same place …
     assert carol.marker.size > dave.marker.size and carol.marker.symbol != dave.marker.symbol  # … both seen
+
+
+def test_a_chart_that_cannot_be_drawn_says_so_and_the_others_are_drawn(browser, tmp_path):
+    """The page draws its charts one after another: one that fails (here data that is not a figure) must not
+    leave the ones after it undrawn — it says so in its place."""
+    import plotly.graph_objects as go
+
+    from magline.core.reports.page import figure_html, shared_plotly, write_page
+
+    good = figure_html(go.Figure(go.Scatter(x=[1, 2, 3], y=[3, 1, 2])), "after")
+    broken = ('<div id="broken" class="plotly-graph-div plot-pending" style="height:300px"></div>'
+              '<script type="application/json" data-plot="broken">{"data": [</script>')
+    page = write_page(tmp_path / "page.html", "one broken chart", [broken, good], shared_plotly(tmp_path))
+    opened = open_page(browser, page.as_uri())
+    assert plots_with_data(opened.page) == {"after": 3}
+    assert opened.page.inner_text("#broken").startswith("this chart could not be drawn: SyntaxError")

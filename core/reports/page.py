@@ -57,7 +57,8 @@ def figure_html(fig: go.Figure, div_id: str) -> str:
 # Draws every figure of :func:`figure_html` on the page, one per task after a frame, so the page is painted
 # and answers between two charts: each time the first still undrawn in view (the reader may have scrolled, or
 # come by a link to a chart far down), else the first undrawn in page order.  Each chart's div loses
-# ``plot-pending`` and sends a bubbling ``plotted`` event once drawn (a page's own handlers attach then).
+# ``plot-pending`` and sends a bubbling ``plotted`` event once drawn (a page's own handlers attach then); one
+# that cannot be drawn says so in its place.
 DRAW_SCRIPT = """<script>
 (function () {
   var pending = Array.prototype.slice.call(document.querySelectorAll('script[data-plot]'));
@@ -70,10 +71,18 @@ DRAW_SCRIPT = """<script>
     var spec = pending.filter(inView)[0] || pending[0];
     if (!spec) { return; }
     pending.splice(pending.indexOf(spec), 1);
-    var div = document.getElementById(spec.dataset.plot), figure = JSON.parse(spec.textContent);
-    Plotly.newPlot(div, figure.data, figure.layout, figure.config).then(function () {
+    var div = document.getElementById(spec.dataset.plot);
+    Promise.resolve().then(function () {
+      var figure = JSON.parse(spec.textContent);
+      return Plotly.newPlot(div, figure.data, figure.layout, figure.config);
+    }).then(function () {
       div.classList.remove('plot-pending');
       div.dispatchEvent(new CustomEvent('plotted', {bubbles: true}));
+      later();
+    }, function (error) {  // one chart that cannot be drawn says so and leaves the others to be drawn
+      div.classList.remove('plot-pending');
+      div.classList.add('plot-failed');
+      div.textContent = 'this chart could not be drawn: ' + error;
       later();
     });
   }

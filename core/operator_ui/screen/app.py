@@ -38,10 +38,10 @@ def plotly_js_path() -> Path:
 
 
 def versioned_plotly_src() -> str:
-    """The address of plotly.js named by the installed plotly's version (``/static/plotly-6.3.0.min.js``):
+    """The address of plotly.js named by the installed plotly's version (``/static/plotly-VERSION.min.js``):
     a browser may keep it for good — the script and the code its engine compiled from it — because another
-    plotly answers at another address.  Why: compiling 4.8 MB of script took about half a second of every
-    chart page's time, each time it was opened."""
+    plotly answers at another address.  Why: compiling 4.8 MB of script took nearly a second of every chart
+    page's time on a two-core PC, each time it was opened."""
     from importlib.metadata import version
 
     return f"/static/plotly-{version('plotly')}.min.js"
