@@ -5,6 +5,7 @@ in a copy of the station file, nothing else."""
 
 from __future__ import annotations
 
+import random
 import re
 import shlex
 import socket
@@ -46,14 +47,17 @@ def readme_sequences() -> list[tuple[str, list[str], str]]:
 
 
 def free_port() -> int:
-    """A port free for both TCP and UDP (a station may reach a simulator over either).  The kernel hands
-    out a TCP port free for TCP only: another worker's UDP socket may hold its twin — then another is
-    drawn (seen once in a suite run: "Address already in use")."""
+    """A port free for both TCP and UDP (a station may reach a simulator over either), drawn below the
+    kernel's ephemeral range.  Why below: a port the kernel handed out is one it hands out again — to any
+    worker's next outgoing UDP socket — between this check and the simulator binding it (seen twice in suite
+    runs: "Address already in use"); below the range only another explicit draw can take it."""
+    first_ephemeral = int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
+    draw = random.Random()  # not the suite's seed: each worker draws its own ports
     while True:
+        port = draw.randrange(10_000, first_ephemeral)
         with socket.socket() as tcp, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as udp:
-            tcp.bind(("127.0.0.1", 0))
-            port = tcp.getsockname()[1]
             try:
+                tcp.bind(("127.0.0.1", port))
                 udp.bind(("127.0.0.1", port))
             except OSError:
                 continue

@@ -290,22 +290,25 @@ def test_a_uart_too_slow_for_the_asked_stream_is_said_before_the_tumble(tmp_path
 
 
 def sweep_over_a_uart(tmp_path, baud: int, acquisition: dict, interference: dict):
-    """A PX4 unit on a simulated load, its current interference measured over a UART at ``baud``."""
+    """A PX4 unit on a simulated load, its current interference measured over a UART at ``baud``: its
+    record, and its cause with the messages the board's UART dropped."""
     from magline.sim.load import LoadSim
 
     by_path, _ = usb_names(tmp_path)
     with sim("px4", tmp_path, f"serial:{by_path}:{baud}") as board, LoadSim("tcp:127.0.0.1:0", board=board) as load:
-        return run_unit(station("px4", tmp_path, f"serial:{by_path}:{baud}",
-                                products={"PX4-X500-100": {"interference": "measure", "current_max_a": 40.0}},
-                                current_source={"type": "electronic-load", "options": {"resource": load.visa_resource}},
-                                acquisition=acquisition, interference=interference))
+        source = {"type": "electronic-load", "options": {"resource": load.visa_resource}}
+        record = run_unit(station("px4", tmp_path, f"serial:{by_path}:{baud}",
+                                  products={"PX4-X500-100": {"interference": "measure", "current_max_a": 40.0}},
+                                  current_source=source, acquisition=acquisition, interference=interference))
+        # what the board's transmit buffer had no room for: said with a failure, to tell a full line from a lost one
+        return record, f"{record.cause} [the board's UART dropped {board.link.tx_dropped} messages]"
 
 
 def test_a_uart_too_slow_for_the_current_sweeps_stream_names_the_sweeps_own_rate(tmp_path):
     """The tumble's stream fits the line but the current sweep asks its own, faster one
     (``interference.rate_hz``): the ERROR before the sweep names that key, not the tumble's."""
-    record = sweep_over_a_uart(tmp_path, 57600, {"rate_hz": 100.0}, {"rate_hz": 200.0})
-    assert record.verdict is Outcome.ERROR, record.cause
+    record, said = sweep_over_a_uart(tmp_path, 57600, {"rate_hz": 100.0}, {"rate_hz": 200.0})
+    assert record.verdict is Outcome.ERROR, said
     assert [p.name for p in record.phases if p.outcome is Outcome.ERROR] == ["interference"], record.cause
     assert "57600 baud carries 5,760 bytes/s" in record.cause and "interference.rate_hz" in record.cause
     assert not record.params_written
@@ -315,8 +318,8 @@ def test_a_sweep_stream_the_station_chose_is_lowered_to_what_a_uart_carries(tmp_
     """With ``interference.rate_hz`` unset the sweep asks 100 Hz — the station's choice, not the line's
     fault: on a 38400-baud line that cannot carry it the sweep runs at the fastest rate that fits, says
     so, and the unit is judged (a rate the station file sets is refused instead, above)."""
-    record = sweep_over_a_uart(tmp_path, 38400, {"rate_hz": 50.0}, {})
-    assert record.verdict is Outcome.PASS, record.cause
+    record, said = sweep_over_a_uart(tmp_path, 38400, {"rate_hz": 50.0}, {})
+    assert record.verdict is Outcome.PASS, said
     streams = len(record.unit_info["magnetometers"])  # SCALED_IMU, and SCALED_IMU2/3 for more compasses
     frame = 36  # PX4's SCALED_IMU as MAVLink 2 sends it, at most
     fits = int(0.9 * 3840 / (streams * frame))  # 90 % of a line's baud/10 bytes a second
