@@ -142,11 +142,11 @@ def measure(args: argparse.Namespace) -> None:
                                               "document.querySelectorAll('.plotly-graph-div .main-svg').length > 0"),
                          "a unit": (served.url + f"unit?serial=sn-{args.runs // 2:07d}", "document.readyState === "
                                                                                           "'complete'")}
-                for name, (url, ready) in pages.items():
+                for number, (name, (url, ready)) in enumerate(pages.items()):
                     # a browser profile of its own, as a person's browser keeps one: nothing cached at the
                     # first visit; then plotly.js and, from its third run, the code compiled from it
                     context = browser.browser_type.launch_persistent_context(
-                        Path(tmp) / f"profile-{len(name)}", executable_path=chromium_path(), args=FLAGS,
+                        Path(tmp) / f"profile-{number}", executable_path=chromium_path(), args=FLAGS,
                         viewport={"width": 1600, "height": 1000})
                     try:
                         first = timed(context, url, ready)
