@@ -735,3 +735,49 @@ def test_a_screen_counts_the_running_shift_from_the_line_s_shift_starts(tmp_path
     assert (state.got["units"], state.got["judged"], state.got["fpy"]) == (2, 2, 0.5)
     assert [r["serial"] for r in state.got["recent"]] == ["S2", "S1"]  # newest first; the 13:10 unit was last shift's
     engine.dispose()
+
+
+def test_a_scan_while_the_last_unit_winds_down_starts_the_next_unit(screen):
+    """After its verdict is on the screen a unit's worker still closes the link and re-reads the station's
+    standing. An operator who scans the next unit then was refused as "under test" under a verdict saying it
+    was done, and a label refused by its rule left that verdict up: the scan waits for the wind-down, the
+    refused label takes the verdict off."""
+    import threading
+    import time
+
+    served, runner = screen({"products": {"MOCK-100": {"limits": {"hard_iron_norm_ut": {"le": 1.0}}}}})
+    release, winding = threading.Event(), threading.Event()
+    standing = runner.standing
+
+    def slow_standing() -> None:  # the worker's last step, held until the test lets it go
+        if threading.current_thread().name == "magline-unit":
+            winding.set()
+            release.wait(60)
+        standing()
+
+    runner.standing = slow_standing
+
+    def start(serial: str) -> tuple[int, dict]:
+        request = urllib.request.Request(served.url + "api/start", data=json.dumps({"serial": serial}).encode(),
+                                         method="POST", headers={"Content-Type": "application/json"})
+        try:
+            with urllib.request.urlopen(request, timeout=90) as answer:
+                return answer.status, json.loads(answer.read())
+        except urllib.error.HTTPError as refused:
+            return refused.code, json.loads(refused.read())
+
+    assert start("WIND-1")[0] == 200
+    assert winding.wait(60)
+    assert runner.state.snapshot()[1]["result"]["serial"] == "WIND-1" and runner.busy()
+    code, answer = start("AB/12")  # refused by the label rule: the last verdict leaves the screen
+    assert code == 400 and "AB/12" in answer["error"]
+    assert runner.state.snapshot()[1]["result"] is None
+    got: list[tuple[int, dict]] = []
+    scan = threading.Thread(target=lambda: got.append(start("WIND-2")))
+    scan.start()
+    time.sleep(0.5)  # the scan reaches the server while the worker is still held
+    release.set()
+    scan.join(90)
+    assert got and got[0][0] == 200, got
+    runner.wait(60)
+    assert runner.state.snapshot()[1]["result"]["serial"] == "WIND-2"

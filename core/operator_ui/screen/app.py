@@ -144,15 +144,17 @@ def create_app(state: ScreenState, runner: UnitRunner, token: str | None = None,
     @app.post("/api/start")
     async def start(request: Request) -> JSONResponse:
         body = await request.json()
-        try:
+        try:  # on a worker thread: a start may wait for the last unit's wind-down
             if isinstance(body.get("serials"), dict):  # a load of a slot station
-                runner.start_slots({str(k): str(v) for k, v in body["serials"].items()}, str(body.get("operator", "")))
+                await asyncio.to_thread(runner.start_slots, {str(k): str(v) for k, v in body["serials"].items()},
+                                        str(body.get("operator", "")))
             else:
-                runner.start(str(body.get("serial", "")), body.get("part") or None, str(body.get("operator", "")))
+                await asyncio.to_thread(runner.start, str(body.get("serial", "")), body.get("part") or None,
+                                        str(body.get("operator", "")))
         except Busy as exc:
             return JSONResponse({"error": str(exc)}, status_code=409)
         except ValueError as exc:  # the slot a refused load's label is to be scanned again for, where named
-            if not runner.busy():  # the last unit's verdict is old news: under the refusal it read as this label's
+            if not state.testing():  # the last unit's verdict is old news: under the refusal it read as this label's
                 state.forget_result()
             return JSONResponse({"error": str(exc), "slot": getattr(exc, "slot", None)}, status_code=400)
         return JSONResponse({"started": body.get("serial")})

@@ -21,6 +21,12 @@ class Busy(Exception):
     """A unit is under test already."""
 
 
+# After its verdict is on the screen a unit's thread still closes the link and re-reads the station's
+# standing: an operator scans the next unit at once. A scan then waits this long for that wind-down
+# rather than being refused as "under test" under a verdict that says the unit is done.
+WIND_DOWN_S = 30.0
+
+
 class UnitRunner:
     def __init__(self, sequencer: Sequencer, state: ScreenState) -> None:
         self.sequencer = sequencer
@@ -38,6 +44,7 @@ class UnitRunner:
             known_part(part, list(station.products), station.station.id)
         serial = clean_serial(serial, station.products[part or self.state.state["station"]["default_part"]])
         with self._lock:
+            self._wait_for_wind_down()
             if self._thread is not None and self._thread.is_alive():
                 current = (self.state.state.get("run") or {}).get("serial") or "a unit"
                 raise Busy(f"{serial} was not started: {current} is under test — finish or abort it first")
@@ -69,6 +76,7 @@ class UnitRunner:
             raise ValueError("scan the serial of at least one slot's unit")
         one_serial_per_slot(load)
         with self._lock:
+            self._wait_for_wind_down()
             if self._thread is not None and self._thread.is_alive():
                 raise Busy("units are under test: wait for their verdicts or abort them")
             self.sequencer.abort.clear()
@@ -103,6 +111,11 @@ class UnitRunner:
             self.state.unit_refused(f"the station could not run the unit: {exc}")
         finally:
             self.standing()
+
+    def _wait_for_wind_down(self) -> None:
+        """A worker whose verdicts are all shown is only winding down: let it end before judging busy."""
+        if self._thread is not None and self._thread.is_alive() and not self.state.testing():
+            self._thread.join(WIND_DOWN_S)
 
     def busy(self) -> bool:
         """Is a unit (or a load of slots) under test?"""

@@ -63,6 +63,12 @@ class ScreenState:
         with self._lock:
             return self.version, {**self.state, "sent_at_ms": time.time() * 1e3}
 
+    def testing(self) -> bool:
+        """Is a unit (or a load) shown as under test? False once its verdict (or a refusal) is shown, while
+        its worker may still be winding down."""
+        with self._lock:
+            return bool(self.state["busy"])
+
     def wait_newer(self, version: int, timeout: float) -> bool:
         """Block until the state is newer than ``version`` (or ``timeout``): the event stream's pace."""
         with self._lock:
