@@ -289,19 +289,24 @@ class SerialPortWatch:
         pairs = (("by-path", first.by_path, now.by_path), ("by-id", first.by_id, now.by_id))
         return [naming for naming, was, is_ in pairs if was and not is_]
 
-    def require_capacity(self, streams: dict[str, tuple[int, float]]) -> None:
-        """Before a stream is asked (name → (frame bytes, messages a second)): a UART at the station's
-        baud carries it, else a :class:`StreamTooFast` with the figures and the rate the stream fits at —
-        said before the tumble, not found as a short one (the firmware drops what its transmit buffer
-        cannot hold)."""
+    def require_capacity(self, streams: dict[str, tuple[int, float]],
+                         beside: dict[str, tuple[int, float]] | None = None) -> None:
+        """Before a stream is asked (name → (frame bytes, messages a second)), with what is sent ``beside``
+        it at a rate of its own (the battery's current during a sweep): a UART at the station's baud
+        carries them, else a :class:`StreamTooFast` with the figures and the rate the stream fits at beside
+        the rest — said before the tumble, not found as a short one (the firmware drops what its transmit
+        buffer cannot hold)."""
         node = os.path.realpath(self.address.path)
         if ignores_baud(node):
             return
-        need = sum(size * rate for size, rate in streams.values())
+        beside = beside or {}
+        fixed = sum(size * rate for size, rate in beside.values())
+        need = sum(size * rate for size, rate in streams.values()) + fixed
         line = self.address.baud / 10.0  # 8N1: ten bits a byte
         if need > LINE_SHARE * line:
-            asked = ", ".join(f"{name} {rate:g}/s" for name, (_, rate) in streams.items())
-            fits_hz = max(rate for _, rate in streams.values()) * LINE_SHARE * line / need
+            asked = ", ".join(f"{name} {rate:g}/s" for name, (_, rate) in {**streams, **beside}.items())
+            per_hz = sum(size * rate for size, rate in streams.values()) / max(rate for _, rate in streams.values())
+            fits_hz = max(LINE_SHARE * line - fixed, 0.0) / per_hz
             raise StreamTooFast(f"{self.address.path} at {self.address.baud} baud carries {line:,.0f} bytes/s; the "
                                 f"stream asked ({asked}) needs {need:,.0f} bytes/s: raise the baud (on the board and "
                                 "in the station file), connect the board's USB port, or lower the stream's rate: "

@@ -212,7 +212,9 @@ class ArduPilotDut:
         kinds = list(dict.fromkeys(["RAW_IMU", *by_kind]))
         ids = {kind: msg_id for kind, msg_id in STREAMS}
         if self.link.port is not None:
-            self.link.port.require_capacity({k: (mavlink2_frame_bytes(ids[k]), rate_hz) for k in kinds})
+            battery = {"BATTERY_STATUS": (mavlink2_frame_bytes(ML.MAVLINK_MSG_ID_BATTERY_STATUS), BATTERY_RATE_HZ)}
+            self.link.port.require_capacity({k: (mavlink2_frame_bytes(ids[k]), rate_hz) for k in kinds},
+                                            battery if self.stream_current else None)
         self.link.drain()
         for kind in kinds:
             self.link.set_message_interval(ids[kind], rate_hz)

@@ -262,7 +262,9 @@ class Px4Dut:
         kinds = list(dict.fromkeys([STREAMS[0][0], *by_kind]))
         ids = dict(STREAMS)
         if self.link.port is not None:
-            self.link.port.require_capacity({k: (mavlink2_frame_bytes(ids[k]), rate_hz) for k in kinds})
+            battery = {"BATTERY_STATUS": (mavlink2_frame_bytes(MAVLINK_MSG_ID_BATTERY_STATUS), BATTERY_RATE_HZ)}
+            self.link.port.require_capacity({k: (mavlink2_frame_bytes(ids[k]), rate_hz) for k in kinds},
+                                            battery if self.stream_current else None)
         listened = [*kinds, "BATTERY_STATUS"] if self.stream_current else kinds
         inbox, handles = self.link.subscribe_all(listened)
         streams = SensorStreams(self.device_id, self.chosen, lambda _, mg: mg / MG_PER_UT)
