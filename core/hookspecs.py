@@ -355,8 +355,9 @@ def magline_acquisition_stopped(run: RunContext, attempt: int, reason: str, afte
     N s" (or that the most readings were taken) and can tell the operator to stop moving the unit.
 
     :param reason: ``"determined"`` (coverage and predicted uncertainties inside the station's
-        limits, and the mounting's errors clear of theirs), ``"stalled"`` (coverage stopped growing
-        short of its target: the operator is asked again), ``"samples"`` (``acquisition.samples``
+        limits, and the mounting's errors clear of theirs), ``"stalled"`` (short of its target, the
+        tumble could not reach it: turned about the vertical only, or no new direction lately; the
+        operator is asked again), ``"samples"`` (``acquisition.samples``
         read), ``"timeout"`` (a determined tumble reached ``acquisition.timeout_s`` with readings
         enough to judge), or ``"stream ended"``.
     :param after_s: seconds of tumbling (from the motion's start for this unit).

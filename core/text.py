@@ -64,7 +64,7 @@ def stop_line(reason: str, after_s: float, readings: int, moved: bool = True) ->
     if reason == "samples" and not moved:
         return f"coil schedule complete: {readings} readings in {after_s:.0f} s"
     if reason == "stalled":
-        return f"coverage stopped growing after {after_s:.0f} s ({readings} readings)"
+        return f"stalled after {after_s:.0f} s ({readings} readings): not reaching new directions"
     if reason == "timeout":
         return f"time up after {after_s:.0f} s ({readings} readings)"
     if reason == "samples":

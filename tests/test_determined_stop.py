@@ -407,3 +407,87 @@ def test_a_tumble_stopped_at_its_count_holds_the_coverage_it_is_judged_on(make_s
     ended = [(stopped, coverage) for stopped, coverage in stops if stopped in ("samples", "determined")]
     assert len(ended) >= 2, stops  # the rings reached the target in some units (the others stalled: no new ring)
     assert all(coverage >= 0.6 for _, coverage in ended), stops
+
+
+def _fed_stall(attitudes, rng, *, accelerometer: bool = True, about_vertical: bool = True,
+               inclination_deg: float | None = 63.0):
+    """The stall rule and the coverage fed ten readings at a time from ``attitudes`` (48 µT dipping 63°, a
+    hard iron, noise): the reading it called the stall at (None: never, or the target reached) and the rule."""
+    from magline.core.acquisition.tumble_stop import Stall
+    from magline.core.fit.coverage import CoverageTracker
+
+    field = 48.0 * np.array([np.cos(np.radians(63.0)), 0.0, np.sin(np.radians(63.0))])
+    mags = attitudes.inv().apply(field) + np.array([30.0, -20.0, 10.0]) + rng.normal(0.0, 0.3, (len(attitudes), 3))
+    accel = attitudes.inv().apply([0.0, 0.0, -9.80665]) + rng.normal(0.0, 0.5, (len(attitudes), 3))
+    stall = Stall(100, 0.6, about_vertical=about_vertical, field_ut=48.0, inclination_deg=inclination_deg)
+    tracker = CoverageTracker(40)
+    for start in range(0, len(mags), 10):
+        n = min(start + 10, len(mags))
+        coverage = tracker.add(mags[start:n])
+        stall.see(mags[start:n], accel[start:n] if accelerometer else None)
+        if coverage >= 0.6:
+            return None, stall
+        if stall.stalled(n, coverage):
+            return n, stall
+    return None, stall
+
+
+@pytest.mark.parametrize("wobble_deg", [0.0, 3.0, 8.0, 15.0])
+def test_a_unit_turned_about_its_vertical_is_told_within_half_a_turn(wobble_deg):
+    """The classic mistake, one turn in 600 readings with a hand's wobble: gravity stays, the field circles
+    one cone — no reading of it can reach a new ring. Told from the accelerometer before the half turn
+    (a ring's creeping coverage told it after a median 940 readings, some never)."""
+    from scipy.spatial.transform import Rotation
+
+    from magline.sim.truth.motions import ring_attitudes
+
+    rng = np.random.default_rng(7)
+    for _ in range(10):
+        spin = Rotation.concatenate([ring_attitudes(600, rng, np.array([0.0, 0.0, 1.0]), wobble_deg)
+                                     for _ in range(4)])
+        at, stall = _fed_stall(spin, rng)
+        assert at is not None and at <= 300 and stall.about_vertical_only, (at, stall.why)
+        assert stall.why == "turned about its vertical only"
+
+
+def test_a_turn_about_the_vertical_is_told_only_where_a_person_turns_the_unit_and_the_field_is_known():
+    """A turntable or gimbal turns about the vertical by design (``about_vertical=False``); without the
+    accelerometer or the site's inclination the turn cannot be read: only the slower rule is left."""
+    from scipy.spatial.transform import Rotation
+
+    from magline.sim.truth.motions import ring_attitudes
+
+    rng = np.random.default_rng(8)
+    spin = Rotation.concatenate([ring_attitudes(600, rng, np.array([0.0, 0.0, 1.0]), 3.0) for _ in range(4)])
+    for kwargs in ({"about_vertical": False}, {"accelerometer": False}, {"inclination_deg": None}):
+        at, stall = _fed_stall(spin, rng, **kwargs)
+        assert not stall.about_vertical_only and stall.why in ("", "no new direction lately"), (kwargs, at)
+
+
+@pytest.mark.parametrize("readings", [600, 3000])
+def test_an_operator_s_tumble_face_by_face_is_never_called_stalled_however_slow(readings):
+    """A hand turning the unit from face to face, over 600 readings and slowly over 3,000: gravity keeps
+    reaching new directions, so a pause of the field's coverage is no stall (the slow one was called stalled
+    in 8 of 50 by the field's coverage alone)."""
+    from scipy.spatial.transform import Rotation
+
+    from magline.sim.truth.motions import hand_tour_attitudes
+
+    rng = np.random.default_rng(9)
+    for _ in range(5):
+        tumble = Rotation.concatenate([hand_tour_attitudes(readings, rng), hand_tour_attitudes(readings, rng)])
+        at, stall = _fed_stall(tumble, rng)
+        assert at is None, (at, stall.why)
+
+
+def test_the_demo_s_spin_is_stopped_at_once_and_the_operator_told_to_tip_the_unit(make_station):
+    """End to end on the mock (its spin now turns the unit about the vertical, gravity and all): the first
+    attempt ends stalled within half a turn, its log says why, and the retry prompt says what to do."""
+    listener = StopListener()
+    record = run_with(make_station(), listener)
+    first = record.attempts[0]
+    assert first.stopped == "stalled" and first.samples <= 300, (first.stopped, first.samples)
+    log = [line for p in record.phases for line in p.log]
+    assert any(line.startswith("tumble stalled after") and line.endswith("turned about its vertical only")
+               for line in log), log
+    assert any("Only turned flat" in line for line in log), log

@@ -185,7 +185,7 @@ def test_show_and_export_read_the_store_on_each_engine(make_station, store_url, 
     x2 = json.loads(capsys.readouterr().out)
     assert main(["show", " X-2 ", "--station", str(good)]) == 0
     out = capsys.readouterr().out
-    assert "unit X-2" in out and "coverage stopped growing after" in out and "accepted — " in out
+    assert "unit X-2" in out and "stalled after" in out and "accepted — " in out
     assert "determined after" in out and "predicted heading σ" in out
     assert main(["show", "NOPE", "--station", str(good)]) == 1
     err = capsys.readouterr().err

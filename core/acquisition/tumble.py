@@ -60,9 +60,9 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
     got = _Readings(run.unit.selected_sensor if run.unit is not None else 0)
     running = running_fit(run) if cfg.stop == "determined" else None
     reason, tumble_s = "stream ended", 0.0
-    stall = Stall(cfg.min_samples, cfg.coverage_target)
     final = None  # the determination of every reading the tumble ends with
     advice = None  # why the tumble stalled, in the operator's words, when the motion knows
+    stalled_because = ""
     try:
         with run.shared_motion() as number, closing(dut.samples(cfg.rate_hz)) as stream, running or nullcontext(), \
                 ExitStack() as on_end:
@@ -70,6 +70,7 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
             deadline, checkpoint = started + cfg.timeout_s, cfg.min_samples
             guide = tilt_guide(run, number, cfg.coverage_bins)
             guiding = Guiding(run, guide) if guide is not None else None
+            stall = _stall_rule(run, by_hand=guiding is None and run.station.motion.type == "operator")
             if guiding is not None:
                 on_end.callback(guiding.ended)  # this slot no longer speaks for the cradle, however it ended
             for chunk in stream:
@@ -105,9 +106,12 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
                     # back): ended there, a warm-up would be bent into the soft iron unseen
                     got.thin(cfg.coverage_bins)
                 if running is not None:
+                    stall.see(chunk.mag_ut, chunk.imu.accel_mss if chunk.imu is not None else None)
                     # on a turntable the readings while the operator tilts are not a stall: only the turns count
                     if stall.stalled(seen if guiding is None else guiding.turning_seen, coverage):
-                        reason = "stalled"
+                        reason, stalled_because = "stalled", stall.why
+                        if stall.about_vertical_only:
+                            advice = run.station.prompts.spun_only
                         break
                     if running.determined is not None:  # a snapshot was: are all the readings?
                         final = running.confirm_now(seen, tumble_s, got.snapshot(run), got.imu_series())
@@ -136,6 +140,7 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
         raise DutError("the DUT sent no samples")
     result = got.acquisition(attempt, cfg.coverage_bins, cfg.coverage_target)
     result.stopped, result.tumble_s, result.advice = reason, tumble_s, advice
+    result.stalled_because = stalled_because
     if reason == "determined" and final is not None:
         result.predicted = final.predicted
     worst = min(result.coverages, key=result.coverages.get) if result.coverages else None
@@ -144,6 +149,16 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
     run.progress(attempt, got.seen, result.coverage, cfg.coverage_target, bins, cfg.coverage_bins)
     run.acquisition_stopped(result)
     return result
+
+
+def _stall_rule(run: RunContext, by_hand: bool) -> Stall:
+    """The stall rule of this attempt: the turn about the vertical told only where a person turns the unit
+    (a fixture's motion is the station's own, and a turntable's unit turns about the vertical by design),
+    read against the site's horizontal field where the field source knows its inclination."""
+    cfg = run.station.acquisition
+    inclination = getattr(run.field_source, "reference_inclination_deg", None)
+    return Stall(cfg.min_samples, cfg.coverage_target, about_vertical=by_hand, field_ut=run.reference_field_ut,
+                 inclination_deg=inclination() if callable(inclination) else None)
 
 
 def _stream_s(samples: RawSamples) -> float:

@@ -25,32 +25,124 @@ if TYPE_CHECKING:
 
 
 class Stall:
-    """A tumble whose coverage stopped growing short of its target: no new direction over the last
-    two thirds of its readings (at least ``min_samples`` of them).  Reading on cannot reach the
-    target, so a determined tumble ends there and the operator is asked again at once (a spin about
-    one axis covers its ring in one turn, then repeats it).
+    """When a determined tumble ends as *stalled* short of its coverage target, the operator asked again at
+    once: reading on would not reach the target.
 
-    Why two thirds, not half: a turn there and back retraces exactly as long as it went before it
-    reaches new directions, so at half the rule fired the moment such a motion went on to new ones
-    (10 % of the PX4 simulator's tumbles at 50 Hz, their readings thrown away and the operator asked
-    again).  A ring is covered in its first turn, so a spin still stalls at ``2 × min_samples``; one
-    whose wobble finds a new direction now and then stalls later than at half (``benchmarks/stall.py``).
-    Not so since the coverage stopped lighting bins about a "sphere" under 10 µT (issue 49): a ring's
-    coverage now creeps as its ill-determined centre moves, and a spin stalls at a median ~940 readings
-    (docs/station-file.md, *Stop tumbling when the calibration is determined*)."""
+    Two ways to stall.  **Turned about the vertical only** (the classic mistake): the unit's gravity stays
+    within :attr:`SPIN_CAP_DEG` of where it was from the tumble's start while the field's horizontal part has
+    swept :attr:`SPIN_SWEEP_DEG` around it.  Turning about the vertical moves the field only around a cone
+    about gravity, so no reading of that motion can reach a new ring; told from the accelerometer, it is
+    known after half a turn.  Why not from the coverage: a ring's coverage creeps as its ill-determined
+    centre moves, and each creep looked like a new direction (a spin was called at a median ~940 readings,
+    some never).  A turntable's unit turns about the vertical by design: its guide asks for the tilts, and
+    ``about_vertical=False`` leaves this rule out.
+
+    **Nothing new any more**: no new direction of the field over the last two thirds of the readings (at
+    least ``min_samples``), and — where the accelerometer is read — no new direction of gravity either, so
+    a slow tumble whose field coverage pauses while gravity moves on is not called stalled.  Two thirds,
+    not half: a turn there and back retraces as long as it went before it reaches new directions."""
 
     WITHOUT_GROWTH = 2 / 3  # the share of the readings with no new direction that is a stall
+    SPIN_CAP_DEG = 30.0  # gravity within this of its mean since the start: the unit has not been tilted
+    SPIN_SWEEP_DEG = 120.0  # the field's azimuth about gravity swept: the unit is being turned, not held
+    LEAST_RING_UT = 5.0  # a ring of the field's horizontal part smaller than this is not read as turning
 
-    def __init__(self, min_samples: int, target: float) -> None:
-        self.min_samples, self.target = min_samples, target
+    def __init__(self, min_samples: int, target: float, *, about_vertical: bool = True,
+                 field_ut: float | None = None, inclination_deg: float | None = None) -> None:
+        self.min_samples, self.target, self.about_vertical = min_samples, target, about_vertical
+        # the site's horizontal field, the radius of a ring turned about the vertical (None: not known)
+        self.horizontal_ut = None if field_ut is None or inclination_deg is None else \
+            field_ut * float(np.cos(np.radians(inclination_deg)))
         self.history: list[tuple[int, float]] = []  # (readings, coverage) at each change of coverage
+        self.why = ""  # why the tumble stalled, in the log's words, once called
+        self.about_vertical_only = False  # called for a turn about the vertical (else: nothing new any more)
+        self._mags: list[np.ndarray] = []
+        self._gravity: list[np.ndarray] = []  # one unit vector per chunk with accelerometer readings
+        self._gravity_new_at = 0  # readings when gravity last showed a new direction
+        self._gravity_cells: set[int] = set()  # the cells of GRAVITY_CELLS gravity has been in
+        self._tilted = False  # gravity has left the spin cap since the start: no longer a spin about the vertical
+        self._seen = 0
+
+    def see(self, mag_ut: np.ndarray, accel_mss: np.ndarray | None) -> None:
+        """A chunk's raw readings and the accelerometer's readings over the same time (None: not read)."""
+        mag = np.atleast_2d(np.asarray(mag_ut, float))
+        self._seen += len(mag)
+        if self.about_vertical and not self._tilted:
+            self._mags.append(mag)
+        if accel_mss is None or not len(accel_mss):
+            return
+        mean = np.mean(np.atleast_2d(accel_mss), axis=0)
+        norm = float(np.linalg.norm(mean))
+        if norm < 1e-6:
+            return
+        g = mean / norm
+        cell = int(np.argmax(GRAVITY_CELLS @ g))
+        if cell not in self._gravity_cells:
+            self._gravity_cells.add(cell)
+            self._gravity_new_at = self._seen
+        self._gravity.append(g)
+        if not self._tilted and len(self._gravity) > 1:
+            centre = _unit(np.sum(self._gravity, axis=0))
+            self._tilted = max(_angle_deg(h, centre) for h in self._gravity) > self.SPIN_CAP_DEG
+            if self._tilted:
+                self._mags = []
 
     def stalled(self, count: int, coverage: float) -> bool:
         if not self.history or coverage > self.history[-1][1]:
             self.history.append((count, coverage))
+        if coverage >= self.target or count < 2 * self.min_samples:
+            return False
+        if self.about_vertical and not self._tilted and len(self._gravity) > 1 and self._turned_about_vertical():
+            self.why, self.about_vertical_only = "turned about its vertical only", True
+            return True
         since = self.history[-1][0]  # readings when the coverage last grew
-        return coverage < self.target and count >= 2 * self.min_samples and count - since >= max(
-            self.min_samples, self.WITHOUT_GROWTH * count)
+        if self._gravity:
+            since = max(since, self._gravity_new_at)
+        if count - since >= max(self.min_samples, self.WITHOUT_GROWTH * count):
+            self.why = "no new direction lately"
+            return True
+        return False
+
+    def _turned_about_vertical(self) -> bool:
+        """Has the field's part across gravity swept :attr:`SPIN_SWEEP_DEG`?  Read from the chord: the widest
+        two readings of a ring of radius ``H`` (the site's horizontal field) that swept ``α`` lie ``2·H·sin(α/2)``
+        apart, whatever the hard iron (it moves every reading alike) and however the hand wobbled the ring's
+        plane (a circle fitted to a wobbled ring read its arc at twice its length)."""
+        if self.horizontal_ut is None or self.horizontal_ut < self.LEAST_RING_UT:
+            return False  # no site field known, or it is near vertical: a ring too small to read
+        mag = np.vstack(self._mags)
+        return _widest_ut(mag) >= 2.0 * self.horizontal_ut * np.sin(np.radians(self.SPIN_SWEEP_DEG) / 2.0)
+
+
+def _widest_ut(points: np.ndarray) -> float:
+    """The largest distance between two of ``points`` (through their convex spread: the extreme points along
+    a few dozen directions, then every pair of those)."""
+    directions = _fibonacci_sphere(64)
+    extreme = np.unique(np.concatenate([np.argmax(points @ directions.T, axis=0),
+                                        np.argmin(points @ directions.T, axis=0)]))
+    chosen = points[extreme]
+    return float(np.max(np.linalg.norm(chosen[:, None, :] - chosen[None, :, :], axis=-1)))
+
+
+def _fibonacci_sphere(k: int) -> np.ndarray:
+    i = np.arange(k) + 0.5
+    z = 1.0 - 2.0 * i / k
+    r = np.sqrt(1.0 - z * z)
+    phi = np.pi * (1.0 + 5.0**0.5) * i
+    return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
+
+
+# Gravity's directions in 40 near-equal cells (about 32° across, as the field's coverage bins): a new cell is
+# a new attitude of the unit, the sign that a tumble is still going somewhere.
+GRAVITY_CELLS = _fibonacci_sphere(40)
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v)
+
+
+def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(np.clip(a @ b, -1.0, 1.0))))
 
 
 def stop_rule(run: RunContext) -> StopRule:

@@ -57,6 +57,7 @@ class Acquisition:
     tumble_s: float | None = None
     predicted: dict[str, dict[str, float]] = field(default_factory=dict)
     advice: str | None = None  # what the operator is told before the next attempt, when the tumble knows why
+    stalled_because: str = ""  # a stalled tumble's cause in the log's words (core/acquisition/tumble_stop.py)
     # readings read (held, or let go when a long tumble was thinned; ``samples`` holds at most
     # ``acquisition.samples``): the count the operator was shown, which never goes down
     read: int | None = None
@@ -194,7 +195,8 @@ class RunContext:
         elif result.stopped == "samples":
             self.log(f"tumble ended at {read} readings{kept} after {result.tumble_s:.1f} s")
         elif result.stopped == "stalled":
-            self.log(f"tumble stalled after {result.tumble_s:.1f} s: {read} readings{kept}, no new direction lately")
+            self.log(f"tumble stalled after {result.tumble_s:.1f} s: {read} readings{kept}, "
+                     f"{result.stalled_because or 'no new direction lately'}")
         elif result.stopped == "timeout":
             self.log(f"tumble out of time after {result.tumble_s:.1f} s: {read} readings{kept}")
         self.plugins.hook.magline_acquisition_stopped(run=self, attempt=result.attempt, reason=result.stopped or "",

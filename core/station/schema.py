@@ -450,6 +450,8 @@ class Prompts(_Strict):
     serial: str = "Scan the unit's serial number"
     tumble: str = "Tumble the unit slowly through all orientations"
     retry: str = "Coverage too low — tumble again, covering every side"
+    # a tumble stopped because the unit was only turned flat, about its vertical (core/acquisition/tumble_stop.py)
+    spun_only: str = "Only turned flat — tumble again, tipping the unit onto every side, nose and tail"
     verdicts: dict[Literal["pass", "review", "fail", "error", "aborted", "incomplete"], str] = Field(
         default_factory=dict)
 

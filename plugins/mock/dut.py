@@ -13,7 +13,7 @@ import numpy as np
 from magline.plugin import ImuSeries, LinkError, NotRestored, ParamValue, SampleChunk, UnitInfo
 from magline.sim.storage import NvStorage
 from magline.sim.truth import GRAVITY_MSS, SensorTruth, earth_field_ned, gravity_body, motion_directions
-from magline.sim.truth.motions import single_axis
+from magline.sim.truth.motions import ring_attitudes
 
 if TYPE_CHECKING:
     from magline.plugin import FitResult
@@ -95,7 +95,7 @@ class MockDut:
         field_chunks = self._coil_field_chunks() if self.opts.coil_sim else self._motion_field_chunks()
         t0 = time.monotonic()
         sent = 0
-        for block in field_chunks:
+        for block, gravity in field_chunks:
             if not self.connected:
                 raise LinkError("link to mock DUT lost")
             raw = self.truth.read(self.to_sensor.apply(block), self.rng)
@@ -105,29 +105,31 @@ class MockDut:
                 delay = t0 + sent / rate_hz - time.monotonic()
                 if delay > 0:
                     time.sleep(delay)
-            yield SampleChunk(mag_ut=raw, t_ms=t_ms, imu=self._imu(block, t_ms))
+            yield SampleChunk(mag_ut=raw, t_ms=t_ms, imu=self._imu(block, gravity, t_ms))
 
-    def _imu(self, fields_body: np.ndarray, t_ms: np.ndarray) -> ImuSeries | None:
-        """The accelerometer at the same instants: gravity in body axes for an attitude that turns the
-        Earth field into each of the block's body-frame fields (the smallest such turn from level),
-        with the accelerometer's own noise.  A unit standing in a coil sees gravity never change."""
+    def _imu(self, fields_body: np.ndarray, gravity: np.ndarray | None, t_ms: np.ndarray) -> ImuSeries | None:
+        """The accelerometer at the same instants: gravity in body axes of the motion's own attitude where
+        it has one (a spin's gravity stays put), else of an attitude that turns the Earth field into each of
+        the block's body-frame fields (the smallest such turn from level), with the accelerometer's own noise.
+        A unit standing in a coil sees gravity never change."""
         if not self.opts.accelerometer:
             return None
         if self.opts.coil_sim:
             gravity = np.tile([0.0, 0.0, -GRAVITY_MSS], (len(fields_body), 1))
-        else:
+        elif gravity is None:
             gravity = gravity_body(fields_body, self.field_ned)
         return ImuSeries(t_ms=t_ms, accel_mss=gravity + self.rng.normal(0.0, ACCEL_NOISE_MSS, gravity.shape))
 
-    def _motion_field_chunks(self) -> Iterator[np.ndarray]:
+    def _motion_field_chunks(self) -> Iterator[tuple[np.ndarray, np.ndarray | None]]:
         motion = self.opts.motions[min(self.acquisitions, len(self.opts.motions) - 1)]
         self.acquisitions += 1
         while True:
-            fields = self._motion(motion) * self.opts.field_ut
+            directions, gravity = self._motion(motion)
+            fields = directions * self.opts.field_ut
             for start in range(0, len(fields), CHUNK):
-                yield fields[start:start + CHUNK]
+                yield fields[start:start + CHUNK], None if gravity is None else gravity[start:start + CHUNK]
 
-    def _coil_field_chunks(self) -> Iterator[np.ndarray]:
+    def _coil_field_chunks(self) -> Iterator[tuple[np.ndarray, None]]:
         _, host, port = str(self.opts.coil_sim).split(":")
         try:
             link = socket.create_connection((host, int(port)), timeout=2.0)
@@ -138,14 +140,17 @@ class MockDut:
                 wire.write("SIM:FIELD?\n")
                 wire.flush()
                 field = np.array([float(v) for v in wire.readline().split(",")])
-                yield np.tile(field, (CHUNK, 1))
+                yield np.tile(field, (CHUNK, 1)), None
 
-    def _motion(self, name: str) -> np.ndarray:
+    def _motion(self, name: str) -> tuple[np.ndarray, np.ndarray | None]:
+        """The field's directions in the body, and gravity's (m/s², pointing up) where the motion has an
+        attitude of its own."""
         n = self.opts.motion_samples
-        if name == "single_axis":
+        if name == "single_axis":  # turned about the vertical: the field circles, gravity stays
+            attitudes = ring_attitudes(n, self.rng, np.array([0.0, 0.0, 1.0]), self.opts.single_axis_wobble_deg)
             field_dir = self.field_ned / np.linalg.norm(self.field_ned)
-            return single_axis(n, self.rng, field_dir, wobble_deg=self.opts.single_axis_wobble_deg)
-        return motion_directions(name, n, self.rng, self.field_ned)
+            return attitudes.inv().apply(field_dir), attitudes.inv().apply([0.0, 0.0, -GRAVITY_MSS])
+        return motion_directions(name, n, self.rng, self.field_ned), None
 
     # ------------------------------------------------------------------ parameters
     def calibration_params(self, fit: FitResult) -> dict[str, ParamValue]:

@@ -11,7 +11,7 @@ from collections.abc import Callable
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
+from scipy.spatial.transform import Rotation, Slerp
 
 Motion = Callable[[int, np.random.Generator, NDArray], NDArray]
 
@@ -32,24 +32,59 @@ def hand_tumble(n: int, rng: np.random.Generator, field_dir: NDArray, wobble_deg
     Waypoints are a randomly rotated Fibonacci set visited in a nearest-neighbour tour (what a
     trained operator does: "each face, then the corners"), with a smooth hand wobble on top.
     """
+    way = _tour(n, rng)
+    k = len(way)
+    seg, frac = _legs(n, k)
+    a, b = way[seg], way[seg + 1]
+    omega = np.arccos(np.clip(np.einsum("ij,ij->i", a, b), -1.0, 1.0))[:, None]
+    sin_o = np.maximum(np.sin(omega), 1e-9)
+    path = (np.sin((1 - frac[:, None]) * omega) * a + np.sin(frac[:, None] * omega) * b) / sin_o
+    path = _hand_wobble(n, rng, wobble_deg).apply(path)
+    return path / np.linalg.norm(path, axis=1, keepdims=True)
+
+
+def _tour(n: int, rng: np.random.Generator) -> NDArray:
+    """Well-spread directions (a randomly turned Fibonacci set, one per 25 readings, at least 14) in a
+    nearest-neighbour tour from a random one: a trained operator's "each face, then the corners"."""
     k = max(14, n // 25)
     base = Rotation.random(random_state=rng).apply(_fibonacci(k))
     order = [int(rng.integers(k))]
     while len(order) < k:
         rest = [i for i in range(k) if i not in order]
         order.append(max(rest, key=lambda i: base[i] @ base[order[-1]]))
-    way = base[order]
+    return base[order]
+
+
+def _legs(n: int, k: int) -> tuple[NDArray, NDArray]:
+    """Each of ``n`` readings' leg of a ``k``-waypoint tour, and how far along it."""
     seg = np.minimum((np.arange(n) * (k - 1)) // n, k - 2)
-    frac = (np.arange(n) * (k - 1) / n) - seg
-    a, b = way[seg], way[seg + 1]
-    omega = np.arccos(np.clip(np.einsum("ij,ij->i", a, b), -1.0, 1.0))[:, None]
-    sin_o = np.maximum(np.sin(omega), 1e-9)
-    path = (np.sin((1 - frac[:, None]) * omega) * a + np.sin(frac[:, None] * omega) * b) / sin_o
+    return seg, (np.arange(n) * (k - 1) / n) - seg
+
+
+def _hand_wobble(n: int, rng: np.random.Generator, wobble_deg: float) -> Rotation:
+    """A hand's smooth wobble over ``n`` readings: three sines of ``wobble_deg``, 3–9 times a tumble."""
     t = np.linspace(0, 2 * np.pi, n)
-    wob = np.deg2rad(wobble_deg) * np.column_stack(
-        [np.sin(t * f + rng.uniform(0, 6.3)) for f in rng.uniform(3.0, 9.0, size=3)])
-    path = Rotation.from_rotvec(wob).apply(path)
-    return path / np.linalg.norm(path, axis=1, keepdims=True)
+    return Rotation.from_rotvec(np.deg2rad(wobble_deg) * np.column_stack(
+        [np.sin(t * f + rng.uniform(0, 6.3)) for f in rng.uniform(3.0, 9.0, size=3)]))
+
+
+def hand_tour_attitudes(n: int, rng: np.random.Generator, wobble_deg: float = 6.0) -> Rotation:
+    """Body → NED of an operator's tumble as :func:`hand_tumble` makes it, for the field *and* gravity: the
+    unit turned face by face — its down direction through well-spread waypoints in a nearest-neighbour tour,
+    at a random heading at each — the turn between two waypoints the shortest, with a hand's wobble."""
+    downs = _tour(n, rng)
+    k = len(downs)
+    poses = []
+    for down in downs:  # body → NED taking the waypoint's body direction onto NED down, then a heading
+        tilt, _ = Rotation.align_vectors([[0.0, 0.0, 1.0]], [down])
+        poses.append(Rotation.from_euler("Z", rng.uniform(0.0, 360.0), degrees=True) * tilt)
+    seg, frac = _legs(n, k)
+    quats = np.empty((n, 4))
+    for j in range(k - 1):
+        at = seg == j
+        if at.any():
+            quats[at] = Slerp([0.0, 1.0], Rotation.concatenate([poses[j], poses[j + 1]]))(frac[at]).as_quat()
+    return Rotation.from_quat(quats) * _hand_wobble(n, rng, wobble_deg)
 
 
 def _fibonacci(k: int) -> NDArray:
@@ -82,12 +117,19 @@ def cap(fraction: float) -> Motion:
 
 def _ring(n: int, rng: np.random.Generator, field_dir: NDArray, axis: NDArray, wobble_deg: float,
           start: Rotation) -> NDArray:
+    return ring_attitudes(n, rng, axis, wobble_deg, start).inv().apply(field_dir)
+
+
+def ring_attitudes(n: int, rng: np.random.Generator, axis: NDArray, wobble_deg: float,
+                   start: Rotation | None = None) -> Rotation:
+    """Body → NED of a unit turned once about ``axis`` over ``n`` readings from a random heading, with a
+    hand's wobble (three sines of ``wobble_deg``, 2, 3 and 5 times a turn): what the field *and* gravity
+    see of a spin (the stall rule reads both)."""
     angles = np.linspace(0, 2 * np.pi, n, endpoint=False) + rng.uniform(0, 2 * np.pi)
     spin = Rotation.from_rotvec(np.outer(angles, axis))
     wob = np.deg2rad(wobble_deg) * np.column_stack(
         [np.sin(angles * k + rng.uniform(0, 6.3)) for k in (2.0, 3.0, 5.0)])
-    att = start * spin * Rotation.from_rotvec(wob)
-    return att.inv().apply(field_dir)
+    return (start or Rotation.identity()) * spin * Rotation.from_rotvec(wob)
 
 
 def two_rings(n: int, rng: np.random.Generator, field_dir: NDArray, wobble_deg: float = 8.0) -> NDArray:
@@ -114,6 +156,11 @@ def cradle_turns(n: int, rng: np.random.Generator, field_dir: NDArray, hold: flo
     and the cradle held still in its last attitude while the operator's hands are on it (``hold`` of
     each ring).  Why: rings about a centre that only their union determines are the readings whose
     live coverage and the coverage of a thinned attempt part ways."""
+    return cradle_attitudes(n, rng, hold).inv().apply(field_dir)
+
+
+def cradle_attitudes(n: int, rng: np.random.Generator, hold: float = 1 / 7) -> Rotation:
+    """Body → NED of :func:`cradle_turns`' units."""
     order = rng.permutation(len(CRADLE_TILTS))
     per = max(8, n // len(order))
     turning = int(per * (1.0 - hold))
@@ -123,10 +170,10 @@ def cradle_turns(n: int, rng: np.random.Generator, field_dir: NDArray, hold: flo
         cradle = Rotation.from_euler("YX", [pitch, roll], degrees=True)
         angles = np.linspace(0.0, 360.0, turning, endpoint=False)
         turned = np.concatenate([angles, np.full(per - turning, angles[-1])])[:, None]
-        att = Rotation.from_euler("Z", turned, degrees=True) * cradle
-        rows.append(att.inv().apply(field_dir))
-    out = np.vstack(rows)
-    return np.vstack([out, np.repeat(out[-1:], max(0, n - len(out)), axis=0)])[:n]
+        rows.append((Rotation.from_euler("Z", turned, degrees=True) * cradle).as_quat())
+    quats = np.vstack(rows)
+    quats = np.vstack([quats, np.repeat(quats[-1:], max(0, n - len(quats)), axis=0)])[:n]
+    return Rotation.from_quat(quats)
 
 
 MOTIONS: dict[str, Motion] = {
