@@ -56,7 +56,7 @@ def stalled_at(attitudes: Rotation, rng: np.random.Generator, about_vertical: bo
     for start in range(0, len(mags), CHUNK):
         n = min(start + CHUNK, len(mags))
         coverage = tracker.add(mags[start:n])
-        stall.see(mags[start:n], accel[start:n])
+        stall.see(mags[start:n], accel[start:n], n)
         if coverage >= TARGET:
             return None
         if stall.stalled(n, coverage):

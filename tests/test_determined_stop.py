@@ -424,7 +424,7 @@ def _fed_stall(attitudes, rng, *, accelerometer: bool = True, about_vertical: bo
     for start in range(0, len(mags), 10):
         n = min(start + 10, len(mags))
         coverage = tracker.add(mags[start:n])
-        stall.see(mags[start:n], accel[start:n] if accelerometer else None)
+        stall.see(mags[start:n], accel[start:n] if accelerometer else None, n)
         if coverage >= 0.6:
             return None, stall
         if stall.stalled(n, coverage):

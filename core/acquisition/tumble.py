@@ -106,9 +106,10 @@ def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
                     # back): ended there, a warm-up would be bent into the soft iron unseen
                     got.thin(cfg.coverage_bins)
                 if running is not None:
-                    stall.see(chunk.mag_ut, chunk.imu.accel_mss if chunk.imu is not None else None)
                     # on a turntable the readings while the operator tilts are not a stall: only the turns count
-                    if stall.stalled(seen if guiding is None else guiding.turning_seen, coverage):
+                    counted = seen if guiding is None else guiding.turning_seen
+                    stall.see(chunk.mag_ut, chunk.imu.accel_mss if chunk.imu is not None else None, counted)
+                    if stall.stalled(counted, coverage):
                         reason, stalled_because = "stalled", stall.why
                         if stall.about_vertical_only:
                             advice = run.station.prompts.spun_only

@@ -61,12 +61,11 @@ class Stall:
         self._gravity_new_at = 0  # readings when gravity last showed a new direction
         self._gravity_cells: set[int] = set()  # the cells of GRAVITY_CELLS gravity has been in
         self._tilted = False  # gravity has left the spin cap since the start: no longer a spin about the vertical
-        self._seen = 0
 
-    def see(self, mag_ut: np.ndarray, accel_mss: np.ndarray | None) -> None:
-        """A chunk's raw readings and the accelerometer's readings over the same time (None: not read)."""
+    def see(self, mag_ut: np.ndarray, accel_mss: np.ndarray | None, count: int) -> None:
+        """A chunk's raw readings and the accelerometer's readings over the same time (None: not read);
+        ``count``: the readings so far as :meth:`stalled` is given them (a turntable counts its turns' only)."""
         mag = np.atleast_2d(np.asarray(mag_ut, float))
-        self._seen += len(mag)
         if self.about_vertical and not self._tilted:
             self._mags.append(mag)
         if accel_mss is None or not len(accel_mss):
@@ -79,7 +78,7 @@ class Stall:
         cell = int(np.argmax(GRAVITY_CELLS @ g))
         if cell not in self._gravity_cells:
             self._gravity_cells.add(cell)
-            self._gravity_new_at = self._seen
+            self._gravity_new_at = count
         self._gravity.append(g)
         if not self._tilted and len(self._gravity) > 1:
             centre = _unit(np.sum(self._gravity, axis=0))
