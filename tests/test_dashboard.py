@@ -388,15 +388,15 @@ def test_a_chart_page_sends_its_head_with_plotly_first_and_says_when_it_cannot_b
 
     from fastapi import FastAPI
 
-    from magline.core.dashboard.app import PLOTLY_SRC, _chart_page
+    from magline.core.dashboard.app import PLOTLY_SRC, ChartPage, _chart_page
 
     built = threading.Event()
 
-    def page() -> str:
+    def page() -> ChartPage:
         assert built.wait(30), "the test never let the page be built"
-        return "<!DOCTYPE html><html><head><title>part P-1 &amp; more</title></head><body><h1>P-1</h1></body></html>"
+        return ChartPage("part P-1 & more </script>", "<h1>P-1</h1>")
 
-    def broken() -> str:
+    def broken() -> ChartPage:
         raise RuntimeError("the store went away")
 
     app = FastAPI()
@@ -412,7 +412,10 @@ def test_a_chart_page_sends_its_head_with_plotly_first_and_says_when_it_cannot_b
             assert f"<script src='{PLOTLY_SRC}'></script>".encode() in head and not built.is_set()
             built.set()
             rest = answer.read().decode()
-        assert rest.startswith('<body><script>document.title = "part P-1 & more";</script>') and "<h1>P-1</h1>" in rest
+        # the title as text, a closing tag in it kept from ending the script early
+        assert rest == ('<body><script>document.title = "part P-1 & more <\\/script>";</script>'
+                        "<h1>P-1</h1></body></html>")
+        assert "dashboard.css" not in rest  # a report-styled page: the dashboard's frame brings its own
         with urllib.request.urlopen(served.url + "broken", timeout=30) as answer:
             text = answer.read().decode()
         assert text.endswith("<body><p class=note>This page could not be built: the store went away</p></body></html>")

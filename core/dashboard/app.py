@@ -12,11 +12,11 @@ import asyncio
 import html
 import json
 import logging
-import re
 import tempfile
 import threading
 import time
 from collections.abc import AsyncIterator, Callable
+from dataclasses import dataclass
 from datetime import UTC, datetime
 from importlib.resources import files
 from pathlib import Path
@@ -109,7 +109,17 @@ def create_app(store: ReadOnlyStore, shifts: Shifts, token: str | None = None,
     return app
 
 
-def _chart_page(title: str, build: Callable[[], str]) -> StreamingResponse:
+@dataclass(frozen=True)
+class ChartPage:
+    """A chart page as :func:`_chart_page` sends it after its head: its title and its body's HTML.
+    ``framed``: the dashboard's own frame (a page with nothing to chart), which takes the dashboard's style."""
+
+    title: str
+    body: str
+    framed: bool = False
+
+
+def _chart_page(title: str, build: Callable[[], ChartPage]) -> StreamingResponse:
     """A page of charts, its head (with plotly.js) sent at once and the rest once ``build`` made it.  Why:
     the browser fetches and compiles plotly.js — a second on a first visit — while the server builds the
     figures (half a second), instead of after.  The page's own title follows in a line of script; a page
@@ -121,27 +131,24 @@ def _chart_page(title: str, build: Callable[[], str]) -> StreamingResponse:
 
         yield page_head(title, PLOTLY_SRC)
         try:
-            text = await asyncio.to_thread(build)
+            page = await asyncio.to_thread(build)
         except Exception as exc:  # the head is sent: the page says it, the log keeps the traceback
             log.exception("dashboard page %r", title)
             yield f"<body><p class=note>This page could not be built: {html.escape(str(exc))}</p></body></html>"
             return
-        head, _, body = text.partition("</head>")
-        named = re.search(r"<title>(.*?)</title>", head)
-        retitle = ("" if named is None else "<script>document.title = "
-                   + json.dumps(html.unescape(named.group(1))).replace("</", "<\\/") + ";</script>")
-        style = "" if "<style>" in head else "<link rel=stylesheet href='/static/dashboard.css'>"
-        yield body.replace("<body>", "<body>" + retitle + style, 1)
+        retitle = "<script>document.title = " + json.dumps(page.title).replace("</", "<\\/") + ";</script>"
+        style = "<link rel=stylesheet href='/static/dashboard.css'>" if page.framed else ""
+        yield f"<body>{retitle}{style}{page.body}</body></html>"
 
     return StreamingResponse(parts(), media_type="text/html; charset=utf-8")
 
 
-def _product_page(store: ReadOnlyStore, part: str) -> str:
+def _product_page(store: ReadOnlyStore, part: str) -> ChartPage:
     """:mod:`magline.core.dashboard.product` for ``part`` (the latest recorded part when none is given)."""
     from sqlalchemy import func, select
 
     from magline.core.dashboard.product import product_figures, product_sections
-    from magline.core.reports.page import write_page
+    from magline.core.reports.page import page_body
     from magline.core.results.tables import runs
 
     with store.engine.connect() as conn:
@@ -149,13 +156,12 @@ def _product_page(store: ReadOnlyStore, part: str) -> str:
                                             .order_by(func.max(runs.c.id).desc())).all()]
         part = part or (parts[0] if parts else "")
         if not part:
-            return _frame("magline — design and supply", "<h1>Design and supply</h1><p>No unit recorded yet.</p>")
+            return ChartPage("magline — design and supply",
+                             _frame_body("<h1>Design and supply</h1><p>No unit recorded yet.</p>"), framed=True)
         figures = product_figures(conn, part)
     choose = " ".join(f"<a href='/product?part={html.escape(p)}'>{html.escape(p)}</a>" for p in parts)
     nav = f"<nav class=process>parts: {choose} · <a href='/'>the line now</a></nav>"
-    with tempfile.TemporaryDirectory() as folder:
-        return write_page(Path(folder) / "product.html", f"magline — {part}", [nav, *product_sections(part, figures)],
-                          PLOTLY_SRC).read_text(encoding="utf-8")
+    return ChartPage(f"magline — {part}", page_body([nav, *product_sections(part, figures)]))
 
 
 FILTERS = (("station", "station"), ("line", "line"), ("operator", "operator"), ("compass", "compass (mag1, mag2 …)"),
@@ -182,11 +188,16 @@ def _compass_of(name: str) -> str:
 def _frame(title: str, body: str) -> str:
     return (f"<!DOCTYPE html><html lang=en><head><meta charset=utf-8><title>{html.escape(title)}</title>"
             "<link rel=icon href='data:,'><link rel=stylesheet href='/static/dashboard.css'></head><body>"
-            "<nav><a href='/'>the line now</a> · <a href='/process'>the process</a> · "
+            f"{_frame_body(body)}</body></html>")
+
+
+def _frame_body(body: str) -> str:
+    """The dashboard's navigation over ``body``: every page but a report's and a chart page's."""
+    return ("<nav><a href='/'>the line now</a> · <a href='/process'>the process</a> · "
             "<a href='/product'>design and supply</a> · "
             "<form action='/unit' method=get class=search><input name=serial placeholder='serial' "
             "aria-label=serial><button>find</button></form></nav>"
-            f"<main>{body}</main></body></html>")
+            f"<main>{body}</main>")
 
 
 def _unit_page(store: ReadOnlyStore, serial: str) -> str:
@@ -228,13 +239,14 @@ def _report_page(store: ReadOnlyStore, run: str) -> str | None:
         return write_unit_page(found, Path(folder) / "unit.html", PLOTLY_SRC).read_text(encoding="utf-8")
 
 
-def _process_page(store: ReadOnlyStore, query: dict[str, str], shifts: Shifts) -> str:
+def _process_page(store: ReadOnlyStore, query: dict[str, str], shifts: Shifts) -> ChartPage:
     """The control charts and capability ``magline spc`` computes for a part (its frozen limits where
     frozen), filtered as the address says; each point opens its unit's report."""
     from sqlalchemy import select
 
     from magline.core.quality.spc import build
-    from magline.core.reports.spc_page import write_spc_page
+    from magline.core.reports.page import page_body
+    from magline.core.reports.spc_page import spc_sections
     from magline.core.results.control_limits import newest
     from magline.core.results.instants import stored_form
     from magline.core.results.reading import RunFilter
@@ -249,7 +261,8 @@ def _process_page(store: ReadOnlyStore, query: dict[str, str], shifts: Shifts) -
         latest = conn.execute(select(runs.c.part).order_by(runs.c.id.desc()).limit(1)).scalar()
         part = query.get("part") or at_station or latest
         if part is None:
-            return _frame("magline — the process", "<h1>The process</h1><p>No unit recorded yet.</p>")
+            return ChartPage("magline — the process", _frame_body("<h1>The process</h1><p>No unit recorded yet.</p>"),
+                             framed=True)
         since = query.get("since") or None
         if query.get("shift") == "current":  # the running shift, as the line's tiles count it
             since = stored_form(shifts.start_of(datetime.now(UTC)))
@@ -260,8 +273,9 @@ def _process_page(store: ReadOnlyStore, query: dict[str, str], shifts: Shifts) -
         frozen = newest(conn, part, where.station_id)
     choose = "".join(f"<a href='/process?part={html.escape(p)}'>{html.escape(p)}</a> " for p in parts)
     if not len(series):
-        return _frame("magline — the process", f"<h1>The process</h1><p>parts: {choose}</p>"
-                      f"<p class=note>No runs of {html.escape(part)} match this filter.</p>")
+        return ChartPage("magline — the process", _frame_body(
+            f"<h1>The process</h1><p>parts: {choose}</p>"
+            f"<p class=note>No runs of {html.escape(part)} match this filter.</p>"), framed=True)
     compass = query.get("compass") or None  # mag1 (the primary), mag2 …: that compass's characteristics only
     names = None if compass is None else [n for n in series.values if _compass_of(n) == compass]
     title = f"part {part}" + (f", station {station}" if station else ", every station") + "".join(
@@ -269,12 +283,10 @@ def _process_page(store: ReadOnlyStore, query: dict[str, str], shifts: Shifts) -
                                                 ("compass", compass)) if value) + f", latest {len(series)} runs"
     report = build(series, title, names, 50, frozen=frozen, shifts=shifts)
     links = {int(r["id"]): f"/report/{r['id']}" for r in series.runs}
-    with tempfile.TemporaryDirectory() as folder:
-        text = write_spc_page(report, Path(folder) / "spc.html", links=links,
-                              plotly_src=PLOTLY_SRC).read_text(encoding="utf-8")
+    title, sections = spc_sections(report, links)
     signals = "".join(f"<li><a href='/report/{series.runs[m.chart.index[s.point]]['id']}'>"
                       f"{html.escape(str(series.runs[m.chart.index[s.point]]['serial']))}</a>: {html.escape(m.name)},"
                       f" rule {html.escape(s.rule)}</li>" for m in report.measurements for s in m.chart.signals)
     nav = (f"<nav class=process>parts: {choose} · <a href='/'>the line now</a></nav>" + _filters(query, part)
            + (f"<h2>Signals</h2><ul class=signals>{signals}</ul>" if signals else ""))
-    return text.replace("<body>", "<body>" + nav, 1)
+    return ChartPage(title, nav + page_body(sections))

@@ -133,13 +133,18 @@ def page_head(title: str, plotly_src: str | None = None) -> str:
             f"{script}</head>")
 
 
+def page_body(sections: Sequence[str]) -> str:
+    """What goes between ``<body>`` and ``</body>``: the sections' HTML in order, and the script that draws
+    their charts where there are any (a server sends it after :func:`page_head`)."""
+    doc_body = "".join(sections)
+    return doc_body + (DRAW_SCRIPT if "data-plot=" in doc_body else "")
+
+
 def write_page(path: Path, title: str, sections: Sequence[str], plotly_src: str | None = None) -> Path:
     """The page: head with the style and plotly.js, then the sections' HTML in order.  ``plotly_src``:
     plotly.js from that file beside the page (:func:`shared_plotly`) instead of inline."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    doc_body = "".join(sections)
-    doc = (f"{page_head(title, plotly_src)}<body>{doc_body}{DRAW_SCRIPT if 'data-plot=' in doc_body else ''}"
-           "</body></html>")
+    doc = f"{page_head(title, plotly_src)}<body>{page_body(sections)}</body></html>"
     tmp = path.with_name(path.name + ".part")
     tmp.write_text(doc, encoding="utf-8")
     tmp.replace(path)  # a half-written report is never left under the final name

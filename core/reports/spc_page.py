@@ -37,12 +37,19 @@ def _beside(folder: Path, page: Path) -> str:
 
 
 def write_spc_page(report: SpcReport, path: Path, reports: Path | None = None, *,
-                   links: dict[int, str] | None = None, plotly_src: str | None = None) -> Path:
+                   plotly_src: str | None = None) -> Path:
     """The page; ``reports``: the station's unit-report folder, whose files a click on a point opens
-    (``links``: run id → address instead, as the dashboard serves them; ``plotly_src``: as
-    :func:`~magline.core.reports.page.write_page`)."""
+    (``plotly_src``: as :func:`~magline.core.reports.page.write_page`)."""
+    title, sections = spc_sections(report, report_links(report, reports, path),
+                                   _beside(reports, path) if reports else None)
+    return write_page(path, title, sections, plotly_src)
+
+
+def spc_sections(report: SpcReport, links: dict[int, str], reports_from: str | None = None) -> tuple[str, list[str]]:
+    """The page's title and sections; ``links``: run id → the address a click on its point opens (a report
+    file beside the page, or the dashboard's own address); ``reports_from``: where those files are, in the
+    page's words."""
     serials = [r["serial"] for r in report.series.runs]
-    links = report_links(report, reports, path) if links is None else links
     sections = [f"<h1>Process control — {html.escape(report.title)}</h1>",
                 f"<p class=note>{len(serials)} runs"
                 + (f", {html.escape(report.series.runs[0]['started'])} → "
@@ -96,14 +103,14 @@ def write_spc_page(report: SpcReport, path: Path, reports: Path | None = None, *
                  table(("measurements that failed units", "count"), report.failed or [("none", 0)], numeric=(1,))]
     sections += _trend_sections(report)
     sections.append("<h2>Characteristics</h2><p class=note>each point is a unit (hover: its serial; click: its "
-                    "report" + (", from " + html.escape(_beside(reports, path)) if reports else "") + ")</p>")
+                    "report" + (", from " + html.escape(reports_from) if reports_from else "") + ")</p>")
     for m in report.measurements:
         sections += [f"<h3>{html.escape(m.name)}</h3>",
                      f"<div class=imr-chart>{figure_html(imr_figure(m, report.series.runs, links), f'chart-{m.name}')}"
                      "</div>",
                      figure_html(shape_figure(m), f"shape-{m.name}"), table(None, capability_rows(m))]
     sections.append(CLICK_SCRIPT)
-    return write_page(path, f"magline spc — {report.title}", sections, plotly_src)
+    return f"magline spc — {report.title}", sections
 
 
 def _trend_sections(report: SpcReport) -> list[str]:
