@@ -12,6 +12,7 @@ import html
 from collections.abc import Iterable, Sequence
 from functools import cache
 from pathlib import Path
+from typing import Any
 
 import plotly.graph_objects as go
 from plotly.offline import get_plotlyjs
@@ -37,14 +38,14 @@ def _plotly_js() -> str:
 PLOTLY_DEFAULT_HEIGHT = 450  # px: what plotly.js draws a figure without a layout height at
 
 
-def figure_html(fig: go.Figure, div_id: str) -> str:
+def figure_html(fig: go.Figure | dict[str, Any], div_id: str) -> str:
     """The figure's ``<div>``, sized as it will be drawn, and its data beside it as JSON; :data:`DRAW_SCRIPT`
     (added once by :func:`write_page`) draws it.  Why not plotly's own ``to_html``: its script draws each
     figure where the page is read, so a page of a dozen charts showed nothing until all were drawn
     (1.5 s of the process page); here the charts in view are drawn first, the page painted between two."""
     from plotly.io.json import to_json_plotly
 
-    figure = fig.to_plotly_json()
+    figure = fig if isinstance(fig, dict) else fig.to_plotly_json()  # a dict: the figure's JSON already
     height = figure.get("layout", {}).get("height") or PLOTLY_DEFAULT_HEIGHT
     spec = to_json_plotly({"data": figure.get("data", []), "layout": figure.get("layout", {}),
                            "config": {"displaylogo": False, "responsive": True}})
