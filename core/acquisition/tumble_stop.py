@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from magline.core.fit.coverage import fibonacci_sphere
 from magline.core.fit.running import PREDICTED, RunningFit, StopRule
 from magline.core.measurements import limit_for
 from magline.core.mounting.checks import calibrated, judge_mounting
@@ -81,8 +82,9 @@ class Stall:
             self._gravity_new_at = count
         self._gravity.append(g)
         if not self._tilted and len(self._gravity) > 1:
-            centre = _unit(np.sum(self._gravity, axis=0))
-            self._tilted = max(_angle_deg(h, centre) for h in self._gravity) > self.SPIN_CAP_DEG
+            seen = np.array(self._gravity)
+            centre = _unit(seen.sum(axis=0))
+            self._tilted = float(np.degrees(np.arccos(np.clip(seen @ centre, -1.0, 1.0))).max()) > self.SPIN_CAP_DEG
             if self._tilted:
                 self._mags = []
 
@@ -116,32 +118,20 @@ class Stall:
 def _widest_ut(points: np.ndarray) -> float:
     """The largest distance between two of ``points`` (through their convex spread: the extreme points along
     a few dozen directions, then every pair of those)."""
-    directions = _fibonacci_sphere(64)
+    directions = fibonacci_sphere(64)
     extreme = np.unique(np.concatenate([np.argmax(points @ directions.T, axis=0),
                                         np.argmin(points @ directions.T, axis=0)]))
     chosen = points[extreme]
     return float(np.max(np.linalg.norm(chosen[:, None, :] - chosen[None, :, :], axis=-1)))
 
 
-def _fibonacci_sphere(k: int) -> np.ndarray:
-    i = np.arange(k) + 0.5
-    z = 1.0 - 2.0 * i / k
-    r = np.sqrt(1.0 - z * z)
-    phi = np.pi * (1.0 + 5.0**0.5) * i
-    return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
-
-
 # Gravity's directions in 40 near-equal cells (about 32° across, as the field's coverage bins): a new cell is
 # a new attitude of the unit, the sign that a tumble is still going somewhere.
-GRAVITY_CELLS = _fibonacci_sphere(40)
+GRAVITY_CELLS = fibonacci_sphere(40)
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v)
-
-
-def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
-    return float(np.degrees(np.arccos(np.clip(a @ b, -1.0, 1.0))))
 
 
 def stop_rule(run: RunContext) -> StopRule:
