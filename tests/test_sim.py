@@ -646,5 +646,7 @@ def test_px4_stamps_highres_imu_with_the_imu_sample_in_microseconds(px4):
         stamps.append(msg.time_usec)
     assert np.all(np.diff(stamps) > 0)
     assert sum(t % 1000 != 0 for t in stamps) >= 35, stamps  # all but a chance few fall inside a millisecond
-    # and they are the board's time since boot, the message's instant
-    assert abs(stamps[-1] - px4.time_boot_us(time.monotonic())) < 500_000
+    # and they are the board's time since boot: none later than the board's clock when it was read (a time
+    # on another clock — the host's monotonic or epoch microseconds — is far beyond it); how far behind it
+    # the last one is depends on how late this process read the socket, not on the simulator
+    assert 0 < stamps[-1] <= px4.time_boot_us(time.monotonic())
