@@ -69,6 +69,48 @@ def test_a_store_that_cannot_be_written_is_a_clear_station_error(tmp_path):
         SqliteSink(blocker / "results.sqlite")
 
 
+def test_a_new_store_is_exactly_the_store_the_migrations_make(tmp_path):
+    """A new file is a copy of an empty store migrated once per process (core/results/new_sqlite.py): its
+    tables, indexes and their SQL are those of a file migrated step by step, at the same revision."""
+    from sqlalchemy import create_engine
+
+    def objects(path: Path) -> list:
+        with sqlite3.connect(path) as db:
+            found = db.execute("SELECT type, name, tbl_name, sql FROM sqlite_master ORDER BY type, name").fetchall()
+            return [found, db.execute("SELECT version_num FROM alembic_version").fetchall()]
+
+    migrated = tmp_path / "migrated.sqlite"
+    engine = create_engine(f"sqlite:///{migrated}")
+    schema_version.upgrade(engine, str(migrated))
+    engine.dispose()
+    SqliteSink(tmp_path / "first.sqlite").close()
+    SqliteSink(tmp_path / "second.sqlite").close()  # from the process's template
+    assert objects(tmp_path / "first.sqlite") == objects(migrated) == objects(tmp_path / "second.sqlite")
+    assert len(objects(migrated)[0]) > 20 and objects(migrated)[1] == [(schema_version.HEAD,)]
+
+
+def test_a_new_store_never_replaces_a_store_another_station_made_meanwhile(tmp_path, monkeypatch):
+    """Two stations sharing a store file start at once: the one whose copy comes second keeps the
+    other's store (and its unit), and leaves no staged copy behind."""
+    from magline.core.results import new_sqlite
+
+    path = tmp_path / "shared.sqlite"
+    real_link = new_sqlite.os.link
+
+    def other_station_first(source, target):
+        shutil.copy(source, target)  # the other station made the store and recorded a unit in it
+        with sqlite3.connect(target) as db:
+            db.execute("INSERT INTO runs (run_uuid, serial, part, verdict) VALUES ('u-1', 'THEIRS-1', 'P', 'pass')")
+        real_link(source, target)
+
+    monkeypatch.setattr(new_sqlite.os, "link", other_station_first)
+    assert new_sqlite.create_at_head(path) is False
+    with sqlite3.connect(path) as db:
+        assert db.execute("SELECT serial FROM runs").fetchall() == [("THEIRS-1",)]
+    assert sorted(p.name for p in tmp_path.iterdir() if not p.name.endswith(("-wal", "-shm"))) == ["shared.sqlite"]
+    assert new_sqlite.create_at_head(path) is False  # a store that exists is never made again
+
+
 # ------------------------------------------------------------------ both engines
 
 

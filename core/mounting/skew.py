@@ -23,6 +23,7 @@ sphere only the right rotation (up to scale) does.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -54,7 +55,7 @@ class GravityTrack:
     gyro_rads: NDArray | None  # the body's rate at the same stamps, where the stream has it
     gravity: float  # |g| as the accelerometer reads it (the median magnitude)
     period_ms: float  # the stream's median period
-    _spline: object = None
+    _spline: Any = None  # the accelerometer's smoothing spline (a scipy BSpline), made on first use
 
     @classmethod
     def of(cls, t_ms: NDArray, accel: NDArray, gyro_rads: NDArray | None = None) -> GravityTrack:
@@ -84,10 +85,9 @@ class GravityTrack:
         usable = (when >= t[0]) & (when <= t[-1])
         right = np.clip(np.searchsorted(t, when), 1, len(t) - 1)
         usable &= (t[right] - t[right - 1]) <= MAX_GAP_PERIODS * self.period_ms
-        if self._spline is None:
-            stiffness = SMOOTHING * self.period_ms**3
-            self._spline = [make_smoothing_spline(t, self.accel[:, k], lam=stiffness) for k in range(3)]
-        values = np.column_stack([spline(np.clip(when, t[0], t[-1])) for spline in self._spline])
+        if self._spline is None:  # the three axes share their stamps: one spline of three columns
+            self._spline = make_smoothing_spline(t, self.accel, lam=SMOOTHING * self.period_ms**3)
+        values = self._spline(np.clip(when, t[0], t[-1]))
         usable &= np.abs(np.linalg.norm(values, axis=1) - self.gravity) < STILL_TOLERANCE * self.gravity
         if self.gyro_rads is not None:
             rate = np.linalg.norm(self.gyro_rads, axis=1)

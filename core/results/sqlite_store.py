@@ -15,6 +15,7 @@ from typing import Any
 from sqlalchemy import create_engine, event
 
 from magline.core.faults import StationFault
+from magline.core.results.new_sqlite import create_at_head
 from magline.core.results.store import SqlStore
 
 BUSY_TIMEOUT_MS = 10_000
@@ -69,6 +70,10 @@ class SqliteSink(SqlStore):
                 f"results store {self.path} is damaged ({problem}): nothing was read or written — restore the "
                 "file from a backup (or run sqlite3's .recover into a new file), or point results.path at a new "
                 "file; a sql station's queued records are safe in its outbox (magline sync)")
+        try:
+            create_at_head(self.path)
+        except (OSError, sqlite3.Error) as exc:
+            raise StationFault(f"results store {path}: {exc}") from exc
         super().__init__(sqlite_engine(self.path), str(self.path))
 
 
