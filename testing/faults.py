@@ -29,8 +29,13 @@ class FaultCase:
 
     def missed(self, record) -> str | None:
         """What the record lacks that this fault must leave in it, or None."""
-        if self.waits_warm_up and not ((record.unit_info or {}).get("warm_up") or {}).get("waited_s"):
-            return f"the station did not wait for the warm-up ({(record.unit_info or {}).get('warm_up')})"
+        if self.waits_warm_up:
+            # the wait is what the unit's uptime left of ``warm_up_s`` when the station first asked: a
+            # station that reached the unit late (a loaded machine) rightly waits for nothing, and must not
+            warm = (record.unit_info or {}).get("warm_up") or {}
+            need, up, waited = self.acquisition.get("warm_up_s", 0.0), warm.get("uptime_s"), warm.get("waited_s")
+            if up is None or waited is None or (up < need - 0.01 and waited <= 0.0) or (up >= need and waited > 0.0):
+                return f"the station did not wait for the warm-up as its uptime asked ({warm}, {need:g} s needed)"
         drift = (record.calibration or {}).get("drift") or {}
         retried = any((a.refused or "").startswith("warm-up: ") for a in record.attempts)
         if self.drift_caught and not (retried or drift.get("modelled") or drift.get("warm_up_excluded")):

@@ -145,9 +145,30 @@ def test_a_warm_up_caught_is_measured_again_and_the_settled_sensor_calibrated(tm
     its offset agrees with the previous one's: the second is refused too (the drift caught again, or the
     offset it moved since the first) unless it settled within the station's limit — how much warm-up is
     left by then depends on how fast the machine reached the tumbles, so either is right here, and the
-    settle check's own test (tests/test_false_rejects.py) proves a moved offset is refused."""
+    settle check's own test (tests/test_false_rejects.py) proves a moved offset is refused.
+
+    The board is powered as its first tumble begins: the warm-up is then inside the tumble on any
+    machine (counted from the simulator's start, a loaded machine reached the tumble once it was over,
+    and the first attempt was rightly taken)."""
+    from magline.sim.thermal import BoardWarmth
+
+    class PoweredAtTheTumble:
+        @hookimpl
+        def magline_phase_started(self, run, phase):
+            if phase == "acquire":
+                with sim.lock:
+                    now = time.monotonic()
+                    sim.warmth = BoardWarmth(sim.warmth.tau_s, now)
+                    sim.warmth.powered(True, now)
+
     with ap_sim(tmp_path, SimFaults.parse(list(WARM_UP.faults)), mag_count=WARM_UP.mags) as sim:
-        record = run_unit(write_station("ardupilot-sim.yaml", tmp_path, sim.address, {**AP, **PASSING}), "SN-W")
+        station = write_station("ardupilot-sim.yaml", tmp_path, sim.address, {**AP, **PASSING})
+        seq = Sequencer(load_station(station), load_plugins(extra=[PoweredAtTheTumble()]), tmp_path,
+                        sleep=lambda s: None)
+        try:
+            record = seq.run_unit("SN-W")
+        finally:
+            seq.close()
     assert record.verdict is Outcome.PASS, record.cause
     first = record.attempts[0]
     assert not first.accepted and first.refused.startswith("warm-up: the offset drifted"), first.refused
