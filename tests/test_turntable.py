@@ -157,6 +157,21 @@ def test_a_tilt_never_made_stalls_the_round_naming_it_and_slots_turn_only_when_e
     assert stalled.state == "stalled" and "never tilted on its right side" in stalled.why
 
 
+
+def test_a_station_behind_its_streams_judges_the_tilt_timeout_on_the_units_clock():
+    """A loaded station reads each reading seconds after it was taken: the timeout counts the readings'
+    own time since the ask, so a cradle tilted in time is not called "never tilted" for readings taken
+    before the operator's hands reached it; once the units' clocks too pass the timeout, it stalls."""
+    clock, table = SteppedClock(100.0), FakeTable(tilts=[Tilt(0.0, 90.0)], tilt_timeout_s=5.0)
+    guide = TiltGuide(table, ["A"], 40, 62.0, clock=clock)
+    level = Tilt(0.0, 0.0).gravity_body()
+    guide.step("A", level, True, set(), np.eye(3), board_ms=1_000.0)  # the tilt is asked
+    clock.now += 6.0  # six seconds on the station's clock; the unit's readings are of two seconds later only
+    assert guide.step("A", level, True, set(), np.eye(3), board_ms=3_000.0).state == "tilt"
+    clock.now += 1.0
+    stalled = guide.step("A", level, True, set(), np.eye(3), board_ms=6_500.0)  # 5.5 s of the unit's readings
+    assert stalled.state == "stalled" and "never tilted on its right side" in stalled.why
+
 # ---------------------------------------------------------------------------------------------- whole units
 def test_the_tilts_a_station_names_are_asked_in_order_then_a_wrong_one_is_named_and_asked_again(tmp_path):
     named = [{"pitch_deg": 0.0, "roll_deg": 0.0, "say": "level on the cradle"},

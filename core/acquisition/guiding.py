@@ -75,8 +75,9 @@ class Guiding:
     def step(self, chunk: SampleChunk, taken: int, bins: np.ndarray) -> Guidance:
         self.gravity.add(chunk)
         gravity, steady = self.gravity.latest()
+        board_ms = float(chunk.t_ms[-1]) if len(chunk.t_ms) else None
         guidance = self.guide.step(self.run.slot or "", gravity, steady, set(int(b) for b in bins),
-                                   self.sensor_to_body)
+                                   self.sensor_to_body, board_ms)
         if guidance.state == "turning":
             self.turning_seen += taken
         if guidance.prompt:

@@ -56,6 +56,10 @@ class _Seen:
     sensor_to_body: NDArray = field(default_factory=lambda: np.eye(3))
     at_ask: NDArray | None = None  # the gravity when the tilt was asked: a cradle not moved since is not "wrong"
     stepped: float = 0.0  # when the slot last handed its readings over (a slot whose tumble ended stops)
+    board_ms: float | None = None  # the unit's clock at its latest reading
+    # the station's clock less the unit's at the reading that arrived soonest after it was taken (ms): how the
+    # two clocks stand, as an NTP client sets its offset by its fastest exchange
+    offset_ms: float = float("inf")
 
 
 class TiltGuide:
@@ -90,13 +94,17 @@ class TiltGuide:
 
     # ------------------------------------------------------------------ what a slot hands over
     def step(self, slot: str, gravity_mss: NDArray | None, steady: bool, covered: set[int],
-             sensor_to_body: NDArray) -> Guidance:
+             sensor_to_body: NDArray, board_ms: float | None = None) -> Guidance:
         """``gravity_mss``: the unit's latest specific force (None when its stream has none), ``steady``:
-        whether it held still over the last readings; ``covered``: its coverage bins so far."""
+        whether it held still over the last readings; ``covered``: its coverage bins so far; ``board_ms``:
+        the unit's own clock at its latest reading (None: the stream has none)."""
         now = self.clock()
         with self._lock:
             seen = self._seen.setdefault(slot, _Seen())
             seen.covered, seen.sensor_to_body, seen.stepped = set(covered), np.asarray(sensor_to_body, float), now
+            if board_ms is not None:
+                seen.board_ms = float(board_ms)
+                seen.offset_ms = min(seen.offset_ms, now * 1000.0 - seen.board_ms)
             if gravity_mss is not None:
                 seen.gravity, seen.at, seen.steady = np.asarray(gravity_mss, float), now, steady
             if self._tilt is None:  # the first tilt: the first slot says it at its first step, whoever asked
@@ -170,8 +178,17 @@ class TiltGuide:
                     self.motion.show(self._words(), self._tilt)
         else:
             self._wrong_since = None
-        if now - self._asked_at > self.tilt_timeout_s:
+        if now - self._asked_at > self.tilt_timeout_s and all(self._taken_since_ask_s(s) > self.tilt_timeout_s
+                                                               for s in fresh):
             self._stall(f"the cradle was never tilted {self._tilt.words} (asked {self.tilt_timeout_s:g} s ago)")
+
+    def _taken_since_ask_s(self, seen: _Seen) -> float:
+        """How long after the ask the unit's latest reading was taken, on its own clock (∞ without one).
+        Why not the station's clock alone: a station that fell behind its streams (a loaded machine) judged
+        readings taken seconds before, and called a cradle tilted in time "never tilted"."""
+        if seen.board_ms is None or not np.isfinite(seen.offset_ms):
+            return float("inf")
+        return (seen.board_ms - (self._asked_at * 1000.0 - seen.offset_ms)) / 1000.0
 
     def _stall(self, why: str) -> None:
         self._state, self._why = "stalled", why
