@@ -384,3 +384,36 @@ def test_a_calibration_the_firmware_does_not_apply_as_fitted_fails_the_proof(tmp
     assert record.verdict is Outcome.FAIL, fault
     assert [p.name for p in record.phases if p.outcome is Outcome.FAIL] == ["verify"]
     assert "is not magline's calibration of the same raw readings" in record.cause, record.cause
+
+
+def test_a_parameter_read_mavsdk_gave_up_on_is_asked_again_once_the_vehicle_is_heard():
+    """A host that fell behind its link for seconds (MAVSDK: "Heartbeats … timed out") had every resend's
+    answer arrive too late: the read is asked again once a heartbeat proves the vehicle is there, and a name
+    that stays unanswered (a firmware without it) is said after two requests, never called a lost link."""
+    from mavsdk.plugins.param.param import ParamError, ParamResult
+
+    from magline.core.dut import UnansweredRequest
+    from magline.plugins.px4.link import Px4Link
+
+    class Param:
+        def __init__(self, unanswered: int) -> None:
+            self.unanswered, self.asked = unanswered, 0
+
+        def get_param_int(self, name: str) -> int:
+            self.asked += 1
+            if self.asked <= self.unanswered:
+                raise ParamError(ParamResult.TIMEOUT, "get_param_int", name)
+            return 7
+
+    heard: list[str] = []
+    for unanswered, expect in [(1, 7), (5, None)]:
+        link = Px4Link("udpout://127.0.0.1:14550")
+        link.system, link.param = object(), Param(unanswered)
+        link.require_alive = heard.append  # the vehicle's heartbeat heard after each unanswered read
+        if expect is None:
+            with pytest.raises(UnansweredRequest, match="CAL_MAG0_ID could not be read: no answer to 2 requests"):
+                link.get("CAL_MAG0_ID", True)
+        else:
+            assert link.get("CAL_MAG0_ID", True) == expect
+        assert link.param.asked == min(unanswered + 1, 2)
+    assert heard == ["reading CAL_MAG0_ID"] * 3

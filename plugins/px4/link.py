@@ -47,6 +47,7 @@ GCS_SYSTEM, GCS_COMPONENT = 245, 190  # MAVSDK's ground-station identity
 RESULTS = {n: e.name.removeprefix("MAV_RESULT_") for n, e in mavlink.enums["MAV_RESULT"].items()}
 SHELL_PROMPTS = ("nsh> ", "pxh> ")  # NuttX boards; POSIX builds (which rarely answer over MAVLink)
 SILENCE_S = 2.5  # PX4 sends HEARTBEAT at 1 Hz: this long without one means the link is gone
+READ_ASKS = 2  # a parameter read MAVSDK gave up on is asked again once the vehicle is heard
 TEMPORARILY_REJECTED = 1  # MAV_RESULT: the commander's worker thread is busy
 WORKER_BUSY_S = 5.0  # how long a command for the worker thread is asked again while it is busy
 
@@ -190,17 +191,27 @@ class Px4Link:
 
     # ------------------------------------------------------------------ parameters
     def get(self, name: str, is_int: bool) -> int | float:
+        """The parameter's value.  A read MAVSDK gave up on (its own resends unanswered) is asked once more
+        once the vehicle is heard again, as the ArduPilot backend asks five times: a station whose host fell
+        behind its link for seconds (MAVSDK: "Heartbeats … timed out") had every resend's answer arrive too
+        late, and ERRORed a good unit on a name the firmware has."""
         if not self.is_open:
             raise LinkError(f"link to {self.url} is closed (reading {name})")
-        try:
-            return self.param.get_param_int(name) if is_int else self.param.get_param_float(name)
-        except ParamError as exc:
-            if exc.result.name == "TIMEOUT":  # PX4 1.13–1.16 drop an unknown name silently; so does a lossy link
+        asked = 0
+        while True:
+            asked += 1
+            try:
+                return self.param.get_param_int(name) if is_int else self.param.get_param_float(name)
+            except ParamError as exc:
+                if exc.result.name != "TIMEOUT":
+                    raise DutError(f"parameter {name} could not be read: {exc.result.name}") from exc
+                # PX4 1.13–1.16 drop an unknown name silently; so does a lossy link, or a host too late to listen
                 self.require_alive(f"reading {name}")
-                raise UnansweredRequest(f"parameter {name} could not be read: no answer while the vehicle otherwise "
-                                        "answers (a name this firmware does not know, or answers lost on the link): "
-                                        "the unit is not judged") from exc
-            raise DutError(f"parameter {name} could not be read: {exc.result.name}") from exc
+                if asked == READ_ASKS:
+                    raise UnansweredRequest(
+                        f"parameter {name} could not be read: no answer to {READ_ASKS} requests while the vehicle "
+                        "otherwise answers (a name this firmware does not know, or answers lost on the link): the "
+                        "unit is not judged") from exc
 
     def set(self, name: str, value: int | float, is_int: bool) -> int | float:
         """PARAM_SET with the exact type (INT32 byte-wise or REAL32); return the value read afterwards."""
