@@ -13,7 +13,6 @@ import os
 import re
 import sys
 from collections.abc import Callable, Iterator
-from importlib.resources import as_file, files
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -208,6 +207,8 @@ def _load(path: str | None, plugins: Plugins) -> tuple[Station, Path]:
     from magline.core.station import StationError, read_station_text, station_problems
 
     if path is None:  # the embedded demo keeps its files in the directory magline runs in
+        from importlib.resources import as_file, files
+
         with as_file(files("magline.stations") / DEMO) as demo:
             text, name, where = read_station_text(demo), str(demo), Path.cwd()
     else:

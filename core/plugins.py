@@ -15,7 +15,7 @@ from __future__ import annotations
 import logging
 import os
 from collections.abc import Callable
-from importlib.metadata import entry_points
+from importlib.metadata import Distribution, entry_points
 from types import ModuleType
 from typing import Any
 
@@ -44,7 +44,7 @@ class Plugins:
     """The loaded plugins and their registries (DUT backends, field sources, result sinks, power controls, motions,
     current sources)."""
 
-    def __init__(self, pm: pluggy.PluginManager, versions: dict[str, tuple[str, str]] | None = None) -> None:
+    def __init__(self, pm: pluggy.PluginManager, dists: dict[str, Distribution] | None = None) -> None:
         self.pm = pm
         self.hook = pm.hook
         self.dut_backends: dict[str, DutFactory] = {}
@@ -61,7 +61,8 @@ class Plugins:
         self.calibration_stores: dict[str, dict[str, str]] = {}
         # who registered each name: (kind, name) → plugin name (for ``magline plugins`` and errors)
         self.registered_by: dict[tuple[str, str], str] = {}
-        self.versions = versions or {}  # plugin name → (distribution, version)
+        self._dists = dists or {}  # plugin name → the distribution its entry point came from
+        self._versions: dict[str, tuple[str, str]] | None = None
         self._collect("dut backend", self.dut_backends, self.hook.magline_register_dut_backends)
         self._collect("field source", self.field_sources, self.hook.magline_register_field_sources)
         self._collect("result sink", self.result_sinks, self.hook.magline_register_result_sinks)
@@ -162,6 +163,19 @@ class Plugins:
         model = self.option_models.get((kind, name))
         return validated_options(model, raw, owner) if model is not None else raw
 
+    @property
+    def versions(self) -> dict[str, tuple[str, str]]:
+        """Plugin name → (distribution, version).  Read on first use: parsing each distribution's metadata
+        (and importing the e-mail parser it is written in) is a tenth of what ``magline --help`` took."""
+        if self._versions is None:
+            by_dist: dict[int, tuple[str, str]] = {}
+            for dist in self._dists.values():
+                if id(dist) not in by_dist:
+                    metadata = dist.metadata
+                    by_dist[id(dist)] = (metadata["Name"], metadata["Version"])
+            self._versions = {name: by_dist[id(dist)] for name, dist in self._dists.items()}
+        return self._versions
+
     def describe(self) -> list[dict[str, Any]]:
         """Loaded plugins with their distribution and version, the hooks each implements and the
         names each registered (for ``magline plugins``)."""
@@ -192,7 +206,7 @@ def load_plugins(extra: list[ModuleType | object] | None = None) -> Plugins:
     pm = pluggy.PluginManager("magline")
     pm.add_hookspecs(hookspecs)
     disabled = {n.strip() for n in os.environ.get(DISABLE_ENV, "").split(",") if n.strip()}
-    versions: dict[str, tuple[str, str]] = {}
+    dists: dict[str, Distribution] = {}
     for ep in entry_points(group=ENTRY_POINT_GROUP):
         if ep.name in disabled or pm.has_plugin(ep.name):
             continue
@@ -203,11 +217,11 @@ def load_plugins(extra: list[ModuleType | object] | None = None) -> Plugins:
         pm.register(plugin, name=ep.name)
         dist = getattr(ep, "dist", None)
         if dist is not None:
-            versions[ep.name] = (dist.metadata["Name"], dist.version)
+            dists[ep.name] = dist
     for plugin in extra or []:
         pm.register(plugin)
     try:
         pm.check_pending()
     except pluggy.PluginValidationError as exc:
         raise PluginError(f"unknown hook implementation: {exc}") from exc
-    return Plugins(pm, versions)
+    return Plugins(pm, dists)

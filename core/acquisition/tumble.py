@@ -1,4 +1,5 @@
-"""The default acquire phase (entry point ``tumble_acquisition``): read the unit's stream while it is
+"""The default acquire phase (entry point ``tumble_acquisition``, whose module :mod:`.hooks` imports this
+one on the first unit): read the unit's stream while it is
 turned (an operator's tumble, a gimbal, a coil's schedule through its own plugin), show the live
 coverage, and stop when the running fit says the calibration is determined (:mod:`.tumble_stop`) or
 the count is read.
@@ -27,7 +28,6 @@ from magline.core.fit.coverage import CHECK_EVERY, bin_index, covered_bins, sphe
 from magline.core.fit.samples_csv import RawSamples
 from magline.core.motion import TurnsForTilts
 from magline.core.mounting import ImuSeries
-from magline.core.plugins import hookimpl
 from magline.core.sequencer.context import Acquisition, AcquisitionAborted
 
 if TYPE_CHECKING:
@@ -40,8 +40,7 @@ CHECK_EVERY_FRACTION, CHECK_EVERY_MIN = 0.025, 3
 AHEAD_S = 0.5  # a stream this far ahead of the wall clock runs in simulated time: the fit is awaited
 
 
-@hookimpl(trylast=True)
-def magline_acquire(run: RunContext, attempt: int) -> Acquisition:
+def acquire(run: RunContext, attempt: int) -> Acquisition:
     """Read distinct readings until the calibration is determined (``acquisition.stop: determined``:
     coverage and the running fit's predicted σ inside the station's limits with a margin, see
     :mod:`magline.core.fit.running`) or ``acquisition.samples`` arrived.  The count is of readings,

@@ -22,7 +22,7 @@ from magline.core.record import now_iso
 class ReferenceOptions(BaseModel):
     """``field_source.options.reference`` in a station file."""
 
-    model_config = ConfigDict(extra="forbid", strict=True)
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
     resource: str  # e.g. TCPIP0::10.0.0.7::5025::SOCKET
     channels: str = "(@101,102,103)"  # the fluxgate's X, Y, Z outputs on the DAQ
     scale_ut_per_v: Annotated[float, Field(gt=0)] = 10.0  # ±10 V = ±100 µT is common

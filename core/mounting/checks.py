@@ -1,6 +1,7 @@
 """The unit-level checks of the validate phase: every magnetometer's mounting against the unit's own
 accelerometer, and every pair of magnetometers against each other (hook ``magline_validate_unit``,
-registered like any plugin through the ``mounting`` entry point).
+registered like any plugin through the ``mounting`` entry point, whose module :mod:`.hooks` imports
+this one on the first unit).
 
 What is judged, per sensor (names prefixed ``mag2.`` … for sensors after the primary):
 - ``orientation``: the firmware orientation value the sensor is really mounted in; another value than
@@ -45,7 +46,6 @@ from magline.core.mounting.orientations import (
     orientation_name,
     rotation_angle_deg,
 )
-from magline.core.plugins import hookimpl
 
 if TYPE_CHECKING:
     from magline.core.dut import Magnetometer
@@ -111,8 +111,8 @@ def judge_mounting(sensor: Magnetometer, estimate: MountingEstimate) -> JudgedMo
     return JudgedMounting(found=found, expected=expected, right=right, error_deg=error_deg, mounted=mounted)
 
 
-@hookimpl
-def magline_validate_unit(run: RunContext, fits: dict[int, FitResult]) -> list[Measurement]:
+def validate_unit(run: RunContext, fits: dict[int, FitResult]) -> list[Measurement]:
+    """Every magnetometer's mounting and every pair's heading agreement (``magline_validate_unit``)."""
     setting = run.product.orientation
     if setting == "skip":
         run.record.unit_info["mounting"] = "not proven: the product says orientation: skip"

@@ -59,7 +59,7 @@ SHIELDED_PHASES = ("persist",)  # a half-written calibration is worse than a few
 RETEST = "re-test the unit"
 # What a unit's tumble computes with (the running fit, the mounting's estimate): imported when the station
 # starts (:func:`~magline.core.lazy.warm_imports`), since a command imports only what it uses
-TUMBLE_MODULES = ("magline.core.fit.geometric", "magline.core.mounting.estimate", "magline.core.mounting.checks",
+TUMBLE_MODULES = ("magline.core.acquisition.tumble", "magline.core.fit.geometric", "magline.core.mounting.checks",
                   "scipy.optimize", "scipy.spatial.transform", "scipy.interpolate")
 
 

@@ -16,7 +16,7 @@ import yaml
 from pydantic import BaseModel, ValidationError
 
 from magline.core.plugins import Plugins
-from magline.core.station.loader import StationError, dotted, line_of, load_station_text
+from magline.core.station.loader import StationError, dotted, line_of, load_station_text, safe_data
 
 if TYPE_CHECKING:
     from magline.core.station.schema import Station
@@ -35,7 +35,7 @@ def station_problems(text: str, name: str, plugins: Plugins) -> tuple[Station | 
     except StationError as exc:
         station, problems = None, list(exc.problems)
     try:
-        data = yaml.safe_load(text)
+        data = safe_data(text)
     except yaml.YAMLError:
         return station, problems  # a syntax error was reported by the loader; nothing else to read
     if isinstance(data, dict):

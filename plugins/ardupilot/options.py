@@ -8,7 +8,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 
 class ArduPilotOptions(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True)
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
     connect_timeout_s: Annotated[float, Field(gt=0)] = 10.0
     boot_timeout_s: Annotated[float, Field(gt=0)] = 30.0  # reboot → heartbeat of the new boot
     # a write: 3 tries of this; a read: 5, waiting 1×, 2×, 4×, 4×, 4× this

@@ -27,7 +27,7 @@ if TYPE_CHECKING:
 
 
 class LoadCommands(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True)
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
     setup: list[str] = Field(default_factory=list)  # sent once per unit before the input goes on
     set_current: str = "CURR {amps:.3f}"
     input_on: str = "INP ON"
@@ -45,7 +45,7 @@ class SupplyCommands(LoadCommands):
 
 
 class ElectronicLoadOptions(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True)
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
     resource: str  # e.g. TCPIP0::192.168.10.30::5025::SOCKET
     max_current_a: Annotated[float, Field(gt=0, le=1000)] = 60.0  # the load's rating: never asked for more
     timeout_s: Annotated[float, Field(gt=0)] = 2.0

@@ -33,7 +33,7 @@ PROPS_QUESTION = "Are the propellers off? The unit's motors will spin for the cu
 
 
 class MotorTestOptions(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True)
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
     # exits 0 only when the fixture says the propellers are off; none: the operator confirms, every unit
     interlock_command: str | None = None
     confirm_timeout_s: Annotated[float, Field(gt=0)] = 60.0

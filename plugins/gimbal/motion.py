@@ -24,7 +24,7 @@ if TYPE_CHECKING:
 
 
 class GimbalOptions(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True)
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
     resource: str  # e.g. TCPIP0::10.0.0.12::5030::SOCKET
     pattern: Literal["tumble", "gimbal"] = "tumble"
     speed: Annotated[float, Field(gt=0, le=10)] = 1.0

@@ -10,7 +10,7 @@ from magline.plugin import ReferenceOptions
 
 
 class HelmholtzOptions(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True)
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
     # Either one three-channel controller (``resource``) or three bipolar single-channel sources,
     # one per axis x, y, z (``resources``), e.g. TCPIP0::10.0.0.9::5025::SOCKET
     resource: str | None = None

@@ -8,7 +8,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 
 class InavOptions(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True)
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
     connect_timeout_s: Annotated[float, Field(gt=0)] = 10.0  # the board answers MSP within this
     boot_timeout_s: Annotated[float, Field(gt=0)] = 20.0  # MSP_REBOOT → the new boot answers (SITL: 3–7 s)
     reply_timeout_s: Annotated[float, Field(gt=0)] = 1.0  # one MSP request's reply; none: the link is lost

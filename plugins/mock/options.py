@@ -10,7 +10,7 @@ from pydantic import BaseModel, ConfigDict, Field
 class MockFaults(BaseModel):
     """Faults a test can switch on to prove the station catches them."""
 
-    model_config = ConfigDict(extra="forbid", strict=True)
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
     skip_commit: bool = False  # commit() returns without writing storage: lost on power cycle
     refuse_writes: list[str] = Field(default_factory=list)  # params whose write is silently ignored
     sensor_missing_after_reboot: bool = False
@@ -18,7 +18,7 @@ class MockFaults(BaseModel):
 
 
 class MockOptions(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True)
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
     hard_iron_ut: Annotated[list[float], Field(min_length=3, max_length=3)] = [35.0, -22.0, 61.0]
     soft_iron: Annotated[list[list[float]], Field(min_length=3, max_length=3)] = [
         [1.06, 0.03, -0.02], [0.03, 0.95, 0.015], [-0.02, 0.015, 1.0]]

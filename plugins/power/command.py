@@ -18,7 +18,7 @@ if TYPE_CHECKING:
 
 
 class CommandOptions(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True)
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
     off: Annotated[list[str], Field(min_length=1)]
     on: Annotated[list[str], Field(min_length=1)]
     off_time_s: Annotated[float, Field(ge=0)] = 1.0

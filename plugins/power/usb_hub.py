@@ -26,7 +26,7 @@ if TYPE_CHECKING:
 
 
 class UsbHubOptions(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True)
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
     location: Annotated[str, Field(min_length=1)]  # the hub, as uhubctl names it: "1-1", "2-1.4"
     port: Annotated[int, Field(ge=1)]  # the hub's port the slot's cable is in
     uhubctl: str | Annotated[list[str], Field(min_length=1)] = "uhubctl"  # the program (argv prefix as a list)

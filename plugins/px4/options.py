@@ -8,7 +8,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 
 class Px4Options(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True)
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
     connect_timeout_s: Annotated[float, Field(gt=0)] = 10.0
     boot_timeout_s: Annotated[float, Field(gt=0)] = 30.0  # reboot → heartbeat of the new boot
     stream_timeout_s: Annotated[float, Field(gt=0)] = 2.0  # no sample for this long = link lost

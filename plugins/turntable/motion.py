@@ -34,14 +34,14 @@ class TiltStep(BaseModel):
     """One tilt the station file names: the cradle's pitch (nose up +) and roll (right side down +), and
     the words the operator reads (made from the angles when left out)."""
 
-    model_config = ConfigDict(extra="forbid", strict=True)
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
     pitch_deg: Annotated[float, Field(ge=-90, le=90)] = 0.0
     roll_deg: Annotated[float, Field(ge=-180, le=180)] = 0.0
     say: str = ""
 
 
 class TurntableOptions(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True)
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
     resource: str  # e.g. TCPIP0::10.0.0.14::5050::SOCKET or ASRL/dev/ttyUSB0::INSTR
     speed_dps: Annotated[float, Field(gt=0, le=720)] = 60.0  # the table's speed during a revolution
     direction: Literal["cw", "ccw"] = "cw"
