@@ -13,7 +13,7 @@ import urllib.request
 
 import numpy as np
 import pytest
-from browser import Served, free_port, open_page, screenshot
+from browser import EVENT_WAIT_MS, Served, free_port, open_page, screenshot
 from simstation import FAST_SENSOR_HZ, write_station
 
 from magline.core.dashboard.app import create_app
@@ -213,6 +213,9 @@ def test_a_product_page_shows_each_compass_s_distribution_and_the_firmware_its_u
                            "document.getElementById('hist-mounting_error_deg').data")
     traces = page.evaluate("document.getElementById('hist-mounting_error_deg').data.map(t => t.name)")
     assert traces == ["mag1 (40)", "mag2 (40)"]
+    # each compass's 40 values, as plotly.js decoded them from the page (packed as typed arrays)
+    decoded = page.evaluate("document.getElementById('hist-mounting_error_deg')._fullData.map(t => t.x.length)")
+    assert decoded == [40, 40]
     rows = page.eval_on_selector_all("table tbody tr", "rows => rows.map(r => r.innerText.split('\\t').slice(0, 2))")
     assert rows == [["1.15.0", "30"], ["1.16.0", "10"]]
     assert "not measured on this product" in page.inner_text("body")  # no interference sweep on this part
@@ -246,7 +249,7 @@ def test_on_postgresql_a_recorded_unit_wakes_the_page_by_notification(dashboard,
         page = open_page(browser, served.url).page
         page.wait_for_selector(".tile[data-station='st-pg'] .units:has-text('1 unit today')")
         record("PG-2")
-        page.wait_for_selector(".tile[data-station='st-pg'] .units:has-text('2 units today')", timeout=15_000)
+        page.wait_for_selector(".tile[data-station='st-pg'] .units:has-text('2 units today')")
         store = open_read_only(url)
         try:
             with store.engine.connect() as conn, pytest.raises((InternalError, ProgrammingError)):
@@ -265,6 +268,8 @@ def test_many_open_pages_do_not_starve_the_dashboard(dashboard, browser, tmp_pat
     contexts = [browser.new_context() for _ in range(12)]  # twelve viewers (a browser holds 6 connections a host)
     try:
         pages = [context.new_page() for context in contexts]
+        for page in pages:
+            page.set_default_timeout(EVENT_WAIT_MS)
         for page in pages:
             page.goto(served.url)
             page.wait_for_selector(".tile .units:has-text('1 unit today')")

@@ -60,6 +60,6 @@ def test_the_example_plugin_from_a_clean_venv_passes_its_own_tests(tmp_path):
     where = run(python, "-c", "import magline.core, magline.testing, acme_magline; print(magline.core.__file__)")
     assert "site-packages" in where and str(REPO) not in where  # the installed wheel, not this checkout
     out = run(python, "-m", "pytest", "-q", "-p", "no:cacheprovider", tmp_path / "acme" / "tests", cwd=tmp_path)
-    assert "10 passed" in out
+    assert "11 passed" in out
     plugins = run(venv / "bin" / "magline", "plugins")
     assert '"acme"' in plugins and '"acme-magline"' in plugins  # registered, and by which distribution

@@ -6,7 +6,7 @@ from __future__ import annotations
 import io
 
 import pytest
-from browser import colour_pixels, drawn_points, open_page, plots_with_data, screenshot
+from browser import colour_pixels, drawn_points, new_page, open_page, plots_with_data, screenshot
 from rich.console import Console
 from simstation import attempt_rows
 
@@ -126,7 +126,7 @@ def test_the_batch_report_draws_every_chart_offline(make_station, tmp_path, brow
 
     # the page is painted between two charts (it once showed nothing until its last chart was drawn): a
     # frame comes between every two, and the first drawn is in view
-    watched = browser.new_page(viewport={"width": 1300, "height": 900})
+    watched = new_page(browser)
     watched.add_init_script("""window.__seen = [];
         document.addEventListener('plotted', (e) => window.__seen.push(e.target.id));
         requestAnimationFrame(function tick() { window.__seen.push('frame'); requestAnimationFrame(tick); });""")
@@ -142,7 +142,7 @@ def test_the_batch_report_draws_every_chart_offline(make_station, tmp_path, brow
     in_order = watched.eval_on_selector_all(".plotly-graph-div", "els => els.map((e) => e.id)")
     assert drawn_in_turn[:len(in_view)] == in_view if in_view else drawn_in_turn == in_order
     watched.close()
-    linked = browser.new_page(viewport={"width": 1300, "height": 900})
+    linked = new_page(browser)
     linked.add_init_script("""window.__seen = [];
         document.addEventListener('plotted', (e) => window.__seen.push(e.target.id));""")
     linked.goto(page.as_uri() + "#chart-residual_max_ut")  # a link to a chart far down: it is drawn first

@@ -129,3 +129,34 @@ def test_check_names_a_wrong_feed_setting_with_its_line(board, magline_station):
     assert [(p.key, p.message) for p in problems] == [
         ("plugins.acme-feed.part", "unknown key (did you mean 'parts'?)")]
     assert problems[0].line > 1
+
+
+def test_a_stream_asked_again_at_once_sends_each_sample_once_in_order(board):
+    """STOP and STREAM in one breath (a station's second attempt): the board's stamps still increase, one
+    stream at a time, and nothing streams after ``OK STOP``."""
+    import itertools
+    import socket
+    import time
+
+    time.sleep(max(0.0, board.up_at - time.monotonic()))  # a booting board hangs up on whoever calls
+    host, port = board.connection.removeprefix("tcp:").rsplit(":", 1)
+    with socket.create_connection((host, int(port)), timeout=10) as client, \
+            client.makefile("rw", encoding="ascii", newline="\n") as wire:
+        stamps: list[int] = []
+        for _ in range(5):
+            wire.write("STREAM 100\n")
+            wire.flush()
+            for _ in range(20):
+                line = wire.readline().split()
+                if line and line[0] == "M":
+                    stamps.append(int(line[1]))
+            wire.write("STOP\n")
+            wire.flush()
+            while (line := wire.readline().split()) and line[0] == "M":
+                stamps.append(int(line[1]))
+            assert line == ["OK", "STOP"]
+        wire.write("ID?\n")
+        wire.flush()
+        assert wire.readline().split()[0] == "ID"  # not a sample: the stream ended with its STOP
+    repeated = [(a, b) for a, b in itertools.pairwise(stamps) if b <= a]
+    assert stamps and not repeated, repeated

@@ -83,7 +83,10 @@ class AcmeSim:
         return self.gravity_mg[index % len(self.gravity_mg)]
 
     def _session(self, client: socket.socket) -> None:
-        streaming = threading.Event()
+        # the one stream this session sends, if any: a STREAM or STOP ends the one before it before it answers,
+        # so two streams never interleave their stamps (a streamer woken late once sent on beside the next)
+        streamer: list[tuple[threading.Thread, threading.Event]] = []
+        last_sent = [-1]  # the last sample sent: a stream asked again starts after it, never with it again
         with client, client.makefile("rw", encoding="ascii", newline="\n") as wire:
             send_lock = threading.Lock()
 
@@ -92,19 +95,26 @@ class AcmeSim:
                     wire.write(line + "\n")
                     wire.flush()
 
-            def stream(hz: float) -> None:
+            def stop_streaming() -> None:
+                while streamer:
+                    thread, stop = streamer.pop()
+                    stop.set()
+                    thread.join()
+
+            def stream(hz: float, stop: threading.Event) -> None:
                 # each of the sensor's samples once, stamped with its own time: a simulator starved of the CPU
                 # sends the samples it owes in order when it wakes (as a board's UART buffer does), never the
                 # same instant twice
                 step = max(1, round(SENSOR_HZ / min(hz, SENSOR_HZ)))
-                index = int((time.monotonic() - self.booted_at) * SENSOR_HZ)
-                while streaming.is_set() and not self._stop.is_set():
+                index = max(int((time.monotonic() - self.booted_at) * SENSOR_HZ), last_sent[0] + 1)
+                while not stop.is_set() and not self._stop.is_set():
                     while index <= (time.monotonic() - self.booted_at) * SENSOR_HZ:
                         x, y, z = self._reading_mg(index)
                         ax, ay, az = self._gravity_mg(index)
                         send(f"M {index * 1000 // int(SENSOR_HZ)} {x:.1f} {y:.1f} {z:.1f} {ax:.1f} {ay:.1f} {az:.1f}")
+                        last_sent[0] = index
                         index += step
-                    time.sleep(max(0.0, self.booted_at + index / SENSOR_HZ - time.monotonic()))
+                    stop.wait(max(0.0, self.booted_at + index / SENSOR_HZ - time.monotonic()))
 
             for line in wire:
                 parts = line.split()
@@ -115,10 +125,13 @@ class AcmeSim:
                     if head == "ID?":
                         send("ID ACME-MAG 1.2.0 0x4A21")
                     elif head == "STREAM":
-                        streaming.set()
-                        threading.Thread(target=stream, args=(float(args[0]),), daemon=True).start()
+                        stop_streaming()
+                        stop = threading.Event()
+                        thread = threading.Thread(target=stream, args=(float(args[0]), stop), daemon=True)
+                        streamer.append((thread, stop))
+                        thread.start()
                     elif head == "STOP":
-                        streaming.clear()
+                        stop_streaming()
                         send("OK STOP")
                     elif head == "GET":
                         known = args[0] in self.ram
@@ -147,7 +160,7 @@ class AcmeSim:
                         send(f"TEMP {self.board_temp_c:.1f}")
                     elif head == "REBOOT":
                         send("OK REBOOT")
-                        streaming.clear()
+                        stop_streaming()
                         with self.lock:
                             self._boot()
                         return
@@ -155,6 +168,7 @@ class AcmeSim:
                         send(f"ERR unknown command {head}")
                 except (IndexError, ValueError):
                     send(f"ERR bad arguments for {head}")
+            stop_streaming()  # the station hung up: nothing streams to a closed socket
 
 
 def main() -> None:
