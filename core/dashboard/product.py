@@ -51,9 +51,7 @@ def product_figures(conn: Connection, part: str) -> dict[str, Any]:
 
 def product_sections(part: str, figures: dict[str, Any]) -> list[str]:
     """The page's sections: a histogram per measurement (a trace per compass), then the firmware table."""
-    import plotly.graph_objects as go
-
-    from magline.core.reports.page import figure_html, table
+    from magline.core.reports.page import figure_html, plain_layout, table, typed_array
 
     sections = [f"<h1>Design and supply — {html.escape(part)}</h1><p class=note>each compass's distribution over "
                 f"the latest {LATEST:,} judged units at most</p>"]
@@ -63,10 +61,11 @@ def product_sections(part: str, figures: dict[str, Any]) -> list[str]:
         if not per_compass:
             sections.append(f"<h2>{html.escape(name)}</h2><p class=note>not measured on this product</p>")
             continue
-        fig = go.Figure([go.Histogram(x=v, name=f"{c} ({len(v)})", opacity=0.6)
-                         for c, v in sorted(per_compass.items())])
-        fig.update_layout(barmode="overlay", height=280, margin={"l": 50, "r": 20, "t": 30, "b": 40},
-                          title=f"{name}: {meaning}", xaxis_title=CATALOGUE.get(name, ("",))[0])
+        layout = {**plain_layout(), "barmode": "overlay", "height": 280, "title": {"text": f"{name}: {meaning}"},
+                  "margin": {"l": 50, "r": 20, "t": 30, "b": 40},
+                  "xaxis": {"title": {"text": CATALOGUE.get(name, ("",))[0]}}}
+        fig = {"data": [{"type": "histogram", "x": typed_array(v), "name": f"{c} ({len(v)})", "opacity": 0.6}
+                        for c, v in sorted(per_compass.items())], "layout": layout}
         sections.append(f"<h2>{html.escape(name)}</h2>"
                         f"<div class=product-figure>{figure_html(fig, f'hist-{name}')}</div>")
     sections.append("<h2>Firmware versions</h2>" + table(("firmware", "units", "first seen", "last seen"),

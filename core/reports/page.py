@@ -8,6 +8,7 @@ mailed or copied to a share, and it must open anywhere with nothing next to it. 
 
 from __future__ import annotations
 
+import base64
 import html
 from collections.abc import Iterable, Sequence
 from functools import cache
@@ -36,6 +37,23 @@ def _plotly_js() -> str:
 
 
 PLOTLY_DEFAULT_HEIGHT = 450  # px: what plotly.js draws a figure without a layout height at
+
+
+def typed_array(values: Any) -> dict[str, str]:
+    """Numbers as plotly.js's typed-array spec (little-endian float64, base64), as plotly's own figure
+    objects send them: 12 characters a number where decimal text takes up to 24, and the browser decodes
+    them without parsing each."""
+    import numpy as np
+
+    packed = np.ascontiguousarray(values, dtype="<f8")
+    return {"dtype": "f8", "bdata": base64.b64encode(packed.tobytes()).decode("ascii")}
+
+
+@cache
+def plain_layout() -> dict[str, Any]:
+    """A figure's layout as plotly's objects start it (its default template: the look of every chart), for
+    figures built as plain JSON."""
+    return go.Figure().to_plotly_json()["layout"]
 
 
 def figure_html(fig: go.Figure | dict[str, Any], div_id: str) -> str:
