@@ -26,7 +26,7 @@ MSS_PER_MG = 9.80665 / 1000.0
 class AcmeOptions(BaseModel):
     """``products.<part>.options`` of an ACME part, checked by ``magline check``."""
 
-    model_config = ConfigDict(extra="forbid", strict=True)
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
     connect_timeout_s: Annotated[float, Field(gt=0)] = 3.0
     boot_timeout_s: Annotated[float, Field(gt=0)] = 10.0
     reply_timeout_s: Annotated[float, Field(gt=0)] = 2.0

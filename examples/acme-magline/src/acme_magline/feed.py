@@ -24,7 +24,7 @@ SECTION = "acme-feed"
 
 
 class FeedOptions(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True)
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
     path: str
     parts: list[str] | None = None
 
