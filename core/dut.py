@@ -413,11 +413,15 @@ class CalibratedBesideRaw:
     """The firmware's calibrated readings (µT, body axes, rows) each beside the raw reading of every
     calibrated sensor it may have been made from (``raw_ut``: device id → rows, µT, the sensor's own
     axes), with the rotation the firmware turns each sensor's calibrated reading into the body by
-    (``to_body``: device id → 3×3, as it holds it now: board or sensor rotation, level adjustment)."""
+    (``to_body``: device id → 3×3, as it holds it now: board or sensor rotation, level adjustment).
+    ``less_estimated_bias``: the calibrated readings are the calibration's output less the firmware's own
+    online estimate of the compass's bias (PX4's HIGHRES_IMU less EKF2's), which learns, from the boot on,
+    the field's difference to the firmware's model of it."""
 
     calibrated_ut: NDArray
     raw_ut: dict[int, NDArray]
     to_body: dict[int, NDArray]
+    less_estimated_bias: bool = False
 
 
 @runtime_checkable

@@ -314,10 +314,14 @@ def check_dut_backend(open_dut: Callable[[], Any], field_ut: float, *, samples: 
             made = fit.apply(both.raw_ut[sensor]) @ np.asarray(both.to_body[sensor], float).T
             apart = float(np.linalg.norm(np.mean(np.atleast_2d(both.calibrated_ut) - made, axis=0)))
             figures["applied_difference_ut"] = apart
-            assert apart < 0.5, (
+            # an output less the firmware's own bias estimate (PX4's HIGHRES_IMU) may be off the calibration by what
+            # the estimate learnt: the field's difference to the firmware's model, within the field tolerance
+            allowed = 0.5 + (tolerance_pct / 100.0 * field_ut if both.less_estimated_bias else 0.0)
+            assert apart < allowed, (
                 f"the calibrated readings are {apart:.2f} µT from the fit applied to the raw readings returned "
-                "beside them and turned by to_body: each raw row must be the reading its calibrated row was made "
-                "from, both in µT, and to_body the rotation the firmware applies after its calibration")
+                f"beside them and turned by to_body (allowed {allowed:.2f} µT): each raw row must be the reading its "
+                "calibrated row was made from, both in µT, and to_body the rotation the firmware applies after its "
+                "calibration")
 
         dut.restore()
         cycle(dut)

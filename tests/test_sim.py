@@ -126,6 +126,19 @@ def test_mag_streams_follow_set_message_interval(tmp_path, flavour, kind, msg_id
         assert gcs.command(ML.MAV_CMD_SET_MESSAGE_INTERVAL, 9999, 10_000).result == ML.MAV_RESULT_FAILED
 
 
+def test_px4_streams_the_extended_sys_state_mavsdk_asks_for_at_every_connection(tmp_path):
+    """PX4 has an EXTENDED_SYS_STATE stream (streams/EXTENDED_SYS_STATE.hpp) and accepts MAVSDK's request for
+    it.  The simulator refused it, and MAVSDK, which matches an acknowledgement by its command alone, once
+    handed that FAILED to the station's own stream request waiting at the same moment ("SCALED_IMU stream
+    request refused by the autopilot: FAILED", a turntable test on a loaded machine)."""
+    with create_sim("px4", "udp:127.0.0.1:0", workdir=tmp_path, seed=5, boot_time_s=0.3) as sim:
+        gcs = Gcs(sim.address)
+        asked = gcs.command(ML.MAV_CMD_SET_MESSAGE_INTERVAL, ML.MAVLINK_MSG_ID_EXTENDED_SYS_STATE, 100_000)
+        assert asked.result == ML.MAV_RESULT_ACCEPTED
+        state = gcs.recv("EXTENDED_SYS_STATE", timeout=2.0)
+        assert state is not None and state.landed_state == ML.MAV_LANDED_STATE_ON_GROUND
+
+
 def reboot_and_wait(gcs: Gcs, sim) -> None:
     """Command a reboot over MAVLink, close the link (ArduPilot drops it), and wait for the new boot."""
     boots = sim.boots

@@ -533,7 +533,7 @@ class Px4Dut:
                 self.link.unsubscribe(handle)
         raws = {d: untruncate_mg(np.array([raw[d] for raw, _ in pairs], float)) / MG_PER_UT for d in instances}
         return CalibratedBesideRaw(calibrated_ut=np.array([c for _, c in pairs], float) * UT_PER_GAUSS, raw_ut=raws,
-                                   to_body=self.body_rotations(list(instances)))
+                                   to_body=self.body_rotations(list(instances)), less_estimated_bias=True)
 
     def body_rotations(self, device_ids: list[int]) -> dict[int, np.ndarray]:
         """The rotation PX4 applies after each sensor's calibration, read from the parameters it holds
