@@ -127,6 +127,14 @@ def _judge(truth: Px4Truth, record: dict, kept: dict[str, float], cycle_s: float
     elements = (np.array([kept[p + k] for k in matrix]), np.array([truth.expected[k] for k in matrix]))
     checks += calibration_checks(record, int(kept[f"{p}ID"]) or None, offsets, elements,
                                  (f"{p}X/Y/ZOFF", f"{p}SCALE/ODIAG"))
+    # the station's proof that the firmware applies the calibration (HIGHRES_IMU beside the raw readings) ran
+    # and held: HIGHRES_IMU is the output less EKF2's bias estimate, which the proof must allow for
+    proof = ((record.get("persistence") or {}).get("figures") or {})
+    difference, tolerance = proof.get("applied_difference_ut"), proof.get("applied_tolerance_ut")
+    checks.append(Check("firmware applies it (HIGHRES_IMU)",
+                        "not run" if difference is None else f"{difference:.2f} µT apart", "proven, within "
+                        + ("its tolerance" if tolerance is None else f"{tolerance:.2f} µT"),
+                        difference is not None and tolerance is not None and difference <= tolerance))
     return [*checks, *station_figures(record, cycle_s)]
 
 

@@ -259,6 +259,19 @@ def test_without_a_shell_posix_preset_slot_ids_identify_a_single_magnetometer(tm
         assert f"the only CAL_MAGn_ID ({device})" in record.unit_info["identified_by"]
 
 
+def test_without_a_shell_a_slot_preset_for_no_sensor_leaves_the_proof_of_the_one_that_streams(tmp_path):
+    """PX4 SITL's startup presets CAL_MAG0_ID and CAL_MAG1_ID whatever sensors it has, and one streams:
+    HIGHRES_IMU can carry no other, so the station proves the calibration the firmware applies (it skipped
+    the proof, taking the second slot's id for a second sensor — the SITL tier never ran it)."""
+    with start_sim(tmp_path, shell=False, preset_ids=True, stored={"CAL_MAG1_ID": 197644}) as sim:
+        device = sim.magnetometers[0].device_id
+        record = run_unit(station(tmp_path, sim, {"shell_timeout_s": 0.5}, {"magnetometer": device}))
+    assert record.verdict is Outcome.PASS, record.cause
+    assert record.unit_info["sensors"] == [device, 197644]
+    figures = record.persistence["figures"]
+    assert figures["applied_difference_ut"] <= figures["applied_tolerance_ut"]
+
+
 def test_without_a_shell_two_magnetometers_and_no_ids_is_a_named_error_not_a_guess(tmp_path):
     with start_sim(tmp_path, mags=2, shell=False) as sim:
         record = run_unit(station(tmp_path, sim, {"shell_timeout_s": 0.5}), "SN-AMB")

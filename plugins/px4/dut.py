@@ -496,8 +496,14 @@ class Px4Dut:
         *applies* (issue 50).  HIGHRES_IMU carries the
         sensor PX4's voter selected, which MAVLink does not name, so the station finds which one it is.
         None where HIGHRES_IMU may carry a sensor this run did not calibrate (the unit has more than it
-        calibrates, or several stream and no shell names them) or the firmware does not send it."""
-        if set(self.ident.sensors) - set(self.chosen) or (not self.shell_answers and self._streaming_count > 1):
+        calibrates, or several stream and no shell names them) or the firmware does not send it.  Without the
+        shell, a slot's id beside the one stream that carries data is no second sensor: a POSIX build's
+        startup presets CAL_MAG0_ID and CAL_MAG1_ID whatever it has (PX4 SITL: one sensor streams)."""
+        if self.shell_answers:
+            others = bool(set(self.ident.sensors) - set(self.chosen))
+        else:
+            others = self._streaming_count > 1 or self._streaming_count > len(self.chosen)
+        if others:
             return None
         instances = {device_id: self.sensors[device_id]["instance"] for device_id in self.chosen}
         if any(i >= len(STREAMS) for i in instances.values()):
