@@ -19,6 +19,7 @@ from magline.core.dut import ReadsCalibratedField, ReadsCalibratedFields, ReadsR
 from magline.core.fit.samples_csv import RawSamples
 from magline.core.record import AttemptRecord, Outcome, RunRecord
 from magline.core.results.contract import HistoryAttempt, HistoryRun, ResultSink
+from magline.core.verify.calibrated_output import estimated_bias_allowance_ut
 from magline.testing.builders import make_record
 
 # The DUT capabilities :func:`check_dut_backend` requires although the core does without them (the
@@ -314,9 +315,8 @@ def check_dut_backend(open_dut: Callable[[], Any], field_ut: float, *, samples: 
             made = fit.apply(both.raw_ut[sensor]) @ np.asarray(both.to_body[sensor], float).T
             apart = float(np.linalg.norm(np.mean(np.atleast_2d(both.calibrated_ut) - made, axis=0)))
             figures["applied_difference_ut"] = apart
-            # an output less the firmware's own bias estimate (PX4's HIGHRES_IMU) may be off the calibration by what
-            # the estimate learnt: the field's difference to the firmware's model, within the field tolerance
-            allowed = 0.5 + (tolerance_pct / 100.0 * field_ut if both.less_estimated_bias else 0.0)
+            # an output less the firmware's own bias estimate (PX4's HIGHRES_IMU): the station's own allowance
+            allowed = 0.5 + estimated_bias_allowance_ut(both, tolerance_pct, field_ut)
             assert apart < allowed, (
                 f"the calibrated readings are {apart:.2f} µT from the fit applied to the raw readings returned "
                 f"beside them and turned by to_body (allowed {allowed:.2f} µT): each raw row must be the reading its "

@@ -80,7 +80,7 @@ def applied(fit: FitResult, raw_ut: np.ndarray, to_body: np.ndarray, firmware_ut
                    float(np.median(np.linalg.norm(expected, axis=1))))
 
 
-def estimated_bias_allowance_ut(run: RunContext, read: CalibratedBesideRaw) -> float:
+def estimated_bias_allowance_ut(read: CalibratedBesideRaw, field_tolerance_pct: float, reference_ut: float) -> float:
     """What the firmware's online bias estimate may have taken from its calibrated output by the time it is
     read (0 where the output is not less an estimate).  PX4's HIGHRES_IMU is the calibration's output less
     EKF2's magnetometer bias, which learns from the boot on the field's difference to the firmware's model of
@@ -88,9 +88,7 @@ def estimated_bias_allowance_ut(run: RunContext, read: CalibratedBesideRaw) -> f
     the model's.  A station accepts the field it calibrates in within its ``field_tolerance_pct`` of the
     reference, so an estimate up to that is a good unit's; a calibration applied with a wrong sign, unit or
     slot moves the output by the unit's offset or its field, tens of µT."""
-    if not read.less_estimated_bias:
-        return 0.0
-    return run.station.verify.field_tolerance_pct / 100.0 * float(run.reference_field_ut or 0.0)
+    return field_tolerance_pct / 100.0 * reference_ut if read.less_estimated_bias else 0.0
 
 
 def calibrated_output_problems(run: RunContext, dut: object, figures: dict) -> list[str]:
@@ -113,7 +111,8 @@ def _paired_proof(run: RunContext, read: CalibratedBesideRaw, figures: dict) -> 
     several = len(run.magnetometers) > 1
     raws = read.raw_ut
     magnitudes = np.linalg.norm(np.atleast_2d(read.calibrated_ut), axis=1)
-    allowance = estimated_bias_allowance_ut(run, read)
+    allowance = estimated_bias_allowance_ut(read, run.station.verify.field_tolerance_pct,
+                                            float(run.reference_field_ut or 0.0))
     found = {d: applied(run.fits[d], raw, read.to_body[d], read.calibrated_ut, allowance) for d, raw in raws.items()
              if d in run.fits}
     if not found:

@@ -499,10 +499,7 @@ class Px4Dut:
         calibrates, or several stream and no shell names them) or the firmware does not send it.  Without the
         shell, a slot's id beside the one stream that carries data is no second sensor: a POSIX build's
         startup presets CAL_MAG0_ID and CAL_MAG1_ID whatever it has (PX4 SITL: one sensor streams)."""
-        if self.shell_answers:
-            others = bool(set(self.ident.sensors) - set(self.chosen))
-        else:
-            others = self._streaming_count > 1 or self._streaming_count > len(self.chosen)
+        others = set(self.ident.sensors) - set(self.chosen) if self.shell_answers else self._streaming_count > 1
         if others:
             return None
         instances = {device_id: self.sensors[device_id]["instance"] for device_id in self.chosen}
