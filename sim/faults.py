@@ -29,7 +29,8 @@ class SimFaults:
     no_persist: list[str] = field(default_factory=list)  # names whose value never reaches storage
     reboot_fails: bool = False  # after a reboot the board never comes back
     # while the unit rests after a power cycle every compass reads the same value each time (a quiet sensor
-    # whose steps are coarser than its noise, or a SITL whose compass has no noise): no new distinct reading
+    # whose steps are coarser than its noise, or a SITL whose compass has no noise): no new distinct reading;
+    # held still for a current sweep, a compass reads without noise: a new value only when the current changes
     quiet_at_rest: bool = False
     # the reboot command's ACK is lost on the way (the board reboots all the same)
     lose_reboot_ack: bool = field(default=False, metadata={"boards": MAVLINK})

@@ -8,7 +8,7 @@ what the sensor really is.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -83,9 +83,11 @@ class SimMagnetometer:
     def read_ut(self, b_body_ut: NDArray, rng: np.random.Generator) -> NDArray:
         return self.read_samples_ut(np.atleast_2d(b_body_ut), rng)[0]
 
-    def read_samples_ut(self, b_body_rows_ut: NDArray, rng: np.random.Generator) -> NDArray:
-        """One raw sample for each body-frame field (rows): what a driver reads, one sample after another."""
-        return self.truth.read(np.atleast_2d(self.rotation.inv().apply(b_body_rows_ut)), rng)
+    def read_samples_ut(self, b_body_rows_ut: NDArray, rng: np.random.Generator, noiseless: bool = False) -> NDArray:
+        """One raw sample for each body-frame field (rows): what a driver reads, one sample after another
+        (``noiseless``: without the sensor's noise, as a simulator's compass may be)."""
+        truth = replace(self.truth, noise_ut=0.0) if noiseless else self.truth
+        return truth.read(np.atleast_2d(self.rotation.inv().apply(b_body_rows_ut)), rng)
 
 
 def default_magnetometers(count: int, rng: np.random.Generator) -> list[SimMagnetometer]:

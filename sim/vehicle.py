@@ -677,7 +677,10 @@ class SimulatedAutopilot(ABC):
             if len(self._seen_dirs) < 20000:
                 self._seen_dirs.append(field / np.linalg.norm(field))
             self._read_since_supply = True
-            samples = sensor.read_samples_ut(fields, self.rng)
+            # fault quiet_at_rest, held for a current sweep: no noise (ArduCopter's SITL compass), so the reading
+            # changes only with the current's field and is the same in every message in between
+            quiet_held = self.faults.quiet_at_rest and self._still is not None
+            samples = sensor.read_samples_ut(fields, self.rng, noiseless=quiet_held)
             reading = (samples.mean(axis=0) + self.warmup_offset_ut(now)
                        + self.WARMUP_DIRECTION * self.faults.mag_offset_after_cut * self.supply_cuts)
             if self.faults.quiet_at_rest and self.resting is not None:  # the first reading at rest, ever after

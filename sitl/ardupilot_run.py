@@ -15,6 +15,12 @@ power cut) and started again on the same storage (``eeprom.bin``), and every com
 read back and held to the truth.  The SITL runs in a private network namespace: it listens on every
 interface.
 
+A third unit is calibrated and swept for its current interference in one run: the calibration model draws
+no current, so SITL runs its FlightAxis back end, fed by :mod:`magline.sitl.ardupilot_flightaxis` (the same
+kind of tumble, and the battery current of a simulated electronic load that the station drives as on a line).
+``SIM_MAG_MOT`` (mG per amp, body frame, before each compass's own distortion) is the truth: a right
+compensation writes ``COMPASS_MOTCT = 2`` and ``COMPASS_MOTn = −SIM_MAG_MOT`` for every compass.
+
     python -m magline.sitl.ardupilot_run --source PATH/TO/ardupilot [--workdir DIR] [--seed 1] [--json OUT]
 
 ``--source`` is the tree ArduCopter's SITL was built in (``./waf configure --board sitl``, ``./waf
@@ -36,6 +42,8 @@ from pathlib import Path
 import numpy as np
 from pymavlink import mavutil
 
+from magline.sim.load import LoadSim
+from magline.sitl.ardupilot_flightaxis import FlightAxisPeer, Tumble
 from magline.sitl.checks import (
     Check,
     calibration_checks,
@@ -66,6 +74,8 @@ class ApTruth:
     turned: dict[int, int] = field(default_factory=dict)  # compass index (0-based) → SIM_MAGn_ORIENT
     field_ut: float = 0.0
     inclination_deg: float = 0.0
+    mag_mot_mg_per_a: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])  # SIM_MAG_MOT
+    noise_mg: float = 0.0  # SIM_MAG_RND: each axis of each sample uniform within ±this (SITL's compass has none)
 
     @classmethod
     def drawn(cls, seed: int, **changes) -> ApTruth:
@@ -83,7 +93,19 @@ class ApTruth:
                 params[f"SIM_MAG{n + 1}_DIA_{axis}"] = self.diagonals[n][a]
                 params[f"SIM_MAG{n + 1}_ODI_{axis}"] = self.off_diagonals[n][a]
             params[f"SIM_MAG{n + 1}_ORIENT"] = float(self.turned.get(n, 0))
+        for a, axis in enumerate("XYZ"):
+            params[f"SIM_MAG_MOT_{axis}"] = self.mag_mot_mg_per_a[a]
+        params["SIM_MAG_RND"] = self.noise_mg
         return params
+
+    def expected_compensation(self) -> dict[str, float]:
+        """The COMPASS_MOT* a right current compensation writes: minus the field per amp, every compass."""
+        out = {"COMPASS_MOTCT": 2.0}
+        for n in range(COMPASSES):
+            suffix = "" if n == 0 else str(n + 1)
+            for a, axis in enumerate("XYZ"):
+                out[f"COMPASS_MOT{suffix}_{axis}"] = -self.mag_mot_mg_per_a[a]
+        return out
 
     def expected(self) -> dict[str, float]:
         """The COMPASS_* a right calibration writes."""
@@ -115,13 +137,13 @@ class ApSitl:
     """ArduCopter's SITL process on a working directory (its ``eeprom.bin``), started and killed as a
     power supply would; the runner stays its parent (SITL exits when its parent does)."""
 
-    def __init__(self, binary: Path, workdir: Path) -> None:
-        self.binary, self.workdir, self.proc = binary, workdir, None
+    def __init__(self, binary: Path, workdir: Path, model: str = "calibration") -> None:
+        self.binary, self.workdir, self.model, self.proc = binary, workdir, model, None
         self.log = open(workdir / "sitl.log", "ab")  # noqa: SIM115 — kept open across power cycles
 
     def start(self) -> None:
         home = ",".join(f"{v:g}" for v in HOME)
-        self.proc = subprocess.Popen([str(self.binary), "--model", "calibration", "--home", home, "-I0"],
+        self.proc = subprocess.Popen([str(self.binary), "--model", self.model, "--home", home, "-I0"],
                                      cwd=self.workdir, stdout=self.log, stderr=subprocess.STDOUT,
                                      stdin=subprocess.DEVNULL)
 
@@ -203,6 +225,69 @@ def one_unit(source: Path, workdir: Path, seed: int, turned: dict[int, int]) -> 
     return record, _judge(truth, record, kept, cycle_s)
 
 
+PER_AMP_GOAL_MG, PER_AMP_GOAL_SHARE = 0.5, 0.03  # the tier's goal for a written compensation: 0.5 mG/A + 3 %
+SWEPT_NOISE_MG = 3.0  # SIM_MAG_RND of the swept unit: σ 1.7 mG (0.17 µT) per axis, a common compass's
+
+
+def swept_unit(source: Path, workdir: Path, seed: int) -> tuple[dict, list[Check]]:
+    """A good unit whose compasses follow the battery current: calibrated, swept, compensated and proven by
+    the station in one run on SITL's FlightAxis back end, the current drawn by a simulated electronic load."""
+    workdir.mkdir(parents=True, exist_ok=True)
+    for stale in ("eeprom.bin", "results.sqlite"):
+        (workdir / stale).unlink(missing_ok=True)
+    field_ut, inclination = table_field(source, HOME[0], HOME[1])
+    per_amp = np.random.default_rng(seed + 1000).uniform(-1.5, 1.5, 3).round(2).tolist()  # ≤ 22 % at 40 A
+    # a compass's noise, as a real one has: SITL's noiseless compass sends one value in every message while the
+    # unit is held for the sweep, and the station (which drops a stream's repeats) has no readings to sweep with
+    truth = ApTruth.drawn(seed, field_ut=field_ut, inclination_deg=inclination, mag_mot_mg_per_a=per_amp,
+                          noise_mg=SWEPT_NOISE_MG)
+    (workdir / "truth.json").write_text(json.dumps(
+        {**asdict(truth), "expected": truth.expected(), "expected_compensation": truth.expected_compensation()},
+        indent=2) + "\n")
+    load = LoadSim("tcp:127.0.0.1:0").start()
+    peer = FlightAxisPeer(Tumble(), load.sinking_current, lambda: load.input_on).start()
+    sitl = ApSitl(source / "build" / "sitl" / "bin" / "arducopter", workdir, model="flightaxis")
+    try:
+        sitl.start()
+        link = _link()
+        _set(link, truth.sim_params())
+        link.close()
+        station = write_station("interference-sim.yaml", workdir, truth.field_ut, truth.inclination_deg,
+                                {"connection": SERIAL0},
+                                {"current_source": {"type": "electronic-load",
+                                                    "options": {"resource": load.visa_resource,
+                                                                "max_current_a": 60.0}}})
+        record, cycle_s = run_station(station, f"SITL-AP-MOT-{seed}", workdir)
+        sitl.cut()
+        sitl.start()
+        link = _link()
+        ids = [f"COMPASS_DEV_ID{'' if n == 0 else n + 1}" for n in range(COMPASSES)]
+        kept = read_params(link, [*truth.expected(), *truth.expected_compensation(), *ids])
+        link.close()
+    finally:
+        sitl.cut()
+        sitl.log.close()
+        peer.stop()
+        load.stop()
+    return record, [*_judge(truth, record, kept, cycle_s), *_compensation_checks(truth, kept)]
+
+
+def _compensation_checks(truth: ApTruth, kept: dict[str, float]) -> list[Check]:
+    """The current compensation kept after the power cut, against minus ``SIM_MAG_MOT``."""
+    expected = truth.expected_compensation()
+    checks = [Check("COMPASS_MOTCT after a power cut", f"{kept['COMPASS_MOTCT']:g}", "2 (current)",
+                    kept["COMPASS_MOTCT"] == expected["COMPASS_MOTCT"])]
+    for n in range(COMPASSES):
+        suffix = "" if n == 0 else str(n + 1)
+        names = [f"COMPASS_MOT{suffix}_{a}" for a in "XYZ"]
+        want = np.array([expected[k] for k in names])
+        error = float(np.linalg.norm(np.array([kept[k] for k in names]) - want))
+        allowed = PER_AMP_GOAL_MG + PER_AMP_GOAL_SHARE * float(np.linalg.norm(want))
+        checks.append(Check(f"COMPASS_MOT{suffix} after a power cut", f"|Δ| {error:.3f} mG/A",
+                            f"≤ {allowed:.3f} mG/A (0.5 + 3 %)", error <= allowed))
+    return checks
+
+
 def _judge(truth: ApTruth, record: dict, kept: dict[str, float], cycle_s: float) -> list[Check]:
     verdict, cause = record.get("verdict"), record.get("cause") or ""
     if truth.turned:
@@ -243,7 +328,8 @@ def main(argv: list[str] | None = None) -> int:
     source = args.source.resolve()
     return summarise(f"ArduCopter SITL {args.source}", workdir,
                      {"good": lambda folder: one_unit(source, folder, args.seed, {}),
-                      "turned": lambda folder: one_unit(source, folder, args.seed, {1: ORIENT_YAW90})}, args.json)
+                      "turned": lambda folder: one_unit(source, folder, args.seed, {1: ORIENT_YAW90}),
+                      "swept": lambda folder: swept_unit(source, folder, args.seed)}, args.json)
 
 
 if __name__ == "__main__":

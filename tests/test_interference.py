@@ -32,7 +32,7 @@ SWEEP = {"steps": 2, "settle_s": 0.1, "readings": 10}
 
 @contextlib.contextmanager
 def board_on_a_load(tmp_path, flavour: str, faults: str = "", load_fault: str | None = None, mode: str = "compensate",
-                    limits: dict | None = None):
+                    limits: dict | None = None, sweep: dict | None = None):
     """A two-compass board with a load in its power path, and the station that sweeps it."""
     (tmp_path / "fc").mkdir()
     listen = "udp:127.0.0.1:0" if flavour == "px4" else "tcp:127.0.0.1:0"
@@ -47,7 +47,7 @@ def board_on_a_load(tmp_path, flavour: str, faults: str = "", load_fault: str | 
         station = write_station(example, tmp_path, address, PX4_OPTIONS if flavour == "px4" else AP_OPTIONS, {
             "products": {part: {"interference": mode, "current_max_a": CURRENT_MAX_A}},
             "current_source": {"type": "electronic-load", "options": {"resource": load.visa_resource}},
-            "interference": SWEEP, **({"limits": limits} if limits else {})})
+            "interference": {**SWEEP, **(sweep or {})}, **({"limits": limits} if limits else {})})
         yield sim, load, station
 
 
@@ -224,6 +224,19 @@ def test_a_sweep_that_cannot_be_judged_is_an_error_and_nothing_is_written(tmp_pa
     assert record.params_written == {}
     assert stored.get("COMPASS_MOTCT" if flavour == "ardupilot" else "CAL_MAG_COMP_TYP", 0) == 0
     assert not load.input_on  # the load is switched off after an error too
+
+
+def test_a_compass_that_repeats_one_value_while_still_ends_the_sweep_at_its_timeout_naming_it(tmp_path):
+    """ArduCopter's SITL compass has no noise: held still for the sweep it sends the same value in every
+    message, a new one only when the current changes, and the station (which drops a stream's repeats)
+    waited for ever on the step's readings while the messages kept coming.  The sweep's timeout now ends it:
+    the station's ERROR, the compass named, nothing written, the load off."""
+    with board_on_a_load(tmp_path, "ardupilot", "quiet_at_rest", sweep={"timeout_s": 4.0}) as (_sim, load, station):
+        record = run_unit(station, "INT-QUIET")
+    assert record.verdict is Outcome.ERROR, record.cause
+    assert "outlasted its timeout at the 0% step" in record.cause
+    assert "sent the same value in every message while the unit was still" in record.cause
+    assert record.params_written == {} and not load.input_on
 
 
 @pytest.mark.parametrize(("flavour", "names", "said"), [

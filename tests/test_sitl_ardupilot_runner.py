@@ -57,3 +57,25 @@ def test_the_field_is_read_from_the_firmware_s_table_at_a_grid_point(tmp_path):
     field_ut, inclination = table_field(tmp_path, 50.0, 10.0)  # row 14, column 19
     assert field_ut == pytest.approx((0.4 + 14 * 0.001 + 19 * 1e-5) * 100.0)
     assert inclination == pytest.approx(60.0 + 14 * 0.001 + 19 * 1e-5)
+
+
+@pytest.mark.parametrize("compass", range(COMPASSES))
+def test_the_compensation_the_truth_expects_cancels_the_simulated_current_s_field(compass):
+    """SITL adds ``SIM_MAG_MOT · I`` to the body field before each compass's distortion; ArduPilot adds
+    ``COMPASS_MOTn · I`` after its calibration (``correct_field``): with the expected COMPASS_MOTn and the
+    expected calibration the firmware's field is the field without the current, at any current."""
+    truth = ApTruth.drawn(7, mag_mot_mg_per_a=[1.2, -0.7, 0.4])
+    sim, want = truth.sim_params(), {**truth.expected(), **truth.expected_compensation()}
+    n, suffix = compass + 1, "" if compass == 0 else str(compass + 1)
+    m_sim = ardupilot_matrix([sim[f"SIM_MAG{n}_DIA_{a}"] for a in "XYZ"], [sim[f"SIM_MAG{n}_ODI_{a}"] for a in "XYZ"])
+    ofs_sim = np.array([sim[f"SIM_MAG{n}_OFS_{a}"] for a in "XYZ"])
+    mot_sim = np.array([sim[f"SIM_MAG_MOT_{a}"] for a in "XYZ"])
+    m = ardupilot_matrix([want[f"COMPASS_DIA{suffix}_{a}"] for a in "XYZ"],
+                         [want[f"COMPASS_ODI{suffix}_{a}"] for a in "XYZ"])
+    ofs = np.array([want[f"COMPASS_OFS{suffix}_{a}"] for a in "XYZ"])
+    mot = np.array([want[f"COMPASS_MOT{suffix}_{a}"] for a in "XYZ"])
+    field = np.array([180.0, -40.0, 420.0])  # mG
+    for amps in (0.0, 20.0, 40.0):
+        raw = np.linalg.solve(m_sim, field + mot_sim * amps) - ofs_sim
+        assert m @ (raw + ofs) + mot * amps == pytest.approx(field)
+    assert want["COMPASS_MOTCT"] == 2.0

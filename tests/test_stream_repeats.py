@@ -68,6 +68,25 @@ def test_a_streams_first_reading_is_of_unknown_age_and_not_paired_with_gravity()
     assert len(chunk.imu.t_ms) == 7  # gravity is kept whole: it is what the readings are paired with
 
 
+def test_a_stream_of_repeats_alone_is_handed_on_once_its_wait_is_over():
+    """A compass that sends the same value in every message gives no reading, but its messages still come:
+    they are handed on as a chunk without readings once ``within_s`` has passed, so that whoever reads the
+    stream checks its own deadline (a current sweep waited for ever on a noiseless compass)."""
+    from magline.core.links.readings import SensorStreams
+
+    streams = SensorStreams(1, [1], lambda _, mg: mg / 10.0)
+    assert not streams.ready(10, within_s=0.0)  # nothing heard: nothing to hand on
+    for t in (0.0, 10.0, 20.0):
+        streams.accel(t, 0, 0, 1000)
+        streams.mag(1, t, 100, 200, 300)
+    assert not streams.ready(10)  # no wait given: only a full chunk
+    streams.taken_at -= 1.0
+    assert streams.ready(10, within_s=0.25)
+    chunk = streams.take()
+    assert len(chunk.mag_ut) == 0 and chunk.repeats == 2 and len(chunk.imu.t_ms) == 3
+    assert not streams.ready(10, within_s=0.0)  # and nothing since
+
+
 def test_truncated_int16_is_undone_on_average(rng):
     true_mg = rng.uniform(-600, 600, size=(200_000, 3))
     sent = np.array(int16_mg(true_mg.ravel()), float).reshape(true_mg.shape)

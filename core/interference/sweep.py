@@ -47,12 +47,14 @@ class HeardInStep:
     mag: dict[int, list[tuple[NDArray, NDArray]]] = field(default_factory=dict)  # device id → (stamps, µT rows)
     current: list[tuple[float, float]] = field(default_factory=list)  # (stamp, the unit's current reading A)
     accel: list[tuple[NDArray, NDArray]] = field(default_factory=list)  # (stamps, m/s² rows)
+    repeats: dict[int, int] = field(default_factory=dict)  # device id → copies of a reading dropped
 
     def add(self, chunk: SampleChunk, device_ids: list[int]) -> None:
         for device_id, readings in ((device_ids[0], chunk), *chunk.more.items()):
             if device_id in device_ids:
                 self.mag.setdefault(device_id, []).append(
                     (np.asarray(readings.t_ms, float).ravel(), np.asarray(readings.mag_ut, float).reshape(-1, 3)))
+                self.repeats[device_id] = self.repeats.get(device_id, 0) + readings.repeats
         currents = np.asarray(chunk.current_a, float).ravel()
         stamps = np.asarray(chunk.current_t_ms, float).ravel()
         self.current.extend((float(t), float(a)) for a, t in zip(currents, stamps, strict=False))
@@ -358,8 +360,13 @@ def _read_step(stream, clock: UnitClock, step: SweepStep, settle_at: float, want
     while True:
         if clock.now() > deadline:
             have = ", ".join(f"{d}: {len(step.readings.get(d, []))}" for d in device_ids)
+            repeating = [d for d in device_ids if len(step.readings.get(d, [])) < wanted and step.heard.repeats.get(d)]
+            why = "" if not repeating else (
+                f" — compass {', '.join(map(str, repeating))} sent the same value in every message while the unit "
+                "was still: no noise to tell one reading from the next (a stuck sensor, or a simulator's noiseless "
+                "compass)")
             raise StationFault(f"the current sweep outlasted its timeout at the {step.level:.0%} step (readings "
-                               f"{have}; unit current readings {len(step.firmware_a)})")
+                               f"{have}; unit current readings {len(step.firmware_a)}){why}")
         try:
             chunk: SampleChunk = next(stream)
         except StopIteration:

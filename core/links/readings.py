@@ -143,11 +143,13 @@ class SensorStreams:
         self.current_a: list[float] = []
         self.current_t: list[float] = []
         self.current_unmeasured = 0
+        self.heard = 0  # messages of any kind since the last chunk, repeats included
 
     def current(self, centi_amps: float) -> None:
         """The unit's own battery current reading (BATTERY_STATUS / SYS_STATUS: centi-amps), stamped with
         the latest time the stream carried (the message itself has none).  A negative value is "not
         measured" (MAVLink's −1; PX4 sends its battery's −1 A as −100), counted, not taken as a current."""
+        self.heard += 1
         if centi_amps >= 0:
             self.current_a.append(centi_amps / 100.0)
             self.current_t.append(self.latest_t_ms)
@@ -156,6 +158,7 @@ class SensorStreams:
 
     def accel(self, t_ms: float, x_mg: float, y_mg: float, z_mg: float) -> None:
         """An accelerometer reading (milli-g, body axes) at ``t_ms``."""
+        self.heard += 1
         self.imu_t.append(t_ms)
         self.imu_mg.append((x_mg, y_mg, z_mg))
         self.latest_t_ms = max(self.latest_t_ms, t_ms)
@@ -163,16 +166,23 @@ class SensorStreams:
     def mag(self, device_id: int, t_ms: float, x_mg: float, y_mg: float, z_mg: float) -> None:
         """A magnetometer field of a message (int16 mG); a repeat of the sensor's last reading is dropped."""
         self.latest_t_ms = max(self.latest_t_ms, t_ms)
+        self.heard += 1
         if self.filters[device_id].accept(x_mg, y_mg, z_mg):
             self.rows[device_id].append((x_mg, y_mg, z_mg))
             self.times[device_id].append(t_ms)
 
     def ready(self, chunk: int, within_s: float | None = None) -> bool:
-        """``chunk`` readings of the primary gathered — or, ``within_s``, any once that long has passed
-        since the last chunk: a 10 Hz compass fills ten readings in a second, and a current sweep waiting
-        on whole seconds took twice as long as its readings."""
+        """``chunk`` readings of the primary gathered — or, ``within_s``, whatever arrived once that long has
+        passed since the last chunk: a 10 Hz compass fills ten readings in a second, and a current sweep
+        waiting on whole seconds took twice as long as its readings.
+
+        Why also a chunk without a new reading (its repeats, accelerometer and current only): the
+        station's deadlines are checked between chunks.  A compass that reads the same value in every
+        message (stuck, or at rest with steps coarser than its noise: ArduCopter's SITL compass has no
+        noise) gave no chunk while the messages kept coming, and a current sweep waited for ever."""
         have = len(self.rows[self.primary])
-        return have >= chunk or (within_s is not None and have > 0 and time.monotonic() - self.taken_at >= within_s)
+        waited = within_s is not None and time.monotonic() - self.taken_at >= within_s
+        return have >= chunk or (waited and (have > 0 or self.heard > 0))
 
     def take(self) -> SampleChunk:
         """What arrived since the last call, as one chunk."""
