@@ -7,6 +7,7 @@ import argparse
 import json
 import os
 import shutil
+import struct
 import subprocess
 import sys
 import time
@@ -136,9 +137,23 @@ def write_station(shipped: str, workdir: Path, field_ut: float, inclination_deg:
     return written
 
 
-def read_params(link: mavutil.mavfile, names: list[str], timeout_s: float = 60.0) -> dict[str, float]:
+INTEGER_TYPES = (mavutil.mavlink.MAV_PARAM_TYPE_INT8, mavutil.mavlink.MAV_PARAM_TYPE_INT16,
+                 mavutil.mavlink.MAV_PARAM_TYPE_INT32, mavutil.mavlink.MAV_PARAM_TYPE_UINT8,
+                 mavutil.mavlink.MAV_PARAM_TYPE_UINT16, mavutil.mavlink.MAV_PARAM_TYPE_UINT32)
+
+
+def param_value(msg, bytewise: bool) -> float:
+    """A PARAM_VALUE's value: PX4 sends an integer's bytes in the float field (its bytewise encoding; 2 then
+    reads 2.8e-45 as a float), ArduPilot the integer cast to a float."""
+    if bytewise and msg.param_type in INTEGER_TYPES:
+        return float(struct.unpack("<i", struct.pack("<f", msg.param_value))[0])
+    return float(msg.param_value)
+
+
+def read_params(link: mavutil.mavfile, names: list[str], timeout_s: float = 60.0,
+                bytewise: bool = False) -> dict[str, float]:
     """``names`` as the firmware holds them now, asked over ``link`` (a pymavlink link that heard a heartbeat)
-    until each has answered."""
+    until each has answered; ``bytewise``: integers come as their bytes (PX4)."""
     values: dict[str, float] = {}
     deadline = time.monotonic() + timeout_s
     while len(values) < len(names):
@@ -151,7 +166,7 @@ def read_params(link: mavutil.mavfile, names: list[str], timeout_s: float = 60.0
         while time.monotonic() < ends:
             msg = link.recv_match(type="PARAM_VALUE", blocking=True, timeout=0.2)
             if msg is not None and msg.param_id in names:
-                values[msg.param_id] = float(msg.param_value)
+                values[msg.param_id] = param_value(msg, bytewise)
     return values
 
 

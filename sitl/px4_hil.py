@@ -13,6 +13,14 @@ truth (a JSON file beside the run) holds the distortion, the mounting, the field
 right calibration writes: ``CAL_MAGn_xOFF = h`` in gauss and the scale matrix ``S`` (PX4 applies
 ``S·(raw − OFF)`` in the sensor's axes).
 
+For a current sweep the feeder also knows a battery current (a simulated electronic load's): the board's
+wiring adds ``I·c`` (µT, body axes) to the field before the compass's distortion, the unit is held still
+while the load's input is on, and :class:`BatteryReporter` tells PX4 the current as its power module would,
+in BATTERY_STATUS from another component of the vehicle's system (PX4's SITL has no current-proportional
+magnetometer term and its simulated battery reports −1 A: start it with ``SIM_BAT_ENABLE = 0``).  A right
+compensation writes ``CAL_MAG_COMP_TYP = 2`` and ``CAL_MAGn_xCOMP = −10·k`` (G/kA) for the raw field change
+``k = S⁻¹·R_mount⁻¹·c`` µT/A.
+
     python -m magline.sitl.px4_hil --truth truth.json [--port 4560] [--speed 0.5] [--seed 1]
 """
 
@@ -24,6 +32,7 @@ import socket
 import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -62,6 +71,7 @@ class Px4Truth:
     noise_ut: float = 0.2
     speed: float = 0.5
     still_s: float = 8.0  # held level first: PX4's estimator and its sensors' checks settle on a still unit
+    interference_ut_per_a: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])  # body axes
     expected: dict[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -83,10 +93,22 @@ class Px4Truth:
         return cls(hard_iron_ut=rng.uniform(-60, 60, 3).round(2).tolist(), soft_iron=s.round(4).tolist(),
                    **changes)
 
-    def raw_gauss(self, body_to_ned: Rotation, rng: np.random.Generator) -> NDArray:
-        """What the compass reads (gauss, its own axes) with the unit in ``body_to_ned``."""
+    def expected_compensation(self) -> dict[str, float]:
+        """``COMP_TYP`` and the ``xCOMP`` (G/kA) a right current compensation writes: minus the raw field
+        change per amp, in the sensor's axes, in mG."""
+        per_amp_body = np.asarray(self.interference_ut_per_a, float)
+        raw = np.linalg.solve(np.asarray(self.soft_iron, float), self._body_to_sensor().apply(per_amp_body))
+        return {"COMP_TYP": 2.0, **{f"{a}COMP": float(-10.0 * v) for a, v in zip("XYZ", raw, strict=True)}}
+
+    def _body_to_sensor(self) -> Rotation:
+        return Rotation.from_euler("z", self.mounting_yaw_deg, degrees=True).inv()
+
+    def raw_gauss(self, body_to_ned: Rotation, rng: np.random.Generator, current_a: float = 0.0) -> NDArray:
+        """What the compass reads (gauss, its own axes) with the unit in ``body_to_ned`` and ``current_a``
+        through the board."""
         b_body = body_to_ned.inv().apply(earth_field_ned(self.field_ut, self.inclination_deg))
-        b_sensor = Rotation.from_euler("z", self.mounting_yaw_deg, degrees=True).inv().apply(b_body)
+        b_body = b_body + current_a * np.asarray(self.interference_ut_per_a, float)
+        b_sensor = self._body_to_sensor().apply(b_body)
         m = np.linalg.solve(np.asarray(self.soft_iron, float), b_sensor) + np.asarray(self.hard_iron_ut)
         return (m + rng.normal(scale=self.noise_ut, size=3)) / UT_PER_GAUSS
 
@@ -97,14 +119,14 @@ def attitude(truth: Px4Truth, t_s: float) -> Rotation:
 
 
 def hil_sensor(truth: Px4Truth, t_s: float, board_us: int, with_mag: bool, rng: np.random.Generator,
-               dt_s: float = 1.0 / SENSOR_HZ, moving: bool = True) -> dict[str, float | int]:
+               dt_s: float = 1.0 / SENSOR_HZ, moving: bool = True, current_a: float = 0.0) -> dict[str, float | int]:
     """HIL_SENSOR's fields with the unit at motion time ``t_s`` and the board's clock at ``board_us``;
-    ``moving=False``: the unit rests in the attitude of ``t_s``."""
+    ``moving=False``: the unit rests in the attitude of ``t_s``; ``current_a`` through the board."""
     now = attitude(truth, t_s)
     later = attitude(truth, t_s + dt_s) if moving else now
     rate = (now.inv() * later).as_rotvec() / dt_s  # body rates, rad/s: the body turns by its own
     force = now.inv().apply([0.0, 0.0, -GRAVITY_MSS])  # at rest level: −g on Z (forward-right-down)
-    mag = truth.raw_gauss(now, rng) if with_mag else np.zeros(3)
+    mag = truth.raw_gauss(now, rng, current_a) if with_mag else np.zeros(3)
     pressure_hpa = 1013.25 * (1.0 - 2.25577e-5 * truth.altitude_m) ** 5.25588
     return {"time_usec": board_us, "xacc": force[0], "yacc": force[1], "zacc": force[2],
             "xgyro": rate[0], "ygyro": rate[1], "zgyro": rate[2], "xmag": mag[0], "ymag": mag[1], "zmag": mag[2],
@@ -118,8 +140,11 @@ class HilFeeder:
     board powered again) replaces the old one.  :meth:`rest` sets the unit down where it is (as an operator
     does when the station says the tumble is done)."""
 
-    def __init__(self, truth: Px4Truth, port: int = HIL_PORT, seed: int = 0) -> None:
+    def __init__(self, truth: Px4Truth, port: int = HIL_PORT, seed: int = 0,
+                 current_a: Callable[[], float] = lambda: 0.0, held: Callable[[], bool] = lambda: False) -> None:
         self.truth = truth
+        self.current_a, self.held = current_a, held
+        self.held_s, self._held_since = 0.0, None  # the time the unit stood held (the motion's clock stood)
         self.rng = np.random.default_rng(seed)
         self.server = socket.create_server(("127.0.0.1", port))
         self.server.settimeout(0.2)
@@ -131,10 +156,16 @@ class HilFeeder:
         self.rested_at: float | None = None  # the motion time the unit was set down at
 
     def motion_time(self, started: float) -> tuple[float, bool]:
-        """The motion time now, and whether the unit still moves."""
+        """The motion time now, and whether the unit still moves (not while it is held for a sweep)."""
         if self.rested_at is not None:
             return self.rested_at, False
-        return time.monotonic() - started, True
+        now = time.monotonic()
+        if self.held():
+            self._held_since = now if self._held_since is None else self._held_since
+            return self._held_since - started - self.held_s, False
+        if self._held_since is not None:
+            self.held_s, self._held_since = self.held_s + now - self._held_since, None
+        return now - started - self.held_s, True
 
     def rest(self) -> None:
         """Set the unit down in the attitude it has now; it stays there (across power cuts too)."""
@@ -164,7 +195,8 @@ class HilFeeder:
                 time.sleep(wait)
             board_us = int(n * period * 1e6) + 1
             t_s, moving = self.motion_time(started)
-            fields = hil_sensor(truth, t_s, board_us, n % MAG_EVERY == 0, self.rng, moving=moving)
+            fields = hil_sensor(truth, t_s, board_us, n % MAG_EVERY == 0, self.rng, moving=moving,
+                                current_a=float(self.current_a()))
             frames = [self.mav.hil_sensor_encode(**fields).pack(self.mav)]
             if n % GPS_EVERY == 0:
                 frames.append(self.mav.hil_gps_encode(
@@ -197,6 +229,44 @@ class HilFeeder:
         """Stop feeding and free the port."""
         self.stopped.set()
         self.closed.wait(timeout_s)
+
+
+class BatteryReporter:
+    """The power module's word to PX4: BATTERY_STATUS with ``current_a()`` ten times a second, from another
+    component of the vehicle's system (``mavlink_receiver`` takes no other), to one of PX4's MAVLink UDP
+    ports; PX4 publishes it as battery_status instance 0, what ``CAL_MAG_COMP_TYP = 2`` multiplies by."""
+
+    def __init__(self, current_a: Callable[[], float], port: int = 14580, volts: float = 16.8) -> None:
+        self.current_a, self.address, self.volts = current_a, ("127.0.0.1", port), volts
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=mavlink.MAV_COMP_ID_BATTERY)
+        self.stopped = threading.Event()
+        self.thread = threading.Thread(target=self._send, name="BatteryReporter", daemon=True)
+
+    def frame(self) -> bytes:
+        """A full four-cell pack.  Why the charge is sent: PX4 takes ``battery_remaining`` as it comes, and
+        "unknown" (−1) reads as −1 % — a dangerously low battery its commander shuts the system down for
+        within a minute, and meanwhile it left the station's save (PREFLIGHT_STORAGE) unanswered."""
+        cells = [round(self.volts * 1000 / 4)] * 4 + [65535] * 6
+        return self.mav.battery_status_encode(
+            0, mavlink.MAV_BATTERY_FUNCTION_ALL, mavlink.MAV_BATTERY_TYPE_LIPO, 2500, cells,
+            round(float(self.current_a()) * 100.0), -1, -1, 100).pack(self.mav)
+
+    def _send(self) -> None:
+        while not self.stopped.wait(0.1):
+            try:
+                self.sock.sendto(self.frame(), self.address)
+            except OSError:
+                continue
+
+    def start(self) -> BatteryReporter:
+        self.thread.start()
+        return self
+
+    def stop(self) -> None:
+        self.stopped.set()
+        self.thread.join(timeout=2.0)
+        self.sock.close()
 
 
 def main(argv: list[str] | None = None) -> int:

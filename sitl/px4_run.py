@@ -26,6 +26,7 @@ import numpy as np
 import yaml
 from pymavlink import mavutil
 
+from magline.sim.load import LoadSim
 from magline.sitl.checks import (
     Check,
     calibration_checks,
@@ -37,7 +38,7 @@ from magline.sitl.checks import (
     summarise,
     write_station,
 )
-from magline.sitl.px4_hil import HilFeeder, Px4Truth
+from magline.sitl.px4_hil import BatteryReporter, HilFeeder, Px4Truth
 from magline.sitl.px4_power import Px4Process
 
 STATION_LINK = "udpin://0.0.0.0:14550"  # PX4's ground-station link sends to port 14550 on the host
@@ -48,9 +49,10 @@ HIL_MAG0_DEVICE_ID = 197388
 PARAM_LINK = "udpin:0.0.0.0:14550"  # the same port, read by pymavlink once the station is done
 
 
-def station_file(workdir: Path, truth: Px4Truth, product: dict | None = None) -> Path:
+def station_file(workdir: Path, truth: Px4Truth, product: dict | None = None, station: dict | None = None) -> Path:
     """The shipped PX4 station pointed at the SITL in ``workdir`` (its power the process's own cut), the
-    truth's site and field; ``product``: more of the product's keys (``persist``, …)."""
+    truth's site and field; ``product``: more of the product's keys (``persist``, …); ``station``: more
+    top-level keys (``current_source``, …)."""
     power = [sys.executable, "-m", "magline.sitl.px4_power"]
     site = {"latitude_deg": truth.latitude_deg, "longitude_deg": truth.longitude_deg, "altitude_m": truth.altitude_m}
     shipped = yaml.safe_load((Path(__file__).resolve().parent.parent / "stations" / "px4-sim.yaml").read_text())
@@ -61,7 +63,7 @@ def station_file(workdir: Path, truth: Px4Truth, product: dict | None = None) ->
         "power": {"method": "command", "options": {"off": [*power, "off", "--workdir", str(workdir)],
                                                    "on": [*power, "on", "--workdir", str(workdir)],
                                                    "off_time_s": 0.5}}, **(product or {})},
-        {"station": {**shipped["station"], "location": site}})
+        {"station": {**shipped["station"], "location": site}, **(station or {})})
 
 
 def read_px4_params(names: list[str], timeout_s: float = 60.0) -> dict[str, float]:
@@ -70,7 +72,7 @@ def read_px4_params(names: list[str], timeout_s: float = 60.0) -> dict[str, floa
     try:
         if link.wait_heartbeat(timeout=timeout_s) is None:
             raise RuntimeError(f"PX4 sent no heartbeat within {timeout_s:g} s after the power came back")
-        return read_params(link, names, timeout_s)
+        return read_params(link, names, timeout_s, bytewise=True)
     finally:
         link.close()
 
@@ -98,6 +100,63 @@ def one_unit(build: Path, workdir: Path, seed: int, turned_deg: float) -> tuple[
         px4.off()
         feeder.stop()
     return record, _judge(truth, record, kept, cycle_s, turned=bool(turned_deg))
+
+
+# The sweep of the shipped interference station (stations/interference-sim.yaml) and ArduPilot's bands
+SWEEP = {"steps": 2, "settle_s": 0.3, "readings": 8, "compensation_goal_pct": 5.0, "compensation_budget_s": 9.5}
+SWEEP_LIMITS = {"interference_pct_at_max": {"le": 60.0, "marginal": 30.0}}
+CURRENT_MAX_A = 40.0
+PER_AMP_GOAL_MG, PER_AMP_GOAL_SHARE = 0.5, 0.03  # the tier's goal for a written compensation: 0.5 mG/A + 3 %
+
+
+def swept_unit(build: Path, workdir: Path, seed: int) -> tuple[dict, list[Check]]:
+    """A good unit whose compass follows the battery current: calibrated, swept, compensated and proven in
+    one run, the current drawn by a simulated electronic load and told to PX4 by the feeder's power module
+    (PX4 started with ``SIM_BAT_ENABLE = 0``: its own simulated battery would compete)."""
+    if workdir.exists():
+        for stale in ("parameters.bson", "parameters_backup.bson", "results.sqlite"):
+            (workdir / stale).unlink(missing_ok=True)
+    per_amp = np.random.default_rng(seed + 1000).uniform(-0.12, 0.12, 3).round(4).tolist()  # ≤ 17 % at 40 A
+    truth = Px4Truth.drawn(seed, interference_ut_per_a=per_amp)
+    workdir.mkdir(parents=True, exist_ok=True)
+    (workdir / "truth.json").write_text(json.dumps(
+        {**asdict(truth), "expected_compensation": truth.expected_compensation()}, indent=2) + "\n")
+    load = LoadSim("tcp:127.0.0.1:0").start()
+    feeder = HilFeeder(truth, seed=seed, current_a=load.sinking_current, held=lambda: load.input_on)
+    threading.Thread(target=feeder.serve, daemon=True).start()
+    battery = BatteryReporter(load.sinking_current).start()
+    px4 = Px4Process.prepare(build, workdir, env={"PX4_PARAM_SIM_BAT_ENABLE": "0"})
+    try:
+        px4.on()
+        station = station_file(workdir, truth, {"interference": "compensate", "current_max_a": CURRENT_MAX_A,
+                                                "limits": {"hard_iron_norm_ut": {"le": 150.0}, **SWEEP_LIMITS}},
+                               {"current_source": {"type": "electronic-load",
+                                                   "options": {"resource": load.visa_resource}},
+                                "interference": SWEEP})
+        record, cycle_s = run_station(station, f"SITL-PX4-MOT-{seed}", workdir)
+        px4.off()
+        px4.on()
+        slots = [f"CAL_MAG{n}_{k}" for n in range(4) for k in ("ID", *truth.expected, "XCOMP", "YCOMP", "ZCOMP")]
+        kept = read_px4_params([*slots, "CAL_MAG_COMP_TYP"])
+    finally:
+        px4.off()
+        battery.stop()
+        feeder.stop()
+        load.stop()
+    return record, [*_judge(truth, record, kept, cycle_s, turned=False), *_compensation_checks(truth, record, kept)]
+
+
+def _compensation_checks(truth: Px4Truth, record: dict, kept: dict[str, float]) -> list[Check]:
+    """The current compensation kept after the power cut, against minus the raw field change per amp."""
+    expected = truth.expected_compensation()
+    p = f"CAL_MAG{_slot(record, kept)}_"
+    want = np.array([expected[f"{a}COMP"] for a in "XYZ"])
+    error = float(np.linalg.norm(np.array([kept[f"{p}{a}COMP"] for a in "XYZ"]) - want))
+    allowed = PER_AMP_GOAL_MG + PER_AMP_GOAL_SHARE * float(np.linalg.norm(want))
+    return [Check("CAL_MAG_COMP_TYP after a power cut", f"{kept['CAL_MAG_COMP_TYP']:g}", "2 (current, instance 0)",
+                  kept["CAL_MAG_COMP_TYP"] == expected["COMP_TYP"]),
+            Check(f"{p}X/Y/ZCOMP after a power cut", f"|Δ| {error:.3f} mG/A", f"≤ {allowed:.3f} mG/A (0.5 + 3 %)",
+                  error <= allowed)]
 
 
 def _slot(record: dict, kept: dict[str, float]) -> int:
@@ -156,7 +215,8 @@ def main(argv: list[str] | None = None) -> int:
     build = args.build.resolve()
     return summarise(f"PX4 SITL {args.build}", workdir,
                      {"good": lambda folder: one_unit(build, folder, args.seed, 0.0),
-                      "turned": lambda folder: one_unit(build, folder, args.seed, args.turned)}, args.json)
+                      "turned": lambda folder: one_unit(build, folder, args.seed, args.turned),
+                      "swept": lambda folder: swept_unit(build, folder, args.seed)}, args.json)
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -159,3 +159,76 @@ def test_a_unit_set_down_rests_where_it_was_with_no_turn():
         assert feeder.motion_time(feeder.started - 5.0) == (rested, False)  # it stays down
     finally:
         feeder.server.close()
+
+
+@pytest.mark.parametrize("mounting_yaw_deg", [0.0, 90.0])
+def test_the_truth_s_compensation_cancels_the_current_s_field_as_px4_applies_it(mounting_yaw_deg):
+    """PX4's ``Magnetometer::Correct`` adds ``power·COMP`` (kA, G/kA) to the raw reading before the offset,
+    in the sensor's axes: with the truth's calibration and ``xCOMP`` the field is the one without the current
+    at any current, whatever the compass's mounting."""
+    truth = Px4Truth.drawn(5, noise_ut=0.0, interference_ut_per_a=[0.1, -0.05, 0.08], mounting_yaw_deg=mounting_yaw_deg)
+    fit = SimpleNamespace(hard_iron_ut=np.asarray(truth.hard_iron_ut), soft_iron=np.asarray(truth.soft_iron))
+    params = fit_to_params(fit, 0, 1, 50, with_odiag=True)
+    comp = truth.expected_compensation()
+    assert comp["COMP_TYP"] == 2.0
+    body_to_ned = Rotation.from_euler("ZYX", (30, 10, -20), degrees=True)
+    quiet = px4_calibrates(truth, params, truth.raw_gauss(body_to_ned, np.random.default_rng(0)))
+    for amps in (20.0, 40.0):
+        raw = truth.raw_gauss(body_to_ned, np.random.default_rng(0), current_a=amps)
+        assert np.linalg.norm(px4_calibrates(truth, params, raw) - quiet) > 0.01  # 0.5 µT and more: it moves
+        compensated = raw + amps / 1000.0 * np.array([comp[f"{a}COMP"] for a in "XYZ"])
+        assert px4_calibrates(truth, params, compensated) == pytest.approx(quiet, abs=1e-9)
+
+
+def test_the_unit_is_held_still_while_the_load_is_on_and_tumbles_on_from_there():
+    """Held for a current sweep (the load's input on), the motion time stands; released, it goes on from where
+    it stood — the time held is not a jump in the tumble."""
+    truth = Px4Truth.drawn(5, still_s=0.0, noise_ut=0.0)
+    held = [False]
+    feeder = HilFeeder(truth, port=0, held=lambda: held[0])
+    try:
+        started = time.monotonic() - 10.0
+        before, moving = feeder.motion_time(started)
+        assert moving and before == pytest.approx(10.0, abs=0.5)
+        held[0] = True
+        first, moving = feeder.motion_time(started)
+        time.sleep(0.05)
+        assert not moving and feeder.motion_time(started) == (first, False)
+        held[0] = False
+        after, moving = feeder.motion_time(started)
+        assert moving and after == pytest.approx(first, abs=1e-6)  # on from where it stood, not 50 ms later
+    finally:
+        feeder.server.close()
+
+
+def test_the_power_module_tells_px4_the_current_as_another_component_of_its_system():
+    """PX4's ``handle_message_battery_status`` takes a BATTERY_STATUS only from its own system id and another
+    component; the current in centi-amps, id 0, a full four-cell pack's voltages and charge."""
+    from magline.sitl.px4_hil import BatteryReporter
+
+    reporter = BatteryReporter(lambda: 12.345)
+    try:
+        (msg,) = mavlink.MAVLink(None).parse_buffer(reporter.frame())
+    finally:
+        reporter.sock.close()
+    assert msg.get_type() == "BATTERY_STATUS" and msg.get_srcSystem() == 1
+    assert msg.get_srcComponent() == mavlink.MAV_COMP_ID_BATTERY != mavlink.MAV_COMP_ID_AUTOPILOT1
+    assert msg.current_battery == 1234 and msg.id == 0
+    assert msg.voltages[:4] == [4200] * 4 and set(msg.voltages[4:]) == {65535}
+    assert msg.battery_remaining == 100  # "unknown" (−1) is −1 % to PX4: an emergency it shuts down for
+
+
+def test_an_integer_parameter_px4_sends_as_its_bytes_is_read_as_the_integer():
+    """PX4 encodes an integer parameter's bytes in PARAM_VALUE's float (2 reads 2.8e-45 taken as a float);
+    ArduPilot casts it to a float.  The runners read each firmware's way."""
+    import struct
+
+    from magline.sitl.checks import param_value
+
+    bits = struct.unpack("<f", struct.pack("<i", 197388))[0]
+    px4 = SimpleNamespace(param_value=bits, param_type=mavlink.MAV_PARAM_TYPE_INT32)
+    assert param_value(px4, bytewise=True) == 197388.0 and param_value(px4, bytewise=False) < 1e-30
+    ardupilot = SimpleNamespace(param_value=2.0, param_type=mavlink.MAV_PARAM_TYPE_INT8)
+    assert param_value(ardupilot, bytewise=False) == 2.0
+    real = SimpleNamespace(param_value=0.125, param_type=mavlink.MAV_PARAM_TYPE_REAL32)
+    assert param_value(real, bytewise=True) == 0.125
