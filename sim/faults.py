@@ -32,6 +32,9 @@ class SimFaults:
     # whose steps are coarser than its noise, or a SITL whose compass has no noise): no new distinct reading;
     # held still for a current sweep, a compass reads without noise: a new value only when the current changes
     quiet_at_rest: bool = False
+    # every compass repeats the reading it had this long after a mag stream starts, ever after (a sensor whose
+    # bus hung: the driver publishes its last sample again and again) while the messages keep coming
+    mag_stuck_after_s: float | None = field(default=None, metadata={"boards": MAVLINK})
     # the reboot command's ACK is lost on the way (the board reboots all the same)
     lose_reboot_ack: bool = field(default=False, metadata={"boards": MAVLINK})
     link_loss_after_s: float | None = None  # the link goes silent this long after a mag stream starts

@@ -151,6 +151,7 @@ class SimulatedAutopilot(ABC):
         self.mag_rate_hz = mag_rate_hz  # overrides the firmware's / driver's sensor rate
         self._held: dict[int, tuple[float, NDArray]] = {}  # device id → (next reading due, latest reading)
         self._quiet: dict[int, NDArray] = {}  # device id → the reading a quiet compass repeats at rest
+        self._stuck: dict[int, NDArray] = {}  # device id → the reading a stuck compass repeats (mag_stuck_after_s)
         self.table = ParamTable(self.param_specs())
         self.mav = mavlink.MAVLink(_Wire(self), srcSystem=system_id, srcComponent=mavlink.MAV_COMP_ID_AUTOPILOT1)
         self.lock = threading.RLock()
@@ -683,6 +684,10 @@ class SimulatedAutopilot(ABC):
             samples = sensor.read_samples_ut(fields, self.rng, noiseless=quiet_held)
             reading = (samples.mean(axis=0) + self.warmup_offset_ut(now)
                        + self.WARMUP_DIRECTION * self.faults.mag_offset_after_cut * self.supply_cuts)
+            stuck_after = self.faults.mag_stuck_after_s
+            if (stuck_after is not None and self._mag_stream_started is not None
+                    and now - self._mag_stream_started > stuck_after) or sensor.device_id in self._stuck:
+                reading = self._stuck.setdefault(sensor.device_id, reading)
             if self.faults.quiet_at_rest and self.resting is not None:  # the first reading at rest, ever after
                 reading = self._quiet.setdefault(sensor.device_id, reading)
             else:

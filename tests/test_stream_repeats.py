@@ -19,7 +19,7 @@ from magline.core.plugins import load_plugins
 from magline.core.record import Outcome
 from magline.core.sequencer import Sequencer
 from magline.core.station import load_station
-from magline.sim import SimMagnetometer, create_sim
+from magline.sim import SimFaults, SimMagnetometer, create_sim
 from magline.sim.magnetometers import DEFAULT_IDS
 from magline.sim.vehicle import int16_mg
 
@@ -181,3 +181,18 @@ def test_an_extreme_reading_repeated_by_chance_is_not_called_clipped(rng):
     judged = fit_calibration(m, FitOptions(field_ut=48.0, range_ut=INT16_MG_RANGE_UT))
     assert guessed.rejected.get("clipped") == 3  # the plateau guess without a range: three good readings lost
     assert "clipped" not in judged.rejected and judged.samples_used == 600
+
+
+def test_a_compass_stuck_mid_tumble_ends_at_the_timeout_with_its_readings_kept(tmp_path):
+    """A compass whose bus hung repeats its last reading in every message while the messages keep coming.
+    Repeats are dropped, so no new reading arrives; the tumble waited for ever, its timeout checked only
+    between readings.  It now ends at its timeout: what it holds is kept, and nothing is written."""
+    with create_sim("ardupilot", "tcp:127.0.0.1:0", workdir=tmp_path / "fc", seed=11, boot_time_s=0.3,
+                    speed=5.0, faults=SimFaults(mag_stuck_after_s=1.0)) as sim:
+        station = write_station("ardupilot-sim.yaml", tmp_path, sim.address, AP,
+                                {"acquisition": {"samples": 400, "rate_hz": 50.0, "timeout_s": 4.0, "retries": 0}})
+        record = run(station)
+    assert record.verdict is Outcome.ERROR, record.cause
+    assert "of 400 readings within 4 s" in record.cause and "raw data kept" in record.cause, record.cause
+    assert record.attempts and record.attempts[0].samples > 0  # the readings before it stuck
+    assert record.params_written == {}
