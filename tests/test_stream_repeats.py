@@ -186,7 +186,8 @@ def test_an_extreme_reading_repeated_by_chance_is_not_called_clipped(rng):
 def test_a_compass_stuck_mid_tumble_ends_at_the_timeout_with_its_readings_kept(tmp_path):
     """A compass whose bus hung repeats its last reading in every message while the messages keep coming.
     Repeats are dropped, so no new reading arrives; the tumble waited for ever, its timeout checked only
-    between readings.  It now ends at its timeout: what it holds is kept, and nothing is written."""
+    between readings.  It now ends at its timeout, saying the compass stopped (not that the timeout is too
+    short): what it holds is kept, and nothing is written."""
     with create_sim("ardupilot", "tcp:127.0.0.1:0", workdir=tmp_path / "fc", seed=11, boot_time_s=0.3,
                     speed=5.0, faults=SimFaults(mag_stuck_after_s=1.0)) as sim:
         station = write_station("ardupilot-sim.yaml", tmp_path, sim.address, AP,
@@ -194,5 +195,7 @@ def test_a_compass_stuck_mid_tumble_ends_at_the_timeout_with_its_readings_kept(t
         record = run(station)
     assert record.verdict is Outcome.ERROR, record.cause
     assert "of 400 readings within 4 s" in record.cause and "raw data kept" in record.cause, record.cause
+    assert "only copies of one" in record.cause and "a stuck sensor, not a slow one" in record.cause
+    assert "raise acquisition.timeout_s" not in record.cause  # no timeout cures a stuck sensor
     assert record.attempts and record.attempts[0].samples > 0  # the readings before it stuck
     assert record.params_written == {}

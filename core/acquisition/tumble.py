@@ -296,10 +296,24 @@ def _rate_hz(t_ms: np.ndarray) -> float | None:
     return float((len(t_ms) - 1) / ((t_ms[-1] - t_ms[0]) / 1000.0))
 
 
+# Copies of one reading for this long while the stream's other messages kept coming: the compass is not slow, it
+# stopped (a sensor whose bus hung republishes its last sample).  Far beyond any compass's period (10 Hz: 0.1 s).
+STUCK_S = 2.0
+
+
 def _too_slow(got: _Readings, wanted: int, timeout_s: float, elapsed_s: float) -> str:
-    """The station's configuration asks more of the sensor than it delivers within the timeout."""
+    """The station's configuration asks more of the sensor than it delivers within the timeout — or the
+    compass stopped giving new readings, which no timeout cures."""
     if got.count == 0:
         return f"no readings within {timeout_s:g} s"
+    imu = got.imu_series()
+    stamps = got.samples().t_ms
+    if imu is not None and len(imu.t_ms) and stamps is not None and len(stamps) and got.repeats:
+        stopped_s = (float(np.max(imu.t_ms)) - float(np.max(stamps))) / 1000.0
+        if stopped_s >= STUCK_S:
+            return (f"only {got.count} of {wanted} readings within {timeout_s:g} s: the compass sent no new reading "
+                    f"for its last {stopped_s:.0f} s, only copies of one ({got.repeats} dropped) while the unit's "
+                    "other readings kept coming — a stuck sensor, not a slow one")
     # The sensor's rate from its own time stamps: the wall clock also counts the stream's start and
     # however busy this machine is; a unit's clock counts only the sensor.
     rate = _rate_hz(got.samples().t_ms) or got.count / elapsed_s
