@@ -67,9 +67,19 @@ def store_url(request, tmp_path):
 
 
 @pytest.fixture(scope="session")
-def browser():
-    """One headless Debian Chromium for the session (see ``browser.py``)."""
+def session_chromium():
+    """One headless Debian Chromium for the session (see ``browser.py``): started once, it costs seconds."""
     from browser import chromium
 
     with chromium() as b:
         yield b
+
+
+@pytest.fixture
+def browser(session_chromium):
+    """The session's Chromium, with every page a test opened closed when the test ends.  A page left open
+    goes on running its scripts (a screen polling a station that has stopped, a chart redrawing): left to
+    the end of the session, dozens of them took the two cores from the simulated boards of later tests."""
+    yield session_chromium
+    for context in session_chromium.contexts:
+        context.close()
