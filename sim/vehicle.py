@@ -126,6 +126,7 @@ class SimulatedAutopilot(ABC):
         self._motor_test: tuple[float, float] | None = None  # (throttle %, until) while a motor test runs
         self._peak_current_a = 0.0  # the largest current seen since boot (fault ``interference_remanence``)
         self._still: tuple[Rotation, float] | None = None  # held still in a fixture: (attitude, since)
+        self._attitude_memo: tuple[tuple, Rotation] | None = None  # the last instant asked for, and its attitude
         self._still_by_motors = False  # … strapped in the cradle for a motor test (not a load's fixture)
         self._motors_commanded_at = 0.0
         # BATTERY_STATUS / SYS_STATUS on the board's clock; the scheduler's jitter draws from its own generator,
@@ -548,7 +549,11 @@ class SimulatedAutopilot(ABC):
         motion = self.current_motion()
         if motion == "shared" and self.follower is not None:
             return self.follower.attitude(now)
-        return attitude(motion, now - self._t0, self.speed, self.field_ned)
+        # one instant is asked for again by every compass read at it, and by its IMU fields
+        key = (motion, now - self._t0, self.speed)
+        if self._attitude_memo is None or self._attitude_memo[0] != key:
+            self._attitude_memo = (key, attitude(motion, now - self._t0, self.speed, self.field_ned))
+        return self._attitude_memo[1]
 
     def motion_speed(self) -> float:
         """How much faster than a real tumble the unit turns (the gimbal's speed when it follows one)."""

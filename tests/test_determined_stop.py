@@ -114,6 +114,33 @@ def test_the_running_fit_ignores_early_snapshots_and_answers_from_its_own_thread
     assert running.determined.predicted[""]["direction_sigma_deg"] <= 0.35
 
 
+def test_a_live_running_fit_rests_as_long_as_each_fit_took_and_a_waited_one_does_not():
+    """The worker shares the interpreter with the stream's reader: on a live tumble it waits at least as
+    long as a snapshot's fits took before it fits the next (at most half of a core); a snapshot whose
+    offerer waits for it (simulated time) is fitted at once."""
+    import time
+
+    spans: list[tuple[float, float]] = []
+
+    def fitter(sensor, samples):
+        started = time.monotonic()
+        fitted(samples)
+        spans.append((started, time.monotonic()))
+        raise FitRefused("not yet")  # never determined: every snapshot is fitted
+
+    samples = tumble(300, 0.3, 3)
+    with RunningFit(RULE, fitter) as running:
+        while len(spans) < 6:  # a live stream: a new snapshot all the time, none waited for
+            running.offer(300, 6.0, {"": samples})
+            time.sleep(0.001)
+        live = list(spans)
+        for _ in range(3):
+            running.offer(300, 6.0, {"": samples}, wait=True)
+    gaps = [(live[k + 1][0] - live[k][1], live[k][1] - live[k][0]) for k in range(len(live) - 1)]
+    assert all(rest >= took for rest, took in gaps), gaps
+    assert len(spans) >= len(live) + 3  # each waited snapshot was fitted before its offer returned
+
+
 def test_a_demo_unit_stops_once_determined_and_the_record_keeps_why_when_and_the_prediction(make_station, tmp_path):
     listener = StopListener()
     station = make_station()

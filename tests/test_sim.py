@@ -663,3 +663,26 @@ def test_px4_stamps_highres_imu_with_the_imu_sample_in_microseconds(px4):
     # on another clock — the host's monotonic or epoch microseconds — is far beyond it); how far behind it
     # the last one is depends on how late this process read the socket, not on the simulator
     assert 0 < stamps[-1] <= px4.time_boot_us(time.monotonic())
+
+
+@pytest.mark.parametrize("stepped,rock", [(False, True), (True, True), (False, False)])
+def test_the_spiral_attitude_is_its_three_turns_and_the_field_frame_at_one_instant_and_at_many(stepped, rock):
+    """The simulators' tumble is defined as NED → body = Rz(φ)·Ry(θ)·Rz(ψ)·F (the spiral's angles, the rock
+    and the field's frame); the quaternion arithmetic that computes it must give that, for one instant
+    (the boards' path, in plain floats) and for an array (the synthetic tumbles')."""
+    from scipy.spatial.transform import Rotation
+
+    from magline.sim.truth.attitudes import ROCK_PERIOD_S, ROCK_RAD, field_frame, spiral_angles, spiral_attitude
+
+    field_dir = np.array([0.31, -0.2, 0.93])
+    t = np.linspace(-3.0, 41.0, 401)
+    phi, theta = spiral_angles(t, stepped)
+    psi = ROCK_RAD * np.sin(2 * np.pi * t / ROCK_PERIOD_S) if rock else np.zeros_like(t)
+    z, y = np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0])
+    defined = (Rotation.from_rotvec(np.outer(phi, z)) * Rotation.from_rotvec(np.outer(theta, y))
+               * Rotation.from_rotvec(np.outer(psi, z)) * field_frame(field_dir)).inv().as_matrix()
+    many = spiral_attitude(t, field_dir, stepped=stepped, rock=rock)
+    assert len(many) == len(t) and np.abs(many.as_matrix() - defined).max() < 1e-12
+    one = [spiral_attitude(float(x), field_dir, stepped=stepped, rock=rock) for x in t]
+    assert all(r.single for r in one)
+    assert np.abs(np.array([r.as_matrix() for r in one]) - defined).max() < 1e-12

@@ -85,6 +85,14 @@ class Determination:
     predicted: dict[str, dict[str, float]] = field(default_factory=dict)
 
 
+# After each snapshot of a live tumble, the worker rests this many times as long as the snapshot's fits
+# took before it takes the next: the fits then hold at most half of a core.  Why: they share the
+# interpreter with the thread reading the stream and with the station's screen, and on a station PC
+# with two cores a worker fitting back to back took the time those need (a link's heartbeat read late
+# is a link lost).  The stop comes at most one fit later than it could; a tumble in simulated time,
+# whose offerer waits for each answer, is not paced.
+REST_PER_FIT = 1.0
+
 Fitter = Callable[[str, RawSamples], FitResult]
 # After the fits met the rule: what else must be determined before the tumble may end (the mounting),
 # given the fits, the snapshot and the accelerometer's readings; more predicted figures per sensor,
@@ -112,6 +120,7 @@ class RunningFit:
         self._cond = threading.Condition()
         self._closed = False
         self._busy = False
+        self._awaited = False  # the pending snapshot's offerer waits for its answer (simulated time)
         self.fit_s = 0.0  # how long the last snapshot's fits took
         self._thread = threading.Thread(target=self._work, name="magline-running-fit", daemon=True)
 
@@ -142,6 +151,7 @@ class RunningFit:
             return
         with self._cond:
             self._pending = (readings, after_s, snapshot, imu)
+            self._awaited = wait
             self._cond.notify_all()
             while wait and (self._pending is not None or self._busy) and not self._closed:
                 self._cond.wait()
@@ -160,12 +170,22 @@ class RunningFit:
                 readings, after_s, snapshot, imu = self._pending
                 self._pending = None
                 self._busy = True
+                paced = not self._awaited
+            started = time.monotonic()
             try:
                 self._judge(readings, after_s, snapshot, imu)
             finally:
                 with self._cond:
                     self._busy = False
                     self._cond.notify_all()
+                    if paced and self.determined is None:
+                        self._rest(REST_PER_FIT * (time.monotonic() - started))
+
+    def _rest(self, seconds: float) -> None:
+        """Let the next snapshot wait ``seconds`` (called holding the condition; a close ends it)."""
+        until = time.monotonic() + seconds
+        while not self._closed and (left := until - time.monotonic()) > 0:
+            self._cond.wait(left)
 
     def confirm_now(self, readings: int, after_s: float, snapshot: dict[str, RawSamples],
                     imu: Any = None) -> Determination | None:
