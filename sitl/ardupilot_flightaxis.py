@@ -38,6 +38,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from magline.sim.truth.attitudes import spiral_attitude
+from magline.sitl.held_clock import HeldClock
 
 FLIGHTAXIS_PORT = 18083  # SIM_FlightAxis.h controller_port
 GRAVITY_MSS = 9.80665
@@ -151,8 +152,8 @@ class FlightAxisPeer:
         self.listener.settimeout(0.2)
         self.started = time.monotonic()
         self.lock = threading.Lock()
-        self.motion_s, self.last_s = 0.0, None  # the tumble's clock: it stands while the unit is held
-        self.exchanges = 0
+        self.clock, self.began = HeldClock(), None  # the tumble's clock (from SITL's first exchange)
+        self.motion_s = 0.0  # the tumble's time in the last answer
         self.stopped = threading.Event()
         self.thread: threading.Thread | None = None
 
@@ -161,15 +162,14 @@ class FlightAxisPeer:
         with self.lock:
             now = time.monotonic()
             held = self.held()
-            if self.last_s is not None and not held:
-                self.motion_s += now - self.last_s
-            self.last_s = now
-            attitude = self.tumble.attitude(self.motion_s)
+            self.began = now if self.began is None else self.began
+            motion_s = self.motion_s = self.clock.motion_s(self.began, now, held)
+            attitude = self.tumble.attitude(motion_s)
             if held:
                 rate = np.zeros(3)
             else:
                 dt = 0.01
-                rate = np.degrees((attitude.inv() * self.tumble.attitude(self.motion_s + dt)).as_rotvec() / dt)
+                rate = np.degrees((attitude.inv() * self.tumble.attitude(motion_s + dt)).as_rotvec() / dt)
             return attitude, rate, now - self.started
 
     def _answer(self, conn: socket.socket) -> None:
@@ -183,7 +183,6 @@ class FlightAxisPeer:
                     attitude, rate, physics_s = self.state()
                     body = reply_body(flightaxis_values(attitude, rate, physics_s, float(self.current_a()),
                                                         self.voltage_v))
-                    self.exchanges += 1
                 else:  # RestoreOriginalControllerDevice, InjectUAVControllerInterface, ResetAircraft
                     body = f"<?xml version='1.0' encoding='UTF-8'?><{action}Response/>"
                 conn.sendall(http_reply(body))

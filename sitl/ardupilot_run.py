@@ -196,32 +196,54 @@ def start_tumbling(link: mavutil.mavfile) -> None:
         raise RuntimeError(f"ArduCopter's SITL refused DO_SET_SERVO(5, 1250): {ack}")
 
 
-def one_unit(source: Path, workdir: Path, seed: int, turned: dict[int, int]) -> tuple[dict, list[Check]]:
+def _fresh(workdir: Path) -> None:
+    """A new board: no storage, no results from an earlier run in this folder."""
     workdir.mkdir(parents=True, exist_ok=True)
     for stale in ("eeprom.bin", "results.sqlite"):
         (workdir / stale).unlink(missing_ok=True)
-    field_ut, inclination = table_field(source, HOME[0], HOME[1])
-    truth = ApTruth.drawn(seed, turned=turned, field_ut=field_ut, inclination_deg=inclination)
-    (workdir / "truth.json").write_text(json.dumps({**asdict(truth), "expected": truth.expected()}, indent=2) + "\n")
-    sitl = ApSitl(source / "build" / "sitl" / "bin" / "arducopter", workdir)
+
+
+def _run_and_keep(sitl: ApSitl, truth: ApTruth, station: Path, serial: str, names: list[str],
+                  tumbling: bool) -> tuple[dict, float, dict[str, float]]:
+    """One unit on SITL: its truth set, ``magline run`` of ``station``, a hard power cut, and ``names`` read
+    back from what the board kept (with every compass's id).  ``tumbling``: the calibration model turns
+    the vehicle through its own cycle (the FlightAxis peer turns it otherwise)."""
+    workdir = sitl.workdir
     try:
         sitl.start()
         link = _link()
         _set(link, truth.sim_params())
-        start_tumbling(link)
+        if tumbling:
+            start_tumbling(link)
         link.close()
-        station = write_station("ardupilot-sim.yaml", workdir, truth.field_ut, truth.inclination_deg,
-                                {"connection": SERIAL0})
-        record, cycle_s = run_station(station, f"SITL-AP-{seed}", workdir)
+        record, cycle_s = run_station(station, serial, workdir)
         sitl.cut()  # the hard power cut: what was saved is what the unit keeps
         sitl.start()
         link = _link()
         ids = [f"COMPASS_DEV_ID{'' if n == 0 else n + 1}" for n in range(COMPASSES)]
-        kept = read_params(link, [*truth.expected(), *ids])
+        kept = read_params(link, [*names, *ids])
         link.close()
     finally:
         sitl.cut()
         sitl.log.close()
+    return record, cycle_s, kept
+
+
+def _write_truth(workdir: Path, truth: ApTruth, **more: object) -> None:
+    (workdir / "truth.json").write_text(json.dumps({**asdict(truth), "expected": truth.expected(), **more},
+                                                   indent=2) + "\n")
+
+
+def one_unit(source: Path, workdir: Path, seed: int, turned: dict[int, int]) -> tuple[dict, list[Check]]:
+    _fresh(workdir)
+    field_ut, inclination = table_field(source, HOME[0], HOME[1])
+    truth = ApTruth.drawn(seed, turned=turned, field_ut=field_ut, inclination_deg=inclination)
+    _write_truth(workdir, truth)
+    station = write_station("ardupilot-sim.yaml", workdir, truth.field_ut, truth.inclination_deg,
+                            {"connection": SERIAL0})
+    sitl = ApSitl(source / "build" / "sitl" / "bin" / "arducopter", workdir)
+    record, cycle_s, kept = _run_and_keep(sitl, truth, station, f"SITL-AP-{seed}", [*truth.expected()],
+                                          tumbling=True)
     return record, _judge(truth, record, kept, cycle_s)
 
 
@@ -232,41 +254,26 @@ SWEPT_NOISE_MG = 3.0  # SIM_MAG_RND of the swept unit: σ 1.7 mG (0.17 µT) per 
 def swept_unit(source: Path, workdir: Path, seed: int) -> tuple[dict, list[Check]]:
     """A good unit whose compasses follow the battery current: calibrated, swept, compensated and proven by
     the station in one run on SITL's FlightAxis back end, the current drawn by a simulated electronic load."""
-    workdir.mkdir(parents=True, exist_ok=True)
-    for stale in ("eeprom.bin", "results.sqlite"):
-        (workdir / stale).unlink(missing_ok=True)
+    _fresh(workdir)
     field_ut, inclination = table_field(source, HOME[0], HOME[1])
     per_amp = np.random.default_rng(seed + 1000).uniform(-1.5, 1.5, 3).round(2).tolist()  # ≤ 22 % at 40 A
     # a compass's noise, as a real one has: SITL's noiseless compass sends one value in every message while the
     # unit is held for the sweep, and the station (which drops a stream's repeats) has no readings to sweep with
     truth = ApTruth.drawn(seed, field_ut=field_ut, inclination_deg=inclination, mag_mot_mg_per_a=per_amp,
                           noise_mg=SWEPT_NOISE_MG)
-    (workdir / "truth.json").write_text(json.dumps(
-        {**asdict(truth), "expected": truth.expected(), "expected_compensation": truth.expected_compensation()},
-        indent=2) + "\n")
+    _write_truth(workdir, truth, expected_compensation=truth.expected_compensation())
     load = LoadSim("tcp:127.0.0.1:0").start()
     peer = FlightAxisPeer(Tumble(), load.sinking_current, lambda: load.input_on).start()
-    sitl = ApSitl(source / "build" / "sitl" / "bin" / "arducopter", workdir, model="flightaxis")
     try:
-        sitl.start()
-        link = _link()
-        _set(link, truth.sim_params())
-        link.close()
         station = write_station("interference-sim.yaml", workdir, truth.field_ut, truth.inclination_deg,
                                 {"connection": SERIAL0},
                                 {"current_source": {"type": "electronic-load",
                                                     "options": {"resource": load.visa_resource,
                                                                 "max_current_a": 60.0}}})
-        record, cycle_s = run_station(station, f"SITL-AP-MOT-{seed}", workdir)
-        sitl.cut()
-        sitl.start()
-        link = _link()
-        ids = [f"COMPASS_DEV_ID{'' if n == 0 else n + 1}" for n in range(COMPASSES)]
-        kept = read_params(link, [*truth.expected(), *truth.expected_compensation(), *ids])
-        link.close()
+        sitl = ApSitl(source / "build" / "sitl" / "bin" / "arducopter", workdir, model="flightaxis")
+        record, cycle_s, kept = _run_and_keep(sitl, truth, station, f"SITL-AP-MOT-{seed}",
+                                              [*truth.expected(), *truth.expected_compensation()], tumbling=False)
     finally:
-        sitl.cut()
-        sitl.log.close()
         peer.stop()
         load.stop()
     return record, [*_judge(truth, record, kept, cycle_s), *_compensation_checks(truth, kept)]

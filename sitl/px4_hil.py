@@ -43,6 +43,7 @@ from scipy.spatial.transform import Rotation
 
 from magline.sim.truth.attitudes import spiral_attitude
 from magline.sim.truth.sensor import earth_field_ned
+from magline.sitl.held_clock import HeldClock
 
 HIL_PORT = 4560  # PX4's simulator_mavlink connects here (+ its instance)
 SENSOR_HZ = 250.0  # accelerometer and gyro, as PX4's own simulators send them
@@ -144,7 +145,7 @@ class HilFeeder:
                  current_a: Callable[[], float] = lambda: 0.0, held: Callable[[], bool] = lambda: False) -> None:
         self.truth = truth
         self.current_a, self.held = current_a, held
-        self.held_s, self._held_since = 0.0, None  # the time the unit stood held (the motion's clock stood)
+        self.clock = HeldClock()
         self.rng = np.random.default_rng(seed)
         self.server = socket.create_server(("127.0.0.1", port))
         self.server.settimeout(0.2)
@@ -159,18 +160,13 @@ class HilFeeder:
         """The motion time now, and whether the unit still moves (not while it is held for a sweep)."""
         if self.rested_at is not None:
             return self.rested_at, False
-        now = time.monotonic()
-        if self.held():
-            self._held_since = now if self._held_since is None else self._held_since
-            return self._held_since - started - self.held_s, False
-        if self._held_since is not None:
-            self.held_s, self._held_since = self.held_s + now - self._held_since, None
-        return now - started - self.held_s, True
+        held = self.held()
+        return self.clock.motion_s(started, time.monotonic(), held), not held
 
     def rest(self) -> None:
         """Set the unit down in the attitude it has now; it stays there (across power cuts too)."""
         if self.rested_at is None and self.started is not None:
-            self.rested_at = time.monotonic() - self.started
+            self.rested_at = self.clock.motion_s(self.started, time.monotonic(), self.held())
 
     def _drain(self, conn: socket.socket) -> None:
         conn.settimeout(0.5)

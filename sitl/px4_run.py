@@ -77,28 +77,38 @@ def read_px4_params(names: list[str], timeout_s: float = 60.0) -> dict[str, floa
         link.close()
 
 
-def one_unit(build: Path, workdir: Path, seed: int, turned_deg: float) -> tuple[dict, list[Check]]:
-    """Run one unit on a fresh board; its compass sits at ``turned_deg`` of yaw (0: where PX4 expects it)."""
-    if workdir.exists():
-        for stale in ("parameters.bson", "parameters_backup.bson", "results.sqlite"):
-            (workdir / stale).unlink(missing_ok=True)
-    truth = Px4Truth.drawn(seed, mounting_yaw_deg=turned_deg)
+def _fresh(workdir: Path) -> None:
+    """A new board: no parameters kept, no results from an earlier run in this folder."""
     workdir.mkdir(parents=True, exist_ok=True)
-    (workdir / "truth.json").write_text(json.dumps(asdict(truth), indent=2) + "\n")
-    feeder = HilFeeder(truth, seed=seed)
+    for stale in ("parameters.bson", "parameters_backup.bson", "results.sqlite"):
+        (workdir / stale).unlink(missing_ok=True)
+
+
+def _run_and_keep(px4: Px4Process, feeder: HilFeeder, station: Path, serial: str,
+                  names: list[str]) -> tuple[dict, float, dict[str, float]]:
+    """One unit on PX4's SITL fed by ``feeder``: ``magline run`` of the station, a hard power cut, and
+    ``names`` read back from what the board kept."""
     threading.Thread(target=feeder.serve, daemon=True).start()
-    px4 = Px4Process.prepare(build, workdir)
     try:
         px4.on()
-        station = station_file(workdir, truth)
-        record, cycle_s = run_station(station, f"SITL-PX4-{seed}", workdir)
+        record, cycle_s = run_station(station, serial, px4.workdir)
         px4.off()  # the hard power cut: what was saved is what the unit keeps
         px4.on()
-        slots = [f"CAL_MAG{n}_{k}" for n in range(4) for k in ("ID", *truth.expected)]
-        kept = read_px4_params(slots)
+        kept = read_px4_params(names)
     finally:
         px4.off()
         feeder.stop()
+    return record, cycle_s, kept
+
+
+def one_unit(build: Path, workdir: Path, seed: int, turned_deg: float) -> tuple[dict, list[Check]]:
+    """Run one unit on a fresh board; its compass sits at ``turned_deg`` of yaw (0: where PX4 expects it)."""
+    _fresh(workdir)
+    truth = Px4Truth.drawn(seed, mounting_yaw_deg=turned_deg)
+    (workdir / "truth.json").write_text(json.dumps(asdict(truth), indent=2) + "\n")
+    slots = [f"CAL_MAG{n}_{k}" for n in range(4) for k in ("ID", *truth.expected)]
+    record, cycle_s, kept = _run_and_keep(Px4Process.prepare(build, workdir), HilFeeder(truth, seed=seed),
+                                          station_file(workdir, truth), f"SITL-PX4-{seed}", slots)
     return record, _judge(truth, record, kept, cycle_s, turned=bool(turned_deg))
 
 
@@ -113,35 +123,26 @@ def swept_unit(build: Path, workdir: Path, seed: int) -> tuple[dict, list[Check]
     """A good unit whose compass follows the battery current: calibrated, swept, compensated and proven in
     one run, the current drawn by a simulated electronic load and told to PX4 by the feeder's power module
     (PX4 started with ``SIM_BAT_ENABLE = 0``: its own simulated battery would compete)."""
-    if workdir.exists():
-        for stale in ("parameters.bson", "parameters_backup.bson", "results.sqlite"):
-            (workdir / stale).unlink(missing_ok=True)
+    _fresh(workdir)
     per_amp = np.random.default_rng(seed + 1000).uniform(-0.12, 0.12, 3).round(4).tolist()  # ≤ 17 % at 40 A
     truth = Px4Truth.drawn(seed, interference_ut_per_a=per_amp)
-    workdir.mkdir(parents=True, exist_ok=True)
     (workdir / "truth.json").write_text(json.dumps(
         {**asdict(truth), "expected_compensation": truth.expected_compensation()}, indent=2) + "\n")
     load = LoadSim("tcp:127.0.0.1:0").start()
-    feeder = HilFeeder(truth, seed=seed, current_a=load.sinking_current, held=lambda: load.input_on)
-    threading.Thread(target=feeder.serve, daemon=True).start()
     battery = BatteryReporter(load.sinking_current).start()
-    px4 = Px4Process.prepare(build, workdir, env={"PX4_PARAM_SIM_BAT_ENABLE": "0"})
+    feeder = HilFeeder(truth, seed=seed, current_a=load.sinking_current, held=lambda: load.input_on)
+    station = station_file(workdir, truth, {"interference": "compensate", "current_max_a": CURRENT_MAX_A,
+                                            "limits": {"hard_iron_norm_ut": {"le": 150.0}, **SWEEP_LIMITS}},
+                           {"current_source": {"type": "electronic-load", "options": {"resource": load.visa_resource}},
+                            "interference": SWEEP})
+
+    slots = [f"CAL_MAG{n}_{k}" for n in range(4) for k in ("ID", *truth.expected, "XCOMP", "YCOMP", "ZCOMP")]
     try:
-        px4.on()
-        station = station_file(workdir, truth, {"interference": "compensate", "current_max_a": CURRENT_MAX_A,
-                                                "limits": {"hard_iron_norm_ut": {"le": 150.0}, **SWEEP_LIMITS}},
-                               {"current_source": {"type": "electronic-load",
-                                                   "options": {"resource": load.visa_resource}},
-                                "interference": SWEEP})
-        record, cycle_s = run_station(station, f"SITL-PX4-MOT-{seed}", workdir)
-        px4.off()
-        px4.on()
-        slots = [f"CAL_MAG{n}_{k}" for n in range(4) for k in ("ID", *truth.expected, "XCOMP", "YCOMP", "ZCOMP")]
-        kept = read_px4_params([*slots, "CAL_MAG_COMP_TYP"])
+        record, cycle_s, kept = _run_and_keep(
+            Px4Process.prepare(build, workdir, env={"PX4_PARAM_SIM_BAT_ENABLE": "0"}), feeder, station,
+            f"SITL-PX4-MOT-{seed}", [*slots, "CAL_MAG_COMP_TYP"])
     finally:
-        px4.off()
         battery.stop()
-        feeder.stop()
         load.stop()
     return record, [*_judge(truth, record, kept, cycle_s, turned=False), *_compensation_checks(truth, record, kept)]
 
