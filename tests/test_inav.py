@@ -22,13 +22,14 @@ from magline.sim import SimFaults, create_sim
 from magline.sim.inav import COUNTS_PER_GAUSS, SETTINGS
 from magline.sim.magnetometers import SimMagnetometer
 from magline.testing import check_dut_backend
+from magline.testing.sims import POLLED_SPEED
 
 OPTIONS = {"connect_timeout_s": 4.0, "boot_timeout_s": 8.0}
 COUNTS_PER_UT = COUNTS_PER_GAUSS / 100.0
 
 
 def board(tmp_path: Path, faults: SimFaults | None = None, **options):
-    return create_sim("inav", "tcp:127.0.0.1:0", workdir=tmp_path / "fc", seed=11, boot_time_s=0.3, speed=5.0,
+    return create_sim("inav", "tcp:127.0.0.1:0", workdir=tmp_path / "fc", seed=11, boot_time_s=0.3, speed=POLLED_SPEED,
                       mag_rate_hz=FAST_SENSOR_HZ, faults=faults, **options)
 
 
@@ -305,7 +306,7 @@ def test_a_whole_inav_unit_runs_over_a_serial_port_across_its_reboot(tmp_path):
     """INAV on USB: the MSP client on a serial port (a pseudo-terminal behind a udev-style name that goes and
     comes back at the reboot, as a board re-enumerating does)."""
     port = tmp_path / "dev" / "serial" / "by-id" / "usb-INAV_SITL-if00"
-    with create_sim("inav", f"serial:{port}", workdir=tmp_path / "fc", seed=11, boot_time_s=0.3, speed=5.0,
+    with create_sim("inav", f"serial:{port}", workdir=tmp_path / "fc", seed=11, boot_time_s=0.3, speed=POLLED_SPEED,
                     mag_rate_hz=FAST_SENSOR_HZ) as sim:
         record = run_unit(station(tmp_path, f"serial:{port}"))
         nodes = list(sim.link.devices)

@@ -27,6 +27,7 @@ LOAD_FOUND = (
     "tests/test_example_plugin.py::test_the_example_plugin_from_a_clean_venv_passes_its_own_tests",
     "tests/test_interference.py::test_a_link_that_delivers_late_in_bursts_counts_no_reading_at_the_wrong_level",
     "tests/test_dashboard.py::test_many_open_pages_do_not_starve_the_dashboard",
+    "tests/test_inav.py",  # polled over MSP: a loaded station's polls thinned out a sped-up tumble (5 of 22 failed)
 )
 
 pytestmark = pytest.mark.load
