@@ -16,8 +16,9 @@ from typing import Any
 FAST = {"boot_time_s": 0.3, "mag_rate_hz": 100.0, "speed": 5.0}  # what magline's own backend tests use
 # A board the station polls (INAV's MSP) is read as often as the station's loop runs, not on the board's own
 # clock as a MAVLink stream is: on a loaded machine the polls thin out, and a tumble five times a hand's pace
-# (its field spinning 1,600°/s) is then undersampled. At twice a hand's pace a good unit holds down to a
-# quarter of the 50 Hz the station asks (measured: pass at 12 Hz; at five times it failed at 20 Hz).
+# (its field spinning 1,600°/s) is then undersampled. At twice a hand's pace a good unit holds at 20 Hz, 2.5
+# times below the 50 Hz the station asks (at 12 Hz it passed once and failed once; at five times it failed at
+# 20 Hz): ``benchmarks/polled_pace.py`` prints the margins.
 POLLED_SPEED = 2.0
 
 
