@@ -35,8 +35,8 @@ class SimFaults:
     # every compass repeats the reading it had this long after a mag stream starts, ever after (a sensor whose
     # bus hung: the driver publishes its last sample again and again) while the messages keep coming
     mag_stuck_after_s: float | None = field(default=None, metadata={"boards": MAVLINK})
-    # the reboot command's ACK is lost on the way (the board reboots all the same)
-    lose_reboot_ack: bool = field(default=False, metadata={"boards": MAVLINK})
+    # the reboot command's ACK (INAV: MSP_REBOOT's reply) is lost on the way (the board reboots all the same)
+    lose_reboot_ack: bool = False
     link_loss_after_s: float | None = None  # the link goes silent this long after a mag stream starts
     # "HOLD_S:EVERY_S": every EVERY_S the board's output is held HOLD_S, then leaves at once — what a station
     # sees of a host that reads its port late (a busy PC) or a USB bus that stalls: bytes late by up to

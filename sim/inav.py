@@ -215,7 +215,8 @@ class InavSim(SimulatedAutopilot):
             if answer is None:
                 self.refused.append(frame.command)
             encode = encode_msp_v2 if frame.version == 2 else encode_msp_v1
-            self._transmit(encode(frame.command, answer or b"", REPLY if answer is not None else ERROR))
+            if not (self.faults.lose_reboot_ack and frame.command == Msp.REBOOT):
+                self._transmit(encode(frame.command, answer or b"", REPLY if answer is not None else ERROR))
             after = self._after_ack
             if after is not None:
                 self._after_ack = None

@@ -325,6 +325,28 @@ def test_the_link_lost_mid_tumble_is_an_error_with_the_raw_data_kept_and_the_uni
     assert record.left_changed == {n: f"{neutral[n]} (was {v})" for n, v in PREVIOUS.items()}
 
 
+def test_a_board_that_answers_later_than_the_reply_timeout_now_and_then_passes(tmp_path):
+    """The board's output held 1.5 s of every 5 s (a host that reads its port late, a USB bus that stalls, a
+    board writing its flash), longer than the 1 s reply timeout: each request caught in a hold is sent again, as
+    INAV's configurator does, and its late answers are neither lost links nor readings put at the wrong time.
+    Before, the first hold ended the unit as an ERROR (no reply to MSP command 102 within 1 s)."""
+    with board(tmp_path, SimFaults(link_stalls="1.5:5.0")) as sim:
+        record = run_unit(station(tmp_path, sim.address))
+    assert record.verdict is Outcome.PASS, record.cause
+    assert record.params_read_back == record.params_written
+    assert measured(record, "mounting_error_deg") < 3.0  # no reading placed at the time of another
+
+
+def test_a_reboot_whose_reply_is_lost_is_proven_by_the_new_boot(tmp_path):
+    """MSP_REBOOT's reply lost on the way, the board rebooting all the same: the new boot's uptime proves it;
+    the request is not sent again (it could reboot the new boot once more)."""
+    with board(tmp_path, SimFaults(lose_reboot_ack=True)) as sim:
+        record = run_unit(station(tmp_path, sim.address))
+        reboots = sim.boots
+    assert record.verdict is Outcome.PASS, record.cause
+    assert record.persistence["method"] == "link-reboot" and reboots == 2
+
+
 def test_a_reboot_that_never_comes_back_is_an_error_and_nothing_is_claimed(tmp_path):
     with board(tmp_path, SimFaults(reboot_fails=True)) as sim:
         record = run_unit(station(tmp_path, sim.address, options={"boot_timeout_s": 2.0}))

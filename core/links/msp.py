@@ -294,52 +294,98 @@ class MspParser:
 
 class MspClient:
     """Request / reply over one byte stream (``tcp:HOST:PORT`` or ``serial:DEV[:BAUD]``).  Commands above
-    255 go as v2 (INAV's settings live there); the rest as v1 unless ``v2`` is asked for."""
+    255 go as v2 (INAV's settings live there); the rest as v1 unless ``v2`` is asked for.
 
-    def __init__(self, transport, timeout_s: float = 1.0) -> None:
+    A request unanswered within ``timeout_s`` is sent again, ``resends`` times, before the link is called lost,
+    as INAV's configurator does: one frame spoilt on a serial line, or a board that answered late (a flash
+    write, a busy host), is not a lost unit.  MSP numbers no request, so a reply can only be told from a
+    later one to the same command by count: a resent request leaves a reply owed, and the next request of that
+    command first waits it out (at most ``timeout_s`` after the last send), so that no answer is ever taken
+    for a later question (a setting read back as another's value)."""
+
+    def __init__(self, transport, timeout_s: float = 1.0, resends: int = 2) -> None:
         self.transport = transport
         self.timeout_s = timeout_s
+        self.resends = resends
         self.parser = MspParser()
+        self.resent = 0  # requests sent again because no reply came in time
+        self._owed: dict[int, tuple[int, float]] = {}  # command → (replies still to come, until when)
 
     @classmethod
-    def tcp(cls, host: str, port: int, timeout_s: float = 1.0, connect_timeout_s: float = 5.0) -> MspClient:
+    def tcp(cls, host: str, port: int, timeout_s: float = 1.0, connect_timeout_s: float = 5.0,
+            resends: int = 2) -> MspClient:
         try:
             sock = socket.create_connection((host, port), timeout=connect_timeout_s)
         except OSError as exc:
             raise LinkError(f"nothing answers MSP on tcp:{host}:{port} ({exc})") from exc
-        return cls(_SocketStream(sock), timeout_s)
+        return cls(_SocketStream(sock), timeout_s, resends)
 
     @classmethod
-    def connect(cls, address: str, timeout_s: float = 1.0, connect_timeout_s: float = 5.0) -> MspClient:
+    def connect(cls, address: str, timeout_s: float = 1.0, connect_timeout_s: float = 5.0,
+                resends: int = 2) -> MspClient:
         """``tcp:HOST:PORT`` or ``serial:DEV[:BAUD]`` (115200 when not said; a USB CDC port ignores it)."""
         if address.startswith("tcp:"):
             host, _, port = address.removeprefix("tcp:").rpartition(":")
             if not host or not port.isdigit():
                 raise ValueError(f"{address!r} is not tcp:HOST:PORT")
-            return cls.tcp(host, int(port), timeout_s, connect_timeout_s)
+            return cls.tcp(host, int(port), timeout_s, connect_timeout_s, resends)
         if address.startswith("serial:"):
             where = SerialAddress.parse(address)  # SerialAddressError (a ValueError) names what is wrong
-            return cls(_SerialStream(where.path, where.baud), timeout_s)
+            return cls(_SerialStream(where.path, where.baud), timeout_s, resends)
         raise ValueError(f"{address!r}: an MSP connection is tcp:HOST:PORT or serial:DEV[:BAUD]")
 
     def request(self, command: int, payload: bytes = b"", v2: bool | None = None,
-                timeout_s: float | None = None) -> bytes:
+                timeout_s: float | None = None, resends: int | None = None) -> bytes:
         """The reply's payload to ``command``; :class:`MspRefused` on an error reply, :class:`MspTimeout`
-        when none comes in time."""
+        when none comes to the request nor to any of its ``resends`` (``0`` for a request that must go once:
+        a reboot)."""
         use_v2 = command > V1_MAX_COMMAND if v2 is None else v2
-        self.transport.write(encode_msp_v2(command, payload) if use_v2 else encode_msp_v1(command, payload))
-        deadline = time.monotonic() + (self.timeout_s if timeout_s is None else timeout_s)
+        frame = encode_msp_v2(command, payload) if use_v2 else encode_msp_v1(command, payload)
+        wait_s = self.timeout_s if timeout_s is None else timeout_s
+        sends = 1 + (self.resends if resends is None else resends)
+        self._settle(command)
+        for sent in range(1, sends + 1):
+            self.transport.write(frame)
+            if sent > 1:
+                self.resent += 1
+            deadline = time.monotonic() + wait_s
+            reply = self._next(command, deadline)
+            if reply is not None:
+                if sent > 1:  # the earlier sends may still be answered: those replies are not this one's
+                    self._owed[command] = (sent - 1, deadline)
+                if reply.direction == ERROR:
+                    raise MspRefused(command)
+                return reply.payload
+        self._owed[command] = (sends, deadline)
+        raise MspTimeout(f"no reply to MSP command {command} within {wait_s:g} s"
+                         + (f", sent {sends} times" if sends > 1 else ""))
+
+    def _settle(self, command: int) -> None:
+        """Replies still owed to earlier sends of ``command`` are read and dropped, or given up at their time."""
+        owed, until = self._owed.pop(command, (0, 0.0))
+        while owed > 0 and self._next(command, until) is not None:
+            owed -= 1
+
+    def _next(self, command: int, deadline: float) -> MspFrame | None:
+        """The next reply (or error reply) to ``command`` that arrives before ``deadline``.  Any other frame is
+        dropped: a late reply to an earlier request (counted off what that command is owed), or the station's
+        own echo on a shared line."""
+        data = b""  # first what an earlier read brought beyond its own reply
         while True:
+            for frame in self.parser.feed(data):
+                if frame.direction == REQUEST:
+                    continue
+                if frame.command == command:
+                    return frame
+                owed, until = self._owed.get(frame.command, (0, 0.0))
+                if owed > 1:
+                    self._owed[frame.command] = (owed - 1, until)
+                elif owed == 1:
+                    del self._owed[frame.command]
             left = deadline - time.monotonic()
             if left <= 0:
-                raise MspTimeout(f"no reply to MSP command {command} within "
-                                 f"{self.timeout_s if timeout_s is None else timeout_s:g} s")
-            for frame in self.parser.feed(self.transport.read(left)):
-                if frame.command != command or frame.direction == REQUEST:
-                    continue  # a late reply to an earlier request, or our own echo on a shared line
-                if frame.direction == ERROR:
-                    raise MspRefused(command)
-                return frame.payload
+                return None
+            data = self.transport.read(left)
 
     def close(self) -> None:
         self.transport.close()

@@ -79,7 +79,7 @@ class InavDut:
     def __init__(self, product: Product, options: InavOptions) -> None:
         self.product = product
         self.opts = options
-        self.link = InavLink(product.connection, options.reply_timeout_s)
+        self.link = InavLink(product.connection, options.reply_timeout_s, options.reply_resends)
         self.counts_per_ut = options.counts_per_gauss / 100.0
         self.boot_timeout_s = options.boot_timeout_s
         self.identity: Identity | None = None

@@ -3,6 +3,7 @@ its compass and accelerometer readings.  What the backend needs of the link, and
 
 from __future__ import annotations
 
+import contextlib
 import struct
 import time
 from dataclasses import dataclass
@@ -56,9 +57,10 @@ class ImuReading:
 
 
 class InavLink:
-    def __init__(self, address: str, reply_timeout_s: float) -> None:
+    def __init__(self, address: str, reply_timeout_s: float, reply_resends: int = 2) -> None:
         self.address = address
         self.reply_timeout_s = reply_timeout_s
+        self.reply_resends = reply_resends
         self.client: MspClient | None = None
         self.infos: dict[str, SettingInfo] = {}
 
@@ -70,7 +72,7 @@ class InavLink:
         while True:
             try:
                 self.client = MspClient.connect(self.address, self.reply_timeout_s, connect_timeout_s=max(
-                    min(deadline - time.monotonic(), 2.0), 0.1))
+                    min(deadline - time.monotonic(), 2.0), 0.1), resends=self.reply_resends)
                 self.request(Msp.API_VERSION)  # answering, not just accepting the connection
                 return
             except LinkError as exc:
@@ -86,10 +88,10 @@ class InavLink:
             self.client.close()
             self.client = None
 
-    def request(self, command: int, payload: bytes = b"") -> bytes:
+    def request(self, command: int, payload: bytes = b"", resends: int | None = None) -> bytes:
         if self.client is None:
             raise LinkError(f"the MSP link to {self.address} is closed")
-        return self.client.request(command, payload)
+        return self.client.request(command, payload, resends=resends)
 
     # ------------------------------------------------------------------ identity and state
     def identify(self) -> Identity:
@@ -168,7 +170,11 @@ class InavLink:
             raise DutError("INAV refused to save its settings (MSP_EEPROM_WRITE): armed since the check?") from None
 
     def reboot(self) -> None:
-        self.request(Msp.REBOOT)
+        """``MSP_REBOOT``, sent once: INAV answers, then reboots.  A reply that never comes, or a link that drops
+        before it, proves nothing either way (lost on the way, or the board already going down): the new boot's
+        uptime will.  A request sent again could reach the new boot and reboot it once more."""
+        with contextlib.suppress(LinkError):  # MspTimeout among them
+            self.request(Msp.REBOOT, resends=0)
 
     # ------------------------------------------------------------------ readings
     def imu(self) -> ImuReading:
