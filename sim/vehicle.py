@@ -20,6 +20,7 @@ import random
 import threading
 import time
 from abc import ABC, abstractmethod
+from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, ClassVar
@@ -186,6 +187,8 @@ class SimulatedAutopilot(ABC):
         self.sent_at: float | None = None  # when the board last put bytes on the link (monotonic)
         self.frames_sent = 0  # frames put on the link
         self.frames_dropped = 0  # frames the ``drop_percent`` fault lost on the way
+        self.param_reads: Counter[str] = Counter()  # PARAM_REQUEST_READ by name, per name (tests read it)
+        self.param_lists = 0  # PARAM_REQUEST_LIST received
         self._held_output: list[bytes] = []  # frames sent during a stall of the ``link_stalls`` fault
         self.started_at = time.monotonic()  # the ``link_stalls`` fault's stalls run from here
 
@@ -737,12 +740,15 @@ class SimulatedAutopilot(ABC):
         if not self._for_us(msg):
             return
         if kind == "PARAM_REQUEST_LIST":
+            self.param_lists += 1
             for name in self.table.names:
                 if name not in self.faults.unknown_params:
                     self.send_param(name)
         elif kind == "PARAM_REQUEST_READ":
             name = msg.param_id if msg.param_index < 0 else (
                 self.table.names[msg.param_index] if msg.param_index < len(self.table.names) else None)
+            if msg.param_index < 0:
+                self.param_reads[name] += 1
             if name in self.table and name not in self.faults.unknown_params:
                 self.send_param(name)
         elif kind == "PARAM_SET":

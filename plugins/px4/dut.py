@@ -164,7 +164,8 @@ class Px4Dut:
         self.chosen = list(device_ids)
 
     def _has_param(self, name: str) -> bool:
-        """Whether this firmware has ``name`` (asked once per link: an unknown name costs the read's retries)."""
+        """Whether this firmware has ``name``, asked once per link: the first unknown name costs a read's
+        retries, then the firmware's list of parameters answers for every other (``Px4Link.listed_names``)."""
         known = self._param_known
         if name not in known:
             try:

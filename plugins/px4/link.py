@@ -68,6 +68,11 @@ def _route_mavsdk_logs() -> None:
 
 
 
+class NotListed(DutError):
+    """The firmware has no such parameter: its own list of parameters lacks the name (a release older than the
+    name, or a build without the module).  A fact of the unit's firmware, not a link's silence."""
+
+
 class Px4Link:
     def __init__(self, url: str, *, connect_timeout_s: float = 10.0) -> None:
         self.url = url
@@ -81,6 +86,7 @@ class Px4Link:
         self.connect_timeout_s = connect_timeout_s
         self.mavsdk: Mavsdk | None = None
         self.system: Any = None
+        self._listed: frozenset[str] | None = None  # the firmware's parameter names, once asked on this link
         self.target_system = 1
         self._shell_out: queue.Queue[str] = queue.Queue()
         self._shell_lock = threading.Lock()
@@ -110,6 +116,7 @@ class Px4Link:
             raise StationFault(f"the vehicle on {self.url} is {kind}, not PX4; check the product's backend")
         self.target_system = self.system.get_system_id()
         self.param = Param(self.system)
+        self._listed = None
         self.action = Action(self.system)
         self.info = Info(self.system)
         self.direct = MavlinkDirect(self.system)
@@ -197,6 +204,8 @@ class Px4Link:
         late, and ERRORed a good unit on a name the firmware has."""
         if not self.is_open:
             raise LinkError(f"link to {self.url} is closed (reading {name})")
+        if self._listed is not None and name not in self._listed:
+            raise NotListed(f"this PX4 has no parameter {name} (not in the list of its parameters)")
         asked = 0
         while True:
             asked += 1
@@ -206,12 +215,31 @@ class Px4Link:
                 if exc.result.name != "TIMEOUT":
                     raise DutError(f"parameter {name} could not be read: {exc.result.name}") from exc
                 # PX4 1.13–1.16 drop an unknown name silently; so does a lossy link, or a host too late to listen
+                listed = self.listed_names()
+                if listed is not None and name not in listed:
+                    raise NotListed(f"this PX4 has no parameter {name} (not in the list of its parameters)") from exc
+                # listed (or no list to be had): the answer was lost, or came too late — ask again once heard
                 self.require_alive(f"reading {name}")
                 if asked == READ_ASKS:
                     raise UnansweredRequest(
                         f"parameter {name} could not be read: no answer to {READ_ASKS} requests while the vehicle "
                         "otherwise answers (a name this firmware does not know, or answers lost on the link): the "
                         "unit is not judged") from exc
+
+    def listed_names(self) -> frozenset[str] | None:
+        """Every parameter name the firmware lists (PARAM_REQUEST_LIST; MAVSDK asks again for what the link
+        lost, and answers only a whole list), asked once per link and only after a read went unanswered: an
+        unknown name costs a read all its retries, and an older PX4 lacks several names the station asks
+        for (CAL_MAGn_xODIAG before v1.12, CAL_MAGn_ROLL before v1.15), each of which took seconds.  None
+        when the list cannot be had: the read is then asked again as before."""
+        if self._listed is None:
+            try:
+                found = self.param.get_all_params()
+            except ParamError:
+                return None
+            names = [p.name for group in (found.int_params, found.float_params) for p in group]
+            self._listed = frozenset(names) if names else None
+        return self._listed
 
     def set(self, name: str, value: int | float, is_int: bool) -> int | float:
         """PARAM_SET with the exact type (INT32 byte-wise or REAL32); return the value read afterwards."""
