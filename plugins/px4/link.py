@@ -87,6 +87,7 @@ class Px4Link:
         self.mavsdk: Mavsdk | None = None
         self.system: Any = None
         self._listed: frozenset[str] | None = None  # the firmware's parameter names, once asked on this link
+        self._list_asked = False
         self.target_system = 1
         self._shell_out: queue.Queue[str] = queue.Queue()
         self._shell_lock = threading.Lock()
@@ -116,7 +117,7 @@ class Px4Link:
             raise StationFault(f"the vehicle on {self.url} is {kind}, not PX4; check the product's backend")
         self.target_system = self.system.get_system_id()
         self.param = Param(self.system)
-        self._listed = None
+        self._listed, self._list_asked = None, False
         self.action = Action(self.system)
         self.info = Info(self.system)
         self.direct = MavlinkDirect(self.system)
@@ -204,8 +205,7 @@ class Px4Link:
         late, and ERRORed a good unit on a name the firmware has."""
         if not self.is_open:
             raise LinkError(f"link to {self.url} is closed (reading {name})")
-        if self._listed is not None and name not in self._listed:
-            raise NotListed(f"this PX4 has no parameter {name} (not in the list of its parameters)")
+        self._require_listed(name)
         asked = 0
         while True:
             asked += 1
@@ -215,9 +215,8 @@ class Px4Link:
                 if exc.result.name != "TIMEOUT":
                     raise DutError(f"parameter {name} could not be read: {exc.result.name}") from exc
                 # PX4 1.13–1.16 drop an unknown name silently; so does a lossy link, or a host too late to listen
-                listed = self.listed_names()
-                if listed is not None and name not in listed:
-                    raise NotListed(f"this PX4 has no parameter {name} (not in the list of its parameters)") from exc
+                self.listed_names()
+                self._require_listed(name)
                 # listed (or no list to be had): the answer was lost, or came too late — ask again once heard
                 self.require_alive(f"reading {name}")
                 if asked == READ_ASKS:
@@ -232,7 +231,8 @@ class Px4Link:
         unknown name costs a read all its retries, and an older PX4 lacks several names the station asks
         for (CAL_MAGn_xODIAG before v1.12, CAL_MAGn_ROLL before v1.15), each of which took seconds.  None
         when the list cannot be had: the read is then asked again as before."""
-        if self._listed is None:
+        if not self._list_asked:
+            self._list_asked = True
             try:
                 found = self.param.get_all_params()
             except ParamError:
@@ -240,6 +240,11 @@ class Px4Link:
             names = [p.name for group in (found.int_params, found.float_params) for p in group]
             self._listed = frozenset(names) if names else None
         return self._listed
+
+    def _require_listed(self, name: str) -> None:
+        """NotListed when the firmware's list, once asked, lacks ``name``."""
+        if self._listed is not None and name not in self._listed:
+            raise NotListed(f"this PX4 has no parameter {name} (not in the list of its parameters)")
 
     def set(self, name: str, value: int | float, is_int: bool) -> int | float:
         """PARAM_SET with the exact type (INT32 byte-wise or REAL32); return the value read afterwards."""
