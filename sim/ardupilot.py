@@ -70,6 +70,7 @@ class ArduPilotSim(SimulatedAutopilot):
     default_listen = "tcp:127.0.0.1:5760"
     storage_name = "eeprom.json"
     firmware_version = (4, 6, 2)
+    ANSWERS_WITH_ASKED_INDEX = True
     # compass priority 0/1/2 → RAW_IMU (and SCALED_IMU, same numbers) / SCALED_IMU2 / SCALED_IMU3
     stream_sensor: ClassVar[dict[int, int]] = {mavlink.MAVLINK_MSG_ID_RAW_IMU: 0, mavlink.MAVLINK_MSG_ID_SCALED_IMU: 0,
                      mavlink.MAVLINK_MSG_ID_SCALED_IMU2: 1, mavlink.MAVLINK_MSG_ID_SCALED_IMU3: 2}
@@ -115,13 +116,13 @@ class ArduPilotSim(SimulatedAutopilot):
             return
         if spec.read_only:
             self.statustext(mavlink.MAV_SEVERITY_WARNING, "Param write denied")
-            self.send_param(name)
+            self.send_param(name, -1)
             return
         self.table.set(name, value)
         self._store(name)
         for sibling in self._vector_of(name):
             if not (sibling == name and name in self.faults.lose_param_echo):
-                self.send_param(sibling)
+                self.send_param(sibling, -1)
 
     @staticmethod
     def _vector_of(name: str) -> list[str]:

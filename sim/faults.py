@@ -24,6 +24,8 @@ class SimFaults:
     # names this firmware does not have (an older release): reads and writes of them go unanswered, as
     # ArduPilot and PX4 v1.13–v1.16 treat unknown names
     unknown_params: list[str] = field(default_factory=list, metadata={"boards": MAVLINK})
+    # "NAME:K": the answers to the first K reads of NAME are lost on the way (a lossy link, answers late)
+    lose_param_answers: list[str] = field(default_factory=list, metadata={"boards": MAVLINK, "form": "NAME:K,…"})
     # the link goes silent when a PARAM_SET of this name arrives (a cable pulled)
     link_loss_at_param_set: str = field(default="", metadata={"boards": MAVLINK})
     no_persist: list[str] = field(default_factory=list)  # names whose value never reaches storage
@@ -177,6 +179,10 @@ class SimFaults:
             n, _, ms = item.partition(":")
             out[int(n) - 1] = float(ms) / 1000.0
         return out
+
+    def answers_lost(self) -> dict[str, int]:
+        """NAME → how many of its first reads go unanswered (the ``lose_param_answers`` fault)."""
+        return {name: int(k) for name, _, k in (item.rpartition(":") for item in self.lose_param_answers)}
 
     def ignores(self, name: str) -> bool:
         return "*" in self.ignore_param_set or name in self.ignore_param_set

@@ -19,7 +19,7 @@ import math
 import random
 from dataclasses import dataclass
 
-SCHEDULER_JITTER_S = 0.002  # a message goes out within this of its nominal instant (the loop's 2 ms poll)
+SCHEDULER_JITTER_S = 0.002  # a message goes out within this of its nominal instant (a board's scheduler tick)
 # A stall longer than this (the host suspended) loses what fell due before its last this-many seconds.
 # Why so long: a board samples whatever its host does, and a suite on two loaded cores stopped the
 # simulator's loop for over a second (py-spy, sampling it, fell 3.8 s behind): dropped, a 10 Hz sensor
@@ -54,6 +54,10 @@ class BoardSchedule:
 
     def __bool__(self) -> bool:
         return bool(self.streams)
+
+    def next_due_s(self) -> float:
+        """The instant the next message falls due (infinity when none runs)."""
+        return min((stream.due_s for stream in self.streams.values()), default=math.inf)
 
     def due(self, now_s: float) -> list[tuple[float, int]]:
         """Every (instant, key) that fell due up to ``now_s``, oldest first across all streams: what the

@@ -139,17 +139,43 @@ def test_a_write_whose_echoes_are_lost_is_proven_by_a_read_and_the_unit_passes(t
         assert load_json(sim.storage_path)["COMPASS_DIA_X"] == pytest.approx(record.params_written["COMPASS_DIA_X"])
 
 
-def test_a_parameter_this_firmware_does_not_have_is_an_error_not_a_fail(tmp_path):
-    """ArduPilot answers an unknown name with silence, and so does a link that loses the answers: the
-    two cannot be told apart, so the unit is not judged (ERROR), and nothing is written to it."""
+def test_a_parameter_this_firmware_does_not_have_fails_the_unit_naming_it(tmp_path):
+    """ArduPilot answers an unknown name with silence, as a link that loses the answers does; but it
+    answers reads in the order they came, so a read sent after each request for the name, answered
+    while the name is not, proves the name unknown: the unit's firmware cannot hold its calibration
+    (FAIL, the parameter named), and nothing is written to it."""
     with start_sim(tmp_path, faults=SimFaults(unknown_params=["COMPASS_ODI_Y"])) as sim:
-        # each read's wait shortened (5 tries over 15 × param_timeout_s): the classification is what is judged
-        options = {**OPTIONS, "param_timeout_s": 0.25}
-        record = run_unit(write_station("ardupilot-sim.yaml", tmp_path, sim.address, options), "SN-OLD")
-        assert record.verdict is Outcome.ERROR, record.cause
-        assert ("parameter COMPASS_ODI_Y could not be read: 5 requests went unanswered while the vehicle otherwise "
-                "answers") in record.cause and "the unit is not judged" in record.cause
+        record = run_unit(write_station("ardupilot-sim.yaml", tmp_path, sim.address, OPTIONS), "SN-OLD")
+        assert record.verdict is Outcome.FAIL, record.cause
+        assert ("this firmware has no parameter COMPASS_ODI_Y: 5 reads of it went unanswered while the reads sent "
+                "after each were answered") in record.cause
         assert not sim.storage_path.exists()  # nothing was written to the unit
+        # one read, then five each followed by a read by index: told after one wait, not five (15 s)
+        assert sim.param_reads["COMPASS_ODI_Y"] == 6
+
+
+def test_a_read_whose_answers_are_lost_is_asked_until_answered_never_taken_for_an_unknown_name(tmp_path):
+    """The proof that a name is unknown is a read sent after it and answered; a name whose answers are
+    lost three times is answered at its fourth read, before enough proofs are in.  An unknown name read
+    twice is told twice, each by its own reads' answers (a late answer to the first is not the second's)."""
+    from magline.plugins.ardupilot.link import ArduPilotLink, NotKnown
+
+    faults = SimFaults(lose_param_answers=["COMPASS_OFFS_MAX:3"], unknown_params=["COMPASS_MOT_X"])
+    with start_sim(tmp_path, faults=faults, stored={"COMPASS_OFFS_MAX": 1200}) as sim:
+        link = ArduPilotLink(sim.address)
+        link.open(5.0)
+        try:
+            assert link.get("COMPASS_DEV_ID") > 0
+            assert link.get("COMPASS_OFFS_MAX") == 1200
+            for _ in range(2):
+                with pytest.raises(NotKnown, match="this firmware has no parameter COMPASS_MOT_X: 5 reads"):
+                    link.get("COMPASS_MOT_X")
+            assert link.get("COMPASS_OFFS_MAX") == 1200
+        finally:
+            link.close()
+    # one unanswered, a round of five sent at once (its fourth answered: the value, not a proof), one more
+    assert sim.param_reads["COMPASS_OFFS_MAX"] == 7
+    assert sim.param_reads["COMPASS_MOT_X"] == 12
 
 
 def test_a_link_lost_in_the_middle_of_the_write_is_an_error_that_says_to_quarantine_the_unit(tmp_path):

@@ -46,7 +46,7 @@ from magline.plugins.ardupilot.calibration import (
     rename_for_set,
     set_names,
 )
-from magline.plugins.ardupilot.link import ML, RESULT_NAMES, ArduPilotLink
+from magline.plugins.ardupilot.link import ML, RESULT_NAMES, ArduPilotLink, NotKnown
 
 if TYPE_CHECKING:
     from magline.plugin import FitResult, Product, SampleChunk
@@ -320,16 +320,15 @@ class ArduPilotDut:
 
     def compensation_missing(self, device_id: int) -> str | None:
         # one look per connection, at the first set's: a build has COMPASS_MOTn_* for every set or none
-        # (COMPASS_MOT_ENABLED, checked in the source), and an unknown name costs the read's retries, 15 s
-        # — a lost link is no answer about the firmware: it ends the unit as an ERROR
+        # (COMPASS_MOT_ENABLED, checked in the source); a read that goes unanswered while the vehicle
+        # answers nothing proves nothing about the firmware, and ends the unit as an ERROR
         name = set_names("")["MOT"][0]
         if name not in self._lacks:
             try:
                 self.link.get(name)
                 self._lacks[name] = None
-            except UnansweredRequest:
-                self._lacks[name] = (f"this firmware has no COMPASS_MOTn_X/Y/Z ({name} went unanswered "
-                                     f"{self.link.param_retries} times while the vehicle answered other reads)")
+            except NotKnown as exc:
+                self._lacks[name] = f"this firmware has no COMPASS_MOTn_X/Y/Z ({exc})"
         return self._lacks[name]
 
     def compensation_params(self) -> dict[str, ParamValue]:

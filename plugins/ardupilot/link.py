@@ -51,6 +51,11 @@ class LinkClosed(ConnectionError):
     """The vehicle closed the TCP connection (it died, lost power or rebooted)."""
 
 
+class NotKnown(DutError):
+    """The firmware has no parameter of that name: its reads went unanswered while the reads sent after
+    each were answered (the unit's firmware cannot hold what the station must write or check: FAIL)."""
+
+
 class DeadlineTcp(mavutil.mavtcp):
     """pymavlink's TCP client with a connect deadline and EOF taken as a closed link.
 
@@ -111,6 +116,8 @@ class ArduPilotLink:
         self.last_rx = 0.0  # monotonic time of the last message from the vehicle
         self.stalled_s = 0.0  # this process's own stalls since then (core/links/listening.py)
         self.statustexts: list[str] = []
+        self.param_count = 1  # how many parameters the firmware has (each PARAM_VALUE says it)
+        self._next_index = 0  # the last index read by :meth:`_ask`
 
     # ------------------------------------------------------------------ connection
     def open(self, timeout_s: float, nothing_listens_s: float | None = None) -> Any:
@@ -253,18 +260,49 @@ class ArduPilotLink:
         Why five: a unit reads some 50 parameters, and a read unanswered every time is an ERROR.  With
         three tries on a link losing 2 % of its frames (the fault table's ``lossy`` row) one good unit in
         1,000 was booked ERROR (COMPASS_EXTERNAL, three answers lost).  Five put it at 50 · 0.04⁵ ≈ 5·10⁻⁶
-        a unit even where the requests are lost as often as the answers; a name the firmware truly lacks
-        costs 15 s instead of 7 before its ERROR."""
+        a unit even where the requests are lost as often as the answers.
+
+        A name this firmware lacks is told without waiting those out (:class:`NotKnown`): ArduPilot drops
+        such a read without a reply, but it answers reads one after another in the order they came
+        (``GCS_Param.cpp``: one queue of requests, one of replies).  After the first wait, each request
+        for ``name`` is followed by a read of another parameter by its index; that one's answer, come
+        without ``name``'s before it, proves that request was read and left unanswered.  As many such
+        proofs as the read has tries (each as unlikely as a lost answer) make the name unknown to the
+        firmware; a silent vehicle proves nothing and still ends as before."""
+        overtaken: set[int] = set()  # the index reads answered where ``name``'s answer should have come first
         for attempt in range(self.param_retries):
-            self._send("param_request_read_send", self.target_system, self.target_component, name.encode(), -1)
+            asked = self._ask(name, follow=attempt > 0)
             deadline = time.monotonic() + self.param_timeout_s * min(2 ** attempt, 4)
             while (msg := self.recv("PARAM_VALUE", deadline - time.monotonic())) is not None:
+                self.param_count = max(self.param_count, int(msg.param_count))
                 if msg.param_id == name:
                     return float(msg.param_value)
+                if msg.param_index in asked:
+                    overtaken.add(msg.param_index)
+                    if len(overtaken) >= self.param_retries:
+                        raise NotKnown(f"this firmware has no parameter {name}: {len(overtaken)} reads of it went "
+                                       "unanswered while the reads sent after each were answered")
+                    if overtaken >= asked:
+                        break  # every request of this round was read: ask again at once
         self.require_alive(f"reading {name}")
         raise UnansweredRequest(f"parameter {name} could not be read: {self.param_retries} requests went unanswered "
-                                "while the vehicle otherwise answers (a name this firmware does not know, or answers "
-                                "lost on the link): the unit is not judged")
+                                "while the vehicle otherwise answers (answers lost on the link, or a vehicle that "
+                                "answers no reads): the unit is not judged")
+
+    def _ask(self, name: str, follow: bool) -> set[int]:
+        """Send the read of ``name``; with ``follow``, as many times as the read has tries, each followed by
+        a read by index (a fresh index each, so that a late answer to an earlier read is never taken for
+        it).  Returns the indexes asked."""
+        if not follow:
+            self._send("param_request_read_send", self.target_system, self.target_component, name.encode(), -1)
+            return set()
+        asked: set[int] = set()
+        for _ in range(self.param_retries):
+            index = self._next_index = (self._next_index + 1) % max(self.param_count, 1)
+            self._send("param_request_read_send", self.target_system, self.target_component, name.encode(), -1)
+            self._send("param_request_read_send", self.target_system, self.target_component, b"", index)
+            asked.add(index)
+        return asked
 
     def set(self, name: str, value: float) -> float:
         """C-cast PARAM_SET; return the echoed value once an echo with this name and value arrives."""
