@@ -63,9 +63,11 @@ class LinkError(DutError, StationFault):
 
 
 class UnansweredRequest(DutError, StationFault):
-    """The vehicle talks, but not to this request, after every retry: a name its firmware does not
-    know (ArduPilot ignores those without a reply) and answers lost or late on the link look the same,
-    so nothing proves the unit bad.  The sequencer books the unit as ERROR (it was not judged)."""
+    """The vehicle talks, but not to this request, after every retry, and nothing proves its firmware
+    lacks the name (ArduPilot and PX4 ignore an unknown name without a reply, as a link that loses the
+    answers looks): nothing proves the unit bad.  The sequencer books the unit as ERROR (it was not
+    judged).  A backend that can prove the name missing (PX4's parameter list, ArduPilot's answers in
+    the order asked) raises a :class:`DutError` naming it instead: a FAIL."""
 
 
 def prove_unechoed_write(name: str, value: ParamValue, unanswered: str, read: Callable[[], ParamValue]) -> ParamValue:
