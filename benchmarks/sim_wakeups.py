@@ -1,9 +1,10 @@
 """How often a simulated board's loop wakes, and the CPU it costs, idle and streaming.
 
 A suite worker runs several simulated boards beside the station on one interpreter lock, so a board that
-wakes when it has nothing to do takes time from everything else.  This prints, per board, the loop's
-wake-ups a second and its thread's CPU share over a few seconds: idle (no station), and streaming its
-compass at 100 Hz to a station that asks for it.
+wakes when it has nothing to do, or spends long on each message, takes time from everything else.  This
+prints, per board, the loop's wake-ups a second and its thread's CPU share over a few seconds: idle (no
+station), and streaming its compass at 100 Hz to a station that asks for it; then the time one streamed
+message takes to compute (its reading and the body's gravity, median of 2,000).
 
     python benchmarks/sim_wakeups.py [--seconds 5]
 """
@@ -11,6 +12,7 @@ compass at 100 Hz to a station that asks for it.
 from __future__ import annotations
 
 import argparse
+import statistics
 import tempfile
 import threading
 import time
@@ -75,6 +77,20 @@ def main() -> None:
             done.set()
             reader.join()
             station.close()
+    print(f"{'board':<10} {'message':<12} {'µs each':>8}")
+    for flavour, stream in (("px4", "HIGHRES_IMU"), ("ardupilot", "RAW_IMU")):
+        with create_sim(flavour, "tcp:127.0.0.1:0", workdir=workdir / f"{flavour}-msg", seed=1, boot_time_s=0.2,
+                        mag_rate_hz=100.0).start() as board:
+            time.sleep(0.5)
+            msg_id = getattr(mavutil.mavlink, f"MAVLINK_MSG_ID_{stream}")
+            took = []
+            for _ in range(2000):
+                board._held.clear()  # a new reading each time, as at the sensor's own rate
+                started = time.perf_counter()
+                with board.lock:
+                    board.stream_message(msg_id, time.monotonic())
+                took.append(time.perf_counter() - started)
+            print(f"{flavour:<10} {stream:<12} {statistics.median(took) * 1e6:8.0f}")
 
 
 if __name__ == "__main__":

@@ -381,7 +381,7 @@ class Px4Sim(SimulatedAutopilot):
     def estimated_bias_ut(self, now: float) -> NDArray:
         """EKF2's magnetometer bias estimate at ``now`` (µT, body axes): the field less the firmware's model
         of it, in the unit's attitude now."""
-        return self.attitude_at(now).inv().apply(-self.model_field_offset_ut)
+        return self.ned_to_body(now) @ -np.asarray(self.model_field_offset_ut, float)
 
     # ------------------------------------------------------------------ commands
     def extra_commands(self) -> dict:
