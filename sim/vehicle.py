@@ -437,7 +437,7 @@ class SimulatedAutopilot(ABC):
 
         Why not a fixed 2 ms poll: a board woke 460 times a second whatever it had to send, and a suite
         worker runs several boards beside the station on one interpreter lock (``benchmarks/sim_wakeups.py``:
-        an idle board now wakes 97 times a second, its CPU 3.9 % → 2.6 % of a core).  A message due but not
+        an idle board now wakes 97 times a second, its CPU about 4 % → 3 % of a core).  A message due but not
         yet sent (a shared fixture's motion not yet known at its instant) is looked at again after
         :data:`POLL_S`."""
         with self.lock:
