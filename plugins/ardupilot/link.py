@@ -269,9 +269,11 @@ class ArduPilotLink:
         without ``name``'s before it, proves that request was read and left unanswered.  As many such
         proofs as the read has tries (each as unlikely as a lost answer) make the name unknown to the
         firmware; a silent vehicle proves nothing and still ends as before."""
-        overtaken: set[int] = set()  # the index reads answered where ``name``'s answer should have come first
+        asked: set[int] = set()  # the indexes read after a request for ``name``, in every round of this read
+        overtaken: set[int] = set()  # those answered where ``name``'s answer should have come first
         for attempt in range(self.param_retries):
-            asked = self._ask(name, follow=attempt > 0)
+            round_asked = self._ask(name, follow=attempt > 0)
+            asked |= round_asked
             deadline = time.monotonic() + self.param_timeout_s * min(2 ** attempt, 4)
             while (msg := self.recv("PARAM_VALUE", deadline - time.monotonic())) is not None:
                 self.param_count = max(self.param_count, int(msg.param_count))
@@ -282,7 +284,7 @@ class ArduPilotLink:
                     if len(overtaken) >= self.param_retries:
                         raise NotKnown(f"this firmware has no parameter {name}: {len(overtaken)} reads of it went "
                                        "unanswered while the reads sent after each were answered")
-                    if overtaken >= asked:
+                    if overtaken >= round_asked:
                         break  # every request of this round was read: ask again at once
         self.require_alive(f"reading {name}")
         raise UnansweredRequest(f"parameter {name} could not be read: {self.param_retries} requests went unanswered "
