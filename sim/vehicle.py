@@ -15,6 +15,7 @@ Power states::
 from __future__ import annotations
 
 import enum
+import functools
 import math
 import queue
 import random
@@ -755,14 +756,16 @@ class SimulatedAutopilot(ABC):
     # req.param_index``), its own only in a list it streams
     ANSWERS_WITH_ASKED_INDEX = False
 
+    @functools.cached_property
     def listed(self) -> list[str]:
-        """The names this firmware has, in its index order (the ``unknown_params`` fault's are not in it)."""
+        """The names this firmware has, in its index order (the ``unknown_params`` fault's are not in it):
+        fixed from the board's creation, so worked out once, not at every answer."""
         unknown = set(self.faults.unknown_params)
         return [name for name in self.table.names if name not in unknown]
 
     def send_param(self, name: str, asked_index: int | None = None) -> None:
         spec = self.table.specs[name]
-        listed = self.listed()
+        listed = self.listed
         index = listed.index(name)
         if self.ANSWERS_WITH_ASKED_INDEX and asked_index is not None:
             index = asked_index & 0xFFFF
@@ -784,10 +787,10 @@ class SimulatedAutopilot(ABC):
             return
         if kind == "PARAM_REQUEST_LIST":
             self.param_lists += 1
-            for name in self.listed():
+            for name in self.listed:
                 self.send_param(name)
         elif kind == "PARAM_REQUEST_READ":
-            listed = self.listed()
+            listed = self.listed
             name = msg.param_id if msg.param_index < 0 else (
                 listed[msg.param_index] if msg.param_index < len(listed) else None)
             if msg.param_index < 0:
