@@ -236,7 +236,7 @@ def estimate_mounting(mag_cal: NDArray, t_mag_ms: NDArray, imu: ImuSeries | None
     start = min(RIGHT_ANGLE.values(), key=lambda r: _spread(m, unit_rows(accel[usable]), r))
 
     def gravity(skew: float) -> NDArray:
-        return unit_rows(track.at(t + skew)[0])
+        return unit_rows(track.accel_at(t + skew))
 
     def residuals(p: NDArray) -> NDArray:
         r = Rotation.from_rotvec(p[:3]).as_matrix() @ start
@@ -310,7 +310,7 @@ def _information(track: GravityTrack, m: NDArray, t: NDArray, rotation: NDArray,
     every other accelerometer reading: the two carry the same motion and independent noise, so the
     product carries the motion's information and, on average, none of the noise's (a column squared
     took the noise, differentiated, for information — see the module's docstring)."""
-    seen = unit_rows(track.at(t + skew)[0])
+    seen = unit_rows(track.accel_at(t + skew))
     body = m @ rotation.T
     weight = (1.0 + (np.asarray(resid, float) / ROBUST_SCALE) ** 2) ** -0.25  # soft-L1's IRLS weight, its root
     halves = [GravityTrack.of(track.t_ms[k::2], track.accel[k::2]) for k in (0, 1)]
@@ -342,7 +342,8 @@ def _information(track: GravityTrack, m: NDArray, t: NDArray, rotation: NDArray,
 
 def _turn(track: GravityTrack, when_ms: NDArray, half_ms: float) -> NDArray:
     """The gravity's direction's rate of change (per ms), a central difference over ±``half_ms``."""
-    return (unit_rows(track.at(when_ms + half_ms)[0]) - unit_rows(track.at(when_ms - half_ms)[0])) / (2.0 * half_ms)
+    later, earlier = unit_rows(track.accel_at(when_ms + half_ms)), unit_rows(track.accel_at(when_ms - half_ms))
+    return (later - earlier) / (2.0 * half_ms)
 
 
 def _covariance(information: NDArray) -> NDArray:

@@ -23,10 +23,11 @@ sphere only the right rotation (up to scale) does.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+
+from magline.core.mounting.smoothing import SmoothingSpline
 
 SKEW_SEARCH_MS = 150.0  # the largest skew looked for, either sign (the firmwares measured: −36 … +40 ms)
 SKEW_STEP_MS = 3.0  # the coarse search's step (the valley is tens of ms wide even at 1,600°/s)
@@ -55,7 +56,7 @@ class GravityTrack:
     gyro_rads: NDArray | None  # the body's rate at the same stamps, where the stream has it
     gravity: float  # |g| as the accelerometer reads it (the median magnitude)
     period_ms: float  # the stream's median period
-    _spline: Any = None  # the accelerometer's smoothing spline (a scipy BSpline), made on first use
+    _spline: SmoothingSpline | None = None  # the accelerometer's smoothing spline, made on first use
 
     @classmethod
     def of(cls, t_ms: NDArray, accel: NDArray, gyro_rads: NDArray | None = None) -> GravityTrack:
@@ -72,12 +73,20 @@ class GravityTrack:
         period = float(np.median(np.diff(stamps))) if len(stamps) > 1 else float("inf")
         return cls(stamps, mean, gyro, float(np.median(np.linalg.norm(mean, axis=1))), period)
 
+    def accel_at(self, when_ms: NDArray) -> NDArray:
+        """The accelerometer at ``when_ms`` (held at the stream's ends), without :meth:`at`'s judgement of
+        which instants are usable: what a fit that has already chosen its readings asks for at every step.
+        Fewer than four readings make no track: zeros."""
+        if len(self.t_ms) < 4:
+            return np.zeros((len(np.atleast_1d(when_ms)), 3))
+        if self._spline is None:  # the three axes share their stamps: one spline of three columns
+            self._spline = SmoothingSpline.fit(self.t_ms, self.accel, lam=SMOOTHING * self.period_ms**3)
+        return self._spline(np.clip(np.asarray(when_ms, float), self.t_ms[0], self.t_ms[-1]))
+
     def at(self, when_ms: NDArray) -> tuple[NDArray, NDArray]:
         """The accelerometer at ``when_ms`` and which of those instants are usable: inside the stream,
         not in a gap, and seeing gravity alone (the unit not accelerated, not turning beyond 120°/s
         where the gyro says so)."""
-        from scipy.interpolate import make_smoothing_spline  # on use: scipy costs every command start
-
         when = np.asarray(when_ms, float)
         t = self.t_ms
         if len(t) < 4:
@@ -85,9 +94,7 @@ class GravityTrack:
         usable = (when >= t[0]) & (when <= t[-1])
         right = np.clip(np.searchsorted(t, when), 1, len(t) - 1)
         usable &= (t[right] - t[right - 1]) <= MAX_GAP_PERIODS * self.period_ms
-        if self._spline is None:  # the three axes share their stamps: one spline of three columns
-            self._spline = make_smoothing_spline(t, self.accel, lam=SMOOTHING * self.period_ms**3)
-        values = self._spline(np.clip(when, t[0], t[-1]))
+        values = self.accel_at(when)
         usable &= np.abs(np.linalg.norm(values, axis=1) - self.gravity) < STILL_TOLERANCE * self.gravity
         if self.gyro_rads is not None:
             rate = np.linalg.norm(self.gyro_rads, axis=1)
@@ -112,8 +119,12 @@ def coarse_skew_ms(mag_unit: NDArray, t_mag_ms: NDArray, track: GravityTrack) ->
     pick = np.unique(np.linspace(0, len(mag_unit) - 1, min(len(mag_unit), COARSE_READINGS)).astype(int))
     mag_unit, t_mag_ms = mag_unit[pick], np.asarray(t_mag_ms, float)[pick]
     best: tuple[float, float] | None = None
-    for shift in np.arange(-SKEW_SEARCH_MS, SKEW_SEARCH_MS + SKEW_STEP_MS / 2, SKEW_STEP_MS):
-        accel, usable = track.at(t_mag_ms + shift)
+    shifts = np.arange(-SKEW_SEARCH_MS, SKEW_SEARCH_MS + SKEW_STEP_MS / 2, SKEW_STEP_MS)
+    # the accelerometer at every shift's instants in one evaluation: a hundred calls cost more than their points
+    every, every_usable = track.at((shifts[:, None] + t_mag_ms[None, :]).ravel())
+    for k, shift in enumerate(shifts):
+        rows = slice(k * len(t_mag_ms), (k + 1) * len(t_mag_ms))
+        accel, usable = every[rows], every_usable[rows]
         if usable.sum() < MIN_PAIRS:
             continue
         cost = constancy_cost(mag_unit[usable], unit_rows(accel[usable]))
