@@ -18,6 +18,7 @@ from magline.core.fit import model as mdl
 # Jacobian (a few hundred kB) stays in cache, where one over 100 000 samples (7 MB, and its
 # temporaries) is fetched from memory, and page-faulted in, several times over.
 NORMAL_EQUATIONS_BLOCK = 8192
+_IDENTITY = np.array([1.0, 1.0, 1.0, 0.0, 0.0, 0.0])  # the soft-iron parameters of S = I (full; diagonal: first 3)
 
 
 def residuals_and_jacobian(layout, p, x, tau, weights, sigma, log_ref, opts, with_jacobian=True):
@@ -47,17 +48,19 @@ def prior_rows(layout, p, sigma, log_ref, opts) -> tuple[NDArray, NDArray]:
     the raw field radius near the reference (1σ ``gain_sigma``) and, if set, the soft iron near
     the identity (1σ ``shape_sigma``)."""
     k = sigma / opts.gain_sigma
-    r = [np.array([k * (mdl.log_raw_radius(layout, p) - log_ref)])]
-    jac = [k * mdl.log_gain_gradient(layout, p)[None, :]]
-    if opts.shape_sigma and layout.model != "sphere":
-        # soft iron near identity: entries of S·F_ref (raw units) with prior 1σ shape_sigma
-        ks = sigma / opts.shape_sigma * np.exp(log_ref)
-        ident = np.array([1.0, 1.0, 1.0, 0.0, 0.0, 0.0][: layout.n_soft])
-        r.append(ks * (p[layout.soft_slice] - ident * np.exp(-log_ref)))
-        rows = np.zeros((layout.n_soft, layout.size))
-        rows[:, layout.soft_slice] = np.eye(layout.n_soft) * ks
-        jac.append(rows)
-    return np.concatenate(r), np.vstack(jac)
+    log_radius, gradient = mdl.log_radius_and_gradient(layout, p)
+    if not (opts.shape_sigma and layout.model != "sphere"):
+        return np.array([k * (log_radius - log_ref)]), k * gradient[None, :]
+    # soft iron near identity: entries of S·F_ref (raw units) with prior 1σ shape_sigma
+    ks = sigma / opts.shape_sigma * np.exp(log_ref)
+    n_soft = layout.n_soft
+    r = np.empty(1 + n_soft)
+    r[0] = k * (log_radius - log_ref)
+    r[1:] = ks * (p[layout.soft_slice] - _IDENTITY[:n_soft] * np.exp(-log_ref))
+    jac = np.zeros((1 + n_soft, layout.size))
+    jac[0] = k * gradient
+    jac[1 + np.arange(n_soft), 3 + np.arange(n_soft)] = ks
+    return r, jac
 
 
 def normal_equations(layout, p, x, tau):
