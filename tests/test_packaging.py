@@ -33,3 +33,19 @@ def test_importable_names():
     import magline.sim
 
     assert magline.core.__file__ and magline.plugins.mock.__file__ and magline.sim.__file__
+
+
+def test_mavlink_checksums_come_from_the_compiled_crc_and_agree_with_pymavlinks_own():
+    """The installed ``fastcrc`` is the checksum pymavlink packs and checks every message with (a Python loop
+    per byte otherwise, most of a message's cost), and it computes the same checksum."""
+    from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+    assert mavlink.x25crc is mavlink._x25crc_fast
+    frame = mavlink.MAVLink_raw_imu_message(123456, 1, -2, 3, -4, 5, -6, 7, -8, 9, 0, 20).pack(
+        mavlink.MAVLink(None, srcSystem=1, srcComponent=1))
+    body = frame[1:-2]
+    crc = mavlink._x25crc_fast(body)
+    slow = mavlink._x25crc_slow(body)
+    crc.accumulate(bytes([mavlink.MAVLink_raw_imu_message.crc_extra]))
+    slow.accumulate(bytes([mavlink.MAVLink_raw_imu_message.crc_extra]))
+    assert crc.crc == slow.crc == int.from_bytes(frame[-2:], "little")
