@@ -79,7 +79,7 @@ class SmoothingSpline:
             object.__setattr__(self, "_pieces", self._piecewise())
         return self._pieces(np.asarray(when, float))
 
-    def _piecewise(self):
+    def _piecewise(self) -> Any:
         """The spline as SciPy's piecewise polynomial (evaluated in compiled code): on the knot interval
         from xᵢ, ``gᵢ + bᵢ·s + γᵢ/2·s² + (γᵢ₊₁ − γᵢ)/(6hᵢ)·s³`` with ``bᵢ = (gᵢ₊₁ − gᵢ)/hᵢ − hᵢ(2γᵢ + γᵢ₊₁)/6``."""
         from scipy.interpolate import PPoly
