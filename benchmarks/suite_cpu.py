@@ -1,8 +1,8 @@
 """Where the test suite's CPU goes: the README's test command run under a sampler of every process.
 
-The suite mostly waits on simulated boards and browsers, and a two-core machine shares its CPU among the
-workers' in-process simulators and stations, Chromium, and the ``magline run`` / ``magline sim``
-subprocesses the walkthroughs start.  This runs pytest (the README's arguments unless others are given
+On two cores the suite is bound by CPU (both about 90 % busy over a run), shared among the workers'
+in-process simulators and stations, Chromium, and the ``magline run`` / ``magline sim`` subprocesses the
+walkthroughs start.  This runs pytest (the README's arguments unless others are given
 after ``--``), reads every process's CPU time from ``/proc`` twice a second, and prints the CPU seconds by
 kind of process with the suite's wall time.  A process that lives under half a second may be missed.
 

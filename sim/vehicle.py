@@ -763,10 +763,15 @@ class SimulatedAutopilot(ABC):
         unknown = set(self.faults.unknown_params)
         return [name for name in self.table.names if name not in unknown]
 
+    @functools.cached_property
+    def _listed_index(self) -> dict[str, int]:
+        """Each listed name's index: a list streamed whole asked ``list.index`` once per name, n² in all."""
+        return {name: index for index, name in enumerate(self.listed)}
+
     def send_param(self, name: str, asked_index: int | None = None) -> None:
         spec = self.table.specs[name]
         listed = self.listed
-        index = listed.index(name)
+        index = self._listed_index[name]
         if self.ANSWERS_WITH_ASKED_INDEX and asked_index is not None:
             index = asked_index & 0xFFFF
         self.mav.param_value_send(name.encode(), self.wire_value(spec, self.table.values[name]), spec.type,

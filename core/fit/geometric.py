@@ -588,9 +588,8 @@ def _restricted_model_cost(layout, p, x, sigma, scale, log_ref, opts) -> dict | 
 def _assemble(layout, p, cov, gram, x, tau, centre, scale, keep, inliers, rejected, flat, drift_info,
               opts, n_total, coverage, misfit=None) -> FitResult:
     h_n, s_n, drift = mdl.unpack(layout, p)
-    log_r = mdl.log_raw_radius(layout, p)
+    log_r, g = mdl.log_radius_and_gradient(layout, p)
     field_est = float(scale * np.exp(log_r))
-    g = mdl.log_gain_gradient(layout, p)
     field_sigma = float(field_est * np.sqrt(max(g @ cov @ g, 0.0)))
     field_out = float(opts.field_ut) if opts.field_ut is not None else field_est
     s_out = s_n / scale * field_out
