@@ -164,12 +164,19 @@ def main(argv: list[str] | None = None) -> int:
     hist.add_argument("--station", help="station file naming the results store (default: demo)")
 
     try:
-        plugins = load_plugins()  # once: its commands are needed before the arguments are parsed
+        # once: its commands are needed before the arguments are parsed; what the plugins register (their
+        # options models) only once they are (``--help`` uses none of it)
+        plugins = load_plugins(register=False)
     except PluginError as exc:
         _err(str(exc))
         return 2
     plugins.hook.magline_add_commands(subparsers=sub)
     args = parser.parse_args(argv)
+    try:
+        plugins.register()
+    except PluginError as exc:
+        _err(str(exc))
+        return 2
     since, until = getattr(args, "since", None), getattr(args, "until", None)
     if since and until and since >= until:  # both in the stored form: the same zone and layout, so ordered as text
         _err(f"--since {since} is not before --until {until}: no run can start in that window (swapped?)")

@@ -20,13 +20,12 @@ from contextvars import ContextVar
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Literal, Protocol, TypeVar, runtime_checkable
 
-import numpy as np
-from numpy.typing import NDArray
-from pydantic import BaseModel, ValidationError
-
 from magline.core.faults import StationFault
 
 if TYPE_CHECKING:
+    from numpy.typing import NDArray
+    from pydantic import BaseModel
+
     from magline.core.fit import FitResult
     from magline.core.mounting import ImuSeries
     from magline.core.station.schema import Product
@@ -38,6 +37,8 @@ def float32_equal(a: float, b: float) -> bool:
     """Equal as the float32 MAVLink carries a parameter in (1.05 reads back as 1.0499999523): the same
     float32, exactly.  Why no tolerance: a near-diagonal soft iron writes an off-diagonal term of
     −4e-7, and "within 1e-6" took a stale echo of its old 0 for the new value's."""
+    import numpy as np  # here: numpy is not needed to start a command
+
     return bool(np.float32(a) == np.float32(b)) or (math.isnan(a) and math.isnan(b))
 
 
@@ -156,6 +157,14 @@ class UnitInfo:
     magnetometers: list[Magnetometer] = field(default_factory=list)
 
 
+def empty_series() -> NDArray:
+    """A series of no readings (what a chunk carries of a stream it has none of).  A function: NumPy is
+    imported on a unit's first chunk, not by every command that loads the plugins."""
+    import numpy as np
+
+    return np.empty(0)
+
+
 @dataclass
 class SampleChunk:
     """Distinct raw readings of the selected magnetometer, µT, with their time stamps (ms).
@@ -176,8 +185,8 @@ class SampleChunk:
     imu: ImuSeries | None = None
     # the unit's own battery current readings that arrived meanwhile (A), once :meth:`CompensatesCurrent.
     # measure_current_interference` asked for them; empty otherwise
-    current_a: NDArray = field(default_factory=lambda: np.empty(0))
-    current_t_ms: NDArray = field(default_factory=lambda: np.empty(0))  # the stream's time when each arrived
+    current_a: NDArray = field(default_factory=empty_series)
+    current_t_ms: NDArray = field(default_factory=empty_series)  # the stream's time when each arrived
     # current reports meanwhile that said the unit measures no current (MAVLink's −1, PX4's −1 A): a battery
     # monitor without a current sensor, which no sweep can be fitted against
     current_unmeasured: int = 0
@@ -436,7 +445,7 @@ class ReadsRawAndCalibrated(Protocol):
 
 DutFactory = Callable[["Product", Any], DutBackend]  # (the product entry, its validated options)
 
-OptionsModel = TypeVar("OptionsModel", bound=BaseModel)
+OptionsModel = TypeVar("OptionsModel", bound="BaseModel")
 
 
 FAIR_ATTEMPT_S = 2.0  # the least a reconnect is given once the old boot answered (see await_new_boot)
@@ -519,6 +528,8 @@ def require_same_vehicle(system_id: int, answered: int, connection: str, uid: in
 
 def validated_options(model: type[OptionsModel], options: dict[str, Any], owner: str) -> OptionsModel:
     """Validate a plugin's ``options`` from the station file; the error names every bad key."""
+    from pydantic import ValidationError
+
     try:
         return model.model_validate(options)
     except ValidationError as exc:

@@ -25,9 +25,10 @@ from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any, Protocol
 
 import pluggy
-from pydantic import BaseModel
 
 if TYPE_CHECKING:
+    from pydantic import BaseModel
+
     from magline.core.fit import FitOptions, FitResult
     from magline.core.fit.samples_csv import RawSamples
     from magline.core.measurements import Measurement, Numeric

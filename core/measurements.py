@@ -10,12 +10,11 @@ and attachments (raw samples CSV).
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import TYPE_CHECKING, Any
-
-import numpy as np
 
 if TYPE_CHECKING:
     from magline.core.station.schema import Limit
@@ -184,7 +183,7 @@ def judge(value: float, limit: Limit | None) -> Verdict:
     """Pass / review / fail of a value against a limit (review = within the marginal band)."""
     if limit is None:
         return Verdict.INFO
-    if not np.isfinite(value):
+    if not math.isfinite(value):
         return Verdict.FAIL
     low, high = limit.low, limit.high
     if (low is not None and value < low) or (high is not None and value > high):
@@ -234,6 +233,8 @@ class Array:
 
     @classmethod
     def of(cls, name: str, values: Any, limits: dict[str, Limit]) -> Array:
+        import numpy as np  # here: numpy is not needed to start a command
+
         arr = np.asarray(values, float)
         aggs = {"mean": arr.mean(), "std": arr.std(ddof=1) if arr.size > 1 else 0.0, "ptp": np.ptp(arr)}
         unit = ARRAY_MEASUREMENTS.get(name, "")

@@ -12,8 +12,6 @@ from __future__ import annotations
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
-import numpy as np
-
 from magline.core.dut import (
     DutError,
     LinkError,
@@ -41,6 +39,8 @@ def magline_fit(run: RunContext, samples: RawSamples, options: FitOptions) -> Fi
 
 @hookimpl
 def magline_validate(run: RunContext, fit: FitResult) -> list[Measurement]:
+    import numpy as np  # on use: every command loads this plugin
+
     lim = run.limits
     h = fit.hard_iron_ut
     s = fit.soft_iron

@@ -17,13 +17,15 @@ import os
 from collections.abc import Callable
 from importlib.metadata import Distribution, entry_points
 from types import ModuleType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import pluggy
 
 from magline.core import hookspecs
-from magline.core.dut import DutFactory
-from magline.core.measurements import DECLARED_MEANINGS, DeclaredMeasurement
+
+if TYPE_CHECKING:
+    from magline.core.dut import DutFactory
+    from magline.core.measurements import DeclaredMeasurement
 
 hookimpl = pluggy.HookimplMarker("magline")
 ENTRY_POINT_GROUP = "magline"
@@ -42,11 +44,41 @@ class PluginError(RuntimeError):
 
 class Plugins:
     """The loaded plugins and their registries (DUT backends, field sources, result sinks, power controls, motions,
-    current sources)."""
+    current sources).
 
-    def __init__(self, pm: pluggy.PluginManager, dists: dict[str, Distribution] | None = None) -> None:
+    The registries are filled by the plugins' ``magline_register_*`` hooks, at construction unless asked
+    ``register=False``; then on :meth:`register` or the first use of any of them.  Why on demand: ``magline
+    --help`` needs only the plugins' commands, and registering imports each plugin's options models (pydantic)
+    that no help text uses."""
+
+    # what the registration hooks fill: asking for any of them registers first
+    _REGISTRIES = frozenset({"dut_backends", "field_sources", "result_sinks", "power_controls", "motions",
+                             "current_sources", "option_models", "calibration_stores", "registered_by",
+                             "measurements", "plugin_sections"})
+
+    def __init__(self, pm: pluggy.PluginManager, dists: dict[str, Distribution] | None = None, *,
+                 register: bool = True) -> None:
         self.pm = pm
         self.hook = pm.hook
+        self._dists = dists or {}  # plugin name → the distribution its entry point came from
+        self._versions: dict[str, tuple[str, str]] | None = None
+        self._registered = False
+        if register:
+            self.register()
+
+    def __getattr__(self, name: str) -> Any:
+        """A registry asked before :meth:`register` ran: registered now (only missing attributes come here)."""
+        if name in Plugins._REGISTRIES and not self.__dict__.get("_registered", True):
+            self.register()
+            return self.__dict__[name]
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+
+    def register(self) -> None:
+        """Call every plugin's registration hooks, once: a name registered twice, a bad ``stores=`` or a
+        measurement declared wrongly is a :class:`PluginError` here."""
+        if self._registered:
+            return
+        self._registered = True
         self.dut_backends: dict[str, DutFactory] = {}
         self.field_sources: dict[str, Callable[..., Any]] = {}
         self.result_sinks: dict[str, Callable[..., Any]] = {}
@@ -61,8 +93,6 @@ class Plugins:
         self.calibration_stores: dict[str, dict[str, str]] = {}
         # who registered each name: (kind, name) → plugin name (for ``magline plugins`` and errors)
         self.registered_by: dict[tuple[str, str], str] = {}
-        self._dists = dists or {}  # plugin name → the distribution its entry point came from
-        self._versions: dict[str, tuple[str, str]] | None = None
         self._collect("dut backend", self.dut_backends, self.hook.magline_register_dut_backends)
         self._collect("field source", self.field_sources, self.hook.magline_register_field_sources)
         self._collect("result sink", self.result_sinks, self.hook.magline_register_result_sinks)
@@ -104,6 +134,8 @@ class Plugins:
             impl.function(register=register)
 
     def _declare_measurements(self) -> None:
+        from magline.core.measurements import DECLARED_MEANINGS, DeclaredMeasurement
+
         for impl in reversed(self.hook.magline_register_measurements.get_hookimpls()):
             by = _plugin_name(impl)
 
@@ -201,8 +233,9 @@ class Plugins:
         return out
 
 
-def load_plugins(extra: list[ModuleType | object] | None = None) -> Plugins:
-    """Create the manager, load entry points (minus disabled ones), add ``extra``, check, return."""
+def load_plugins(extra: list[ModuleType | object] | None = None, *, register: bool = True) -> Plugins:
+    """Create the manager, load entry points (minus disabled ones), add ``extra``, check, return; with
+    ``register=False`` the plugins' registration hooks run when a registry is first used (:class:`Plugins`)."""
     pm = pluggy.PluginManager("magline")
     pm.add_hookspecs(hookspecs)
     disabled = {n.strip() for n in os.environ.get(DISABLE_ENV, "").split(",") if n.strip()}
@@ -224,4 +257,4 @@ def load_plugins(extra: list[ModuleType | object] | None = None) -> Plugins:
         pm.check_pending()
     except pluggy.PluginValidationError as exc:
         raise PluginError(f"unknown hook implementation: {exc}") from exc
-    return Plugins(pm, dists)
+    return Plugins(pm, dists, register=register)

@@ -34,11 +34,27 @@ def imported_by(*argv: str) -> tuple[int, set[str]]:
     return found["code"], {name.split(".")[0] for name in found["modules"]} | set(found["modules"])
 
 
-@pytest.mark.parametrize("argv", [("--help",), ("check", "stations/demo.yaml"), ("check", "stations/px4-sim.yaml")])
+# what reading a station file needs beside them: its YAML and the options models (pydantic); the arithmetic's
+# NumPy it does not (a tenth of a second of a command's start), and the help text needs none of the three
+NOT_FOR_HELP = ("numpy", "pydantic", "yaml")
+
+
+@pytest.mark.parametrize("argv", [("--help",), ("check", "stations/demo.yaml"), ("check", "stations/px4-sim.yaml"),
+                                  ("check", "stations/helmholtz-sim.yaml"), ("check", "stations/turntable-sim.yaml")])
 def test_a_command_that_needs_no_fit_and_no_store_imports_neither(argv):
     code, modules = imported_by(*argv)
     assert code == 0
     assert not modules & set(HEAVY), f"magline {' '.join(argv)} imported {sorted(modules & set(HEAVY))}"
+    assert "numpy" not in modules, f"magline {' '.join(argv)} imported NumPy"
+
+
+def test_the_help_imports_no_station_reading_and_no_arithmetic():
+    """``magline --help`` lists the plugins' commands without their registrations (their options models)."""
+    code, modules = imported_by("--help")
+    assert code == 0
+    assert not modules & set(NOT_FOR_HELP), f"magline --help imported {sorted(modules & set(NOT_FOR_HELP))}"
+    assert "sim" in subprocess.run([sys.executable, "-m", "magline.core.entry", "--help"], cwd=REPO, text=True,
+                                   capture_output=True, timeout=120, check=True).stdout  # a plugin's command
 
 
 def test_the_commands_that_use_them_still_find_them():

@@ -220,7 +220,7 @@ def test_magline_add_commands(monkeypatch, capsys):
             parser.set_defaults(handler=lambda args: print(f"hello {args.name}") or 3)
 
     real = cli.load_plugins
-    monkeypatch.setattr(cli, "load_plugins", lambda: real(extra=[Command()]))
+    monkeypatch.setattr(cli, "load_plugins", lambda **how: real(extra=[Command()], **how))
     assert cli.main(["hook-hello", "line"]) == 3
     assert capsys.readouterr().out == "hello line\n"
 

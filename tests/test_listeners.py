@@ -111,7 +111,8 @@ def test_the_command_exits_as_the_verdict_says_when_a_listener_fails(make_statio
     from magline.core.cli import main
 
     real = cli.load_plugins
-    monkeypatch.setattr(cli, "load_plugins", lambda extra=None: real(extra=[*(extra or []), BrokenFeed()]))
+    monkeypatch.setattr(cli, "load_plugins",
+                        lambda extra=None, **how: real(extra=[*(extra or []), BrokenFeed()], **how))
     path = make_station()
     assert main(["run", str(path), "--serial", "FEED-CLI"]) == 0
     err = capsys.readouterr().err

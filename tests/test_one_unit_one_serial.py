@@ -54,7 +54,7 @@ def test_one_label_scanned_for_two_slots_is_refused_naming_both_and_records_noth
                                                                                      capsys, tmp_path):
     path = make_station(MOCK_SLOTS)
     plugin = counting_plugin(CountingMotion())
-    monkeypatch.setattr("magline.core.cli.load_plugins", lambda: load_plugins(extra=[plugin]))
+    monkeypatch.setattr("magline.core.cli.load_plugins", lambda **how: load_plugins(extra=[plugin], **how))
     # on the command line: the same label for slots A and C, in another case
     assert main(["run", str(path), "--serial", "A=SL-1", "--serial", "C=sl-1"]) == 2
     err = capsys.readouterr().err

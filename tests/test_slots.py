@@ -231,7 +231,7 @@ def test_mock_slots_share_a_plugin_motion_and_the_console_shows_each_slot(make_s
 def test_run_names_units_per_slot_and_prompts_for_the_others(make_station, monkeypatch, capsys, tmp_path):
     path = make_station(MOCK_SLOTS)
     plugin = counting_plugin(CountingMotion())
-    monkeypatch.setattr("magline.core.cli.load_plugins", lambda: load_plugins(extra=[plugin]))
+    monkeypatch.setattr("magline.core.cli.load_plugins", lambda **how: load_plugins(extra=[plugin], **how))
     assert main(["run", str(path), "--serial", "A=CLI-1", "--serial", "C=CLI-3"]) == 0
     err = capsys.readouterr()
     assert "slot A · PASS" in err.out and "slot C · PASS" in err.out and "slot B" not in err.out

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from magline.core.field.reference import CheckedField
+from magline.core.field.checked import CheckedField
 from magline.core.plugins import hookimpl
 
 

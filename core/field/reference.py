@@ -9,14 +9,16 @@ tolerance, or when it drifts during the shift — with the figures in the messag
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
-import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from magline.core.field import FieldSourceError
 from magline.core.links.scpi import InstrumentError, ScpiInstrument
 from magline.core.record import now_iso
+
+if TYPE_CHECKING:
+    import numpy as np
 
 
 class ReferenceOptions(BaseModel):
@@ -44,6 +46,8 @@ class Fluxgate:
 
     def read_ut(self) -> np.ndarray:
         """Field vector (µT), the average of ``readings`` DAQ scans."""
+        import numpy as np  # here: the options model above is loaded by every command that reads a station
+
         scans = []
         try:
             for _ in range(self.opts.readings):
@@ -79,6 +83,8 @@ class ReferenceMonitor:
         self.units += 1
 
     def check(self) -> float:
+        import numpy as np
+
         measured = float(np.linalg.norm(self.fluxgate.read_ut()))
         if abs(measured - self.model_ut) > self.opts.tolerance_ut:
             raise FieldSourceError(
@@ -97,45 +103,3 @@ class ReferenceMonitor:
 
     def close(self) -> None:
         self.fluxgate.close()
-
-
-class CheckedField:
-    """A field magnitude from a model or a survey, checked against an optional live reference."""
-
-    # The unit sits in this field after its power cycle too, so the verify phase can require the
-    # firmware's calibrated output to read it (a coil's field is gone by then: it does not say this).
-    reference_is_ambient = True
-
-    def __init__(self, field_ut: float, reference: dict | None, model_name: str,
-                 inclination_deg: float | None = None) -> None:
-        from magline.core.dut import validated_options
-
-        self.field_ut = float(field_ut)
-        self.inclination_deg = inclination_deg  # the field's dip (positive down), when the source knows it
-        self.model_name = model_name
-        self.monitor = (ReferenceMonitor(validated_options(ReferenceOptions, reference, "field_source reference"),
-                                         self.field_ut, model_name) if reference is not None else None)
-
-    def reference_field_ut(self) -> float:
-        if self.monitor is not None:
-            self.monitor.before_unit()
-        return self.field_ut
-
-    def finish_unit(self) -> None:
-        return None
-
-    def reference_inclination_deg(self) -> float | None:
-        """The field's inclination at the station (degrees, positive down), or None when not known:
-        the mounting check then measures the inclination the unit saw but cannot judge it."""
-        return self.inclination_deg
-
-    def describe(self) -> dict:
-        """The reference as an operator screen shows it: the model value and the last fluxgate check."""
-        out: dict = {"model": self.model_name, "field_ut": round(self.field_ut, 2)}
-        if self.monitor is not None:
-            out["last_check"] = self.monitor.last
-        return out
-
-    def close(self) -> None:
-        if self.monitor is not None:
-            self.monitor.close()

@@ -14,7 +14,7 @@ import math
 import warnings
 from typing import Any
 
-from magline.core.field.reference import CheckedField
+from magline.core.field.checked import CheckedField
 from magline.core.plugins import hookimpl
 
 NT_PER_UT = 1000.0

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from magline.core.interference.model import zone_words
 from magline.core.measurements import Json, Measurement, Numeric, Verdict
 from magline.core.plugins import hookimpl
 
@@ -20,6 +19,8 @@ def magline_validate_unit(run: RunContext, fits: dict[int, FitResult]) -> list[M
     found = run.interference
     if found is None:
         return []
+    from magline.core.interference.model import zone_words  # here: every command loads this plugin
+
     out: list[Measurement] = []
     for sensor in run.magnetometers:
         compass = found.compasses.get(sensor.device_id)

@@ -15,7 +15,6 @@ from typing import TYPE_CHECKING
 from magline.core.faults import StationFault
 from magline.core.measurements import Numeric, Verdict
 from magline.core.plugins import hookimpl
-from magline.core.quality.review import review
 from magline.core.record import Outcome
 from magline.core.results.contract import KeepsSeries
 
@@ -34,6 +33,7 @@ def magline_unit_judged(run: RunContext, measurements: list[Numeric]) -> None:
                                   "keeps no history")
         run.log(run.record.review_note)
         return
+    from magline.core.quality.review import review  # on use: its NumPy costs every command's start
     from magline.core.results.reading import RunFilter  # on use: the store's SQLAlchemy costs every command's start
 
     numeric = [m for m in measurements if m.name not in settings.exclude]

@@ -16,8 +16,6 @@ from magline.core.dut import (
 )
 from magline.core.plugins import hookimpl
 from magline.core.record import VerifyReport
-from magline.core.verify.calibrated_output import calibrated_output_problems
-from magline.core.verify.factory_store import factory_store_problems
 
 if TYPE_CHECKING:
     from magline.core.record import PersistReport
@@ -26,6 +24,10 @@ if TYPE_CHECKING:
 
 @hookimpl(trylast=True)
 def magline_verify_persistence(run: RunContext, persisted: PersistReport) -> VerifyReport:
+    # on use: every command loads this plugin, and the proofs' arithmetic needs NumPy
+    from magline.core.verify.calibrated_output import calibrated_output_problems
+    from magline.core.verify.factory_store import factory_store_problems
+
     dut = run.require_dut()
     power = run.require_power()
     boot_timeout_s = dut.boot_timeout_s if isinstance(dut, HasBootTimeout) else None

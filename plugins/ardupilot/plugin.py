@@ -5,11 +5,11 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from magline.plugin import hookimpl
-from magline.plugins.ardupilot.options import ArduPilotOptions
 
 if TYPE_CHECKING:
     from magline.plugin import Product
     from magline.plugins.ardupilot.dut import ArduPilotDut
+    from magline.plugins.ardupilot.options import ArduPilotOptions
 
 
 def create_ardupilot_dut(product: Product, options: ArduPilotOptions) -> ArduPilotDut:
@@ -22,6 +22,8 @@ def create_ardupilot_dut(product: Product, options: ArduPilotOptions) -> ArduPil
 
 @hookimpl
 def magline_register_dut_backends(register):
+    from magline.plugins.ardupilot.options import ArduPilotOptions
+
     register("ardupilot", create_ardupilot_dut, options=ArduPilotOptions, stores={
         "parameters": "COMPASS_OFS/DIA/ODI/MOT in the parameter storage; ArduPilot's persistent parameters in "
                       "the bootloader sector hold IMU temperature calibration, accelerometer ids and OpenDroneID "

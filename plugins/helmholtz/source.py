@@ -179,7 +179,3 @@ class HelmholtzField:
             for instrument in (self._coil, self._fluxgate):
                 if instrument is not None:
                     instrument.close()
-
-
-def create_helmholtz_field(station: Any, options: HelmholtzOptions) -> HelmholtzField:
-    return HelmholtzField(options)

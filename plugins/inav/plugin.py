@@ -5,11 +5,11 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from magline.plugin import hookimpl
-from magline.plugins.inav.options import InavOptions
 
 if TYPE_CHECKING:
     from magline.plugin import Product
     from magline.plugins.inav.dut import InavDut
+    from magline.plugins.inav.options import InavOptions
 
 
 def create_inav_dut(product: Product, options: InavOptions) -> InavDut:
@@ -20,5 +20,7 @@ def create_inav_dut(product: Product, options: InavOptions) -> InavDut:
 
 @hookimpl
 def magline_register_dut_backends(register):
+    from magline.plugins.inav.options import InavOptions
+
     register("inav", create_inav_dut, options=InavOptions, stores={
         "parameters": "magzero/maggain/align_mag in INAV's EEPROM settings; INAV has no factory calibration store"})

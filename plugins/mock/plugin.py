@@ -5,11 +5,11 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from magline.plugin import hookimpl
-from magline.plugins.mock.options import MockOptions
 
 if TYPE_CHECKING:
     from magline.plugin import Product
     from magline.plugins.mock.dut import MockDut
+    from magline.plugins.mock.options import MockOptions
 
 
 def create_mock_dut(product: Product, options: MockOptions) -> MockDut:
@@ -22,5 +22,7 @@ def create_mock_dut(product: Product, options: MockOptions) -> MockDut:
 
 @hookimpl
 def magline_register_dut_backends(register):
+    from magline.plugins.mock.options import MockOptions
+
     register("mock", create_mock_dut, options=MockOptions)
 

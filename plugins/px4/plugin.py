@@ -5,11 +5,11 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from magline.plugin import hookimpl
-from magline.plugins.px4.options import Px4Options
 
 if TYPE_CHECKING:
     from magline.plugin import Product
     from magline.plugins.px4.dut import Px4Dut
+    from magline.plugins.px4.options import Px4Options
 
 
 def create_px4_dut(product: Product, options: Px4Options) -> Px4Dut:
@@ -20,6 +20,8 @@ def create_px4_dut(product: Product, options: Px4Options) -> Px4Dut:
 
 @hookimpl
 def magline_register_dut_backends(register):
+    from magline.plugins.px4.options import Px4Options
+
     register("px4", create_px4_dut, options=Px4Options, stores={
         "parameters": "CAL_MAGn_* in the parameter file, which a reset to defaults erases",
         "factory-storage": "PX4's factory calibration store (/fs/mtd_caldata), written by the commander's gyro "

@@ -22,10 +22,10 @@ from typing import TYPE_CHECKING, Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from magline.plugin import InstrumentError, ScpiInstrument, Tilt
+from magline.plugin import InstrumentError, ScpiInstrument
 
 if TYPE_CHECKING:
-    from magline.plugin import Station
+    from magline.plugin import Station, Tilt
 
 REACHED = 0.9  # a table turning at this share of the asked speed has reached it
 
@@ -59,6 +59,8 @@ class TurntableMotion:
     type = "turntable"
 
     def __init__(self, options: TurntableOptions) -> None:
+        from magline.plugin import Tilt  # here: its NumPy would cost every command that loads the plugins
+
         self.opts = options
         self.tilts = None if options.tilts == "coverage" else [Tilt(t.pitch_deg, t.roll_deg, t.say)
                                                                for t in options.tilts]

@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 from magline.plugin import hookimpl
-from magline.plugins.turntable.motion import TurntableOptions, create_turntable_motion
 
 
 @hookimpl
 def magline_register_motions(register):
+    from magline.plugins.turntable.motion import TurntableOptions, create_turntable_motion
+
     register("turntable", create_turntable_motion, options=TurntableOptions)
