@@ -23,7 +23,7 @@ from magline.sim.turntable import cradle_moving, turned_angle
 
 PATTERNS = ("TUMBLE", "GIMBAL")
 FOLLOW_S = 0.05
-STALE_S = 1.0  # a follower silent this long holds its board back no more (MotionFollower.horizon)
+ANSWER_TIMEOUT_S = 10.0  # a fixture that answers nothing this long is lost (MotionFollower.horizon)
 
 
 class GimbalSim(ScpiServer):
@@ -117,10 +117,13 @@ class MotionFollower:
         computed as the motion before it — the readings already sent held the table still while it
         turned, then jumped by the turn's speed times the lag (a loaded machine's 0.4 s lag once made a
         good unit's mounting 54° and its skew −150 ms).  Messages wait for the knowledge instead, so they
-        are late, never wrong.  A follower that has heard nothing for ``STALE_S`` (the fixture gone, the
-        host suspended) holds nothing back."""
-        known = self.known_until
-        return now if now - known > STALE_S else min(now, known)
+        are late, never wrong — however late: a follower starved of the processor for over a second is still
+        following (waiting only a second once gave a good unit on a turntable a 4.95° mounting and a +128 ms
+        skew at load 8).  Only a follower that lost its fixture (no connection, no answer within its
+        timeout, its thread ended) holds nothing back: there is no knowledge to wait for."""
+        if self.error is not None or not self._thread.is_alive():
+            return now
+        return min(now, self.known_until)
 
     @property
     def speed(self) -> float:
@@ -136,6 +139,9 @@ class MotionFollower:
             try:
                 with socket.create_connection(self.address, timeout=2.0) as link, \
                         link.makefile("rw", encoding="ascii", newline="\n") as wire:
+                    # an answer's wait: a fixture gone closes the connection at once; one slow to answer (a
+                    # simulator starved on a loaded machine) is still there, and its boards wait for it
+                    link.settimeout(ANSWER_TIMEOUT_S)
                     self.error = None
                     wire.write("*IDN?\n")
                     wire.flush()
@@ -149,6 +155,9 @@ class MotionFollower:
             except (OSError, ValueError) as exc:
                 self.error = f"gimbal {self.address[0]}:{self.address[1]}: {exc}"
                 self._stop.wait(0.5)
+            except Exception as exc:  # an answer it cannot read: said, and no board waits for it any more
+                self.error = f"gimbal {self.address[0]}:{self.address[1]}: {type(exc).__name__}: {exc}"
+                raise
 
     def _update(self, answer: str) -> None:
         parts = answer.split(",")
