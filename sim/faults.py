@@ -26,6 +26,9 @@ class SimFaults:
     unknown_params: list[str] = field(default_factory=list, metadata={"boards": MAVLINK})
     # "NAME:K": the answers to the first K reads of NAME are lost on the way (a lossy link, answers late)
     lose_param_answers: list[str] = field(default_factory=list, metadata={"boards": MAVLINK, "form": "NAME:K,…"})
+    # "COMMAND:K": the acknowledgements of the first K COMMAND_LONGs of this number are lost on the way (the board
+    # carries the commands out; a lossy link, or a host so loaded that the answers come after the station's wait)
+    lose_command_acks: list[str] = field(default_factory=list, metadata={"boards": MAVLINK, "form": "COMMAND:K,…"})
     # the link goes silent when a PARAM_SET of this name arrives (a cable pulled)
     link_loss_at_param_set: str = field(default="", metadata={"boards": MAVLINK})
     no_persist: list[str] = field(default_factory=list)  # names whose value never reaches storage
@@ -179,6 +182,10 @@ class SimFaults:
             n, _, ms = item.partition(":")
             out[int(n) - 1] = float(ms) / 1000.0
         return out
+
+    def acks_lost(self) -> dict[int, int]:
+        """Command number → how many of its first acknowledgements are lost (the ``lose_command_acks`` fault)."""
+        return {int(command): int(k) for command, _, k in (item.rpartition(":") for item in self.lose_command_acks)}
 
     def answers_lost(self) -> dict[str, int]:
         """NAME → how many of its first reads go unanswered (the ``lose_param_answers`` fault)."""

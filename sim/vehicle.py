@@ -193,6 +193,8 @@ class SimulatedAutopilot(ABC):
         self.frames_dropped = 0  # frames the ``drop_percent`` fault lost on the way
         self.param_reads: Counter[str] = Counter()  # PARAM_REQUEST_READ by name, per name (tests read it)
         self._answers_lost = self.faults.answers_lost()
+        self.commands_heard: Counter[int] = Counter()  # COMMAND_LONG / COMMAND_INT by number (tests read it)
+        self._acks_lost = self.faults.acks_lost()
         self.param_lists = 0  # PARAM_REQUEST_LIST received
         self._held_output: list[bytes] = []  # frames sent during a stall of the ``link_stalls`` fault
         self.started_at = time.monotonic()  # the ``link_stalls`` fault's stalls run from here
@@ -828,7 +830,9 @@ class SimulatedAutopilot(ABC):
         }
         handler = handlers.get(command)
         result = handler(params) if handler else UNSUPPORTED
-        if not (self.faults.lose_reboot_ack and command == mavlink.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN):
+        self.commands_heard[command] += 1
+        lost = self.commands_heard[command] <= self._acks_lost.get(command, 0)
+        if not lost and not (self.faults.lose_reboot_ack and command == mavlink.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN):
             self.mav.command_ack_send(command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent())
         after = self._after_ack
         if after is not None:

@@ -165,6 +165,34 @@ def test_a_write_whose_echo_is_lost_is_proven_by_a_read_and_the_unit_passes(tmp_
         assert sim.param("CAL_MAG0_XOFF") == pytest.approx(record.params_written["CAL_MAG0_XOFF"], abs=1e-6)
 
 
+def test_a_command_whose_acknowledgements_are_lost_is_sent_again_and_answered(tmp_path):
+    """MAVSDK gives up on a command after six sends over 3 s without an ACK; on a loaded host the simulated
+    board's answers came after that, and a unit FAILed ("command 511 got no COMMAND_ACK") at its stream's
+    start.  Silence is no refusal: the command is sent again, and its answer taken."""
+    from pymavlink.dialects.v20 import common as ML
+
+    from magline.plugins.px4.link import Px4Link
+
+    with start_sim(tmp_path, faults=SimFaults(lose_command_acks=["511:6"])) as sim:
+        link = Px4Link(sim.address.replace("udp:", "udpout://"))
+        link.open()
+        try:
+            result = link.command(ML.MAV_CMD_SET_MESSAGE_INTERVAL, ML.MAVLINK_MSG_ID_SCALED_IMU, 20_000)
+        finally:
+            link.close()
+        assert result == ML.MAV_RESULT_ACCEPTED and sim.commands_heard[511] > 6  # the six lost, then answered
+
+
+def test_a_command_never_acknowledged_is_an_error_not_a_failure_and_nothing_is_written(tmp_path):
+    """A vehicle that answers everything but one command proves nothing about the unit: ERROR (not judged),
+    with the command named, the raw data kept and no calibration written."""
+    with start_sim(tmp_path, faults=SimFaults(lose_command_acks=["511:1000"])) as sim:
+        record = run_unit(station(tmp_path, sim), "SN-NOACK")
+        assert record.verdict is Outcome.ERROR, record.cause
+        assert "command 511 got no COMMAND_ACK" in record.cause and "not judged" in record.cause
+        assert sim.param("CAL_MAG0_XOFF") == 0.0 and sim.param("CAL_MAG0_ID") == 0
+
+
 def test_link_lost_mid_acquisition_is_an_error_keeps_raw_data_and_names_what_is_left_changed(tmp_path):
     with start_sim(tmp_path, faults=SimFaults(link_loss_after_s=0.6)) as sim:
         record = run_unit(station(tmp_path, sim, {"stream_timeout_s": 0.5}), "SN-LINK")

@@ -43,6 +43,7 @@ from magline.plugin import (
 log = logging.getLogger("magline.px4.mavsdk")
 # MAVSDK's results that mean the command was not answered, as opposed to answered with a no
 UNANSWERED = (ActionResult.TIMEOUT, ActionResult.CONNECTION_ERROR, ActionResult.NO_SYSTEM)
+COMMAND_ATTEMPTS = 2  # MAVSDK's own (six sends over 3 s) per attempt: PX4.command
 GCS_SYSTEM, GCS_COMPONENT = 245, 190  # MAVSDK's ground-station identity
 RESULTS = {n: e.name.removeprefix("MAV_RESULT_") for n, e in mavlink.enums["MAV_RESULT"].items()}
 SHELL_PROMPTS = ("nsh> ", "pxh> ")  # NuttX boards; POSIX builds (which rarely answer over MAVLink)
@@ -268,18 +269,28 @@ class Px4Link:
 
     # ------------------------------------------------------------------ commands and raw messages
     def command(self, command: int, *params: float) -> int:
+        """COMMAND_LONG; the ACK's MAV_RESULT.  MAVSDK sends it up to six times over 3 s; unanswered, it is sent
+        again once (``COMMAND_ATTEMPTS``).  PX4 acknowledges every command it receives, an unsupported one
+        too, so silence from a vehicle that otherwise answers is answers lost — a lossy link, or a host so
+        loaded that they came after the wait — and proves nothing of the unit: :class:`UnansweredRequest`
+        (ERROR), as ArduPilot's link says it."""
         p = [*params, *([0.0] * (7 - len(params)))]
         fields = {"target_system": self.target_system, "target_component": 1, "command": command,
                   "confirmation": 0, **{f"param{i + 1}": v for i, v in enumerate(p)}}
-        if not self.is_open:
-            raise LinkError(f"link to {self.url} is closed (command {command})")
-        try:
-            ack = self.direct.send_command(MavlinkMessage("COMMAND_LONG", GCS_SYSTEM, GCS_COMPONENT,
-                                                          self.target_system, 1, json.dumps(fields)))
-        except MavlinkDirectError as exc:
-            self.require_alive(f"command {command}")
-            raise DutError(f"command {command} got no COMMAND_ACK ({exc.result.name})") from exc
-        return int(json.loads(ack.fields_json)["result"])
+        for _ in range(COMMAND_ATTEMPTS):
+            if not self.is_open:
+                raise LinkError(f"link to {self.url} is closed (command {command})")
+            try:
+                ack = self.direct.send_command(MavlinkMessage("COMMAND_LONG", GCS_SYSTEM, GCS_COMPONENT,
+                                                              self.target_system, 1, json.dumps(fields)))
+            except MavlinkDirectError as exc:
+                self.require_alive(f"command {command}")
+                if exc.result.name != "TIMEOUT":
+                    raise DutError(f"command {command} got no COMMAND_ACK ({exc.result.name})") from exc
+                continue
+            return int(json.loads(ack.fields_json)["result"])
+        raise UnansweredRequest(f"command {command} got no COMMAND_ACK in {COMMAND_ATTEMPTS} waits of MAVSDK's (each "
+                                "up to six sends over 3 s) while the vehicle otherwise answers: the unit is not judged")
 
     def require_accepted(self, command: int, what: str, *params: float) -> None:
         result = self.command(command, *params)
