@@ -2,7 +2,7 @@
 
 Order of a unit's run (one direction of data: station file → sequencer → phases → record)::
 
-    register_*  (once, at start-up)
+    register_*  (once, at start-up: for ``magline``, once its command line is parsed)
     phase_started / phase_finished around each phase, operator_prompt and acquisition_progress
     during them:
       identify → connect → acquire (retries) → fit → validate → persist → verify → record
@@ -54,7 +54,7 @@ class Register(Protocol):
 
 @hookspec
 def magline_register_dut_backends(register: Register) -> None:
-    """Add DUT backends by name.  Called once when the plugin manager starts.
+    """Add DUT backends by name.  Called once at start-up.
 
     :param register: call ``register(name, factory, options=Model)`` once per backend;
         ``factory(product, options)`` receives the station file's product entry (for a slot: with
@@ -158,7 +158,7 @@ class RegisterMeasurement(Protocol):
 
 @hookspec
 def magline_register_measurements(register: RegisterMeasurement) -> None:
-    """Declare the measurements the plugin produces.  Called once when the plugin manager starts, before
+    """Declare the measurements the plugin produces.  Called once at start-up, before
     any station file is read.
 
     :param register: call ``register(name, unit="°C", meaning="…", possible=(low, high))`` once per
@@ -175,7 +175,7 @@ def magline_register_measurements(register: RegisterMeasurement) -> None:
 @hookspec
 def magline_register_plugin_options(register: Callable[[str, type[BaseModel]], None]) -> None:
     """Declare a section of the station file's ``plugins:`` for a plugin that is not a registered backend,
-    sink or source — a listener such as a plant feed.  Called once when the plugin manager starts.
+    sink or source — a listener such as a plant feed.  Called once at start-up.
 
     :param register: call ``register(section, Model)``: ``plugins.<section>`` in a station file is
         validated against the pydantic ``Model`` by ``magline check`` (file, key and line), and the plugin
