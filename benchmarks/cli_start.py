@@ -2,7 +2,8 @@
 
 Each command is run ``--runs`` times as a user runs it (the installed console script, a new process each
 time) and the median and the slowest wall time are printed, beside a bare ``python -c pass`` and the
-imports every command needs whatever it does (NumPy, pydantic, PyYAML, pluggy) for scale.
+imports a command that reads a station file and computes needs (NumPy, pydantic, PyYAML, pluggy) for scale:
+``--help`` imports none of the first three, ``check`` no NumPy.
 
 Bytecode caches are allowed for the commands whatever the caller's environment says: a user's Python writes
 them at the first run, and a shell with ``PYTHONDONTWRITEBYTECODE=1`` (some CI and sandbox images) would
