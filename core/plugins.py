@@ -62,23 +62,35 @@ class Plugins:
         self.hook = pm.hook
         self._dists = dists or {}  # plugin name → the distribution its entry point came from
         self._versions: dict[str, tuple[str, str]] | None = None
-        self._registered = False
+        self._registered, self._failed = False, None
         if register:
             self.register()
 
     def __getattr__(self, name: str) -> Any:
         """A registry asked before :meth:`register` ran: registered now (only missing attributes come here)."""
-        if name in Plugins._REGISTRIES and not self.__dict__.get("_registered", True):
+        if name in Plugins._REGISTRIES and "_registered" in self.__dict__:
             self.register()
             return self.__dict__[name]
         raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
 
     def register(self) -> None:
         """Call every plugin's registration hooks, once: a name registered twice, a bad ``stores=`` or a
-        measurement declared wrongly is a :class:`PluginError` here."""
+        measurement declared wrongly is a :class:`PluginError` here — and again at every later use, never
+        half a registry taken for the whole."""
         if self._registered:
+            if self._failed is not None:
+                raise PluginError(f"the plugins' registration failed: {self._failed}")
             return
-        self._registered = True
+        self._registered, self._failed = True, None
+        try:
+            self._register_all()
+        except Exception as exc:
+            for name in Plugins._REGISTRIES:  # what was filled before the failure is no registry
+                self.__dict__.pop(name, None)
+            self._failed = exc
+            raise
+
+    def _register_all(self) -> None:
         self.dut_backends: dict[str, DutFactory] = {}
         self.field_sources: dict[str, Callable[..., Any]] = {}
         self.result_sinks: dict[str, Callable[..., Any]] = {}

@@ -106,6 +106,23 @@ def test_duplicate_backend_name_rejected():
         load_plugins(extra=[Dup()])
 
 
+def test_a_registration_left_for_later_fails_at_every_use_and_never_serves_half_a_registry():
+    """``magline`` registers the plugins once its command line is parsed (its help needs none of it): a
+    name registered twice is then said at the first use of any registry, and at every later one — the
+    backends registered before the failure are no registry to run a unit with."""
+    class Dup:
+        @hookimpl
+        def magline_register_dut_backends(self, register):
+            register("mock", lambda product, options: None)
+
+    plugins = load_plugins(extra=[Dup()], register=False)  # loading alone registers nothing
+    for _ in range(2):
+        with pytest.raises(PluginError, match="registered twice"):
+            plugins.dut_backends  # noqa: B018 — the use is the test
+    with pytest.raises(PluginError, match="registered twice"):
+        plugins.field_sources  # noqa: B018
+
+
 def test_plugins_command_lists_hooks(capsys):
     assert main(["plugins"]) == 0
     doc = json.loads(capsys.readouterr().out)
