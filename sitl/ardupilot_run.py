@@ -59,6 +59,11 @@ from magline.sitl.checks import (
 SERIAL0 = "tcp:127.0.0.1:5760"  # SITL's SERIAL0: the station's link (SITL waits for it at boot)
 HOME = (50.0, 10.0, 100.0, 0.0)  # latitude, longitude (a grid point of the declination table), altitude m, heading
 COMPASSES = 3  # ArduCopter's SITL starts with three compasses
+# SITL's own dataflash log, kept in the unit's folder (logs/*.BIN) whether the vehicle is armed or not: its SIM
+# messages are the simulator's attitude at each SITL instant (25 Hz with the fast-attitude bit), the truth the
+# compass and IMU (MAG, IMU at the loop's rate) are made from — what the station's readings are held to when
+# one of them is in question (docs/firmware.md). Bits: fast and medium attitude, IMU, compass, fast IMU.
+DATAFLASH_LOG = {"LOG_DISARMED": 1.0, "LOG_BITMASK": float(1 << 0 | 1 << 1 | 1 << 7 | 1 << 13 | 1 << 18)}
 ORIENT_YAW90 = 2
 UT_PER_GAUSS = 100.0
 
@@ -212,7 +217,7 @@ def _run_and_keep(sitl: ApSitl, truth: ApTruth, station: Path, serial: str, name
     try:
         sitl.start()
         link = _link()
-        _set(link, truth.sim_params())
+        _set(link, {**truth.sim_params(), **DATAFLASH_LOG})
         if tumbling:
             start_tumbling(link)
         link.close()
