@@ -31,7 +31,7 @@ import numpy as np
 from sqlalchemy import create_engine, insert, text
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from browser import FLAGS, Served, chromium, chromium_path, free_port
+from browser import Served, chromium, chromium_path, free_port, launch_flags
 
 from magline.core.dashboard.app import create_app
 from magline.core.dashboard.store import open_read_only
@@ -146,7 +146,7 @@ def measure(args: argparse.Namespace) -> None:
                     # a browser profile of its own, as a person's browser keeps one: nothing cached at the
                     # first visit; then plotly.js and, from its third run, the code compiled from it
                     context = browser.browser_type.launch_persistent_context(
-                        Path(tmp) / f"profile-{number}", executable_path=chromium_path(), args=FLAGS,
+                        Path(tmp) / f"profile-{number}", executable_path=chromium_path(), args=launch_flags(),
                         viewport={"width": 1600, "height": 1000})
                     try:
                         first = timed(context, url, ready)

@@ -5,6 +5,7 @@ nothing of the network."""
 from __future__ import annotations
 
 import base64
+import re
 import shutil
 import socket
 import threading
@@ -28,6 +29,36 @@ FLAGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--
          "--js-flags=--no-enable-lazy-source-positions"]
 
 
+# Chromium features the tests' browser turns off beside playwright's own.  Why: Chromium 156 renders its
+# omnibox popups as WebUI pages (``chrome://omnibox-popup.top-chrome``) and starts one in a renderer of its own
+# for every new window, which each playwright context is: measured here, 0.3 s of CPU for an empty page and
+# 1.5 s for one that loads plotly.js (3.5 s → 2.0 s), a headless browser never showing either popup.
+QUIET_FEATURES = ("WebUIOmniboxPopup", "WebUIOmniboxAimPopup")
+
+
+def playwright_disabled_features() -> list[str]:
+    """The features playwright's driver itself disables in Chromium (``chromiumSwitches``), read from the
+    installed driver.  Why: Chromium keeps only the last ``--disable-features`` it is given, so a list of
+    our own must repeat playwright's.  Empty when the driver no longer says them where this looks."""
+    import playwright
+
+    driver = Path(playwright.__file__).parent / "driver" / "package" / "lib"
+    for source in (driver / "coreBundle.js", driver / "server" / "chromium" / "chromiumSwitches.js"):
+        if source.is_file():
+            found = re.search(r"disabledFeatures = \[(.*?)\]", source.read_text(encoding="utf-8"), re.DOTALL)
+            if found:
+                return re.findall(r'"(\w+)"', re.sub(r"//[^\n]*", "", found.group(1)))
+    return []
+
+
+def launch_flags() -> list[str]:
+    """:data:`FLAGS`, and the features to turn off: playwright's and :data:`QUIET_FEATURES`.  Where
+    playwright's own list cannot be read, its switch is left alone (the browser then costs more, and
+    behaves as playwright means it to)."""
+    theirs = playwright_disabled_features()
+    return FLAGS + ([f"--disable-features={','.join(theirs + list(QUIET_FEATURES))}"] if theirs else [])
+
+
 # How long a test waits for what a page must show (its load, its charts drawn, a verdict, a tile updated): a
 # guard against a page that never shows it, not a speed limit.  A report embeds plotly.js: a quiet machine
 # loads it in a second, one at load 8 in tens of seconds, and both are right; playwright's own 30 s made the
@@ -47,7 +78,7 @@ def chromium() -> Any:
     from playwright.sync_api import sync_playwright
 
     with sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=chromium_path(), args=FLAGS)
+        browser = p.chromium.launch(executable_path=chromium_path(), args=launch_flags())
         try:
             yield browser
         finally:
