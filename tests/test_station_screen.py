@@ -737,6 +737,16 @@ def test_a_screen_counts_the_running_shift_from_the_line_s_shift_starts(tmp_path
     ShiftFromStore(station, sink, state, now=lambda: now).refresh()
     assert (state.got["units"], state.got["judged"], state.got["fpy"]) == (2, 2, 0.5)
     assert [r["serial"] for r in state.got["recent"]] == ["S2", "S1"]  # newest first; the 13:10 unit was last shift's
+    # a unit tumbled across the shift's start belongs to the shift that judged it: the operator who just saw
+    # its verdict sees it counted (a screen test run across midnight once waited for it in vain)
+    with engine.begin() as conn:
+        conn.execute(runs.insert().values(
+            run_uuid="u-across", serial="S-ACROSS", part="P", station_id="st", verdict="pass",
+            started=now.replace(hour=13, minute=59).astimezone(UTC).isoformat(timespec="milliseconds"),
+            finished=now.replace(hour=14, minute=1).astimezone(UTC).isoformat(timespec="milliseconds")))
+    ShiftFromStore(station, sink, state, now=lambda: now).refresh()
+    assert (state.got["units"], state.got["judged"]) == (3, 3)
+    assert "S-ACROSS" in [r["serial"] for r in state.got["recent"]]
     engine.dispose()
 
 

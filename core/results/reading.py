@@ -202,8 +202,11 @@ def shift_units(conn: Connection, station_id: str, since: str, recent: int, slot
     first, each with the verdict as shown (a PASS with a flagged measurement is REVIEW).
 
     Why from the store: every screen of the station, and one restarted mid-shift, counts the same units.
-    ``slot``: that fixture position's units only."""
-    chosen = (runs.c.station_id == station_id) & (runs.c.started >= since) & (runs.c.verdict != "running")
+    A unit belongs to the shift it was finished in (one started before the shift began and judged after
+    it is this shift's): the operator who just saw its verdict sees it counted.  ``slot``: that fixture
+    position's units only."""
+    ended = func.coalesce(runs.c.finished, runs.c.started)  # a record without its end: when it began
+    chosen = (runs.c.station_id == station_id) & (ended >= since) & (runs.c.verdict != "running")
     if slot is not None:
         chosen = chosen & (runs.c.slot == slot)
     found = conn.execute(select(runs.c.id, runs.c.serial, runs.c.part, runs.c.verdict, runs.c.slot, runs.c.finished,
