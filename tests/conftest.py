@@ -13,7 +13,7 @@ import yaml
 from magline.testing import deep_update
 
 # Compiled bytecode kept, whatever the environment asks (PYTHONDONTWRITEBYTECODE, set by some CI images and
-# sandboxes).  Why: the suite's four workers each import magline and rewrite every test module, and its tests
+# sandboxes).  Why: the suite's workers each import magline and rewrite every test module, and its tests
 # start some hundred ``magline`` processes; without the caches every one compiled the same sources again
 # (collection alone 11.8 s of CPU a worker against 4.8 s).  Done here because pytest imports this file before
 # it starts its workers, which inherit the environment.
