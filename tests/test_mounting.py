@@ -5,6 +5,7 @@ and PX4 over real MAVLink, and the mock's bad-input cases."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -129,6 +130,22 @@ def test_without_an_accelerometer_the_mounting_is_not_guessed(rng):
     still = ImuSeries(t_ms=imu.t_ms, accel_mss=np.tile([0.0, 0.0, -9.81], (len(imu), 1)))
     with pytest.raises(MountingUnobservable):  # gravity never turns: a unit that was not tumbled
         estimate_mounting(mag[:, [0, 1, 2]] * 0 + [30.0, 0.0, 40.0] + rng.normal(0, 0.3, mag.shape), t_ms, still)
+
+
+@pytest.mark.xfail(strict=True, reason="open: the skew comes from some 3 s of the tumble whose compass timing "
+                   "wandered, and the stated sigma counts them as many independent readings (docs/firmware.md)")
+def test_a_real_firmware_s_swept_tumble_states_a_mounting_sigma_that_holds_its_error():
+    """ArduCopter SITL's swept unit (FlightAxis peer, docs/firmware.md): the station's record of its tumble, the
+    compass calibrated.  SITL's own attitude log puts the compass unturned (0.05°) and 46 ms behind the
+    accelerometer.  The estimate finds −67.6 ms and 1.05° about z and states 0.10° and ±1.9 ms.  Left out one
+    eighth at a time, the tumble's middle 3 s move the skew by 10 ms (a jackknife's σ 0.39°); a jackknife does
+    not fit every fixture (a turntable's tilts are each needed, and leaving one out is not noise), so the σ
+    that holds this is not yet the station's.  Strict: when it is, this test says so."""
+    record = np.load(Path(__file__).parent / "fixtures" / "ardupilot-sitl-swept-record.npz")
+    imu = ImuSeries(t_ms=record["t_acc_ms"], accel_mss=record["accel_mss"].astype(float))
+    estimate = estimate_mounting(record["mag_cal"].astype(float), record["t_mag_ms"], imu)
+    assert rotation_angle_deg(estimate.data_to_body, np.eye(3)) <= 3.0 * estimate.sigma_deg
+    assert abs(estimate.skew_ms + 46.0) <= 3.0 * estimate.own_skew_sigma_ms
 
 
 def test_two_sensors_four_degrees_apart_in_yaw_are_told_apart(rng):
