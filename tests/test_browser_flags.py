@@ -47,7 +47,10 @@ def test_the_browser_opens_no_omnibox_popup_page_and_keeps_playwright_s_disabled
     try:
         page.goto("about:blank")
         cdp = session_chromium.new_browser_cdp_session()
-        targets = cdp.send("Target.getTargets")["targetInfos"]
+        try:
+            targets = cdp.send("Target.getTargets")["targetInfos"]
+        finally:
+            cdp.detach()
         assert not [t["url"] for t in targets if "omnibox" in t["url"]]
         theirs = playwright_disabled_features()
         assert "PaintHolding" in theirs and "HttpsUpgrades" in theirs  # read from playwright's driver
