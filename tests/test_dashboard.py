@@ -10,6 +10,7 @@ import subprocess
 import sys
 import urllib.error
 import urllib.request
+from datetime import datetime, time
 
 import numpy as np
 import pytest
@@ -58,13 +59,20 @@ def recorded(path, serials_values, station_id="st-a", line="L1"):
                             station_id=station_id, line=line) for serial, value in serials_values])
 
 
+def shift_far_from_now() -> Shifts:
+    """One shift a day, starting twelve hours from now (local clock): the tests count the running shift's
+    units with the real clock, and a day's boundary met between two of their units (a run across midnight)
+    had them wait for a count that never came."""
+    return Shifts((time((datetime.now().hour + 12) % 24, 0),))
+
+
 @pytest.fixture
 def dashboard():
     started = []
 
     def start(target, token=None):
         store = open_read_only(str(target))
-        served = Served(create_app(store, Shifts(), token), free_port())
+        served = Served(create_app(store, shift_far_from_now(), token), free_port())
         started.append((served, store))
         return served
 
@@ -87,11 +95,11 @@ def test_a_tile_follows_a_unit_recorded_by_a_real_magline_run_without_a_reload(d
         served = dashboard(tmp_path / "results.sqlite")
         opened = open_page(browser, served.url)
         page = opened.page
-        page.wait_for_selector(".tile[data-station='sim-px4-01'] .units:has-text('1 unit today')")
+        page.wait_for_selector(".tile[data-station='sim-px4-01'] .units:has-text('1 unit this shift')")
         drawn = page.evaluate("window.__shown")
         second = magline("run", str(station), "--serial", "DASH-2")
         assert second.returncode == 0, second.stderr[-2000:]
-        page.wait_for_selector(".tile[data-station='sim-px4-01'] .units:has-text('2 units today')")
+        page.wait_for_selector(".tile[data-station='sim-px4-01'] .units:has-text('2 units this shift')")
     assert page.evaluate("window.__shown") > drawn and page.evaluate("performance.navigation.type") == 0  # no reload
     tile = page.inner_text(".tile[data-station='sim-px4-01']")
     assert tile.splitlines()[0].startswith("sim-px4-01") and "first-pass yield 100%" in tile
@@ -247,9 +255,9 @@ def test_on_postgresql_a_recorded_unit_wakes_the_page_by_notification(dashboard,
         record("PG-1")
         served = dashboard(url)
         page = open_page(browser, served.url).page
-        page.wait_for_selector(".tile[data-station='st-pg'] .units:has-text('1 unit today')")
+        page.wait_for_selector(".tile[data-station='st-pg'] .units:has-text('1 unit this shift')")
         record("PG-2")
-        page.wait_for_selector(".tile[data-station='st-pg'] .units:has-text('2 units today')")
+        page.wait_for_selector(".tile[data-station='st-pg'] .units:has-text('2 units this shift')")
         store = open_read_only(url)
         try:
             with store.engine.connect() as conn, pytest.raises((InternalError, ProgrammingError)):
@@ -272,13 +280,13 @@ def test_many_open_pages_do_not_starve_the_dashboard(dashboard, browser, tmp_pat
             page.set_default_timeout(EVENT_WAIT_MS)
         for page in pages:
             page.goto(served.url)
-            page.wait_for_selector(".tile .units:has-text('1 unit today')")
+            page.wait_for_selector(".tile .units:has-text('1 unit this shift')")
         with urllib.request.urlopen(served.url + "unit?serial=w-1", timeout=30) as answer:
             assert answer.status == 200 and "W-1" in answer.read().decode()
         recorded(tmp_path / "line.sqlite", [("W-2", 74.1)])
         for page in pages:
             try:
-                page.wait_for_selector(".tile .units:has-text('2 units today')")
+                page.wait_for_selector(".tile .units:has-text('2 units this shift')")
             except Exception:
                 shown = [p.evaluate("[document.querySelector('.tile .units') && document.querySelector('.tile "
                                     ".units').textContent, window.__shown, !document.getElementById('banner')"
@@ -316,7 +324,7 @@ def test_the_process_page_filters_by_operator_and_compass_and_its_address_holds_
 def test_a_station_with_slots_has_a_tile_per_slot_saying_what_each_tests_now(dashboard, browser, tmp_path):
     """Four units on one gimbal are four fixture positions: a tile each, its own units and yield, and the
     serial its slot claim says is under test there now (a claim the computer keeps refreshing)."""
-    from datetime import UTC, datetime
+    from datetime import UTC
 
     from sqlalchemy import create_engine, insert
 
@@ -337,8 +345,8 @@ def test_a_station_with_slots_has_a_tile_per_slot_saying_what_each_tests_now(das
     page = open_page(browser, dashboard(tmp_path / "line.sqlite").url).page
     page.wait_for_selector(".tile[data-slot='B']")
     a, b = page.inner_text(".tile[data-slot='A']"), page.inner_text(".tile[data-slot='B']")
-    assert a.startswith("st-s · slot A") and "testing S-NOW" in a and "3 units today" in a
-    assert b.startswith("st-s · slot B") and "no unit under test" in b and "3 units today" in b
+    assert a.startswith("st-s · slot A") and "testing S-NOW" in a and "3 units this shift" in a
+    assert b.startswith("st-s · slot B") and "no unit under test" in b and "3 units this shift" in b
 
 
 def test_a_forwarding_station_s_tile_says_what_its_outbox_holds_and_when_its_field_was_checked(
