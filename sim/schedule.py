@@ -25,6 +25,12 @@ SCHEDULER_JITTER_S = 0.002  # a message goes out within this of its nominal inst
 # simulator's loop for over a second (py-spy, sampling it, fell 3.8 s behind): dropped, a 10 Hz sensor
 # read 7.2 Hz where the station measures the sensor's rate
 CATCH_UP_S = 10.0
+# How much of the board's time one call hands out, oldest first: a host too slow to compute the board's
+# messages as fast as they fall due (load 8 on two cores, two boards in one process) once fell further
+# behind with each call, every call computing all it had missed (0.7, 1.2, 2.1, 4.3 ... 14.7 s), and the
+# loop sent its heartbeat and answered commands only between calls: the station saw no heartbeat for
+# 2.5 s and called a live link lost.  Handed out a slice at a time, the loop goes round between slices.
+SLICE_S = 0.05
 
 
 @dataclass
@@ -60,15 +66,18 @@ class BoardSchedule:
         return min((stream.due_s for stream in self.streams.values()), default=math.inf)
 
     def due(self, now_s: float) -> list[tuple[float, int]]:
-        """Every (instant, key) that fell due up to ``now_s``, oldest first across all streams: what the
-        board sent while the host did not run the loop, each to be computed at its own instant."""
+        """The (instant, key) pairs that fell due up to ``now_s``, oldest first across all streams: what the
+        board sent while the host did not run the loop, each to be computed at its own instant — at most
+        :data:`SLICE_S` of them past the oldest; the rest stay due for the next call."""
         due: list[tuple[float, int]] = []
-        for key, stream in self.streams.items():
+        for stream in self.streams.values():
             behind = now_s - CATCH_UP_S - stream.nominal_s
             if behind > 0.0:  # the host stopped us for longer than a load does: resume CATCH_UP_S back
                 stream.nominal_s += math.ceil(behind / stream.interval_s) * stream.interval_s
                 stream.due_s = stream.nominal_s
-            while stream.due_s <= now_s:
+        until_s = min(now_s, self.next_due_s() + SLICE_S)
+        for key, stream in self.streams.items():
+            while stream.due_s <= until_s:
                 due.append((stream.due_s, key))
                 stream.nominal_s += stream.interval_s
                 stream.due_s = stream.nominal_s + self.rng.uniform(0.0, SCHEDULER_JITTER_S)

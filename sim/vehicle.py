@@ -489,7 +489,10 @@ class SimulatedAutopilot(ABC):
             self.link_dead = True
             self.link.unplug()  # a network link goes silent; a USB board's node vanishes, its cable pulled
         if now >= self._next_heartbeat:
-            self._next_heartbeat += 1.0
+            # PX4's stream scheduler (MavlinkStream::update) keeps the 1 Hz rate on a late loop but restarts
+            # from now once it is half a period late: a board that did not run sends one heartbeat, not a burst
+            late = now - self._next_heartbeat
+            self._next_heartbeat = now + 1.0 if late > 0.5 else self._next_heartbeat + 1.0
             self.mav.heartbeat_send(mavlink.MAV_TYPE_QUADROTOR, self.autopilot,
                                     mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 0, mavlink.MAV_STATE_STANDBY)
         # each message computed and stamped at the instant it fell due, however late the host let us run —
@@ -617,6 +620,9 @@ class SimulatedAutopilot(ABC):
         matrix and not ``attitude.inv().apply``: a board turns two vectors at every message it streams, and
         scipy's inverse and apply cost 50 µs each where this costs 5 (with the sensor's own turn kept as a
         matrix, a streamed message takes 440 µs instead of 666: ``benchmarks/sim_wakeups.py``)."""
+        if self.follower is not None and self._still is None and self.resting is None \
+                and self.current_motion() == "shared":
+            return self.follower.matrix(now).T  # as attitude_at would compose it, without scipy's overhead
         return self.attitude_at(now).as_matrix().T
 
     def sensor_rate_hz(self, sensor: SimMagnetometer) -> float:

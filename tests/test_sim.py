@@ -587,6 +587,54 @@ def test_a_published_reading_averages_the_driver_samples_as_the_firmware_does(tm
 
 
 @pytest.mark.parametrize("flavour", ["px4", "ardupilot"])
+def test_a_host_too_slow_for_the_stream_keeps_the_boards_heartbeat_and_answers(tmp_path, flavour):
+    """A host that computes the board's messages three times slower than they fall due (load 8 on two cores,
+    two boards and a station in one process) gets behind and stays behind; the board's link still says it is
+    alive once a second and answers a command.  Before, each turn of the loop computed all it had missed,
+    each took longer than the last (0.7, 1.2, 2.1, 4.3 ... 14.7 s in a loaded suite), and the heartbeat
+    went out only between them: the station found no heartbeat for its 2.5 s and called the link lost."""
+    from magline.plugins.px4.link import SILENCE_S
+
+    listen = "udp:127.0.0.1:0" if flavour == "px4" else "tcp:127.0.0.1:0"
+    with create_sim(flavour, listen, workdir=tmp_path, seed=8, boot_time_s=0.3) as sim:
+        gcs = Gcs(sim.address)
+        compute = sim.stream_message
+
+        def slow(msg_id, instant):
+            time.sleep(0.06)  # three times the 20 ms between the messages
+            return compute(msg_id, instant)
+
+        sim.stream_message = slow
+        assert gcs.command(ML.MAV_CMD_SET_MESSAGE_INTERVAL, ML.MAVLINK_MSG_ID_SCALED_IMU2,
+                           20_000).result == ML.MAV_RESULT_ACCEPTED
+        heard = [time.monotonic()]
+        while heard[-1] - heard[0] < 10.0:  # unchecked, the loop's turns reached 4.9 s within this
+            assert gcs.recv("HEARTBEAT", timeout=SILENCE_S) is not None, f"silent for {SILENCE_S} s; {sim.health()}"
+            heard.append(time.monotonic())
+        ack = gcs.command(ML.MAV_CMD_SET_MESSAGE_INTERVAL, ML.MAVLINK_MSG_ID_SCALED_IMU2, 40_000, timeout=SILENCE_S)
+        assert ack is not None and ack.result == ML.MAV_RESULT_ACCEPTED
+        assert not sim.errors
+
+
+@pytest.mark.parametrize("flavour", ["px4", "ardupilot"])
+def test_a_board_the_host_stopped_for_seconds_sends_one_heartbeat_not_the_ones_it_missed(tmp_path, flavour):
+    """PX4's stream scheduler (``MavlinkStream::update``) restarts a stream from now once it is half a period
+    late: a board whose loop did not run for 3 s sends one heartbeat, then one a second."""
+    listen = "udp:127.0.0.1:0" if flavour == "px4" else "tcp:127.0.0.1:0"
+    with create_sim(flavour, listen, workdir=tmp_path, seed=9, boot_time_s=0.3) as sim:
+        gcs = Gcs(sim.address)
+        gcs.recv("HEARTBEAT")
+        with sim.lock:  # the board's loop cannot run while the host holds it
+            time.sleep(3.0)
+        first = gcs.recv("HEARTBEAT", timeout=2.0)
+        assert first is not None
+        burst = []
+        while (msg := gcs.recv("HEARTBEAT", timeout=0.5)) is not None:
+            burst.append(msg)
+        assert burst == []  # the next is a second away, not 0.5 s
+
+
+@pytest.mark.parametrize("flavour", ["px4", "ardupilot"])
 def test_a_stalled_host_delays_the_stream_but_moves_no_stamp_and_loses_no_reading(tmp_path, flavour):
     """A board samples, stamps and sends on its own clock: when the host does not run the simulator for
     0.4 s (a loaded CI machine), what the board sent in that time arrives late, every message stamped

@@ -499,3 +499,30 @@ def test_a_cradle_move_never_starts_before_an_answer_the_boards_already_had():
     finally:
         table.stop()
     assert since >= answered
+
+
+def test_a_board_s_attitude_matrix_is_its_attitude_through_a_tilt_a_turn_and_after_it():
+    """The matrix a board turns its vectors with (computed without scipy where the cradle stands still) is
+    the attitude's own, at every instant of a cradle's move, a turn and the table standing after it."""
+    import time
+
+    from magline.sim.gimbal import MotionFollower
+    table = TurntableSim("tcp:127.0.0.1:0", homed=True, reaction_s=0.0).start()
+    table.speed_dps = 720.0
+    follower = MotionFollower(table.address)
+    try:
+        table.set_tilt(45.0, -30.0)
+        moved = time.monotonic()
+        table.command("ROT:TURN", "1")
+        turned = time.monotonic()
+        end = turned + 360.0 / 720.0 + 0.3
+        while follower.known_until < end:
+            time.sleep(0.02)
+            assert follower.error is None, follower.error
+        instants = np.linspace(moved - 0.1, end, 400)
+        pairs = [(follower.matrix(t), follower.attitude(t).as_matrix()) for t in instants]
+    finally:
+        follower.stop()
+        table.stop()
+    assert max(np.abs(fast - slow).max() for fast, slow in pairs) < 1e-12
+    assert any(np.abs(pairs[k][1] - pairs[k + 1][1]).max() > 1e-3 for k in range(len(pairs) - 1))  # it moved
