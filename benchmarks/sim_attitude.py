@@ -1,6 +1,7 @@
 """What one simulated board's attitude costs (printed, never asserted): ``spiral_attitude`` at one instant, the
 simulators' hot path, against its defining composition of four scipy ``Rotation`` objects, and the largest
-difference between the two over a tumble's instants.
+difference between the two over a tumble's instants; then a board on a turning turntable: its attitude's
+matrix as scipy composes it and as ``MotionFollower.matrix`` computes it.
 
     python benchmarks/sim_attitude.py [--calls 5000] [--repeat 5]
 """
@@ -40,6 +41,31 @@ def main() -> None:
     worst = max(np.abs(spiral_attitude(float(x), FIELD_DIR).as_matrix() - composed(float(x)).as_matrix()).max()
                 for x in t)
     print(f"largest difference of the two matrices over {len(t)} instants: {worst:.1e}")
+    turntable(args.calls, args.repeat)
+
+
+def turntable(calls: int, repeat: int) -> None:
+    """A board's view of a table turning a tilted cradle: the two ways to its matrix, timed at one instant."""
+    import time
+
+    from magline.sim.gimbal import MotionFollower
+    from magline.sim.turntable import TurntableSim
+
+    table = TurntableSim("tcp:127.0.0.1:0", homed=True, reaction_s=0.0).start()
+    follower = MotionFollower(table.address)
+    try:
+        table.set_tilt(45.0, -30.0)
+        time.sleep(0.6)  # the cradle's move over
+        table.command("ROT:TURN", "1")
+        time.sleep(0.3)
+        at = time.monotonic() - 0.1
+        for name, call in (("turntable: scipy Rotation, as_matrix", lambda: follower.attitude(at).as_matrix()),
+                           ("turntable: MotionFollower.matrix", lambda: follower.matrix(at))):
+            runs = timeit.repeat(call, number=calls, repeat=repeat)
+            print(f"{name:42s} median {statistics.median(runs) / calls * 1e6:7.1f} µs a call")
+    finally:
+        follower.stop()
+        table.stop()
 
 
 if __name__ == "__main__":

@@ -15,7 +15,7 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from magline.sim.truth import SensorTruth
-from magline.sim.truth.attitudes import spiral_attitude, two_axis_attitude
+from magline.sim.truth.attitudes import spiral_attitude, spiral_ned_to_body, two_axis_attitude
 
 BUS_I2C, BUS_SPI = 1, 2
 
@@ -115,6 +115,14 @@ def default_magnetometers(count: int, rng: np.random.Generator) -> list[SimMagne
 # --------------------------------------------------------------------------- attitude
 
 MOTIONS = ("tumble", "single_axis", "gimbal", "two_axis", "still", "shared")  # shared: follow a gimbal simulator
+
+
+def ned_to_body(motion: str, t: float, speed: float = 1.0, field_dir: NDArray | None = None) -> NDArray:
+    """The matrix turning an NED vector into the body of :func:`attitude` (its transpose); the spiral
+    motions' without scipy's ``Rotation``, which a board would make at every message it streams."""
+    if motion in ("tumble", "gimbal"):
+        return spiral_ned_to_body(t * speed, field_dir, stepped=motion == "gimbal")
+    return attitude(motion, t, speed, field_dir).as_matrix().T
 
 
 def attitude(motion: str, t: float, speed: float = 1.0, field_dir: NDArray | None = None) -> Rotation:

@@ -33,7 +33,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from scipy.spatial.transform import Rotation
 
 from magline.sim.faults import SimFaults
-from magline.sim.magnetometers import SimMagnetometer, attitude, default_magnetometers, driver_rate_hz
+from magline.sim.magnetometers import SimMagnetometer, attitude, default_magnetometers, driver_rate_hz, ned_to_body
 from magline.sim.params import ParamSpec, ParamTable, ParamValue
 from magline.sim.schedule import BoardSchedule
 from magline.sim.storage import NvStorage
@@ -132,6 +132,7 @@ class SimulatedAutopilot(ABC):
         self._peak_current_a = 0.0  # the largest current seen since boot (fault ``interference_remanence``)
         self._still: tuple[Rotation, float] | None = None  # held still in a fixture: (attitude, since)
         self._attitude_memo: tuple[tuple, Rotation] | None = None  # the last instant asked for, and its attitude
+        self._matrix_memo: tuple[tuple, NDArray] | None = None  # the last instant asked for, and its NED → body
         self._still_by_motors = False  # … strapped in the cradle for a motor test (not a load's fixture)
         self._motors_commanded_at = 0.0
         # BATTERY_STATUS / SYS_STATUS on the board's clock; the scheduler's jitter draws from its own generator,
@@ -620,10 +621,18 @@ class SimulatedAutopilot(ABC):
         matrix and not ``attitude.inv().apply``: a board turns two vectors at every message it streams, and
         scipy's inverse and apply cost 50 µs each where this costs 5 (with the sensor's own turn kept as a
         matrix, a streamed message takes 440 µs instead of 666: ``benchmarks/sim_wakeups.py``)."""
-        if self.follower is not None and self._still is None and self.resting is None \
-                and self.current_motion() == "shared":
+        if self._still is not None or (self._rest is not None and self._motion_index < self._rest[1]):
+            return self.attitude_at(now).as_matrix().T  # held or resting: one attitude, its branches as they are
+        motion = self.current_motion()
+        if motion == "shared":
+            if self.follower is None:
+                return self.attitude_at(now).as_matrix().T
             return self.follower.matrix(now).T  # as attitude_at would compose it, without scipy's overhead
-        return self.attitude_at(now).as_matrix().T
+        # one instant is asked for again by every compass read at it, and by its IMU fields
+        key = (motion, now - self._t0, self.speed)
+        if self._matrix_memo is None or self._matrix_memo[0] != key:
+            self._matrix_memo = (key, ned_to_body(motion, now - self._t0, self.speed, self.field_ned))
+        return self._matrix_memo[1]
 
     def sensor_rate_hz(self, sensor: SimMagnetometer) -> float:
         return self.mag_rate_hz or self.firmware_mag_rate_hz or driver_rate_hz(sensor.device_id)

@@ -94,7 +94,25 @@ def spiral_attitude(t: float | NDArray, field_dir: NDArray | None = None, *, ste
     plain floats for one instant, because a simulated board asks for it at every sample: four
     ``Rotation`` objects composed per call were a third of the simulator's CPU."""
     scalar = np.ndim(t) == 0
-    if scalar:
+    x, y, z, w = _ned_to_body_quat(t, field_dir, stepped, rock)
+    body_to_ned = np.array([-x, -y, -z, w])  # the inverse turn: the conjugate
+    return Rotation.from_quat(body_to_ned if scalar else body_to_ned.T)
+
+
+def spiral_ned_to_body(t: float, field_dir: NDArray | None = None, *, stepped: bool = False) -> NDArray:
+    """The matrix turning an NED vector into the body at motion time ``t`` (one instant): the transpose of
+    :func:`spiral_attitude`'s matrix, worked out from the same quaternion in plain floats.  Why: a board
+    turns the field and gravity into its body for every message it streams, and scipy's ``Rotation``
+    (made, then turned into a matrix) was most of that cost."""
+    x, y, z, w = _ned_to_body_quat(float(t), field_dir, stepped, True)
+    return np.array([[1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - z * w), 2.0 * (x * z + y * w)],
+                     [2.0 * (x * y + z * w), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - x * w)],
+                     [2.0 * (x * z - y * w), 2.0 * (y * z + x * w), 1.0 - 2.0 * (x * x + y * y)]])
+
+
+def _ned_to_body_quat(t: float | NDArray, field_dir: NDArray | None, stepped: bool, rock: bool) -> Quaternion:
+    """NED → body of :func:`spiral_attitude` as a quaternion (x, y, z, w), of floats for one instant."""
+    if np.ndim(t) == 0:
         t, trig = float(t), math
         phase = (t / SWEEP_S) % 2.0
         u = phase if phase <= 1.0 else 2.0 - phase
@@ -106,10 +124,7 @@ def spiral_attitude(t: float | NDArray, field_dir: NDArray | None = None, *, ste
         phi, theta = spiral_angles(t, stepped)
     psi = ROCK_RAD * trig.sin(2.0 * math.pi * t / ROCK_PERIOD_S) if rock else phi * 0.0
     frame = tuple(_field_frame_quat(DEFAULT_FIELD_DIR if field_dir is None else field_dir).tolist())
-    x, y, z, w = _product(_product(_product(_about(2, phi, trig), _about(1, theta, trig)), _about(2, psi, trig)),
-                          frame)
-    body_to_ned = np.array([-x, -y, -z, w])  # the inverse turn: the conjugate
-    return Rotation.from_quat(body_to_ned if scalar else body_to_ned.T)
+    return _product(_product(_product(_about(2, phi, trig), _about(1, theta, trig)), _about(2, psi, trig)), frame)
 
 
 # A two-axis gimbal at constant rates (speed 1): its outer axis vertical, its inner axis the unit's pitch.
