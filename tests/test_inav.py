@@ -6,6 +6,7 @@ that did not persist, another board after the reboot, a mounting only ``align_ma
 from __future__ import annotations
 
 import struct
+import time
 from pathlib import Path
 
 import numpy as np
@@ -115,7 +116,7 @@ def test_the_simulator_speaks_in_inav_s_body_axes_forward_left_up(tmp_path):
         client = MspClient.connect(sim.address)
 
         def raw_imu(attitude: Rotation) -> tuple[np.ndarray, np.ndarray]:
-            sim.attitude_at = lambda now: attitude  # the unit held still in that attitude (body → NED)
+            sim._still = (attitude, time.monotonic())  # the unit held still in that attitude (body → NED)
             sim._held.clear()  # the compass's next reading is of this attitude
             values = np.array(struct.unpack("<9h", client.request(Msp.RAW_IMU)), float)
             return values[0:3] / 512.0, values[6:9] / COUNTS_PER_UT
