@@ -20,21 +20,14 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from browser import FLAGS, chromium_path, launch_flags
-
-TICK = os.sysconf("SC_CLK_TCK")
+from proc_stat import TICK, process_stats
 
 
 def tree_cpu_s(root: int) -> float:
     """CPU seconds of every process below ``root``, with what each has reaped of its own children."""
     children: dict[int, list[tuple[int, list[str]]]] = {}
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        children.setdefault(int(fields[1]), []).append((int(entry.name), fields))
+    for pid, parent, fields in process_stats():
+        children.setdefault(parent, []).append((pid, fields))
     total, stack = 0.0, [root]
     while stack:
         for pid, fields in children.get(stack.pop(), []):

@@ -24,6 +24,7 @@ import time
 from pathlib import Path
 
 import yaml
+from proc_stat import TICK, process_stats
 
 from magline.core.plugins import hookimpl, load_plugins
 from magline.core.sequencer import Sequencer
@@ -32,7 +33,6 @@ from magline.core.station import load_station
 
 REPO = Path(__file__).resolve().parents[1]
 BOARDS = {"A": "px4", "B": "px4", "C": "ardupilot", "D": "ardupilot"}
-CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
 
 
 def start(args: list[str]) -> tuple[subprocess.Popen, str]:
@@ -62,18 +62,8 @@ def start_fixture(work: Path, procs: list[subprocess.Popen],
 
 def children_cpu_s() -> float:
     """User + system CPU of this process's live children (mavsdk_server), from /proc."""
-    total = 0.0
-    me = str(os.getpid())
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        if fields[1] == me:  # ppid
-            total += (int(fields[11]) + int(fields[12])) / CLOCK_TICKS
-    return total
+    me = os.getpid()
+    return sum(int(f[11]) + int(f[12]) for _, parent, f in process_stats() if parent == me) / TICK
 
 
 class AcquisitionCpu:
