@@ -44,6 +44,8 @@ def garbled(data: bytes) -> bytes:
 class PtyServerLink:
     """The ``ServerLink`` of a board on a serial port (see the module's docstring)."""
 
+    bundling = "frame"
+
     def __init__(self, path: str, baud: int | None, aliases: tuple[str, ...] = ()) -> None:
         self.links = [Path(path), *(Path(a) for a in aliases)]
         self.baud = baud  # None: USB CDC ACM (the line's baud is ignored)

@@ -45,6 +45,9 @@ def parse_listen(address: str) -> tuple[str, str, int]:
 class ServerLink(Protocol):
     address: str
     new_peer: bool
+    # how a bundle of frames sent at once is written: "stream" (TCP) in one write, "datagram" (UDP) in
+    # packets of whole frames, "frame" (a serial port's transmit buffer, which drops frames whole) one by one
+    bundling: str
 
     def poll(self, timeout: float, up: bool) -> list[tuple[object, bytes]]:
         """Bytes received per peer within ``timeout``; while not ``up`` nothing is accepted."""
@@ -64,6 +67,8 @@ class ServerLink(Protocol):
 
 
 class UdpServerLink:
+    bundling = "datagram"
+
     def __init__(self, host: str, port: int) -> None:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind((host, port))
@@ -102,6 +107,8 @@ class UdpServerLink:
 
 
 class TcpServerLink:
+    bundling = "stream"
+
     def __init__(self, host: str, port: int) -> None:
         self.listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         self.listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)

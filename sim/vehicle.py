@@ -47,6 +47,14 @@ ACCEPTED, DENIED, UNSUPPORTED, FAILED = (
 MAX_STREAM_HZ = 1000.0
 POLL_S = 0.002  # how soon the loop looks again at a message due and held back
 TIMER_WAIT_S = 0.010  # the longest the loop waits for the station: the board's other timers are this late at most
+# How long after a message falls due the loop may wait for others to send with it, in one write.  Why: a board
+# looping for each message, and its station waking for each, cost more than the messages (three 100 Hz compass
+# streams with their own jitter woke the loop 300 times a second; measured beside CPU-bound work, a streaming
+# board slowed it by a fifth).  PX4's MAVLink module does the same: it sends what fell due once per main loop,
+# every 1.5–10 ms by the link's data rate (``_main_loop_delay``, src/modules/mavlink/mavlink_main.cpp).
+# Each message keeps the instant it was computed and stamped at; only its bytes leave up to this much later.
+BUNDLE_S = 0.004
+UDP_BUNDLE_BYTES = 1400  # a bundle larger than this goes out in several datagrams, each holding whole frames
 MOTOR_CRADLE_S = 3.0  # motors quiet this long, a new stream is a tumble out of the cradle
 
 
@@ -186,6 +194,7 @@ class SimulatedAutopilot(ABC):
         self._next_heartbeat = 0.0
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._outbox: list[bytes] | None = None  # what the loop sends this turn, written once at its end
         self._after_ack: Callable[[], None] | None = None
         self._requests: queue.Queue[tuple[Callable[[], None], threading.Event]] = queue.Queue()
         self.errors: list[str] = []  # exceptions the board's thread survived (tests assert it stays empty)
@@ -427,13 +436,17 @@ class SimulatedAutopilot(ABC):
         chunks = self.link.poll(self._idle_s(), up=up)
         now = time.monotonic()
         with self.lock:
-            if self.link.new_peer:
-                self.link.new_peer = False
-                self._next_heartbeat = now  # greet a new peer at once, as a board's link does
-            for peer, data in chunks:
-                self._receive(peer, data)
-            self._advance(now)
-            self._release_held(now)
+            self._outbox = []
+            try:
+                if self.link.new_peer:
+                    self.link.new_peer = False
+                    self._next_heartbeat = now  # greet a new peer at once, as a board's link does
+                for peer, data in chunks:
+                    self._receive(peer, data)
+                self._advance(now)
+                self._release_held(now)
+            finally:
+                self._flush_outbox()
 
     def _idle_s(self) -> float:
         """How long the loop may wait for the station before the board has something to do: until its next
@@ -450,7 +463,7 @@ class SimulatedAutopilot(ABC):
                       self._up_at if self.power is Power.BOOTING else math.inf)
         if not self._requests.empty():
             return 0.0
-        wait = due - time.monotonic()
+        wait = due + BUNDLE_S - time.monotonic()
         return POLL_S if wait <= 0.0 else min(wait, TIMER_WAIT_S)
 
     def _receive(self, peer: object, data: bytes) -> None:
@@ -518,9 +531,37 @@ class SimulatedAutopilot(ABC):
             self._held_output.append(data)
             return
         self._release_held(now)  # what a stall held leaves first: the order is kept
-        self.link.send(data)
+        self._send(data)
         self.frames_sent += 1
         self.sent_at = now
+
+    def _send(self, data: bytes) -> None:
+        """Into the loop's bundle when the board's own loop sends it (:data:`BUNDLE_S`), else at once."""
+        if self._outbox is not None and threading.current_thread() is self._thread:
+            self._outbox.append(data)
+        else:
+            self.link.send(data)
+
+    def _flush_outbox(self) -> None:
+        """What the loop sent this turn leaves in one write (UDP: datagrams of whole frames); lost when the
+        board lost its power or its link meanwhile, as unsent bytes are."""
+        frames, self._outbox = self._outbox, None
+        if not frames or self.power not in (Power.UP, Power.SHUTTING_DOWN) or self.link_dead or self.link is None:
+            return
+        if self.link.bundling == "stream":
+            self.link.send(b"".join(frames))
+            return
+        if self.link.bundling == "frame":
+            for frame in frames:
+                self.link.send(frame)
+            return
+        bundle = b""
+        for frame in frames:
+            if bundle and len(bundle) + len(frame) > UDP_BUNDLE_BYTES:
+                self.link.send(bundle)
+                bundle = b""
+            bundle += frame
+        self.link.send(bundle)
 
     def _stalled(self, now: float) -> bool:
         """Within a stall of the ``link_stalls`` fault (from the board's start)."""
@@ -533,7 +574,7 @@ class SimulatedAutopilot(ABC):
             return
         held, self._held_output = self._held_output, []
         for data in held:
-            self.link.send(data)
+            self._send(data)
             self.frames_sent += 1
         self.sent_at = now
 
