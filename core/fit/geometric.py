@@ -33,6 +33,7 @@ from magline.core.fit.result import FitOptions, FitRefused, FitResult, warm_up_w
 from magline.core.fit.screening import planarity, screen_samples
 from magline.core.fit.solver import SETTLED_STEP, gauss_newton, levenberg_marquardt
 from magline.core.fit.uncertainty import condition_number, direction_sigma_deg, soft_sigma
+from magline.core.quantiles import f_quantile
 
 MIN_SAMPLES = {"full": 30, "diagonal": 20, "sphere": 12}
 MAD_TO_SIGMA = 1.4826
@@ -389,8 +390,6 @@ def _maybe_drift(layout, p, x_all, tau_all, inliers, sigma, log_ref, opts, name)
     which a drift cannot be told from the calibration (:func:`_drift_separation`) are not judged:
     ``judged`` False, and the stop rule waits for readings that can.
     """
-    from scipy.stats import f as f_distribution  # here, not at import: scipy.stats costs a second at start
-
     info: dict = {"regressor": name, "modelled": False, "warm_up_excluded": 0, "judged": True}
     drift_layout = mdl.Layout(layout.model, drift=True)
     for cut in (0.0, 0.25, 0.5):
@@ -418,8 +417,7 @@ def _maybe_drift(layout, p, x_all, tau_all, inliers, sigma, log_ref, opts, name)
             break
         # The statistic divides by the noise estimated from the same readings: its exact reference
         # is 3·F(3, dof), a little wider than χ²₃ at a few hundred readings.
-        info["threshold"] = 3.0 * float(f_distribution.ppf(1.0 - opts.drift_p_value, 3,
-                                                            max(int(held.sum()) - drift_layout.size, 1)))
+        info["threshold"] = 3.0 * f_quantile(1.0 - opts.drift_p_value, 3, max(int(held.sum()) - drift_layout.size, 1))
         info["detectable"] = _detectable_drift(drift_cov, info["threshold"])
         if info["statistic"] <= info["threshold"]:
             return info, p, inliers, sigma, layout
@@ -568,9 +566,7 @@ def _restricted_model_cost(layout, p, x, sigma, scale, log_ref, opts) -> dict | 
     r_full = geometric_residuals(full, pf, x, None)
     extra, dof = full.size - layout.size, len(x) - full.size
     f_stat = ((r_restricted @ r_restricted - r_full @ r_full) / extra) / (r_full @ r_full / dof)
-    from scipy.stats import f as f_distribution  # here, not at import (see the drift test)
-
-    if not f_stat > f_distribution.ppf(1.0 - MISFIT_P_VALUE, extra, dof):
+    if not f_stat > f_quantile(1.0 - MISFIT_P_VALUE, extra, dof):
         return None
 
     def directions(lay, q):

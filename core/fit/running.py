@@ -157,9 +157,10 @@ class RunningFit:
                 self._cond.wait()
 
     def _work(self) -> None:
-        # The fit's statistical tests import scipy.stats on first use (about a second, kept out of
-        # every CLI start): paid here while the tumble begins, not by the first snapshot.
-        import scipy.stats  # noqa: F401
+        # The fit imports scipy's optimiser and special functions on first use (kept out of every CLI
+        # start): paid here while the tumble begins, not by the first snapshot.
+        import scipy.optimize
+        import scipy.special  # noqa: F401
 
         while True:
             with self._cond:

@@ -12,6 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from magline.core.faults import StationFault
+from magline.core.quantiles import t_quantile
 
 # The share of slopes whose error 3σ holds for a noise known exactly (a normal's ±3σ): with the noise
 # estimated from the sweep's own readings, σ is widened until ±3σ holds the same share (Student's t)
@@ -50,9 +51,7 @@ def line_fit(x: NDArray, y: NDArray) -> tuple[NDArray, NDArray, NDArray]:
 def coverage_widening(dof: int) -> float:
     """How much wider than the standard error σ is for ±3σ to hold ``THREE_SIGMA_SHARE`` of the errors
     when the noise was estimated with ``dof`` degrees of freedom (1.022 at 114, 1.09 at 30)."""
-    from scipy.stats import t  # on use: scipy costs every command start
-
-    return float(t.ppf(0.5 + THREE_SIGMA_SHARE / 2.0, dof)) / 3.0
+    return t_quantile(0.5 + THREE_SIGMA_SHARE / 2.0, dof) / 3.0
 
 
 def length_sigma(c: NDArray, sigma: NDArray) -> float:

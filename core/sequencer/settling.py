@@ -15,6 +15,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from magline.core.quantiles import chi2_quantile
+
 if TYPE_CHECKING:
     from magline.core.fit import FitResult
 
@@ -31,9 +33,7 @@ def offset_moved(before: dict[int, FitResult], now: dict[int, FitResult], label:
     :data:`SETTLED_P_VALUE`) and ``accepted_sigma_ut(device_id)`` (the station's limit on the offset's
     σ: a move it would accept as uncertainty is no move); "" when every one has settled.
     ``label(device_id)`` names a sensor when there are several."""
-    from scipy.stats import chi2  # here, not at import: scipy.stats costs a second at start
-
-    threshold = float(chi2.ppf(1.0 - SETTLED_P_VALUE, 3))
+    threshold = chi2_quantile(1.0 - SETTLED_P_VALUE, 3)
     moved = []
     for device_id, fit in now.items():
         earlier = before.get(device_id)
