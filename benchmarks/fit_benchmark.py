@@ -272,25 +272,31 @@ SPEED_TARGETS_MS = {600: 10.0, 100_000: 500.0}
 
 def speed(rng) -> list[str]:
     """Median fit time per configuration; the rounds go round all configurations in turn, so that
-    a slow spell of a shared host falls on all of them rather than on one."""
-    configs = (("full_sphere", 600, 30), ("hand_tumble", 600, 30), ("full_sphere", 100_000, 5))
+    a slow spell of a shared host falls on all of them rather than on one.  The 30 % cap with a reference
+    field has no target: its bias is iterated away with refits (the fit's slowest case), shown for scale."""
+    capped = FitOptions(field_ut=FIELD, gain_sigma=0.02)
+    configs = (("full_sphere", 600, 30, None), ("hand_tumble", 600, 30, None), ("full_sphere", 100_000, 5, None),
+               ("cap30", 600, 10, capped))
     inputs = [[random_truth(rng, noise_ut=NOISE_UT).read(motion_directions(motion, n, rng, E) * FIELD, rng)
-               for _ in range(units)] for motion, n, units in configs]
+               for _ in range(units)] for motion, n, units, _ in configs]
     rounds: list[list[float]] = [[] for _ in configs]
     for _ in range(SPEED_ROUNDS):
         for k, units in enumerate(inputs):
             times = []
             for m in units:
                 t = time.perf_counter()
-                fit_calibration(m)
+                fit_calibration(m) if configs[k][3] is None else fit_calibration(m, configs[k][3])
                 times.append(time.perf_counter() - t)
             rounds[k].append(float(np.median(times)) * 1e3)
     out = []
-    for (motion, n, units), medians in zip(configs, rounds, strict=True):
-        best, target = min(medians), SPEED_TARGETS_MS[n]
-        out.append(f"{'met    ' if best <= target else 'NOT met'}  {n:>7} samples ({motion}): median "
-                   f"{best:7.1f} ms (target {target:g}; {SPEED_ROUNDS} rounds of {units} units, "
-                   f"round medians {min(medians):.1f}–{max(medians):.1f} ms)")
+    for (motion, n, units, options), medians in zip(configs, rounds, strict=True):
+        best = min(medians)
+        target = SPEED_TARGETS_MS[n] if options is None else None
+        verdict = "       " if target is None else "met    " if best <= target else "NOT met"
+        what = f"{motion}, reference field" if options is not None else motion
+        out.append(f"{verdict}  {n:>7} samples ({what}): median {best:7.1f} ms "
+                   f"({'no target' if target is None else f'target {target:g}'}; {SPEED_ROUNDS} rounds of {units} "
+                   f"units, round medians {min(medians):.1f}–{max(medians):.1f} ms)")
     return out
 
 

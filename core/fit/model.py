@@ -212,13 +212,14 @@ def log_radius_and_gradient(layout: Layout, p: NDArray) -> tuple[float, NDArray]
         det = a * b * c
         grad[3:6] = (-1.0 / (3.0 * a), -1.0 / (3.0 * b), -1.0 / (3.0 * c))
         return (float(-np.log(det) / 3.0) if det > 0 else float("nan")), grad
-    a, b, c, d, e, f = (float(v) for v in p[3:9])  # S = [[a, d, e], [d, b, f], [e, f, c]]
+    a, b, c, d, e, f = p[3:9].tolist()  # S = [[a, d, e], [d, b, f], [e, f, c]]
     # the cofactors of a symmetric 3 × 3: S⁻¹ = cofactors / det S
     ca, cb, cc = b * c - f * f, a * c - e * e, a * b - d * d
     cd, ce, cf = e * f - d * c, d * f - b * e, d * e - a * f
     det = a * ca + d * cd + e * ce
     # ∂(−⅓ log det S)/∂S_ij = −⅓ (S⁻¹)_ij; an off-diagonal parameter holds two entries
-    grad[3:9] = np.array([ca, cb, cc, 2.0 * cd, 2.0 * ce, 2.0 * cf]) / (-3.0 * det)
+    scale = -3.0 * det
+    grad[3:9] = (ca / scale, cb / scale, cc / scale, 2.0 * cd / scale, 2.0 * ce / scale, 2.0 * cf / scale)
     return (float(-np.log(det) / 3.0) if det > 0 else float("nan")), grad
 
 

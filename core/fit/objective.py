@@ -35,7 +35,7 @@ def residuals_and_jacobian(layout, p, x, tau, weights, sigma, log_ref, opts, wit
     if log_ref is None:
         return r, jac
     r_prior, jac_prior = prior_rows(layout, p, sigma, log_ref, opts)
-    return np.concatenate([r, r_prior]), (None if jac is None else np.vstack([jac, jac_prior]))
+    return np.concatenate((r, r_prior)), (None if jac is None else np.concatenate((jac, jac_prior)))
 
 
 def sampson_weights(jac: NDArray) -> NDArray:
@@ -59,8 +59,12 @@ def prior_rows(layout, p, sigma, log_ref, opts) -> tuple[NDArray, NDArray]:
     r[1:] = ks * (p[layout.soft_slice] - _IDENTITY[:n_soft] * np.exp(-log_ref))
     jac = np.zeros((1 + n_soft, layout.size))
     jac[0] = k * gradient
-    jac[1 + np.arange(n_soft), 3 + np.arange(n_soft)] = ks
+    jac[_SOFT_ROWS[n_soft]] = ks  # called thousands of times per fit: the index arrays are made once
     return r, jac
+
+
+# The (row, column) of each soft-iron parameter's own entry in the prior rows' Jacobian, by their count.
+_SOFT_ROWS = {n: (1 + np.arange(n), 3 + np.arange(n)) for n in (1, 3, 6)}
 
 
 def normal_equations(layout, p, x, tau):
