@@ -23,6 +23,7 @@ What it reproduces, because each is a trap for a factory tool:
 
 from __future__ import annotations
 
+import functools
 import time
 from typing import Any, ClassVar
 
@@ -43,8 +44,10 @@ FIELD_MG_LIMITS = (185.0, 875.0)
 MAX_XYZ_ANGLE_DEG, MAX_XY_ANGLE_DEG, MAX_XY_LENGTH_MG = 90.0, 60.0, 200.0  # AP_Compass consistency limits
 
 
+@functools.cache
 def set_names(suffix: str) -> dict[str, list[str] | str]:
-    """Parameter names of one compass set (``""``, ``"2"``, ``"3"``)."""
+    """Parameter names of one compass set (``""``, ``"2"``, ``"3"``); made once per set (asked at every
+    streamed message), not to be changed by its callers."""
     ext = "EXTERNAL" if suffix == "" else f"EXTERN{suffix}"
     return {"OFS": [f"COMPASS_OFS{suffix}_{a}" for a in AXES], "DIA": [f"COMPASS_DIA{suffix}_{a}" for a in AXES],
             "ODI": [f"COMPASS_ODI{suffix}_{a}" for a in AXES], "MOT": [f"COMPASS_MOT{suffix}_{a}" for a in AXES],
@@ -90,6 +93,7 @@ class ArduPilotSim(SimulatedAutopilot):
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         self.stored: dict[str, ParamValue] = {}
         self.sets: list[SimMagnetometer | None] = [None, None, None]  # sensor behind each set after boot
+        self._corrections: dict[int, tuple] = {}  # set index → (its parameters, its correction as arrays)
         super().__init__(*args, **kwargs)
 
     def param_specs(self) -> list[ParamSpec]:
@@ -208,23 +212,39 @@ class ArduPilotSim(SimulatedAutopilot):
 
     def correct_mg(self, i: int, raw_mg: NDArray) -> NDArray:
         """rotate (COMPASS_ORIENTn, external only) → add OFS → SCALE if valid → DIA/ODI matrix unless all DIA are 0."""
-        v = self.table.values
-        n = set_names(SETS[i])
-        out = self.orientation(i) @ raw_mg + np.array([v[x] for x in n["OFS"]])
-        scale = v[n["SCALE"]]
-        if 1.0 / MAX_SCALE_FACTOR <= scale <= MAX_SCALE_FACTOR:
+        rotation, offsets, scale, matrix, motor = self._correction(i)
+        out = rotation @ raw_mg + offsets
+        if scale is not None:
             out = out * scale
-        dia = [v[x] for x in n["DIA"]]
-        if any(dia):
-            odi = [v[x] for x in n["ODI"]]
-            m = np.array([[dia[0], odi[0], odi[1]], [odi[0], dia[1], odi[2]], [odi[1], odi[2], dia[2]]])
-            out = m @ out
-        if int(v["COMPASS_MOTCT"]) == MOTCT_CURRENT:
+        if matrix is not None:
+            out = matrix @ out
+        if motor is not None:
             # AP_Compass_Backend::correct_field: after the matrix, in the rotated frame, MOT (mG/A) times the
             # primary battery monitor's current is *added* (docs/firmware.md, *Current interference*); no armed
             # check in current mode
-            out = out + np.array([v[x] for x in n["MOT"]]) * self.firmware_current_a()
+            out = out + motor * self.firmware_current_a()
         return out
+
+    def _correction(self, i: int) -> tuple[NDArray, NDArray, float | None, NDArray | None, NDArray | None]:
+        """The set's correction as arrays (rotation, offsets, a valid scale, the DIA/ODI matrix, MOT in current
+        mode), made again only when one of its parameters changed.  Why: every streamed message is corrected,
+        three compasses at 200 Hz in the tests, and building the arrays from the parameters took most of it."""
+        v = self.table.values
+        n = set_names(SETS[i])
+        key = (self.sets[i] if i < len(self.sets) else None, tuple(v[x] for x in n["OFS"]), v[n["SCALE"]],
+               tuple(v[x] for x in n["DIA"]), tuple(v[x] for x in n["ODI"]), v[n["ORIENT"]], v[n["EXTERNAL"]],
+               int(v["COMPASS_MOTCT"]), tuple(v[x] for x in n["MOT"]))
+        cached = self._corrections.get(i)
+        if cached is not None and cached[0] == key:
+            return cached[1]
+        _, ofs, scale, dia, odi, _, _, motct, mot = key
+        matrix = None
+        if any(dia):
+            matrix = np.array([[dia[0], odi[0], odi[1]], [odi[0], dia[1], odi[2]], [odi[1], odi[2], dia[2]]])
+        made = (self.orientation(i), np.array(ofs), scale if 1.0 / MAX_SCALE_FACTOR <= scale <= MAX_SCALE_FACTOR
+                else None, matrix, np.array(mot) if motct == MOTCT_CURRENT else None)
+        self._corrections[i] = (key, made)
+        return made
 
     def configured(self, i: int) -> bool:
         """Compass::configured: non-zero offsets and the *stored* DEV_ID equals the detected one."""
