@@ -24,6 +24,17 @@ REPO = Path(__file__).resolve().parents[1]
 DEMO = REPO / "stations" / "demo.yaml"
 
 
+def source_copy(dest: Path) -> Path:
+    """The checkout's sources copied to ``dest``, for a test that builds a wheel.  Why: a build in the checkout
+    leaves setuptools' ``build/`` there, and a module moved or deleted since stays in it and in every later
+    wheel built from it."""
+    import shutil
+
+    shutil.copytree(REPO, dest, ignore=shutil.ignore_patterns(".venv", ".git", "build", "dist", "*.egg-info",
+                                                              "__pycache__", "*.sqlite", "*.json", "examples"))
+    return dest
+
+
 def demo_config() -> dict:
     return yaml.safe_load(DEMO.read_text(encoding="utf-8"))
 

@@ -17,11 +17,9 @@ import subprocess
 import sys
 from pathlib import Path
 
-from conftest import REPO
+from conftest import REPO, source_copy
 
 EXAMPLE = REPO / "examples" / "acme-magline"
-NOT_SOURCE = shutil.ignore_patterns(".venv", ".git", "build", "dist", "*.egg-info", "__pycache__", "*.sqlite",
-                                    "*.json", "examples")
 
 
 def run(*command, cwd=None) -> str:
@@ -42,8 +40,7 @@ def shared_libraries(folder):
 
 
 def test_the_example_plugin_from_a_clean_venv_passes_its_own_tests(tmp_path):
-    source = tmp_path / "magline-src"  # a copy: building never writes into the checkout
-    shutil.copytree(REPO, source, ignore=NOT_SOURCE)
+    source = source_copy(tmp_path / "magline-src")  # a copy: building never writes into the checkout
     run(sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--no-build-isolation", "-w", tmp_path / "dist",
         source)
     wheel, = (tmp_path / "dist").glob("magline-*.whl")

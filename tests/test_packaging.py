@@ -6,12 +6,13 @@ import subprocess
 import sys
 import zipfile
 
-from conftest import REPO
+from conftest import source_copy
 
 
 def test_wheel_contains_only_the_magline_namespace(tmp_path):
+    source = source_copy(tmp_path / "magline-src")  # built in the checkout, its build/ kept moved modules
     proc = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q",
-                           "-w", str(tmp_path), str(REPO)], capture_output=True, text=True, timeout=300)
+                           "-w", str(tmp_path), str(source)], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     wheel = next(tmp_path.glob("magline-*.whl"))
     names = zipfile.ZipFile(wheel).namelist()

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 from scipy import stats
 
-from magline.core.quantiles import chi2_quantile, f_quantile, t_quantile
+from magline.core.fit.quantiles import chi2_quantile, f_quantile, t_quantile
 
 
 @pytest.mark.parametrize("probability", [0.5, 0.95, 0.99865, 1.0 - 1e-3, 1.0 - 1e-6])

@@ -28,12 +28,12 @@ from magline.core.fit.objective import (
     residuals_and_jacobian,
     sampson_weights,
 )
+from magline.core.fit.quantiles import f_quantile
 from magline.core.fit.radial import RadialUncertainty
 from magline.core.fit.result import FitOptions, FitRefused, FitResult, warm_up_words
 from magline.core.fit.screening import planarity, screen_samples
 from magline.core.fit.solver import SETTLED_STEP, gauss_newton, levenberg_marquardt
 from magline.core.fit.uncertainty import condition_number, direction_sigma_deg, soft_sigma
-from magline.core.quantiles import f_quantile
 
 MIN_SAMPLES = {"full": 30, "diagonal": 20, "sphere": 12}
 MAD_TO_SIGMA = 1.4826

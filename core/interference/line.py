@@ -12,7 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from magline.core.faults import StationFault
-from magline.core.quantiles import t_quantile
+from magline.core.fit.quantiles import t_quantile
 
 # The share of slopes whose error 3σ holds for a noise known exactly (a normal's ±3σ): with the noise
 # estimated from the sweep's own readings, σ is widened until ±3σ holds the same share (Student's t)

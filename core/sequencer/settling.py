@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from magline.core.quantiles import chi2_quantile
+from magline.core.fit.quantiles import chi2_quantile
 
 if TYPE_CHECKING:
     from magline.core.fit import FitResult
