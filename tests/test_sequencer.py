@@ -47,10 +47,16 @@ def test_demo_command_passes_after_exactly_one_retry(tmp_path):
     (verdict, calibration), = rows(db, "SELECT verdict, calibration FROM runs WHERE serial='SN-0001'")
     assert verdict == "pass"
     attempts = attempt_rows(db, "SN-0001")
-    assert [(a["attempt"], a["accepted"]) for a in attempts] == [(1, 0), (2, 1)], \
-        [(a["attempt"], a["refused"], a["samples"], a["coverage"], a["stopped"]) for a in attempts]
-    assert attempts[0]["coverage"] < 0.6 <= attempts[1]["coverage"]
-    raw = attempts[1]["raw"]
+    # one retry for the spin's coverage.  Between it and the accepted tumble there may be one more: the drift
+    # test's false alarm (p = 10⁻³ by design) has a good tumble measured again as a warm-up: 1 of 2,400 demo
+    # units in simulated time (``benchmarks/demo_attempts.py``; the stop's instant, so the readings fitted,
+    # follow the running fit's thread)
+    shown = [(a["attempt"], a["refused"], a["samples"], a["coverage"], a["stopped"]) for a in attempts]
+    assert [(a["attempt"], a["accepted"]) for a in attempts] in ([(1, 0), (2, 1)], [(1, 0), (2, 0), (3, 1)]), shown
+    assert all(a["refused"].startswith("warm-up: the offset drifted") for a in attempts[1:-1]), shown
+    accepted = attempts[-1]
+    assert attempts[0]["coverage"] < 0.6 <= accepted["coverage"]
+    raw = accepted["raw"]
     # the first attempt (a spin about one axis) stops when its coverage stops growing; the second
     # once determined, with every reading up to the stop kept
     # the demo's mock is unseeded: it may creep to 600; on a machine starved of CPU (the suite beside other
@@ -60,14 +66,14 @@ def test_demo_command_passes_after_exactly_one_retry(tmp_path):
     # the running fit judges in the background while the real-time mock goes on sending: a quiet machine
     # hears "determined" at 430-530 readings, a starved one may reach the count (600) first — both end
     # the tumble with every reading up to the stop kept, and only "determined" carries a prediction
-    assert attempts[1]["stopped"] in ("determined", "samples") and attempts[1]["tumble_s"] > 0
-    assert 100 <= len(raw) == attempts[1]["samples"] <= 600
-    if attempts[1]["stopped"] == "determined":
-        predicted = json.loads(attempts[1]["predicted"])[""]
+    assert accepted["stopped"] in ("determined", "samples") and accepted["tumble_s"] > 0
+    assert 100 <= len(raw) == accepted["samples"] <= 600
+    if accepted["stopped"] == "determined":
+        predicted = json.loads(accepted["predicted"])[""]
         assert predicted["direction_sigma_deg"] <= 0.7 * 0.5 and len(raw) < 600
         assert "determined after" in proc.stdout  # the operator is told
     else:
-        assert len(raw) == 600 and attempts[1]["predicted"] is None
+        assert len(raw) == 600 and accepted["predicted"] is None
         assert "tumble complete: " in proc.stdout  # (its readings counted as read: a thinned tumble read more)
     truth = demo_config()["products"]["MOCK-100"]["options"]
     cal = json.loads(calibration)
