@@ -764,17 +764,23 @@ def test_the_spiral_attitude_is_its_three_turns_and_the_field_frame_at_one_insta
 
 @pytest.mark.parametrize("listen", ["tcp:127.0.0.1:0", "udp:127.0.0.1:0"])
 def test_three_compass_streams_leave_the_board_in_bundles_of_whole_frames(tmp_path, listen):
-    """Messages falling due within ``BUNDLE_S`` of each other leave in one write, as PX4's MAVLink module sends
-    what fell due once per main loop: three 100 Hz compass streams started together wrote 300 times a second,
-    and woke the station's reader as often.  Each write holds whole frames (a UDP datagram at most
-    ``UDP_BUNDLE_BYTES``), and every message still comes, each carrying its own reading."""
-    from magline.sim.vehicle import UDP_BUNDLE_BYTES
+    """Messages falling due within ``BUNDLE_S`` of the first one due leave with it in one write, as PX4's MAVLink
+    module sends what fell due once per main loop: three 100 Hz compass streams wrote once per message, and
+    woke the station's reader as often.  So the first reading of each write was taken at least ``BUNDLE_S``
+    after the first of the write before it (however late the host ran the loop: a late loop only puts more into
+    a write).  Each write holds whole frames (a UDP datagram at most ``UDP_BUNDLE_BYTES``), and every message
+    still comes, with its own stamp."""
+    from magline.sim.vehicle import BUNDLE_S, UDP_BUNDLE_BYTES
 
     with create_sim("ardupilot", listen, workdir=tmp_path, seed=12, boot_time_s=0.3, mag_count=3,
                     mag_rate_hz=100.0) as sim:
         gcs = Gcs(sim.address)
         gcs.wait_heartbeat()
-        writes: list[bytes] = []
+        kinds = ("RAW_IMU", "SCALED_IMU2", "SCALED_IMU3")
+        for kind in kinds:
+            assert gcs.command(ML.MAV_CMD_SET_MESSAGE_INTERVAL, getattr(ML, f"MAVLINK_MSG_ID_{kind}"),
+                               10_000).result == ML.MAV_RESULT_ACCEPTED
+        writes: list[bytes] = []  # from here on the station only listens: every write is the loop's timers'
         send = sim.link.send
 
         def recorded(data: bytes) -> None:
@@ -782,10 +788,6 @@ def test_three_compass_streams_leave_the_board_in_bundles_of_whole_frames(tmp_pa
             send(data)
 
         sim.link.send = recorded
-        kinds = ("RAW_IMU", "SCALED_IMU2", "SCALED_IMU3")
-        for kind in kinds:
-            assert gcs.command(ML.MAV_CMD_SET_MESSAGE_INTERVAL, getattr(ML, f"MAVLINK_MSG_ID_{kind}"),
-                               10_000).result == ML.MAV_RESULT_ACCEPTED
         received = {kind: 0 for kind in kinds}
         while min(received.values()) < 150:
             msg = gcs.recv(list(kinds), timeout=2.0)
@@ -793,12 +795,18 @@ def test_three_compass_streams_leave_the_board_in_bundles_of_whole_frames(tmp_pa
             received[msg.get_type()] += 1
         sim.link.send = send
         parser = mavutil.mavlink.MAVLink(None)
-        frames = 0
+        firsts, frames = [], 0
         for data in list(writes):
             found = parser.parse_buffer(data) or []
             assert parser.buf_len() == 0  # no frame split across writes
-            assert len(data) <= UDP_BUNDLE_BYTES or len(found) == 1 or listen.startswith("tcp")
+            assert listen.startswith("tcp") or len(data) <= UDP_BUNDLE_BYTES or len(found) == 1
             frames += len(found)
-        streamed = sum(1 for _ in writes)
-        assert frames >= 3 * 150 and streamed <= frames / 2, f"{streamed} writes for {frames} frames"
+            stamps = [m.time_usec // 1000 if m.get_type() == "RAW_IMU" else m.time_boot_ms
+                      for m in found if m.get_type() in kinds]
+            if stamps:
+                firsts.append(min(stamps))
+        assert frames >= 3 * 150 and len(firsts) >= 100
+        # whole-millisecond stamps: two instants BUNDLE_S apart are at least BUNDLE_S less 1 ms apart in them
+        gaps = np.diff(firsts)
+        assert gaps.min() >= BUNDLE_S * 1000.0 - 1.0, f"{len(writes)} writes for {frames} frames; gaps {gaps[:20]}"
         assert not sim.errors
