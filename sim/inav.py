@@ -220,6 +220,7 @@ class InavSim(SimulatedAutopilot):
             after = self._after_ack
             if after is not None:
                 self._after_ack = None
+                self._flush_outbox(keep_open=True)  # the answer leaves before the action it announces
                 after()
         self.bad_frames = sum(p.bad_frames for p in self._parsers_msp.values())
 

@@ -48,10 +48,10 @@ MAX_STREAM_HZ = 1000.0
 POLL_S = 0.002  # how soon the loop looks again at a message due and held back
 TIMER_WAIT_S = 0.010  # the longest the loop waits for the station: the board's other timers are this late at most
 # How long after a message falls due the loop may wait for others to send with it, in one write.  Why: a board
-# looping for each message, and its station waking for each, cost more than the messages (three 100 Hz compass
-# streams with their own jitter woke the loop 300 times a second; measured beside CPU-bound work, a streaming
-# board slowed it by a fifth).  PX4's MAVLink module does the same: it sends what fell due once per main loop,
-# every 1.5–10 ms by the link's data rate (``_main_loop_delay``, src/modules/mavlink/mavlink_main.cpp).
+# looping for each message woke, and woke its station, for each (three 100 Hz compass streams with their own
+# jitter: 209 wake-ups a second, 100 bundled, ``benchmarks/sim_wakeups.py``).  PX4's MAVLink module does the
+# same: it sends what fell due once per main loop, every 1.5–10 ms by the link's data rate
+# (``_main_loop_delay``, src/modules/mavlink/mavlink_main.cpp).
 # Each message keeps the instant it was computed and stamped at; only its bytes leave up to this much later.
 BUNDLE_S = 0.004
 UDP_BUNDLE_BYTES = 1400  # a bundle larger than this goes out in several datagrams, each holding whole frames
@@ -543,10 +543,11 @@ class SimulatedAutopilot(ABC):
         else:
             self.link.send(data)
 
-    def _flush_outbox(self) -> None:
+    def _flush_outbox(self, keep_open: bool = False) -> None:
         """What the loop sent this turn leaves in one write (UDP: datagrams of whole frames); lost when the
-        board lost its power or its link meanwhile, as unsent bytes are."""
-        frames, self._outbox = self._outbox, None
+        board lost its power or its link meanwhile, as unsent bytes are.  ``keep_open``: the turn goes on
+        bundling what it sends next (an ACK flushed before the action it announces)."""
+        frames, self._outbox = self._outbox, ([] if keep_open and self._outbox is not None else None)
         if not frames or self.power not in (Power.UP, Power.SHUTTING_DOWN) or self.link_dead or self.link is None:
             return
         if self.link.bundling == "stream":
@@ -894,6 +895,7 @@ class SimulatedAutopilot(ABC):
         after = self._after_ack
         if after is not None:
             self._after_ack = None
+            self._flush_outbox(keep_open=True)  # the ACK leaves first: the action may cut the power
             after()
 
     def _motor_test_command(self, params: list[float]) -> int:

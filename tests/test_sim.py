@@ -810,3 +810,15 @@ def test_three_compass_streams_leave_the_board_in_bundles_of_whole_frames(tmp_pa
         gaps = np.diff(firsts)
         assert gaps.min() >= BUNDLE_S * 1000.0 - 1.0, f"{len(writes)} writes for {frames} frames; gaps {gaps[:20]}"
         assert not sim.errors
+
+
+def test_px4_acknowledges_a_shutdown_before_it_goes_dark(tmp_path):
+    """PX4's MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN with 2 (shut down) is acknowledged, then the board is off: the
+    ACK leaves before the action it announces, though the loop bundles what it sends (it was lost so)."""
+    with create_sim("px4", "udp:127.0.0.1:0", workdir=tmp_path, seed=3, boot_time_s=0.3) as sim:
+        gcs = Gcs(sim.address)
+        gcs.wait_heartbeat()
+        ack = gcs.command(ML.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 2)
+        assert ack is not None and ack.result == ML.MAV_RESULT_ACCEPTED
+        assert sim.power.value == "off" and gcs.recv("HEARTBEAT", timeout=1.5) is None
+        assert not sim.errors
