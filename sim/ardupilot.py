@@ -231,9 +231,10 @@ class ArduPilotSim(SimulatedAutopilot):
         three compasses at 200 Hz in the tests, and building the arrays from the parameters took most of it."""
         v = self.table.values
         n = set_names(SETS[i])
-        key = (self.sets[i] if i < len(self.sets) else None, tuple(v[x] for x in n["OFS"]), v[n["SCALE"]],
-               tuple(v[x] for x in n["DIA"]), tuple(v[x] for x in n["ODI"]), v[n["ORIENT"]], v[n["EXTERNAL"]],
-               int(v["COMPASS_MOTCT"]), tuple(v[x] for x in n["MOT"]))
+        sensor = self.sets[i] if i < len(self.sets) else None  # named by its id (its dataclass == compares arrays)
+        key = (None if sensor is None else (sensor.device_id, sensor.external), tuple(v[x] for x in n["OFS"]),
+               v[n["SCALE"]], tuple(v[x] for x in n["DIA"]), tuple(v[x] for x in n["ODI"]), v[n["ORIENT"]],
+               v[n["EXTERNAL"]], int(v["COMPASS_MOTCT"]), tuple(v[x] for x in n["MOT"]))
         cached = self._corrections.get(i)
         if cached is not None and cached[0] == key:
             return cached[1]
