@@ -132,15 +132,16 @@ def test_without_an_accelerometer_the_mounting_is_not_guessed(rng):
         estimate_mounting(mag[:, [0, 1, 2]] * 0 + [30.0, 0.0, 40.0] + rng.normal(0, 0.3, mag.shape), t_ms, still)
 
 
-@pytest.mark.xfail(strict=True, reason="open: the skew comes from some 3 s of the tumble whose compass timing "
-                   "wandered, and the stated sigma counts them as many independent readings (docs/firmware.md)")
+@pytest.mark.xfail(strict=True, reason="open: some 3 s of the tumble move the skew and a turn about z together, "
+                   "and no sigma from the readings' scatter over time holds it (docs/firmware.md)")
 def test_a_real_firmware_s_swept_tumble_states_a_mounting_sigma_that_holds_its_error():
     """ArduCopter SITL's swept unit (FlightAxis peer, docs/firmware.md): the station's record of its tumble, the
     compass calibrated.  SITL's own attitude log puts the compass unturned (0.05°) and 46 ms behind the
     accelerometer.  The estimate finds −67.6 ms and 1.05° about z and states 0.10° and ±1.9 ms.  Left out one
     eighth at a time, the tumble's middle 3 s move the skew by 10 ms (a jackknife's σ 0.39°); a jackknife does
-    not fit every fixture (a turntable's tilts are each needed, and leaving one out is not noise), so the σ
-    that holds this is not yet the station's.  Strict: when it is, this test says so."""
+    not fit every fixture (a turntable's tilts are each needed, and leaving one out is not noise), and with the
+    mounting held each stretch agrees on the skew (``benchmarks/mounting_record_blocks.py``), so the σ that
+    holds this is not yet the station's.  Strict: when it is, this test says so."""
     record = np.load(Path(__file__).parent / "fixtures" / "ardupilot-sitl-swept-record.npz")
     imu = ImuSeries(t_ms=record["t_acc_ms"], accel_mss=record["accel_mss"].astype(float))
     estimate = estimate_mounting(record["mag_cal"].astype(float), record["t_mag_ms"], imu)
