@@ -20,11 +20,12 @@ from pathlib import Path
 import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from conftest import deep_update, demo_config
+from conftest import demo_config
 
 from magline.core.plugins import load_plugins
 from magline.core.sequencer import Sequencer
 from magline.core.station import load_station
+from magline.testing import deep_update
 
 
 def main() -> None:

@@ -66,16 +66,11 @@ def test_the_commands_that_use_them_still_find_them():
 
 
 
-def test_a_unit_run_judges_its_statistics_without_scipy_stats(tmp_path):
+def test_a_unit_run_judges_its_statistics_without_scipy_stats(make_station, tmp_path):
     """A unit's fit, drift test and settling test take their quantiles from ``scipy.special`` (a third of a
     second of CPU less at every ``magline run``, the running fit's first drift test no longer waiting for it)."""
-    import yaml
-    from conftest import deep_update, demo_config
-
-    station = tmp_path / "station.yaml"
-    station.write_text(yaml.safe_dump(deep_update(demo_config(), {
-        "products": {"MOCK-100": {"options": {"realtime": False, "seed": 7}}},
-        "acquisition": {"retry_delay_s": 0.0}})), encoding="utf-8")
+    # the mock's storage in this test's folder: the probe runs in the checkout
+    station = make_station({"products": {"MOCK-100": {"options": {"storage": str(tmp_path / "storage.json")}}}})
     code, modules = imported_by("run", str(station), "--serial", "IMPORTS-1")
     assert code == 0
     assert "scipy.optimize" in modules and "magline.core.fit.geometric" in modules  # the unit was fitted …
