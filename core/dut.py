@@ -18,6 +18,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from contextvars import ContextVar
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, Protocol, TypeVar, runtime_checkable
 
 from magline.core.faults import StationFault
@@ -526,12 +527,17 @@ def require_same_vehicle(system_id: int, answered: int, connection: str, uid: in
                         "calibration is not proven")
 
 
-def validated_options(model: type[OptionsModel], options: dict[str, Any], owner: str) -> OptionsModel:
-    """Validate a plugin's ``options`` from the station file; the error names every bad key."""
+def validated_options(model: type[OptionsModel], options: dict[str, Any], owner: str,
+                      station_dir: Path | str | None = None) -> OptionsModel:
+    """Validate a plugin's ``options`` from the station file; the error names every bad key.  The station
+    file's folder goes into the validation context, where a :data:`~magline.plugin.StationPath` option
+    resolves a relative path against it."""
     from pydantic import ValidationError
 
+    from magline.core.station.paths import STATION_DIR
+
     try:
-        return model.model_validate(options)
+        return model.model_validate(options, context={STATION_DIR: station_dir})
     except ValidationError as exc:
         problems = "; ".join(f"options.{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())
         raise ValueError(f"{owner}: {problems}") from exc

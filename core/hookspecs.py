@@ -67,6 +67,10 @@ def magline_register_dut_backends(register: Register) -> None:
         engineer (``{"parameters": "…", "factory-storage": "…"}``; without it: ``parameters`` only); a
         product asking for another is refused by ``magline check`` with those sentences.  A backend
         offering ``factory-storage`` implements :class:`~magline.plugin.StoresFactoryCalibration`.
+
+        An option naming a file (a simulated unit's memory) declared :data:`~magline.plugin.StationPath`
+        arrives resolved against the station file's folder, as the station's own paths are (the factory
+        is not given that folder).
     """
 
 

@@ -24,6 +24,8 @@ import pluggy
 from magline.core import hookspecs
 
 if TYPE_CHECKING:
+    from pathlib import Path
+
     from magline.core.dut import DutFactory
     from magline.core.measurements import DeclaredMeasurement
 
@@ -198,14 +200,16 @@ class Plugins:
                 if faults is not None:
                     faults.append(text)
 
-    def options(self, kind: str, name: str, raw: dict[str, Any], owner: str) -> Any:
+    def options(self, kind: str, name: str, raw: dict[str, Any], owner: str,
+                station_dir: Path | str | None = None) -> Any:
         """A factory's options: ``raw`` validated against the model the plugin registered for
-        ``(kind, name)`` (the raw mapping when it registered none).  ``magline check`` and the
-        commands that load a station report the same problems earlier, with file and line."""
+        ``(kind, name)`` (the raw mapping when it registered none), a :data:`~magline.plugin.StationPath`
+        in them resolved against ``station_dir``.  ``magline check`` and the commands that load a station
+        report the same problems earlier, with file and line."""
         from magline.core.dut import validated_options
 
         model = self.option_models.get((kind, name))
-        return validated_options(model, raw, owner) if model is not None else raw
+        return validated_options(model, raw, owner, station_dir) if model is not None else raw
 
     @property
     def versions(self) -> dict[str, tuple[str, str]]:

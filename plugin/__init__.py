@@ -44,7 +44,8 @@ What is here, by role:
   (the rotation a firmware applies to a :class:`Magnetometer` now);
 * the run: :class:`RunContext`, :class:`Acquisition`, :class:`ImuSeries`, :class:`RawSamples`,
   :func:`wait_or_abort`, the station's :class:`Station`, :class:`Product`, :class:`PowerConfig`,
-  :class:`CurrentSourceConfig`;
+  :class:`CurrentSourceConfig`, and a path option read as the station file's own paths are,
+  :data:`StationPath`;
 * fitting and stopping (field sources that run their own schedule): :class:`FitOptions`,
   :class:`FitResult`, :class:`FitRefused`, :func:`fit_affine`, :func:`fibonacci_sphere`,
   :class:`StopRule`, :func:`stop_rule`, :class:`Fluxgate`, :class:`ReferenceOptions`;
@@ -112,6 +113,7 @@ _HOME: dict[str, tuple[str, ...]] = {
     ),
     "magline.core.sequencer.context": ("Acquisition", "RunContext"),
     "magline.core.sequencer.rounds": ("wait_or_abort",),
+    "magline.core.station.paths": ("StationPath",),
     "magline.core.station.schema": ("CurrentSourceConfig", "PowerConfig", "Product", "Station"),
 }
 __all__, __getattr__, __dir__ = lazy_names(__name__, _HOME)

@@ -191,3 +191,31 @@ def test_acquire_persist_and_verify_hooks_can_be_replaced(make_station, tmp_path
     assert abs(record.calibration["hard_iron_ut"][0] - truth.hard_iron_ut[0]) < 0.2
     assert record.verdict is Outcome.FAIL and "X: wrote 1.0, read back 0.0" in record.cause
     assert record.persistence["method"] == "replay"
+
+
+def test_a_plugins_path_option_is_read_beside_the_station_file_as_the_stations_own_paths_are(tmp_path):
+    """A third-party backend declares its file option ``StationPath``: written relative in a station file, it
+    arrives resolved against that file's folder, whatever folder the station was started from; absolute stays
+    as written; validated without a station (a plugin's own tests building the model) it stays as written."""
+    from pydantic import BaseModel, ConfigDict
+
+    from magline.plugin import StationPath
+
+    class TableOptions(BaseModel):
+        model_config = ConfigDict(extra="forbid", strict=True)
+        table: StationPath
+
+    class Acme:
+        @hookimpl
+        def magline_register_dut_backends(self, register):
+            register("acme-table", lambda product, options: None, options=TableOptions)
+
+    plugins = load_plugins(extra=[Acme()])
+    line = tmp_path / "line-2"
+    read = plugins.options("dut backend", "acme-table", {"table": "cal/table.csv"}, "products.P.options", line)
+    assert read.table == str(line / "cal" / "table.csv")
+    absolute = str(tmp_path / "elsewhere.csv")
+    assert plugins.options("dut backend", "acme-table", {"table": absolute}, "o", line).table == absolute
+    assert TableOptions(table="cal/table.csv").table == "cal/table.csv"
+    with pytest.raises(ValueError, match=r"options\.table"):
+        plugins.options("dut backend", "acme-table", {"table": 3}, "products.P.options", line)

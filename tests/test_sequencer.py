@@ -32,7 +32,8 @@ def rows(db: Path, sql: str, *args) -> list[tuple]:
 
 def test_demo_command_passes_after_exactly_one_retry(tmp_path):
     """The README's first command, as a user runs it: real process, real files.  The station file
-    lives elsewhere than the shell's directory: its relative results path is relative to the file."""
+    lives elsewhere than the shell's directory: its relative results path is relative to the file, and so is
+    the mock unit's storage (a plugin's path option read as the file's own paths are)."""
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     line = tmp_path / "line"
     line.mkdir()
@@ -83,7 +84,8 @@ def test_demo_command_passes_after_exactly_one_retry(tmp_path):
     assert np.all(np.abs(np.array(cal["hard_iron_ut"]) - h_true) < 5 * sigma + 0.01)
     s_true = np.array(truth.get("soft_iron", MockOptions().soft_iron))
     assert np.max(np.abs(np.array(cal["soft_iron"]) / 48.0 - s_true / 48.0 * 1.0)) < 0.02
-    storage = json.loads((tmp_path / "magline-demo-storage.json").read_text())
+    assert not (tmp_path / "magline-demo-storage.json").exists()
+    storage = json.loads((line / "magline-demo-storage.json").read_text())
     assert storage["MAG_OFS_X"] == cal["hard_iron_ut"][0] or abs(storage["MAG_OFS_X"] - cal["hard_iron_ut"][0]) < 1e-4
     written = dict(rows(db, "SELECT name, value FROM params WHERE stage='written'"))
     read_back = dict(rows(db, "SELECT name, value FROM params WHERE stage='read_back'"))

@@ -58,5 +58,6 @@ def open_current_source(station: Station, station_dir: Path, plugins: Plugins) -
     if factory is None:
         known = ", ".join(sorted(plugins.current_sources)) or "none"
         raise CurrentSourceError(f"no current source named {config.type!r} is loaded (loaded: {known})")
-    options: Any = plugins.options("current source", config.type, config.options, "current_source.options")
+    options: Any = plugins.options("current source", config.type, config.options, "current_source.options",
+                                   station_dir)
     return factory(config, station_dir, options)

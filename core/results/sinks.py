@@ -39,7 +39,7 @@ def open_one(station: Station, station_dir: Path, plugins: Plugins, entry: Resul
     if factory is None:
         raise StationFault(f"no results sink named {entry.sink!r} is loaded "
                            f"(loaded: {', '.join(sorted(plugins.result_sinks))})")
-    options = plugins.options("result sink", entry.sink, entry.options, f"results[{index}].options")
+    options = plugins.options("result sink", entry.sink, entry.options, f"results[{index}].options", station_dir)
     return factory(station, Path(station_dir), entry, options)
 
 

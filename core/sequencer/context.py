@@ -266,7 +266,7 @@ class RunContext:
         raw = self.station.plugins.get(section)
         if raw is None:
             return None
-        return self.plugins.options("plugin options", section, raw, f"plugins.{section}")
+        return self.plugins.options("plugin options", section, raw, f"plugins.{section}", self.station_dir)
 
     def measured(self, name: str, value: float) -> Numeric:
         """A plugin's own measurement (declared with ``magline_register_measurements``; a sensor's with its

@@ -81,13 +81,14 @@ class Sequencer:
         self.sink = open_results(station, self.station_dir, plugins)
         kind = station.field_source.type
         self.field_source = plugins.field_sources[kind](
-            station, plugins.options("field source", kind, station.field_source.options, "field_source.options"))
+            station, plugins.options("field source", kind, station.field_source.options, "field_source.options",
+                                    self.station_dir))
         motion_factory = plugins.motions.get(station.motion.type)
         if motion_factory is None:
             raise StationFault(f"no motion named {station.motion.type!r} is loaded "
                                f"(loaded: {', '.join(sorted(plugins.motions))})")
         self.motion = motion_factory(station, self.station_dir, plugins.options(
-            "motion", station.motion.type, station.motion.options, "motion.options"))
+            "motion", station.motion.type, station.motion.options, "motion.options", self.station_dir))
         self.stopped: str | None = None  # why the batch was stopped (the cell's field is not trusted)
         self.shared_lock = threading.RLock()  # slots running side by side share the field source
         # Slots create their backends and open their links one at a time: MAVSDK's native instance
@@ -286,11 +287,12 @@ class Sequencer:
         run.log(f"reference field {run.reference_field_ut:.2f} µT")
         power = run.product.power
         run.power = power_factory(power, self.station_dir, self.plugins.options(
-            "power control", power.method, power.options, f"products.{run.part}.power.options"))
+            "power control", power.method, power.options, f"products.{run.part}.power.options", self.station_dir))
         run.power.power_up()
         with self.connect_lock:  # slots open their links one at a time (see __init__)
             run.dut = factory(run.product, self.plugins.options("dut backend", run.product.backend,
-                                                                run.product.options, f"products.{run.part}.options"))
+                                                                run.product.options, f"products.{run.part}.options",
+                                                                self.station_dir))
             run.unit = run.dut.connect()
         run.record.unit_info = {
             "autopilot": run.unit.autopilot, "firmware": run.unit.firmware,

@@ -6,6 +6,8 @@ from typing import Annotated
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from magline.plugin import StationPath
+
 
 class MockFaults(BaseModel):
     """Faults a test can switch on to prove the station catches them."""
@@ -31,7 +33,9 @@ class MockOptions(BaseModel):
     single_axis_wobble_deg: float = 15.0
     motion_samples: Annotated[int, Field(ge=50)] = 600
     realtime: bool = True
-    storage: str = "mock-dut-storage.json"
+    # the unit's non-volatile memory, a file beside the station file unless absolute: two stations started
+    # from one folder keep two units' memories
+    storage: StationPath = Field(default="mock-dut-storage.json", validate_default=True)
     # The unit stands at the centre of a simulated Helmholtz coil (``magline sim coil``): its field is
     # whatever the coil makes there, asked through the simulator's SIM:FIELD? channel.
     coil_sim: str | None = None
