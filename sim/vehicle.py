@@ -46,7 +46,9 @@ ACCEPTED, DENIED, UNSUPPORTED, FAILED = (
     mavlink.MAV_RESULT_UNSUPPORTED, mavlink.MAV_RESULT_FAILED)
 MAX_STREAM_HZ = 1000.0
 POLL_S = 0.002  # how soon the loop looks again at a message due and held back
-TIMER_WAIT_S = 0.010  # the longest the loop waits for the station: the board's other timers are this late at most
+# the longest the loop waits for the station (with a bundle's window: BUNDLE_S more): the board's other timers
+# are this late at most
+TIMER_WAIT_S = 0.010
 # How long after a message falls due the loop may wait for others to send with it, in one write.  Why: a board
 # looping for each message woke, and woke its station, for each (three 100 Hz compass streams with their own
 # jitter: 209 wake-ups a second, 100 bundled, ``benchmarks/sim_wakeups.py``).  PX4's MAVLink module does the
@@ -196,6 +198,7 @@ class SimulatedAutopilot(ABC):
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._outbox: list[bytes] | None = None  # what the loop sends this turn, written once at its end
+        self._answering = False  # this turn of the loop handles what the station sent: it sends what is due at once
         self._after_ack: Callable[[], None] | None = None
         self._requests: queue.Queue[tuple[Callable[[], None], threading.Event]] = queue.Queue()
         self.errors: list[str] = []  # exceptions the board's thread survived (tests assert it stays empty)
@@ -444,6 +447,7 @@ class SimulatedAutopilot(ABC):
                     self._next_heartbeat = now  # greet a new peer at once, as a board's link does
                 for peer, data in chunks:
                     self._receive(peer, data)
+                self._answering = bool(chunks)
                 self._advance(now)
                 self._release_held(now)
             finally:
@@ -451,7 +455,8 @@ class SimulatedAutopilot(ABC):
 
     def _idle_s(self) -> float:
         """How long the loop may wait for the station before the board has something to do: until its next
-        message falls due, at most :data:`TIMER_WAIT_S` (its other timers: a boot, a save, a stall's end).
+        message falls due and the bundle's window closes (:data:`BUNDLE_S`), at most :data:`TIMER_WAIT_S` (its other
+        timers: a boot, a save, a stall's end) unless that wake would fall inside the window.
 
         Why not a fixed 2 ms poll: a board woke 460 times a second whatever it had to send, and a suite
         worker runs several boards beside the station on one interpreter lock (``benchmarks/sim_wakeups.py``:
@@ -465,7 +470,10 @@ class SimulatedAutopilot(ABC):
         if not self._requests.empty():
             return 0.0
         wait = due + BUNDLE_S - time.monotonic()
-        return POLL_S if wait <= 0.0 else min(wait, TIMER_WAIT_S)
+        if wait <= 0.0:
+            return POLL_S
+        # a wake for the other timers never falls inside the bundle's window: it would wake for nothing there
+        return wait if wait <= TIMER_WAIT_S + BUNDLE_S else TIMER_WAIT_S
 
     def _receive(self, peer: object, data: bytes) -> None:
         parser = self._parsers.get(peer)
@@ -510,6 +518,8 @@ class SimulatedAutopilot(ABC):
             self._next_heartbeat = now + 1.0 if late > 0.5 else self._next_heartbeat + 1.0
             self.mav.heartbeat_send(mavlink.MAV_TYPE_QUADROTOR, self.autopilot,
                                     mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 0, mavlink.MAV_STATE_STANDBY)
+        if not self._answering and now < min(self._streams.next_due_s(), self._status_streams.next_due_s()) + BUNDLE_S:
+            return  # woken by a timer inside the bundle's window: what fell due waits for the rest (BUNDLE_S)
         # each message computed and stamped at the instant it fell due, however late the host let us run —
         # and, on a shared fixture, once the board knows how the fixture moved at that instant
         horizon = self.follower.horizon(now) if self.follower is not None and self.current_motion() == "shared" \
