@@ -81,12 +81,37 @@ def test_coil_station_recovers_offset_and_full_matrix_with_misalignment(tmp_path
     cal = record.calibration
     h, h_sigma = np.array(cal["hard_iron_ut"]), np.array(cal["hard_iron_sigma_ut"])
     assert np.all(np.abs(h - truth.hard_iron_ut) < 4 * h_sigma + 1e-3), (h, h_sigma)
-    full = np.array(cal["affine"]["full_matrix"])
-    assert np.abs(full - r_true @ s_true).max() < 3e-3  # the full 3×3, rotation included
-    assert np.abs(np.array(cal["soft_iron"]) - s_true).max() < 3e-3  # its symmetric part is what the DUT gets
+    # the full 3×3 (rotation included) and its symmetric part (what the DUT gets), each element within 4 of its
+    # own σ: the 17 steps the determined stop keeps leave about 1e-3 (a fixed 3e-3 was 3.5σ, and a CI run read
+    # 3.4e-3); the σ is held honest by test_the_affine_fit_states_each_matrix_element_s_own_sigma
+    full, full_sigma = np.array(cal["affine"]["full_matrix"]), np.array(cal["affine"]["full_matrix_sigma"])
+    assert np.all(np.abs(full - r_true @ s_true) <= 4 * full_sigma), (full - r_true @ s_true) / full_sigma
+    soft, soft_sigma = np.array(cal["soft_iron"]), np.array(cal["soft_iron_sigma"])
+    assert np.all(np.abs(soft - s_true) <= 4 * soft_sigma), (soft - s_true) / soft_sigma
     assert_misalignment_within_its_sigma(cal)
     mis = next(m for m in record.measurements if m.name == "misalignment_deg")
     assert mis.verdict.value == "pass" and mis.high == 3.0
+
+
+def test_the_affine_fit_states_each_matrix_element_s_own_sigma(rng):
+    """Over 1,000 coil calibrations of one unit (17 directions, 20 readings each, 0.3 µT noise), every element
+    of the full matrix and of its symmetric part errs by its stated σ in rms (0.9–1.1: the rms of 1,000 draws
+    is known to ±2.2 %, so the band is 4.5 of that).  The σ once scaled one figure by each element's size, and
+    the cross-axis terms near zero read 25–45 times too certain."""
+    from magline.plugin import fibonacci_sphere, fit_affine
+
+    s_true = np.array(MockOptions().soft_iron)
+    full_true = Rotation.from_rotvec(np.deg2rad(MISALIGNMENT)).as_matrix() @ s_true
+    applied = np.repeat(fibonacci_sphere(17) * 50.0, 20, axis=0)
+    z_full, z_soft = [], []
+    for _ in range(1000):
+        mag = applied @ np.linalg.inv(full_true).T + [35.0, -22.0, 61.0] + rng.normal(0.0, 0.3, applied.shape)
+        fit = fit_affine(mag, applied, 50.0)
+        z_full.append((np.array(fit.extra["full_matrix"]) - full_true) / np.array(fit.extra["full_matrix_sigma"]))
+        z_soft.append((fit.soft_iron - s_true) / fit.soft_iron_sigma)
+    for z in (np.array(z_full), np.array(z_soft)):
+        rms = np.sqrt(np.mean(z**2, axis=0))
+        assert np.all((rms > 0.9) & (rms < 1.1)), rms
 
 
 def test_a_coil_unit_leaves_the_schedule_once_its_calibration_is_determined(tmp_path):
