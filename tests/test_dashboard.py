@@ -434,3 +434,37 @@ def test_a_chart_page_sends_its_head_with_plotly_first_and_says_when_it_cannot_b
         assert text.endswith("<body><p class=note>This page could not be built: the store went away</p></body></html>")
     finally:
         served.stop()
+
+
+def test_the_line_now_shows_a_slot_used_this_fortnight_and_counts_a_unit_begun_before_the_shift(tmp_path):
+    """Read through the indexes a million-run store needs (a skip scan of a station's slots, the shift's
+    range of its runs): a slot last used 20 days ago has no tile, the two used today have theirs, and a unit
+    begun two hours before the shift and judged in it counts in this shift."""
+    from datetime import UTC, timedelta
+
+    from sqlalchemy import create_engine, update
+
+    from magline.core.dashboard.line import line_now
+    from magline.core.results.instants import stored_form
+    from magline.core.results.tables import runs
+
+    records = []
+    for serial, slot in (("S-A", "A"), ("S-B", "B"), ("S-OLD", "C")):
+        record = unit(serial, [], station_id="st-s")
+        record.slot = slot
+        records.append(record)
+    records.append(unit("S-LONG", [], station_id="st-l"))
+    write_units(tmp_path / "line.sqlite", records)
+    now = datetime.now(UTC)
+    shifts = shift_far_from_now()
+    engine = create_engine(f"sqlite:///{tmp_path / 'line.sqlite'}")
+    with engine.begin() as conn:
+        old = stored_form(now - timedelta(days=20))
+        conn.execute(update(runs).where(runs.c.serial == "S-OLD").values(started=old, finished=old))
+        conn.execute(update(runs).where(runs.c.serial == "S-LONG").values(
+            started=stored_form(shifts.start_of(now) - timedelta(hours=2))))
+    with engine.connect() as conn:
+        tiles = {(t["station_id"], t["slot"]): t for t in line_now(conn, now, shifts)["stations"]}
+    engine.dispose()
+    assert sorted(tiles) == [("st-l", None), ("st-s", "A"), ("st-s", "B")]
+    assert tiles[("st-l", None)]["units"] == 1 and tiles[("st-s", "A")]["units"] == 1

@@ -45,9 +45,7 @@ def line_now(conn: Connection, now: datetime, shifts: Shifts) -> dict[str, Any]:
     outboxes = {row["station_id"]: dict(row) for row in conn.execute(select(station_outbox)).mappings()}
     tiles = []
     for station_id, line in sorted(stations, key=lambda row: (str(row[1]), str(row[0]))):
-        slots = [s for (s,) in conn.execute(select(runs.c.slot).where((runs.c.station_id == station_id)
-                                                                      & (runs.c.started >= active)).distinct())
-                 if s is not None]
+        slots = _slots(conn, station_id, active)
         for slot in sorted(slots) or [None]:  # a station with slots: a tile per fixture position
             tiles.append(_tile(conn, station_id, line, slot, since, now, claims, outboxes))
     return {"shift_start": shift_start.isoformat(timespec="minutes"), "now": now.astimezone().isoformat(
@@ -93,6 +91,22 @@ def _stations(conn: Connection) -> list[tuple[str, str | None, str | None]]:
                               .order_by(runs.c.started.desc()).limit(1)).first()
         found.append((station_id, latest.line if latest else None, latest.started if latest else None))
     return found
+
+
+def _slots(conn: Connection, station_id: str, active: str) -> list[str]:
+    """The station's slots with a unit begun since ``active``: every slot it ever had, one probe each of
+    ``runs_station_slot_started`` (a skip scan), then one probe each for a unit since ``active``.  Why not one
+    DISTINCT: it read the station's fortnight of runs, half a second over ten stations of a million-run store."""
+    ever: list[str] = []
+    while True:
+        query = select(func.min(runs.c.slot)).where((runs.c.station_id == station_id) & runs.c.slot.is_not(None))
+        slot = conn.execute(query.where(runs.c.slot > ever[-1]) if ever else query).scalar()
+        if slot is None:
+            break
+        ever.append(slot)
+    return [slot for slot in ever if conn.execute(
+        select(runs.c.id).where((runs.c.station_id == station_id) & (runs.c.slot == slot) & (runs.c.started >= active))
+        .limit(1)).first() is not None]
 
 
 def _fresh(heartbeat: str | None, now: datetime) -> bool:

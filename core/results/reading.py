@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 from collections.abc import Iterator
 from dataclasses import dataclass
+from datetime import datetime, timedelta
 from typing import TYPE_CHECKING, Any
 
 from sqlalchemy import func, select
@@ -18,12 +19,14 @@ from sqlalchemy import func, select
 from magline.core.fit.samples_csv import RawSamples
 from magline.core.measurements import CATALOGUE
 from magline.core.results import raw_blob
+from magline.core.results.instants import stored_form
 from magline.core.results.tables import attempt_streams, attempts, measurements, params, phases, runs
 
 if TYPE_CHECKING:
     from sqlalchemy import Connection
 
 BATCH = 500
+LONGEST_UNIT = timedelta(days=1)  # longer than any unit's record spans from its start to its end
 JSON_COLUMNS = ("unit_info", "calibration", "persistence", "left_changed", "unverified_params", "review")
 
 
@@ -204,9 +207,15 @@ def shift_units(conn: Connection, station_id: str, since: str, recent: int, slot
     Why from the store: every screen of the station, and one restarted mid-shift, counts the same units.
     A unit belongs to the shift it was finished in (one started before the shift began and judged after
     it is this shift's): the operator who just saw its verdict sees it counted.  ``slot``: that fixture
-    position's units only."""
+    position's units only.
+
+    Only units begun within :data:`LONGEST_UNIT` before ``since`` are looked at: that bounds the read to the
+    station's index range of the shift (a million-run store read every run of the station otherwise, 70 ms a
+    station), and no unit's record spans a day."""
     ended = func.coalesce(runs.c.finished, runs.c.started)  # a record without its end: when it began
-    chosen = (runs.c.station_id == station_id) & (ended >= since) & (runs.c.verdict != "running")
+    began_by = stored_form(datetime.fromisoformat(since) - LONGEST_UNIT)
+    chosen = ((runs.c.station_id == station_id) & (runs.c.started >= began_by) & (ended >= since)
+              & (runs.c.verdict != "running"))
     if slot is not None:
         chosen = chosen & (runs.c.slot == slot)
     found = conn.execute(select(runs.c.id, runs.c.serial, runs.c.part, runs.c.verdict, runs.c.slot, runs.c.finished,

@@ -28,7 +28,7 @@ BASELINE = "0001"
 # (every store, every day but the one magline is upgraded) is recognised by one query, without
 # importing alembic and every migration script — a tenth of a second at each store opened, twice for a
 # station that forwards to a server.  tests/test_results_store.py holds it to alembic's own head.
-HEAD = "0017"
+HEAD = "0018"
 # Columns the pre-migration SQLite sink added to files written by still older versions.
 PRE_BASELINE_COLUMNS = {
     "attempts": {"refused": "TEXT", "repeats": "INTEGER", "sensor_rate_hz": "REAL"},

@@ -46,6 +46,9 @@ runs = Table(
     Column("field_check", Text),  # the field reference as the unit met it: model, value, last live check (JSON)
     Index("runs_serial", "serial"), Index("runs_part_id", "part", "id"), Index("runs_started", "started"),
     Index("runs_station_started", "station_id", "started"),  # a station's units by time (the dashboard)
+    # a station's slots by time (the dashboard's tiles), only runs that have one
+    Index("runs_station_slot_started", "station_id", "slot", "started", postgresql_where=text("slot IS NOT NULL"),
+          sqlite_where=text("slot IS NOT NULL")),
     Index("runs_running", "id", postgresql_where=text("verdict = 'running'"), sqlite_where=text("verdict = 'running'")),
 )
 # a serial looked up whatever the case it is typed in (history, show, report)
