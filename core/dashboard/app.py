@@ -28,6 +28,7 @@ from sse_starlette.sse import EventSourceResponse
 
 from magline.core.dashboard.line import distinct, line_now, store_version
 from magline.core.dashboard.wakeups import Wakeups
+from magline.core.lazy import warm_imports
 from magline.core.operator_ui.screen.app import TokenRequired, add_static_routes, versioned_plotly_src
 
 if TYPE_CHECKING:
@@ -39,10 +40,17 @@ HEARTBEAT_S = 5.0
 log = logging.getLogger("magline.dashboard")
 PLOTLY_SRC = versioned_plotly_src()  # a browser keeps it: its code is compiled once, not at every page
 WAKE_CHECK_S = 0.05  # how often an open page's stream looks whether the store was written
+# What the chart and unit pages compute and draw with, imported when the dashboard starts
+# (:func:`~magline.core.lazy.warm_imports`): the first visitor of a process page waited 0.6 s for SciPy's
+# statistics and plotly's figure objects, a server that runs for weeks importing them on its first request
+CHART_MODULES = ("scipy.stats", "plotly.graph_objects", "magline.core.quality.spc", "magline.core.reports.spc_page",
+                 "magline.core.reports.page", "magline.core.results.series", "magline.core.results.control_limits",
+                 "magline.core.dashboard.product", "magline.core.reports.unit_page")
 
 
 def create_app(store: ReadOnlyStore, shifts: Shifts, token: str | None = None,
                now: Any = lambda: datetime.now(UTC)) -> FastAPI:
+    warm_imports(*CHART_MODULES)
     app = FastAPI(title="magline dashboard", docs_url=None, redoc_url=None, openapi_url=None)
     app.state.closing = threading.Event()  # set by whoever stops a server run in a thread
     if token is not None:
