@@ -217,11 +217,7 @@ class InavSim(SimulatedAutopilot):
             encode = encode_msp_v2 if frame.version == 2 else encode_msp_v1
             if not (self.faults.lose_reboot_ack and frame.command == Msp.REBOOT):
                 self._transmit(encode(frame.command, answer or b"", REPLY if answer is not None else ERROR))
-            after = self._after_ack
-            if after is not None:
-                self._after_ack = None
-                self._flush_outbox(keep_open=True)  # the answer leaves before the action it announces
-                after()
+            self._act_after_answer()
         self.bad_frames = sum(p.bad_frames for p in self._parsers_msp.values())
 
     def _armed(self) -> bool:
@@ -314,8 +310,8 @@ class InavSim(SimulatedAutopilot):
             mag = [int(v) for v in self.magnetometer_out(self.raw_counts(self.held_reading_ut(sensor, now)))]
         return struct.pack("<9h", *acc, 0, 0, 0, *mag)
 
-    def _advance(self, now: float) -> None:
+    def _advance(self, now: float, answering: bool = False) -> None:
         if (self.power is Power.UP and self._mag_stream_started is not None
                 and now - self._last_imu_request > NEW_TUMBLE_GAP_S):
             self._mag_stream_started = None  # polling stopped: the fault's "after the stream started" restarts
-        super()._advance(now)
+        super()._advance(now, answering)

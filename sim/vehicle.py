@@ -198,7 +198,6 @@ class SimulatedAutopilot(ABC):
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._outbox: list[bytes] | None = None  # what the loop sends this turn, written once at its end
-        self._answering = False  # this turn of the loop handles what the station sent: it sends what is due at once
         self._after_ack: Callable[[], None] | None = None
         self._requests: queue.Queue[tuple[Callable[[], None], threading.Event]] = queue.Queue()
         self.errors: list[str] = []  # exceptions the board's thread survived (tests assert it stays empty)
@@ -447,8 +446,7 @@ class SimulatedAutopilot(ABC):
                     self._next_heartbeat = now  # greet a new peer at once, as a board's link does
                 for peer, data in chunks:
                     self._receive(peer, data)
-                self._answering = bool(chunks)
-                self._advance(now)
+                self._advance(now, answering=bool(chunks))
                 self._release_held(now)
             finally:
                 self._flush_outbox()
@@ -495,7 +493,9 @@ class SimulatedAutopilot(ABC):
             except (ValueError, KeyError, TypeError, AttributeError):
                 self.bad_frames += 1  # a well-framed message with nonsense content
 
-    def _advance(self, now: float) -> None:
+    def _advance(self, now: float, answering: bool = False) -> None:
+        """The board's timers and streams up to ``now``; ``answering``: this turn handles what the station
+        sent, so what is due leaves at once rather than after the bundle's window."""
         if self.power is Power.SHUTTING_DOWN and now >= self._down_at and self.shutdown_ready(now):
             self.on_power_loss()
             self._go_dark(Power.OFF if self.faults.reboot_fails else Power.BOOTING)
@@ -518,7 +518,7 @@ class SimulatedAutopilot(ABC):
             self._next_heartbeat = now + 1.0 if late > 0.5 else self._next_heartbeat + 1.0
             self.mav.heartbeat_send(mavlink.MAV_TYPE_QUADROTOR, self.autopilot,
                                     mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 0, mavlink.MAV_STATE_STANDBY)
-        if not self._answering and now < min(self._streams.next_due_s(), self._status_streams.next_due_s()) + BUNDLE_S:
+        if not answering and now < min(self._streams.next_due_s(), self._status_streams.next_due_s()) + BUNDLE_S:
             return  # woken by a timer inside the bundle's window: what fell due waits for the rest (BUNDLE_S)
         # each message computed and stamped at the instant it fell due, however late the host let us run —
         # and, on a shared fixture, once the board knows how the fixture moved at that instant
@@ -560,16 +560,10 @@ class SimulatedAutopilot(ABC):
         frames, self._outbox = self._outbox, ([] if keep_open and self._outbox is not None else None)
         if not frames or self.power not in (Power.UP, Power.SHUTTING_DOWN) or self.link_dead or self.link is None:
             return
-        if self.link.bundling == "stream":
-            self.link.send(b"".join(frames))
-            return
-        if self.link.bundling == "frame":
-            for frame in frames:
-                self.link.send(frame)
-            return
+        largest = {"stream": math.inf, "datagram": UDP_BUNDLE_BYTES, "frame": 0}[self.link.bundling]
         bundle = b""
         for frame in frames:
-            if bundle and len(bundle) + len(frame) > UDP_BUNDLE_BYTES:
+            if bundle and len(bundle) + len(frame) > largest:
                 self.link.send(bundle)
                 bundle = b""
             bundle += frame
@@ -902,11 +896,7 @@ class SimulatedAutopilot(ABC):
         lost = self.commands_heard[command] <= self._acks_lost.get(command, 0)
         if not lost and not (self.faults.lose_reboot_ack and command == mavlink.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN):
             self.mav.command_ack_send(command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent())
-        after = self._after_ack
-        if after is not None:
-            self._after_ack = None
-            self._flush_outbox(keep_open=True)  # the ACK leaves first: the action may cut the power
-            after()
+        self._act_after_answer()
 
     def _motor_test_command(self, params: list[float]) -> int:
         """MAV_CMD_DO_MOTOR_TEST, throttle in percent (param2 = 0): one motor spins at param3 % for param4
@@ -932,6 +922,14 @@ class SimulatedAutopilot(ABC):
     def after_ack(self, action: Callable[[], None]) -> None:
         """Run ``action`` once the current command's ACK is sent (ACK first, then act)."""
         self._after_ack = action
+
+    def _act_after_answer(self) -> None:
+        """The action an answer announced (:meth:`after_ack`), once the answer has left: flushed ahead of the
+        rest of the turn's bundle, since the action may cut the power."""
+        after, self._after_ack = self._after_ack, None
+        if after is not None:
+            self._flush_outbox(keep_open=True)
+            after()
 
     STATUS_MESSAGES = (mavlink.MAVLINK_MSG_ID_BATTERY_STATUS, mavlink.MAVLINK_MSG_ID_SYS_STATUS)
     MOTOR_TEST_REFUSAL = ""  # the STATUSTEXT a firmware says a refused motor test's cause in (ArduCopter's)
