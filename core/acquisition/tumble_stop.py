@@ -235,7 +235,7 @@ def _mounting_determined(run: RunContext, margin: float):
                 return {}
             samples = snapshot[prefix]
             try:
-                estimate = estimate_mounting(calibrated(fit, samples.mag_ut), samples.t_ms, imu,
+                estimate = estimate_mounting(calibrated(fit, samples.mag_ut, samples.t_ms), samples.t_ms, imu,
                                              skew_hint_ms=skews.get(prefix), dip_deg=dip,
                                              skew_prior=skew_prior(run, prefix))
             except MountingUnobservable:

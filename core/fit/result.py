@@ -64,6 +64,9 @@ class FitOptions:
     max_axis_ratio: float = 2.0
     drift_p_value: float = 1e-3
     debias: bool = True
+    # each reading is the mean of the field since the reading before it (ArduPilot's compass: the mean of its
+    # driver's samples since the vehicle last read it), not one sample
+    window_means: bool = False
 
 
 @dataclass
@@ -95,6 +98,8 @@ class FitResult:
     bias_correction: dict[str, Any] | None = None  # what the second-order correction did, if it ran
     # set when a diagonal / sphere model cannot represent the unit's soft iron (see geometric.py)
     model_misfit: dict[str, Any] | None = None
+    # the window each reading averaged over (``window_s``) and how far the fit moved the readings for it (µT)
+    reading_window: dict[str, Any] | None = None
     extra: dict[str, Any] = field(default_factory=dict)
     # the radial σ in any direction (geometric fits; None for a coil's affine fit)
     radial: RadialUncertainty | None = field(default=None, repr=False, compare=False)
@@ -165,5 +170,6 @@ class FitResult:
             "drift": self.drift,
             "bias_correction": self.bias_correction,
             "model_misfit": self.model_misfit,
+            **({"reading_window": self.reading_window} if self.reading_window is not None else {}),
             **({"affine": self.extra} if self.model == "affine" else {}),
         }

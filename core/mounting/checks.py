@@ -59,9 +59,15 @@ if TYPE_CHECKING:
 TIMING_WINDOW_SIGMAS = 3.0
 
 
-def calibrated(fit: FitResult, raw_ut: NDArray) -> NDArray:
-    """``S·(m_raw − h)`` for every row."""
-    return (np.asarray(raw_ut, float) - fit.hard_iron_ut) @ np.asarray(fit.soft_iron).T
+def calibrated(fit: FitResult, raw_ut: NDArray, t_ms: NDArray) -> NDArray:
+    """``S·(m_raw − h)`` for every row, each reading first taken back to its window's middle where the fit
+    took its readings so (a reading averaged while the unit turned is tilted toward the turn's axis)."""
+    raw = np.asarray(raw_ut, float)
+    if fit.reading_window is not None:
+        from magline.core.fit.reading_window import at_window_middles
+
+        raw = at_window_middles(raw, t_ms, float(fit.reading_window["window_s"]))
+    return (raw - fit.hard_iron_ut) @ np.asarray(fit.soft_iron).T
 
 
 def applied_rotation(sensor: Magnetometer) -> NDArray:
@@ -133,7 +139,7 @@ def validate_unit(run: RunContext, fits: dict[int, FitResult]) -> list[Measureme
         samples = attempt.samples if position == 0 else attempt.more[sensor.device_id]
         label = run.sensor_label(sensor.device_id)
         prefix = run.sensor_prefix(sensor.device_id)
-        cal = calibrated(fits[sensor.device_id], samples.mag_ut)
+        cal = calibrated(fits[sensor.device_id], samples.mag_ut, samples.t_ms)
         try:
             estimate = estimate_mounting(cal, samples.t_ms, attempt.imu, dip_deg=reference,
                                          skew_prior=skew_prior(run, prefix))

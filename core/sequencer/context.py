@@ -239,7 +239,8 @@ class RunContext:
         return FitOptions(model=model, field_ut=self.reference_field_ut,
                           range_ut=acq.range_ut or (sensor.range_ut if sensor else None),
                           coverage_bins=acq.coverage_bins, gain_sigma=self.station.fit.gain_sigma,
-                          max_direction_sigma_deg=bound)
+                          max_direction_sigma_deg=bound,
+                          window_means=bool(sensor and sensor.averages_since_last_read))
 
     @property
     def unit_moves(self) -> bool:

@@ -121,14 +121,15 @@ class ArduPilotDut:
         """A compass as the firmware holds it: COMPASS_ORIENTn turns an external compass's readings into
         the body before anything else (so the streamed field is in body axes); an internal compass
         ignores it — its fix is COMPASS_EXTERNn = 1 together with the orientation (docs/firmware.md,
-        *What the firmware applies*)."""
+        *What the firmware applies*).  Each reading is the mean of the driver's samples since the vehicle
+        last read the compass (``drain_accumulated_samples``, ArduCopter reads at 10 Hz)."""
         names = set_names(suffix)
         external = int(self.link.get(names["EXTERN"][0])) != 0
         orient = int(self.link.get(names["ORIENT"][0])) if external else 0
         return Magnetometer(device_id=device_id, label=f"compass {SETS.index(suffix) + 1}", external=external,
                             orientation=orient, readings_rotated=True,
                             fix_params=names["ORIENT"] + ([] if external else names["EXTERN"]),
-                            range_ut=INT16_MG_RANGE_UT)
+                            range_ut=INT16_MG_RANGE_UT, averages_since_last_read=True)
 
     def use_magnetometers(self, device_ids: list[int]) -> None:
         self.chosen = list(device_ids)
