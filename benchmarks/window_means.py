@@ -53,12 +53,12 @@ def main() -> None:
     truth = np.linalg.inv(A)
     field = float(np.linalg.norm(FIELD_NED))
     print(f"{args.fits} fits of {len(means)} readings, {args.rate:g}°/s, {args.noise:g} µT noise")
-    for label, window_means_ in (("as plain readings", False), ("as window means", True)):
+    for label, sample_hz in (("as plain readings", 0.0), ("as window means", float(SAMPLE_HZ))):
         rng = np.random.default_rng(args.seed)
         z, warm_ups = [], 0
         for _ in range(args.fits):
             raw = means @ A.T + HARD + rng.normal(0.0, args.noise, means.shape)
-            fit = fit_calibration(raw, FitOptions(field_ut=field, window_means=window_means_), t_ms=t_ms)
+            fit = fit_calibration(raw, FitOptions(field_ut=field, sample_rate_hz=sample_hz), t_ms=t_ms)
             z.append((fit.soft_iron - truth) / fit.soft_iron_sigma)
             warm_ups += "warm_up" in fit.rejected
         z_arr = np.array(z)

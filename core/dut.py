@@ -139,9 +139,10 @@ class Magnetometer:
     # the rotation the firmware applies where it is no discrete value (PX4's CAL_MAGn_ROT = 100 with its
     # custom Euler angles): ``v_body = rotation · v_sensor``, rows; None: ``orientation`` says it all
     rotation: list[list[float]] | None = None
-    # each reading is the mean of the driver's samples since the firmware last read the sensor (ArduPilot),
-    # not one sample: the fit takes readings averaged while the unit turned back to their window's middle
-    averages_since_last_read: bool = False
+    # each reading is the mean of the driver's samples, taken this often (Hz), since the firmware last read the
+    # sensor (ArduPilot); 0: each reading is one sample.  The fit takes readings averaged while the unit turned
+    # back to their window's middle
+    averaged_sample_hz: float = 0.0
 
 
 @dataclass

@@ -44,14 +44,14 @@ def window_means() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def test_each_mean_is_taken_back_to_the_field_at_its_window_s_middle():
     means, t_ms, middles = window_means()
     shortfall = np.linalg.norm(middles - means, axis=1)
-    left = np.linalg.norm(middles - at_window_middles(means, t_ms, 1.0 / READ_HZ), axis=1)
+    left = np.linalg.norm(middles - at_window_middles(means, t_ms, 1.0 / READ_HZ, SAMPLES_PER_READ), axis=1)
     assert shortfall.max() > 4e-4 * FIELD  # the motion turns the field fast enough to matter
     assert np.sqrt(np.mean(left**2)) < 0.05 * np.sqrt(np.mean(shortfall**2))
 
 
 def test_the_correction_adds_little_to_a_still_unit_s_noise(rng):
     still = np.tile(FIELD_NED, (3000, 1)) + rng.normal(0.0, 0.3, (3000, 3))
-    corrected = at_window_middles(still, np.arange(3000) * 100.0, 0.1)
+    corrected = at_window_middles(still, np.arange(3000) * 100.0, 0.1, 10)
     assert np.std(corrected - FIELD_NED) / np.std(still - FIELD_NED) < 1.05  # 2 % expected; a neighbour's stencil 8.5 %
 
 
@@ -65,7 +65,7 @@ def test_window_means_fitted_as_such_land_within_the_stated_sigma_and_raise_no_f
     z, warm_ups = [], 0
     for _ in range(40):
         raw = means @ A.T + HARD + rng.normal(0.0, NOISE_UT, means.shape)
-        fit = fit_calibration(raw, FitOptions(field_ut=FIELD, window_means=True), t_ms=t_ms)
+        fit = fit_calibration(raw, FitOptions(field_ut=FIELD, sample_rate_hz=READ_HZ * SAMPLES_PER_READ), t_ms=t_ms)
         z.append((fit.soft_iron - truth) / fit.soft_iron_sigma)
         warm_ups += "warm_up" in fit.rejected
         assert fit.reading_window["correction_max_ut"] > 4e-4 * FIELD

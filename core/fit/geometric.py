@@ -30,7 +30,7 @@ from magline.core.fit.objective import (
 )
 from magline.core.fit.quantiles import f_quantile
 from magline.core.fit.radial import RadialUncertainty
-from magline.core.fit.reading_window import at_window_middles, read_period_s
+from magline.core.fit.reading_window import at_window_middles, read_period_s, samples_per_read
 from magline.core.fit.result import FitOptions, FitRefused, FitResult, warm_up_words
 from magline.core.fit.screening import planarity, screen_samples
 from magline.core.fit.solver import SETTLED_STEP, gauss_newton, levenberg_marquardt
@@ -68,18 +68,19 @@ def fit_calibration(
 
     ``m_ut`` is an (n, 3) array of raw samples in µT.  ``t_ms`` / ``temp_c`` (optional, per sample)
     let the fit model a linear warm-up drift of the offset; the offset reported is the end state.
-    Readings that are each the mean since the one before (``options.window_means``, with ``t_ms``) are first
-    taken back to the field at their window's middle (:mod:`.reading_window`).
+    Readings that are each the mean of the driver's samples since the one before (``options.sample_rate_hz``,
+    with ``t_ms``) are first taken back to the field at their window's middle (:mod:`.reading_window`).
     """
     opts = options or FitOptions()
-    if not opts.window_means or t_ms is None:
+    if opts.sample_rate_hz <= 0 or t_ms is None:
         return _fit_readings(m_ut, opts, t_ms, temp_c)
     raw = np.asarray(m_ut, dtype=float)
     window_s = read_period_s(t_ms)
-    fixed = at_window_middles(raw, t_ms, window_s)
+    samples = samples_per_read(window_s, opts.sample_rate_hz)
+    fixed = at_window_middles(raw, t_ms, window_s, samples)
     result = _fit_readings(fixed, opts, t_ms, temp_c)
     size = np.linalg.norm(np.nan_to_num(fixed - raw), axis=1)
-    result.reading_window = {"window_s": window_s,
+    result.reading_window = {"window_s": window_s, "samples": samples,
                              "correction_rms_ut": float(np.sqrt(np.mean(size**2))) if len(size) else 0.0,
                              "correction_max_ut": float(size.max(initial=0.0))}
     return result

@@ -12,8 +12,8 @@ The curvature is read from the readings themselves, two readings either side: th
 image of the body's field (``S⁻¹·b + h``), so their curvature is the field's, and no calibration is needed to
 take it off.  Two readings apart, the stencil adds 2 % to the noise (one reading apart: 8.5 %) and misses
 ``(2ωΔt)²/12`` of the curvature (under 1 % of the correction at 80°/s).  The window is the time between the
-firmware's reads of the sensor, measured on the readings (:func:`read_period_s`): a vehicle or simulator that
-reads its compass at another rate needs no setting.
+firmware's reads of the sensor, measured on the readings (:func:`read_period_s`); the samples in it come from
+the driver's own rate, which the backend states.
 """
 
 from __future__ import annotations
@@ -24,14 +24,15 @@ from numpy.typing import NDArray
 STENCIL = 2  # readings either side the curvature is read over
 
 
-def window_mean_correction(raw_ut: NDArray, t_ms: NDArray, window_s: float) -> NDArray:
-    """What to add to each reading (rows, in time order; ``t_ms`` their stamps) to make the mean over a window
-    of ``window_s`` the field at its middle: ``−(W²/24)·m̈``, the curvature from the readings ``STENCIL``
-    before and after (at the ends, the nearest reading that has both)."""
+def window_mean_correction(raw_ut: NDArray, t_ms: NDArray, window_s: float, samples: int) -> NDArray:
+    """What to add to each reading (rows, in time order; ``t_ms`` their stamps) to make the mean of ``samples``
+    even samples over a window of ``window_s`` the field at its middle: ``−(W²/24)·(1 − 1/N²)·m̈`` (the spread
+    of N samples' times; one sample is no mean), the curvature from the readings ``STENCIL`` before and after
+    (at the ends, the nearest reading that has both)."""
     m = np.asarray(raw_ut, float)
     t_s = np.asarray(t_ms, float) / 1000.0
     n = len(m)
-    if n < 2 * STENCIL + 1 or window_s <= 0:
+    if n < 2 * STENCIL + 1 or window_s <= 0 or samples <= 1:
         return np.zeros_like(m)
     centre = np.arange(STENCIL, n - STENCIL)
     before, after = centre - STENCIL, centre + STENCIL
@@ -40,16 +41,17 @@ def window_mean_correction(raw_ut: NDArray, t_ms: NDArray, window_s: float) -> N
     curvature = 2.0 * ((m[after] - m[centre]) / h_after - (m[centre] - m[before]) / h_before) / (h_before + h_after)
     curvature = np.concatenate([np.repeat(curvature[:1], STENCIL, axis=0), curvature,
                                 np.repeat(curvature[-1:], STENCIL, axis=0)])
-    return -(window_s**2 / 24.0) * curvature
+    return -(window_s**2 / 24.0) * (1.0 - 1.0 / samples**2) * curvature
 
 
-def at_window_middles(raw_ut: NDArray, t_ms: NDArray, window_s: float) -> NDArray:
-    """``raw_ut`` (rows in any order) with each finite reading taken back to the field at its window's middle."""
+def at_window_middles(raw_ut: NDArray, t_ms: NDArray, window_s: float, samples: int) -> NDArray:
+    """``raw_ut`` (rows in any order) with each finite reading, a mean of ``samples`` over ``window_s``, taken
+    back to the field at its window's middle."""
     m = np.array(raw_ut, dtype=float)
     t = np.asarray(t_ms, dtype=float)
     rows = np.flatnonzero(np.isfinite(m).all(axis=1) & np.isfinite(t))
     rows = rows[np.argsort(t[rows], kind="stable")]
-    m[rows] += window_mean_correction(m[rows], t[rows], window_s)
+    m[rows] += window_mean_correction(m[rows], t[rows], window_s, samples)
     return m
 
 
@@ -61,3 +63,9 @@ def read_period_s(t_ms: NDArray) -> float:
     steps = np.diff(t)
     steps = steps[steps > 0]
     return float(np.median(steps)) / 1000.0 if len(steps) else 0.0
+
+
+def samples_per_read(window_s: float, sample_hz: float) -> int:
+    """How many of the driver's samples one reading averages: a driver sampling at 100 Hz read every 100 ms
+    hands on means of 10; read as often as it samples, single samples (no window to undo)."""
+    return max(1, round(window_s * sample_hz))

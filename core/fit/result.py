@@ -64,9 +64,9 @@ class FitOptions:
     max_axis_ratio: float = 2.0
     drift_p_value: float = 1e-3
     debias: bool = True
-    # each reading is the mean of the field since the reading before it (ArduPilot's compass: the mean of its
-    # driver's samples since the vehicle last read it), not one sample
-    window_means: bool = False
+    # each reading is the mean of the driver's samples, taken this often (Hz), since the reading before it
+    # (ArduPilot's compass: since the vehicle last read it); 0: each reading is one sample
+    sample_rate_hz: float = 0.0
 
 
 @dataclass

@@ -66,7 +66,7 @@ def calibrated(fit: FitResult, raw_ut: NDArray, t_ms: NDArray) -> NDArray:
     if fit.reading_window is not None:
         from magline.core.fit.reading_window import at_window_middles
 
-        raw = at_window_middles(raw, t_ms, float(fit.reading_window["window_s"]))
+        raw = at_window_middles(raw, t_ms, float(fit.reading_window["window_s"]), int(fit.reading_window["samples"]))
     return (raw - fit.hard_iron_ut) @ np.asarray(fit.soft_iron).T
 
 

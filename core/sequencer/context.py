@@ -240,7 +240,7 @@ class RunContext:
                           range_ut=acq.range_ut or (sensor.range_ut if sensor else None),
                           coverage_bins=acq.coverage_bins, gain_sigma=self.station.fit.gain_sigma,
                           max_direction_sigma_deg=bound,
-                          window_means=bool(sensor and sensor.averages_since_last_read))
+                          sample_rate_hz=sensor.averaged_sample_hz if sensor else 0.0)
 
     @property
     def unit_moves(self) -> bool:

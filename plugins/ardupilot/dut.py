@@ -64,6 +64,7 @@ CHUNK = 10
 CHUNK_WITHIN_S = 0.25  # a slow compass's readings handed on at least this often
 BATTERY_RATE_HZ = 10.0  # BATTERY_STATUS during a current sweep
 COMPASS_HZ = 10.0  # ArduCopter reads its compasses at about 10 Hz, whatever the stream rate
+DRIVER_SAMPLE_HZ = 100.0  # how often a compass driver samples (AP_Compass_SITL, IST8310 and most others: 100 Hz)
 MOT_RANGE_MG_PER_A = 1000.0  # COMPASS_MOTn_* @Range
 RESTORE_RECONNECT_S = 3.0  # a vehicle that does not answer by then is reported as not restored
 COMPASS_PREARM = "PreArm: Compass"
@@ -129,7 +130,7 @@ class ArduPilotDut:
         return Magnetometer(device_id=device_id, label=f"compass {SETS.index(suffix) + 1}", external=external,
                             orientation=orient, readings_rotated=True,
                             fix_params=names["ORIENT"] + ([] if external else names["EXTERN"]),
-                            range_ut=INT16_MG_RANGE_UT, averages_since_last_read=True)
+                            range_ut=INT16_MG_RANGE_UT, averaged_sample_hz=DRIVER_SAMPLE_HZ)
 
     def use_magnetometers(self, device_ids: list[int]) -> None:
         self.chosen = list(device_ids)
