@@ -227,8 +227,9 @@ def estimate_mounting(mag_cal: NDArray, t_mag_ms: NDArray, imu: ImuSeries | None
     track = imu.gravity_track()
     readings = unit_rows(np.asarray(mag_cal, float))
     stamps = np.asarray(t_mag_ms, float)
-    coarse = coarse_skew_ms(readings, stamps, track) if skew_hint_ms is None else float(skew_hint_ms)
-    accel, usable = track.at(stamps + (coarse or 0.0))
+    reach = reading_span_ms(stamps)
+    coarse = coarse_skew_ms(readings, stamps, track, reach) if skew_hint_ms is None else float(skew_hint_ms)
+    accel, usable = track.at(stamps + (coarse or 0.0), reach)
     if coarse is None or usable.sum() < MIN_PAIRS:
         raise MountingUnobservable(f"only {int(usable.sum())} magnetometer readings were taken while the unit was "
                                    f"still enough to see gravity ({MIN_PAIRS} needed)")
@@ -298,6 +299,14 @@ def estimate_mounting(mag_cal: NDArray, t_mag_ms: NDArray, imu: ImuSeries | None
                             own_skew_ms=own_skew, own_skew_sigma_ms=own_sigma, prior=skew_prior)
 
 
+def reading_span_ms(t_mag_ms: NDArray) -> float:
+    """How far one magnetometer reading reaches either side of the instant it is paired at: its read period
+    (the median step between distinct stamps) — a firmware that averages hands on the time since its last
+    read, centred on the pairing instant, and one that does not is still stamped up to a period late."""
+    steps = np.diff(np.unique(np.asarray(t_mag_ms, float)))
+    return float(np.median(steps)) if len(steps) else 0.0
+
+
 def _shown(sigma_deg: float) -> str:
     return f"{sigma_deg:.1f}" if np.isfinite(sigma_deg) and sigma_deg < 1e4 else "∞"
 
@@ -320,6 +329,7 @@ def _information(track: GravityTrack, m: NDArray, t: NDArray, rotation: NDArray,
     # rows whose window reaches past either half's readings are left out whole: a turn clipped at the
     # stream's end is not the motion's, and a row that says "the skew does nothing here" is information
     inside = np.all([(t + skew - half >= h.t_ms[0]) & (t + skew + half <= h.t_ms[-1]) for h in halves], axis=0)
+    inside &= ~track.near_jerk(t + skew, half + reading_span_ms(t))  # a turn across a jerk is not the motion's
     weight = np.where(inside, weight, 0.0)
     skew_a, skew_b = (np.einsum("ij,ij->i", _turn(h, t + skew, half), body) * weight for h in halves)
     jac = np.column_stack([np.cross(body, seen), np.full(len(m), np.cos(inclination))]) * weight[:, None]

@@ -22,7 +22,7 @@ sphere only the right rotation (up to scale) does.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
@@ -41,6 +41,18 @@ MIN_PAIRS = 30
 # half a period; with this stiffness the noise is the same everywhere between readings (±2 %) and a
 # rotation of 30° per reading keeps its direction (a circle's is exact) and 99 % of its length.
 SMOOTHING = 0.1
+# A jerk: gravity turned between two accelerometer readings by over JERK_FACTOR times its median turn per
+# reading over JERK_NEIGHBOURS readings either side, and by at least JERK_FLOOR_DEG.  Why left out: each
+# sensor hands on a filtered reading (a compass the mean over its read window, an accelerometer its low-pass),
+# and only while the motion is smooth over those windows do the two differ by a delay; across a jerk they
+# differ by their filters' shapes, and one jerk then weighed as much as the whole tumble in the skew and the
+# turn about the axis the unit spins about (ArduCopter SITL's FlightAxis clock jumps: 7–18° in one reading,
+# and a good compass read 1.05° ± 0.10° turned).  A noisy still stream's largest turn is about 3 times its
+# median; a hand's bump, a fixture's step and a simulator's clock jump stand 7 to 25 times above it.
+JERK_FACTOR = 5.0
+JERK_FLOOR_DEG = 3.0
+JERK_NEIGHBOURS = 25
+JERK_SPREAD_PERIODS = 2.0  # how far a jerk reaches into the smoothing spline each side (accelerometer periods)
 
 
 def unit_rows(v: NDArray) -> NDArray:
@@ -56,6 +68,7 @@ class GravityTrack:
     gyro_rads: NDArray | None  # the body's rate at the same stamps, where the stream has it
     gravity: float  # |g| as the accelerometer reads it (the median magnitude)
     period_ms: float  # the stream's median period
+    jerks_ms: NDArray = field(default_factory=lambda: np.empty(0))  # instants of jerks (sorted): nothing paired there
     _spline: SmoothingSpline | None = None  # the accelerometer's smoothing spline, made on first use
 
     @classmethod
@@ -71,7 +84,21 @@ class GravityTrack:
             gyro /= count
         mean /= count
         period = float(np.median(np.diff(stamps))) if len(stamps) > 1 else float("inf")
-        return cls(stamps, mean, gyro, float(np.median(np.linalg.norm(mean, axis=1))), period)
+        return cls(stamps, mean, gyro, float(np.median(np.linalg.norm(mean, axis=1))), period,
+                   jerk_instants_ms(stamps, mean))
+
+    def near_jerk(self, when_ms: NDArray, reach_ms: float) -> NDArray:
+        """Which of ``when_ms`` lie within ``reach_ms`` of a jerk, or within the spline's spread of one."""
+        when = np.asarray(when_ms, float)
+        jerks = self.jerks_ms
+        if not len(jerks):
+            return np.zeros(len(when), bool)
+        reach = reach_ms + JERK_SPREAD_PERIODS * self.period_ms
+        after = np.searchsorted(jerks, when)
+        last = len(jerks) - 1
+        before, later = jerks[np.clip(after - 1, 0, last)], jerks[np.clip(after, 0, last)]
+        nearest = np.minimum(np.abs(when - before), np.abs(when - later))
+        return nearest <= reach
 
     def accel_at(self, when_ms: NDArray) -> NDArray:
         """The accelerometer at ``when_ms`` (held at the stream's ends), without :meth:`at`'s judgement of
@@ -83,10 +110,10 @@ class GravityTrack:
             self._spline = SmoothingSpline.fit(self.t_ms, self.accel, lam=SMOOTHING * self.period_ms**3)
         return self._spline(np.clip(np.asarray(when_ms, float), self.t_ms[0], self.t_ms[-1]))
 
-    def at(self, when_ms: NDArray) -> tuple[NDArray, NDArray]:
+    def at(self, when_ms: NDArray, reach_ms: float = 0.0) -> tuple[NDArray, NDArray]:
         """The accelerometer at ``when_ms`` and which of those instants are usable: inside the stream,
-        not in a gap, and seeing gravity alone (the unit not accelerated, not turning beyond 120°/s
-        where the gyro says so)."""
+        not in a gap, not within ``reach_ms`` (what the caller's reading spans either side) of a jerk, and
+        seeing gravity alone (the unit not accelerated, not turning beyond 120°/s where the gyro says so)."""
         when = np.asarray(when_ms, float)
         t = self.t_ms
         if len(t) < 4:
@@ -94,12 +121,26 @@ class GravityTrack:
         usable = (when >= t[0]) & (when <= t[-1])
         right = np.clip(np.searchsorted(t, when), 1, len(t) - 1)
         usable &= (t[right] - t[right - 1]) <= MAX_GAP_PERIODS * self.period_ms
+        usable &= ~self.near_jerk(when, reach_ms)
         values = self.accel_at(when)
         usable &= np.abs(np.linalg.norm(values, axis=1) - self.gravity) < STILL_TOLERANCE * self.gravity
         if self.gyro_rads is not None:
             rate = np.linalg.norm(self.gyro_rads, axis=1)
             usable &= np.interp(when, t, rate) < np.radians(120.0)
         return values, usable
+
+
+def jerk_instants_ms(t_ms: NDArray, accel: NDArray) -> NDArray:
+    """The instants (midway between two readings) where gravity jerked (:data:`JERK_FACTOR`)."""
+    if len(t_ms) < 2 * JERK_NEIGHBOURS + 2:
+        return np.empty(0)
+    g = unit_rows(np.asarray(accel, float))
+    turned = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", g[1:], g[:-1]), -1.0, 1.0)))
+    padded = np.pad(turned, JERK_NEIGHBOURS, mode="edge")
+    local = np.median(np.lib.stride_tricks.sliding_window_view(padded, 2 * JERK_NEIGHBOURS + 1), axis=1)
+    jerked = (turned > JERK_FACTOR * local) & (turned > JERK_FLOOR_DEG)
+    t = np.asarray(t_ms, float)
+    return (t[1:][jerked] + t[:-1][jerked]) / 2.0
 
 
 def constancy_cost(mag_unit: NDArray, accel_unit: NDArray) -> float:
@@ -111,17 +152,18 @@ def constancy_cost(mag_unit: NDArray, accel_unit: NDArray) -> float:
     return float(max(np.linalg.eigvalsh(matrix.T @ matrix)[0], 0.0) / len(mag_unit))
 
 
-def coarse_skew_ms(mag_unit: NDArray, t_mag_ms: NDArray, track: GravityTrack) -> float | None:
+def coarse_skew_ms(mag_unit: NDArray, t_mag_ms: NDArray, track: GravityTrack, reach_ms: float = 0.0) -> float | None:
     """The shift of the magnetometer's stamps (ms, within ±``SKEW_SEARCH_MS``) that best keeps the
     gravity–field angle constant; None when no shift leaves enough readings to pair.  At most
     ``COARSE_READINGS`` readings, evenly spread over the tumble, take part: the search only has to
-    find the valley the refinement starts in."""
+    find the valley the refinement starts in.  ``reach_ms``: what a reading spans either side (none is
+    paired that near a jerk)."""
     pick = np.unique(np.linspace(0, len(mag_unit) - 1, min(len(mag_unit), COARSE_READINGS)).astype(int))
     mag_unit, t_mag_ms = mag_unit[pick], np.asarray(t_mag_ms, float)[pick]
     best: tuple[float, float] | None = None
     shifts = np.arange(-SKEW_SEARCH_MS, SKEW_SEARCH_MS + SKEW_STEP_MS / 2, SKEW_STEP_MS)
     # the accelerometer at every shift's instants in one evaluation: a hundred calls cost more than their points
-    every, every_usable = track.at((shifts[:, None] + t_mag_ms[None, :]).ravel())
+    every, every_usable = track.at((shifts[:, None] + t_mag_ms[None, :]).ravel(), reach_ms)
     for k, shift in enumerate(shifts):
         rows = slice(k * len(t_mag_ms), (k + 1) * len(t_mag_ms))
         accel, usable = every[rows], every_usable[rows]

@@ -136,3 +136,38 @@ def two_axis_tumble(mounted: NDArray, rng: np.random.Generator, *, rate_hz: floa
     body = attitude(taken).inv().apply(earth_field_ned(field_ut, inclination_deg))
     mag = body @ np.asarray(mounted) + rng.normal(0.0, noise_ut, (n, 3))
     return mag, t * 1000.0, ImuSeries(t_ms=t * 1000.0, accel_mss=accel)
+
+
+def averaged_spiral(rng: np.random.Generator, *, clock_jump_s: float = 0.0, jump_at_s: float = 14.0,
+                    seconds: float = 26.0, speed: float = 0.15, noise_ut: float = 0.06,
+                    field_ut: float = 49.0, inclination_deg: float = 65.8) -> tuple[NDArray, NDArray, ImuSeries]:
+    """A good, calibrated compass on the simulators' spiral as ArduCopter streams it (the SITL tier's swept
+    unit, ``magline.sitl.ardupilot_flightaxis``): the compass sampled at 100 Hz and read every 100 ms as the
+    mean of its samples since the last read (``drain_accumulated_samples``), the accelerometer sampled at
+    1 kHz through a 20 Hz two-pole Butterworth (``INS_ACCEL_FILTER``'s ``LowPassFilter2p``), each stamped with
+    the next 50 Hz message.  ``clock_jump_s``: at ``jump_at_s`` the board's clock skips that much of the motion
+    (SITL's FlightAxis clock snapping back to its peer's: the unit jumps 20° in one instant).
+    ``(mag_ut, t_mag_ms, imu)``."""
+    from scipy.signal import butter, lfilter
+
+    from magline.core.mounting import ImuSeries
+
+    field = earth_field_ned(field_ut, inclination_deg)
+
+    def attitude(board_s: NDArray) -> Rotation:
+        return spiral_attitude(speed * (board_s + clock_jump_s * (board_s >= jump_at_s)) + 3.0, field)
+
+    fine = np.arange(0.0, seconds, 0.001)
+    gravity = attitude(fine).inv().apply([0.0, 0.0, -GRAVITY_MSS])
+    b, a = butter(2, 20.0, fs=1000.0)
+    filtered = lfilter(b, a, gravity - gravity[0], axis=0) + gravity[0]  # started settled
+    t_msg = np.arange(0.2, seconds - 0.2, 0.02)
+    accel = filtered[np.round(t_msg * 1000.0).astype(int)] + rng.normal(0.0, 0.02, (len(t_msg), 3))
+    samples = np.arange(0.0, seconds, 0.01)
+    sampled = attitude(samples).inv().apply(field)
+    reads = np.arange(0.3, seconds - 0.3, 0.1) + rng.uniform(0.0, 0.1)
+    mag = np.array([sampled[(samples > r - 0.1) & (samples <= r)].mean(axis=0) for r in reads])
+    mag += rng.normal(0.0, noise_ut, mag.shape)
+    first = np.searchsorted(t_msg, reads)
+    sent = first < len(t_msg)
+    return mag[sent], t_msg[first[sent]] * 1000.0, ImuSeries(t_ms=t_msg * 1000.0, accel_mss=accel)
