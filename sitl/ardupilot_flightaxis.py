@@ -17,7 +17,12 @@ What SITL does with it, and what the peer therefore sends:
   body → NED quaternion ``(w, x, y, z)`` is sent as ``W = w, X = y, Y = x, Z = −z``; body rates
   as roll, pitch and the negated yaw rate (°/s).  Off the ground (``m-isTouchingGround`` 0) the specific
   force is the body acceleration sent (m/s²; at rest ``−g`` turned into the body).
-- Time: SITL's clock follows ``m-currentPhysicsTime-SEC``: the peer's monotonic clock.
+- Time: SITL's clock follows ``m-currentPhysicsTime-SEC``, and the peer's clock advances by one frame
+  (:data:`FRAME_S`) per answer, never ahead of the wall clock.  Why not the wall clock itself: while an
+  answer is late SITL moves its own clock on by extrapolating (up to a frame at a time) and never takes it
+  back unless it is 0.5 s ahead, so against a wall clock SITL's ran about 1 % fast and then skipped the
+  motion it had run ahead of — the unit jumped 7–20° in one instant, once or twice a tumble, and the station
+  paired its readings across the jump.  With a frame per answer SITL's clock is the motion's.
 - Battery: a voltage above zero makes SITL's analog battery monitor read the current sent (else it
   makes its own from the throttle), and SIM_MAG_MOT multiplies the same current.
 
@@ -59,6 +64,7 @@ KEYS = (
     "m-flightAxisControllerIsActive", "m-resetButtonHasBeenPressed",
 )
 RC_CENTRED = (0.5, 0.5, 0.0, 0.5) + (0.0,) * (RC_CHANNELS - 4)  # sticks centred, throttle (channel 3) low
+FRAME_S = 0.0025  # the physics advanced per answer: SIM_FlightAxis's 400 Hz frames (it extrapolates between)
 
 
 @dataclass
@@ -151,6 +157,7 @@ class FlightAxisPeer:
         self.listener.listen(64)
         self.listener.settimeout(0.2)
         self.started = time.monotonic()
+        self.physics_s = 0.0  # the physics clock SITL follows: a frame per answer (module docstring)
         self.lock = threading.Lock()
         self.clock, self.began = HeldClock(), None  # the tumble's clock (from SITL's first exchange)
         self.motion_s = 0.0  # the tumble's time in the last answer
@@ -158,9 +165,14 @@ class FlightAxisPeer:
         self.thread: threading.Thread | None = None
 
     def state(self) -> tuple[Rotation, np.ndarray, float]:
-        """The unit's attitude and body rates (°/s) now, and the physics clock (s)."""
+        """The unit's attitude and body rates (°/s) one frame on, and the physics clock (s) then; answered no
+        sooner than the wall clock reaches it."""
         with self.lock:
-            now = time.monotonic()
+            self.physics_s += FRAME_S
+            early = self.started + self.physics_s - time.monotonic()
+            if early > 0:
+                time.sleep(early)
+            now = self.started + self.physics_s
             held = self.held()
             self.began = now if self.began is None else self.began
             motion_s = self.motion_s = self.clock.motion_s(self.began, now, held)
@@ -170,7 +182,7 @@ class FlightAxisPeer:
             else:
                 dt = 0.01
                 rate = np.degrees((attitude.inv() * self.tumble.attitude(motion_s + dt)).as_rotvec() / dt)
-            return attitude, rate, now - self.started
+            return attitude, rate, self.physics_s
 
     def _answer(self, conn: socket.socket) -> None:
         with conn:

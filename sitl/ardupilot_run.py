@@ -341,7 +341,7 @@ def main(argv: list[str] | None = None) -> int:
     return summarise(f"ArduCopter SITL {args.source}", workdir,
                      {"good": lambda folder: one_unit(source, folder, args.seed, {}),
                       "turned": lambda folder: one_unit(source, folder, args.seed, {1: ORIENT_YAW90}),
-                      "swept": lambda folder: swept_unit(source, folder, args.seed)}, args.json)
+                      "swept": lambda folder: swept_unit(source, folder, args.seed)}, args.json, args.unit)
 
 
 if __name__ == "__main__":

@@ -66,13 +66,19 @@ def measurement(record: dict, name: str) -> float | None:
 
 
 def summarise(title: str, workdir: Path, units: dict[str, Callable[[Path], tuple[dict, list[Check]]]],
-              json_path: Path | None) -> int:
-    """Run each labelled unit in its own folder under ``workdir``, print the one-page summary (the firmware
-    version the station saw, then every check), write it to ``json_path`` too, and return the runner's
-    exit code: 0 when every check holds."""
+              json_path: Path | None, only: list[str] | None = None) -> int:
+    """Run each labelled unit (those in ``only``, when given) in its own folder under ``workdir``, print the
+    one-page summary (the firmware version the station saw, then every check), write it to ``json_path`` too,
+    and return the runner's exit code: 0 when every check holds; 2 for a unit the runner does not have."""
+    unknown = sorted(set(only or ()) - set(units))
+    if unknown:
+        print(f"no unit {', '.join(unknown)} in this runner: it has {', '.join(units)}", file=sys.stderr)
+        return 2
     firmware = None
     lines, results = [], {}
     for label, unit in units.items():
+        if only and label not in only:
+            continue
         record, checks = unit((workdir / label).resolve())
         if firmware is None:
             firmware = (record.get("unit_info") or {}).get("firmware", "?")
@@ -177,6 +183,8 @@ def runner_parser(module: str, doc: str, build_flag: str, build_help: str) -> ar
     parser.add_argument("--workdir", type=Path, help="where each unit's files stay (default: a temporary folder)")
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--json", type=Path, help="write every check here")
+    parser.add_argument("--unit", action="append", metavar="NAME",
+                        help="run only this unit of the runner's (again for more; default: every one)")
     return parser
 
 

@@ -161,7 +161,8 @@ def main(argv: list[str] | None = None) -> int:
     workdir = args.workdir or Path(tempfile.mkdtemp(prefix="magline-sitl-inav-"))
     return summarise(f"INAV SITL {args.sitl}", workdir,
                      {"good": lambda folder: one_unit(args.sitl, folder, args.seed, None),
-                      "turned": lambda folder: one_unit(args.sitl, folder, args.seed, args.turned)}, args.json)
+                      "turned": lambda folder: one_unit(args.sitl, folder, args.seed, args.turned)},
+                     args.json, args.unit)
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -217,7 +217,7 @@ def main(argv: list[str] | None = None) -> int:
     return summarise(f"PX4 SITL {args.build}", workdir,
                      {"good": lambda folder: one_unit(build, folder, args.seed, 0.0),
                       "turned": lambda folder: one_unit(build, folder, args.seed, args.turned),
-                      "swept": lambda folder: swept_unit(build, folder, args.seed)}, args.json)
+                      "swept": lambda folder: swept_unit(build, folder, args.seed)}, args.json, args.unit)
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -79,3 +79,24 @@ def test_the_compensation_the_truth_expects_cancels_the_simulated_current_s_fiel
         raw = np.linalg.solve(m_sim, field + mot_sim * amps) - ofs_sim
         assert m @ (raw + ofs) + mot * amps == pytest.approx(field)
     assert want["COMPASS_MOTCT"] == 2.0
+
+
+def test_a_runner_runs_only_the_units_asked_for_and_names_what_it_has(tmp_path, capsys):
+    """``--unit`` picks units of the tier; one the runner does not have is refused in one line, nothing run."""
+    from magline.sitl.checks import Check, runner_parser, summarise
+
+    ran = []
+
+    def unit(label: str):
+        def run(folder):
+            ran.append(label)
+            return {"unit_info": {"firmware": "4.7.0"}}, [Check(f"{label} check", "x", "y", True)]
+        return run
+
+    units = {name: unit(name) for name in ("good", "turned", "swept")}
+    args = runner_parser("m", "doc", "--source", "tree").parse_args(["--source", "x", "--unit", "swept"])
+    assert summarise("t", tmp_path, units, None, args.unit) == 0
+    assert ran == ["swept"] and "[swept] ok" in capsys.readouterr().out
+    assert summarise("t", tmp_path, units, None, ["sweep"]) == 2
+    assert ran == ["swept"]
+    assert capsys.readouterr().err.strip() == "no unit sweep in this runner: it has good, turned, swept"

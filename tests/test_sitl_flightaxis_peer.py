@@ -14,6 +14,7 @@ from scipy.spatial.transform import Rotation
 
 from magline.sim.load import LoadSim
 from magline.sitl.ardupilot_flightaxis import (
+    FRAME_S,
     GRAVITY_MSS,
     KEYS,
     RC_CHANNELS,
@@ -133,7 +134,17 @@ def test_the_unit_is_held_still_while_the_load_s_input_is_on_and_tumbles_on_from
     resumed_attitude, resumed_gyro = sitl_sees(sitl_parses(exchange(port)))
     assert np.linalg.norm(resumed_gyro) > 10.0
     assert peer.motion_s == stood and (resumed_attitude * held[0][0].inv()).magnitude() < 1e-9  # on from there
-    time.sleep(0.05)
-    later_attitude, _ = sitl_sees(sitl_parses(exchange(port)))
-    assert peer.motion_s - stood >= 0.04  # the tumble's clock runs again
+    for _ in range(20):
+        later_attitude, _ = sitl_sees(sitl_parses(exchange(port)))
+    assert peer.motion_s - stood == pytest.approx(20 * FRAME_S)  # the tumble's clock runs again, a frame an answer
     assert (later_attitude * held[0][0].inv()).magnitude() > 0.0
+
+
+def test_sitl_s_clock_advances_a_frame_per_answer_and_never_ahead_of_the_wall_clock(load_and_peer):
+    """SITL extrapolates while an answer is late and never takes its clock back: against a wall clock it ran
+    ahead and then skipped what it had run past (the unit jumped 7–20°).  Each answer is one frame of physics
+    later than the one before, and is given no sooner than the wall clock reaches it."""
+    _, peer, port = load_and_peer
+    times = [sitl_parses(exchange(port))["m-currentPhysicsTime-SEC"] for _ in range(40)]
+    assert np.diff(times) == pytest.approx(np.full(39, FRAME_S), abs=1e-9)
+    assert time.monotonic() - peer.started >= times[-1]
