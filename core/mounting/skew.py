@@ -134,8 +134,11 @@ def jerk_instants_ms(t_ms: NDArray, accel: NDArray) -> NDArray:
     """The instants (midway between two readings) where gravity jerked (:data:`JERK_FACTOR`)."""
     if len(t_ms) < 2 * JERK_NEIGHBOURS + 2:
         return np.empty(0)
-    g = unit_rows(np.asarray(accel, float))
+    a = np.asarray(accel, float)
+    norm = np.linalg.norm(a, axis=1, keepdims=True)
+    g = np.divide(a, norm, out=np.zeros_like(a), where=norm > 0)  # an empty reading (all zero) turns nothing
     turned = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", g[1:], g[:-1]), -1.0, 1.0)))
+    turned[(norm[1:, 0] == 0) | (norm[:-1, 0] == 0)] = 0.0
     padded = np.pad(turned, JERK_NEIGHBOURS, mode="edge")
     local = np.median(np.lib.stride_tricks.sliding_window_view(padded, 2 * JERK_NEIGHBOURS + 1), axis=1)
     jerked = (turned > JERK_FACTOR * local) & (turned > JERK_FLOOR_DEG)
