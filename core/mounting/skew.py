@@ -47,8 +47,9 @@ SMOOTHING = 0.1
 # and only while the motion is smooth over those windows do the two differ by a delay; across a jerk they
 # differ by their filters' shapes, and one jerk then weighed as much as the whole tumble in the skew and the
 # turn about the axis the unit spins about (ArduCopter SITL's FlightAxis clock jumps: 7–18° in one reading,
-# and a good compass read 1.05° ± 0.10° turned).  A noisy still stream's largest turn is about 3 times its
-# median; a hand's bump, a fixture's step and a simulator's clock jump stand 7 to 25 times above it.
+# and a good compass read 1.05° ± 0.10° turned).  A noisy still stream's largest turn among thousands is about
+# 3.5 times its median (a Rayleigh spread); SITL's clock jumps stood 5 to 26 times above it, the simulated
+# gimbal's pitch steps are jerks too, and a hand's bump would be one.
 JERK_FACTOR = 5.0
 JERK_FLOOR_DEG = 3.0
 JERK_NEIGHBOURS = 25
