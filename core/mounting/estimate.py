@@ -264,7 +264,7 @@ def estimate_mounting(mag_cal: NDArray, t_mag_ms: NDArray, imu: ImuSeries | None
         if np.sign(inclination) != np.sign(dip_deg):  # the mirror is the one whose field dips as the place's
             rotation, inclination = mirror, -inclination
     variance = residual_variance(fit.fun, len(fit.x))
-    information, determined = _information(track, m, t, rotation, inclination, skew, fit.fun)
+    information, determined = _information(track, m, t, rotation, inclination, skew, fit.fun, reach)
     information = information / variance
     if not determined:  # the skew anywhere in the search, as far as the tumble knows (a uniform's σ)
         information[4, 4] += 3.0 / reach**2
@@ -312,13 +312,14 @@ def _shown(sigma_deg: float) -> str:
 
 
 def _information(track: GravityTrack, m: NDArray, t: NDArray, rotation: NDArray, inclination: float, skew: float,
-                 resid: NDArray) -> tuple[NDArray, bool]:
+                 resid: NDArray, reach_ms: float) -> tuple[NDArray, bool]:
     """``JᵀJ`` of the cosine residuals in (rotation vector, inclination, skew), each row weighted as the
     robust fit weighed it.  The skew's column is the gravity's turn over a window as long as the motion
     allows (:data:`TURN_WINDOW_RAD`), and its own entry is the product of two such columns, each from
     every other accelerometer reading: the two carry the same motion and independent noise, so the
     product carries the motion's information and, on average, none of the noise's (a column squared
-    took the noise, differentiated, for information — see the module's docstring)."""
+    took the noise, differentiated, for information — see the module's docstring).  ``reach_ms``: what a
+    magnetometer reading spans either side (no turn across a jerk is read within it)."""
     seen = unit_rows(track.accel_at(t + skew))
     body = m @ rotation.T
     weight = (1.0 + (np.asarray(resid, float) / ROBUST_SCALE) ** 2) ** -0.25  # soft-L1's IRLS weight, its root
@@ -329,7 +330,7 @@ def _information(track: GravityTrack, m: NDArray, t: NDArray, rotation: NDArray,
     # rows whose window reaches past either half's readings are left out whole: a turn clipped at the
     # stream's end is not the motion's, and a row that says "the skew does nothing here" is information
     inside = np.all([(t + skew - half >= h.t_ms[0]) & (t + skew + half <= h.t_ms[-1]) for h in halves], axis=0)
-    inside &= ~track.near_jerk(t + skew, half + reading_span_ms(t))  # a turn across a jerk is not the motion's
+    inside &= ~track.near_jerk(t + skew, half + reach_ms)  # a turn across a jerk is not the motion's
     weight = np.where(inside, weight, 0.0)
     skew_a, skew_b = (np.einsum("ij,ij->i", _turn(h, t + skew, half), body) * weight for h in halves)
     jac = np.column_stack([np.cross(body, seen), np.full(len(m), np.cos(inclination))]) * weight[:, None]

@@ -22,7 +22,7 @@ sphere only the right rotation (up to scale) does.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -69,8 +69,16 @@ class GravityTrack:
     gyro_rads: NDArray | None  # the body's rate at the same stamps, where the stream has it
     gravity: float  # |g| as the accelerometer reads it (the median magnitude)
     period_ms: float  # the stream's median period
-    jerks_ms: NDArray = field(default_factory=lambda: np.empty(0))  # instants of jerks (sorted): nothing paired there
     _spline: SmoothingSpline | None = None  # the accelerometer's smoothing spline, made on first use
+    _jerks: NDArray | None = None  # the jerks' instants, found on first use
+
+    @property
+    def jerks_ms(self) -> NDArray:
+        """The instants of the stream's jerks, sorted: nothing is paired near them (:data:`JERK_FACTOR`).  Found
+        on first use: the halves the skew's information is read from never ask."""
+        if self._jerks is None:
+            self._jerks = jerk_instants_ms(self.t_ms, self.accel)
+        return self._jerks
 
     @classmethod
     def of(cls, t_ms: NDArray, accel: NDArray, gyro_rads: NDArray | None = None) -> GravityTrack:
@@ -85,8 +93,7 @@ class GravityTrack:
             gyro /= count
         mean /= count
         period = float(np.median(np.diff(stamps))) if len(stamps) > 1 else float("inf")
-        return cls(stamps, mean, gyro, float(np.median(np.linalg.norm(mean, axis=1))), period,
-                   jerk_instants_ms(stamps, mean))
+        return cls(stamps, mean, gyro, float(np.median(np.linalg.norm(mean, axis=1))), period)
 
     def near_jerk(self, when_ms: NDArray, reach_ms: float) -> NDArray:
         """Which of ``when_ms`` lie within ``reach_ms`` of a jerk, or within the spline's spread of one."""
