@@ -41,15 +41,15 @@ MIN_PAIRS = 30
 # half a period; with this stiffness the noise is the same everywhere between readings (±2 %) and a
 # rotation of 30° per reading keeps its direction (a circle's is exact) and 99 % of its length.
 SMOOTHING = 0.1
-# A jerk: gravity turned between two accelerometer readings by over JERK_FACTOR times its median turn per
-# reading over JERK_NEIGHBOURS readings either side, and by at least JERK_FLOOR_DEG.  Why left out: each
-# sensor hands on a filtered reading (a compass the mean over its read window, an accelerometer its low-pass),
-# and only while the motion is smooth over those windows do the two differ by a delay; across a jerk they
-# differ by their filters' shapes, and one jerk then weighed as much as the whole tumble in the skew and the
-# turn about the axis the unit spins about (ArduCopter SITL's FlightAxis clock jumps: 7–18° in one reading,
-# and a good compass read 1.05° ± 0.10° turned).  A noisy still stream's largest turn among thousands is about
-# 3.5 times its median (a Rayleigh spread); SITL's clock jumps stood 5 to 26 times above it, the simulated
-# gimbal's pitch steps are jerks too, and a hand's bump would be one.
+# A jerk: gravity turned between two accelerometer readings over JERK_FACTOR times as fast as its median rate over
+# JERK_NEIGHBOURS readings either side (a gap in the stream is not a jerk), and by at least JERK_FLOOR_DEG.  Why
+# left out: each sensor hands on a filtered reading (a compass the mean over its read window, an accelerometer its
+# low-pass), and only while the motion is smooth over those windows do the two differ by a delay; across a jerk
+# they differ by their filters' shapes, and one jerk then weighed as much as the whole tumble in the skew and the
+# turn about the axis the unit spins about (ArduCopter SITL's FlightAxis clock jumps: 7–18° in one reading, and a
+# good compass read 1.05° ± 0.10° turned).  A noisy still stream's largest turn among thousands is about 3.5 times
+# its median (a Rayleigh spread); SITL's clock jumps stood 5 to 26 times above it, the simulated gimbal's pitch
+# steps are jerks too, and a hand's bump would be one.
 JERK_FACTOR = 5.0
 JERK_FLOOR_DEG = 3.0
 JERK_NEIGHBOURS = 25
@@ -147,10 +147,11 @@ def jerk_instants_ms(t_ms: NDArray, accel: NDArray) -> NDArray:
     g = np.divide(a, norm, out=np.zeros_like(a), where=norm > 0)  # an empty reading (all zero) turns nothing
     turned = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", g[1:], g[:-1]), -1.0, 1.0)))
     turned[(norm[1:, 0] == 0) | (norm[:-1, 0] == 0)] = 0.0
-    padded = np.pad(turned, JERK_NEIGHBOURS, mode="edge")
-    local = np.median(np.lib.stride_tricks.sliding_window_view(padded, 2 * JERK_NEIGHBOURS + 1), axis=1)
-    jerked = (turned > JERK_FACTOR * local) & (turned > JERK_FLOOR_DEG)
     t = np.asarray(t_ms, float)
+    rate = turned / np.maximum(np.diff(t), 1e-9)  # per ms: a gap in the stream (messages lost) turns no faster
+    padded = np.pad(rate, JERK_NEIGHBOURS, mode="edge")
+    local = np.median(np.lib.stride_tricks.sliding_window_view(padded, 2 * JERK_NEIGHBOURS + 1), axis=1)
+    jerked = (rate > JERK_FACTOR * local) & (turned > JERK_FLOOR_DEG)
     return (t[1:][jerked] + t[:-1][jerked]) / 2.0
 
 
