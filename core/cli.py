@@ -73,7 +73,9 @@ def main(argv: list[str] | None = None) -> int:
     fit.add_argument("--with-refused", action="store_true",
                      help="a magline export --raw file: pool refused attempts too")
 
-    sub.add_parser("plugins", help="list loaded plugins and their hooks (JSON)")
+    listing = sub.add_parser("plugins", help="list loaded plugins and their hooks (JSON)")
+    listing.add_argument("--options", action="store_true",
+                         help="print the options each plugin takes in a station file (Markdown tables)")
 
     sync = sub.add_parser("sync", help="forward the station's queued records to its results server")
     sync.add_argument("--station", help="station file naming the results store (default: demo)")
@@ -554,6 +556,11 @@ def _drift_words(drift: dict) -> str:
 
 
 def _plugins(args: argparse.Namespace, plugins: Plugins) -> int:
+    if args.options:
+        from magline.core.station.options_reference import options_reference
+
+        print(options_reference(plugins), end="")
+        return 0
     print(json.dumps({"plugins": plugins.describe(), "registered": plugins.registry(),
                       "dut_backends": sorted(plugins.dut_backends),
                       "field_sources": sorted(plugins.field_sources),

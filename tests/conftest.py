@@ -35,6 +35,20 @@ def source_copy(dest: Path) -> Path:
     return dest
 
 
+def installed_plugin(site: Path, module: str, distribution: str, version: str, source: str) -> None:
+    """A third-party distribution as pip leaves it in ``site`` (on ``sys.path`` by the caller): the module
+    ``module`` holding ``source`` and a dist-info whose ``magline`` entry point names it."""
+    package = site / module
+    package.mkdir(parents=True)
+    (package / "__init__.py").write_text(source, encoding="utf-8")
+    info = site / f"{module}-{version}.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {distribution}\nVersion: {version}\n",
+                                   encoding="utf-8")
+    (info / "entry_points.txt").write_text(f"[magline]\n{module.removesuffix('_magline')} = {module}\n",
+                                           encoding="utf-8")
+
+
 def demo_config() -> dict:
     return yaml.safe_load(DEMO.read_text(encoding="utf-8"))
 

@@ -8,6 +8,7 @@ import textwrap
 from typing import ClassVar
 
 import pytest
+from conftest import installed_plugin
 
 from magline.core.cli import main
 from magline.core.plugins import PluginError, hookimpl, load_plugins
@@ -20,9 +21,7 @@ from magline.core.station import load_station
 def third_party(tmp_path, monkeypatch):
     """A tiny installed distribution with a ``magline`` entry point adding DUT backend 'acme'."""
     site = tmp_path / "site"
-    pkg = site / "acme_magline"
-    pkg.mkdir(parents=True)
-    (pkg / "__init__.py").write_text(textwrap.dedent('''
+    installed_plugin(site, "acme_magline", "acme-magline", "1.0", textwrap.dedent('''
         from magline.core.plugins import hookimpl
         from magline.plugins.mock.options import MockOptions
         from magline.plugins.mock.plugin import create_mock_dut
@@ -46,11 +45,7 @@ def third_party(tmp_path, monkeypatch):
             cmd = subparsers.add_parser("acme-hello", help="third-party command")
             cmd.add_argument("who")
             cmd.set_defaults(handler=hello)
-    '''), encoding="utf-8")
-    dist = site / "acme_magline-1.0.dist-info"
-    dist.mkdir()
-    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: acme-magline\nVersion: 1.0\n", encoding="utf-8")
-    (dist / "entry_points.txt").write_text("[magline]\nacme = acme_magline\n", encoding="utf-8")
+    '''))
     monkeypatch.syspath_prepend(str(site))
     yield site
     sys.modules.pop("acme_magline", None)

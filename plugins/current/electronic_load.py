@@ -27,12 +27,17 @@ if TYPE_CHECKING:
 
 
 class LoadCommands(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
-    setup: list[str] = Field(default_factory=list)  # sent once per unit before the input goes on
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True, use_attribute_docstrings=True)
+    setup: list[str] = Field(default_factory=list)
+    """SCPI commands sent once per unit before the input goes on (``{volts}`` is filled in)."""
     set_current: str = "CURR {amps:.3f}"
+    """Sets the current drawn (``{amps}`` is filled in)."""
     input_on: str = "INP ON"
+    """Switches the input on."""
     input_off: str = "INP OFF"
+    """Switches the input off."""
     measure_current: str = "MEAS:CURR?"
+    """Asks for the current measured."""
 
 
 class SupplyCommands(LoadCommands):
@@ -40,21 +45,30 @@ class SupplyCommands(LoadCommands):
     path into a fixed resistor: its compliance voltage first, then its output."""
 
     setup: list[str] = Field(default_factory=lambda: ["VOLT {volts:.3f}"])
+    """SCPI commands sent once per unit before the output goes on (``{volts}`` is filled in)."""
     input_on: str = "OUTP ON"
+    """Switches the output on."""
     input_off: str = "OUTP OFF"
+    """Switches the output off."""
 
 
 class ElectronicLoadOptions(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
-    resource: str  # e.g. TCPIP0::192.168.10.30::5025::SOCKET
-    max_current_a: Annotated[float, Field(gt=0, le=1000)] = 60.0  # the load's rating: never asked for more
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True, use_attribute_docstrings=True)
+    resource: str
+    """The instrument, e.g. TCPIP0::192.168.10.30::5025::SOCKET."""
+    max_current_a: Annotated[float, Field(gt=0, le=1000)] = 60.0
+    """The instrument's rating: it is never asked for more."""
     timeout_s: Annotated[float, Field(gt=0)] = 2.0
-    volts: Annotated[float, Field(gt=0, le=100)] = 12.0  # a supply's compliance voltage ({volts} in setup)
+    """One SCPI reply."""
+    volts: Annotated[float, Field(gt=0, le=100)] = 12.0
+    """A supply's compliance voltage (``{volts}`` in ``commands.setup``)."""
     commands: LoadCommands = Field(default_factory=LoadCommands)
+    """The instrument's SCPI commands (below)."""
 
 
 class BenchSupplyOptions(ElectronicLoadOptions):
     commands: SupplyCommands = Field(default_factory=SupplyCommands)
+    """The supply's SCPI commands (below)."""
 
 
 class ElectronicLoad:

@@ -33,13 +33,18 @@ PROPS_QUESTION = "Are the propellers off? The unit's motors will spin for the cu
 
 
 class MotorTestOptions(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
-    # exits 0 only when the fixture says the propellers are off; none: the operator confirms, every unit
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True, use_attribute_docstrings=True)
     interlock_command: str | None = None
+    """A command that exits 0 only when the fixture says the propellers are off; none: the operator confirms
+    it, every unit."""
     confirm_timeout_s: Annotated[float, Field(gt=0)] = 60.0
+    """How long the operator has to confirm the propellers are off."""
     throttle_max_pct: Annotated[float, Field(gt=0, le=100)] = 60.0
-    step_s: Annotated[float, Field(gt=0, le=60)] = 5.0  # how long each step's spin is asked for
+    """The throttle of the sweep's top step; each motor spins at its fraction of it."""
+    step_s: Annotated[float, Field(gt=0, le=60)] = 5.0
+    """How long each step's spin is asked for."""
     interlock_timeout_s: Annotated[float, Field(gt=0)] = 10.0
+    """The interlock command's run."""
 
 
 class MotorTest:

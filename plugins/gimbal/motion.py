@@ -24,11 +24,15 @@ if TYPE_CHECKING:
 
 
 class GimbalOptions(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
-    resource: str  # e.g. TCPIP0::10.0.0.12::5030::SOCKET
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True, use_attribute_docstrings=True)
+    resource: str
+    """The gimbal's controller, e.g. TCPIP0::10.0.0.12::5030::SOCKET."""
     pattern: Literal["tumble", "gimbal"] = "tumble"
+    """``tumble``: a spherical spiral through every orientation; ``gimbal``: continuous yaw, stepped pitch."""
     speed: Annotated[float, Field(gt=0, le=10)] = 1.0
+    """The pattern's speed (1: the controller's own)."""
     timeout_s: Annotated[float, Field(gt=0)] = 2.0
+    """One SCPI reply."""
 
 
 class GimbalMotion:

@@ -10,26 +10,41 @@ from magline.plugin import ReferenceOptions
 
 
 class HelmholtzOptions(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
-    # Either one three-channel controller (``resource``) or three bipolar single-channel sources,
-    # one per axis x, y, z (``resources``), e.g. TCPIP0::10.0.0.9::5025::SOCKET
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True, use_attribute_docstrings=True)
     resource: str | None = None
+    """One three-channel current controller, e.g. TCPIP0::10.0.0.9::5025::SOCKET (or ``resources``)."""
     resources: Annotated[list[str], Field(min_length=3, max_length=3)] | None = None
-    constants_ut_per_a: Annotated[list[float], Field(min_length=3, max_length=3)]  # per axis, from the coil's data
+    """Three bipolar single-channel sources, one per axis x, y, z (or ``resource``)."""
+    constants_ut_per_a: Annotated[list[float], Field(min_length=3, max_length=3)]
+    """Each axis's field per ampere, µT/A, from the coil's data."""
     max_current_a: Annotated[float, Field(gt=0)] = 1.0
-    field_ut: Annotated[float, Field(gt=0, le=500)] = 50.0  # magnitude of the applied vectors
-    directions: Annotated[int, Field(ge=7, le=500)] = 26  # well spread directions (Fibonacci sphere)
-    zero_steps: Annotated[int, Field(ge=0, le=10)] = 1  # zero-field steps (they pin the offset directly)
-    settle_s: Annotated[float, Field(ge=0)] = 0.1  # after each step, before the DUT is read
+    """The most current any channel is asked for."""
+    field_ut: Annotated[float, Field(gt=0, le=500)] = 50.0
+    """The magnitude of the applied field vectors."""
+    directions: Annotated[int, Field(ge=7, le=500)] = 26
+    """How many well spread directions are applied (a Fibonacci sphere)."""
+    zero_steps: Annotated[int, Field(ge=0, le=10)] = 1
+    """Zero-field steps among them: they pin the offset directly."""
+    settle_s: Annotated[float, Field(ge=0)] = 0.1
+    """After each step, before the unit is read."""
     samples_per_step: Annotated[int, Field(ge=1)] = 10
-    current_tolerance_a: Annotated[float, Field(gt=0)] = 0.005  # read-back vs set, per channel
-    reference: ReferenceOptions  # the fluxgate at the coil centre: nulling and verification
+    """Readings of the unit taken at each step."""
+    current_tolerance_a: Annotated[float, Field(gt=0)] = 0.005
+    """Each channel's read-back current against the current set."""
+    reference: ReferenceOptions
+    """The fluxgate at the coil's centre: it nulls the ambient field and verifies the coil (below)."""
     null_tolerance_ut: Annotated[float, Field(gt=0)] = 0.05
+    """The ambient field left at the centre once nulled."""
     null_iterations: Annotated[int, Field(ge=1, le=50)] = 8
-    warmup_s: Annotated[float, Field(ge=0)] = 2.0  # the field at full current must be stable over this
+    """Nulling steps tried before the coil is an ERROR."""
+    warmup_s: Annotated[float, Field(ge=0)] = 2.0
+    """The field at full current must be stable over this."""
     warmup_limit_ut: Annotated[float, Field(gt=0)] = 0.2
-    verify_tolerance_pct: Annotated[float, Field(gt=0)] = 1.0  # each axis at field_ut against the fluxgate
+    """How much that field may change over ``warmup_s``."""
+    verify_tolerance_pct: Annotated[float, Field(gt=0)] = 1.0
+    """Each axis at ``field_ut`` against the fluxgate."""
     timeout_s: Annotated[float, Field(gt=0)] = 2.0
+    """One instrument's reply."""
 
     @model_validator(mode="after")
     def _one_kind_of_source(self) -> HelmholtzOptions:

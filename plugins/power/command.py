@@ -18,12 +18,17 @@ if TYPE_CHECKING:
 
 
 class CommandOptions(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True, use_attribute_docstrings=True)
     off: Annotated[list[str], Field(min_length=1)]
+    """The command line that switches the unit's power off."""
     on: Annotated[list[str], Field(min_length=1)]
+    """The command line that switches it on."""
     off_time_s: Annotated[float, Field(ge=0)] = 1.0
+    """How long the power stays off."""
     timeout_s: Annotated[float, Field(gt=0)] = 30.0
-    final_state: Literal["on", "as-is"] = "on"  # "on": power is restored if a unit stopped while off
+    """One command's run."""
+    final_state: Literal["on", "as-is"] = "on"
+    """``on``: the power is switched on again if a unit stopped while it was off."""
 
 
 class CommandPower:

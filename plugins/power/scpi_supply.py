@@ -22,15 +22,23 @@ if TYPE_CHECKING:
 
 
 class ScpiSupplyOptions(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
-    resource: str  # e.g. TCPIP0::192.168.10.21::5025::SOCKET or ASRL/dev/ttyUSB0::INSTR
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True, use_attribute_docstrings=True)
+    resource: str
+    """The bench supply, e.g. TCPIP0::192.168.10.21::5025::SOCKET or ASRL/dev/ttyUSB0::INSTR."""
     voltage_v: Annotated[float, Field(gt=0, le=60)] = 5.0
+    """The unit's supply voltage."""
     current_limit_a: Annotated[float, Field(gt=0, le=10)] = 1.5
-    off_time_s: Annotated[float, Field(ge=0)] = 2.0  # long enough for the board's capacitors to drain
-    settle_s: Annotated[float, Field(ge=0)] = 0.5  # after power-on, before the current is measured
+    """The supply's current limit."""
+    off_time_s: Annotated[float, Field(ge=0)] = 2.0
+    """How long the power stays off: long enough for the board's capacitors to drain."""
+    settle_s: Annotated[float, Field(ge=0)] = 0.5
+    """After power-on, before the unit's current is measured."""
     current_window_a: Annotated[list[float], Field(min_length=2, max_length=2)] = [0.05, 1.2]
+    """[low, high]: the current a booting unit draws; outside it the power cycle fails."""
     final_state: Literal["on", "off"] = "on"
+    """The supply's output when the station is done with the unit."""
     timeout_s: Annotated[float, Field(gt=0)] = 2.0
+    """One SCPI reply."""
 
     @model_validator(mode="after")
     def _window(self) -> ScpiSupplyOptions:

@@ -26,13 +26,19 @@ if TYPE_CHECKING:
 
 
 class UsbHubOptions(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
-    location: Annotated[str, Field(min_length=1)]  # the hub, as uhubctl names it: "1-1", "2-1.4"
-    port: Annotated[int, Field(ge=1)]  # the hub's port the slot's cable is in
-    uhubctl: str | Annotated[list[str], Field(min_length=1)] = "uhubctl"  # the program (argv prefix as a list)
-    off_time_s: Annotated[float, Field(ge=0)] = 2.0  # uhubctl's own default for a cycle
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True, use_attribute_docstrings=True)
+    location: Annotated[str, Field(min_length=1)]
+    """The hub, as uhubctl names it: "1-1", "2-1.4"."""
+    port: Annotated[int, Field(ge=1)]
+    """The hub's port the slot's cable is in."""
+    uhubctl: str | Annotated[list[str], Field(min_length=1)] = "uhubctl"
+    """The program that switches the port (a list: the start of its command line)."""
+    off_time_s: Annotated[float, Field(ge=0)] = 2.0
+    """How long the port stays off (uhubctl's own default for a cycle)."""
     timeout_s: Annotated[float, Field(gt=0)] = 20.0
+    """One uhubctl run."""
     final_state: Literal["on", "as-is"] = "on"
+    """``on``: the port is switched on again if a unit stopped while it was off."""
 
 
 class UsbHubPower:

@@ -34,25 +34,38 @@ class TiltStep(BaseModel):
     """One tilt the station file names: the cradle's pitch (nose up +) and roll (right side down +), and
     the words the operator reads (made from the angles when left out)."""
 
-    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True, use_attribute_docstrings=True)
     pitch_deg: Annotated[float, Field(ge=-90, le=90)] = 0.0
+    """The cradle's pitch, nose up positive."""
     roll_deg: Annotated[float, Field(ge=-180, le=180)] = 0.0
+    """The cradle's roll, right side down positive."""
     say: str = ""
+    """What the operator is told (made from the angles when left out)."""
 
 
 class TurntableOptions(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
-    resource: str  # e.g. TCPIP0::10.0.0.14::5050::SOCKET or ASRL/dev/ttyUSB0::INSTR
-    speed_dps: Annotated[float, Field(gt=0, le=720)] = 60.0  # the table's speed during a revolution
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True, use_attribute_docstrings=True)
+    resource: str
+    """The table's controller, e.g. TCPIP0::10.0.0.14::5050::SOCKET or ASRL/dev/ttyUSB0::INSTR."""
+    speed_dps: Annotated[float, Field(gt=0, le=720)] = 60.0
+    """The table's speed during a revolution."""
     direction: Literal["cw", "ccw"] = "cw"
-    # the tilts in order; "coverage": the station chooses each next tilt to cover what the sphere still lacks
+    """The table's direction of turn."""
     tilts: list[TiltStep] | Literal["coverage"] = "coverage"
-    tolerance_deg: Annotated[float, Field(gt=0, le=45)] = 15.0  # the accelerometer against the asked tilt
-    settle_s: Annotated[float, Field(ge=0)] = 1.0  # a tilt held this long is taken (a wrong one named)
-    tilt_timeout_s: Annotated[float, Field(gt=0)] = 60.0  # no tilt made by then: the tumble stalls
-    spin_up_s: Annotated[float, Field(gt=0)] = 2.0  # the table reaches its speed within this
+    """The cradle's tilts in order; ``coverage``: the station chooses each next tilt to cover what the sphere
+    still lacks."""
+    tolerance_deg: Annotated[float, Field(gt=0, le=45)] = 15.0
+    """How far the accelerometer may read from the tilt asked for."""
+    settle_s: Annotated[float, Field(ge=0)] = 1.0
+    """A tilt held this long is taken (a wrong one is named to the operator)."""
+    tilt_timeout_s: Annotated[float, Field(gt=0)] = 60.0
+    """No tilt made by then: the tumble stalls."""
+    spin_up_s: Annotated[float, Field(gt=0)] = 2.0
+    """The table reaches its speed within this."""
     home_timeout_s: Annotated[float, Field(gt=0)] = 30.0
-    timeout_s: Annotated[float, Field(gt=0)] = 2.0  # one SCPI reply
+    """The table finds its home position within this."""
+    timeout_s: Annotated[float, Field(gt=0)] = 2.0
+    """One SCPI reply."""
 
 
 class TurntableMotion:

@@ -24,9 +24,11 @@ SECTION = "acme-feed"
 
 
 class FeedOptions(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True, use_attribute_docstrings=True)
     path: str
+    """The plant's feed file, relative to the station file."""
     parts: list[str] | None = None
+    """Only these part numbers' units (none: every unit)."""
 
 
 @hookimpl

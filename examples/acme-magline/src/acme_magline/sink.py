@@ -14,9 +14,11 @@ from pydantic import BaseModel, ConfigDict
 
 
 class JsonLinesOptions(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
-    path: str = "magline-units.jsonl"  # relative to the station file
-    raw: bool = False  # also write every raw reading of each attempt
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True, use_attribute_docstrings=True)
+    path: str = "magline-units.jsonl"
+    """The JSON Lines file, relative to the station file."""
+    raw: bool = False
+    """Also write every raw reading of each attempt."""
 
 
 class JsonLinesSink:
