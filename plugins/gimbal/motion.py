@@ -30,7 +30,7 @@ class GimbalOptions(BaseModel):
     pattern: Literal["tumble", "gimbal"] = "tumble"
     """``tumble``: a spherical spiral through every orientation; ``gimbal``: continuous yaw, stepped pitch."""
     speed: Annotated[float, Field(gt=0, le=10)] = 1.0
-    """The pattern's speed (1: the controller's own)."""
+    """The pattern's pace, a multiple of its normal rate."""
     timeout_s: Annotated[float, Field(gt=0)] = 2.0
     """One SCPI reply."""
 
