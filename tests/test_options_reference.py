@@ -54,13 +54,13 @@ def wobbler(tmp_path, monkeypatch):
 
 
         class Arm(BaseModel):
-            model_config = ConfigDict(extra="forbid", use_attribute_docstrings=True)
+            model_config = ConfigDict(extra="forbid")
             reach_mm: Annotated[float, Field(gt=0, le=900)] = 450.0
             """How far the arm reaches."""
 
 
         class WobblerOptions(BaseModel):
-            model_config = ConfigDict(extra="forbid", use_attribute_docstrings=True)
+            model_config = ConfigDict(extra="forbid")
             resource: str
             """The wobbler's controller."""
             axes: Annotated[list[float], Field(min_length=3, max_length=3)] = [1.0, 0.0, 0.0]
@@ -69,7 +69,8 @@ def wobbler(tmp_path, monkeypatch):
             log: StationPath = "wobble.log"
             arms: list[Arm] = []
             """The arms, in order."""
-            limit_deg: float | None = None
+            limit_deg: float | None = Field(None, description="The largest wobble.")
+            """Not this: a description given to the field comes first."""
 
 
         @hookimpl
@@ -95,7 +96,7 @@ def test_a_third_party_plugin_s_options_are_printed_with_its_types_defaults_boun
         '| `log` | path (a relative one is beside the station file) | "wobble.log" |  |',
         "| `arms` | list of mapping (below) | [] | The arms, in order. |",
         "| `arms[].reach_mm` | number; > 0, ≤ 900 | 450 | How far the arm reaches. |",
-        "| `limit_deg` | number or null | none |  |",
+        "| `limit_deg` | number or null | none | The largest wobble. |",
     ]
     assert "### `px4`" in out  # the built-ins beside it
 

@@ -24,7 +24,7 @@ if TYPE_CHECKING:
 class ReferenceOptions(BaseModel):
     """``field_source.options.reference`` in a station file."""
 
-    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True, use_attribute_docstrings=True)
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
     resource: str
     """The DAQ the fluxgate's outputs are wired to, e.g. TCPIP0::10.0.0.7::5025::SOCKET."""
     channels: str = "(@101,102,103)"

@@ -2,13 +2,20 @@
 
 Why from the models: a table written by hand goes stale the day an option is added; the models are what
 ``magline check`` validates against, so a table made from them says exactly what a station file may hold —
-each option's type, default, bounds and (from the field's docstring) what it is for.  ``magline plugins
+each option's type, default, bounds and what it is for: the field's ``description``, else the docstring
+written under it in the model's source.  Read here, when a table is asked for, not by pydantic's
+``use_attribute_docstrings`` at every import: parsing the models' source cost every ``magline check`` and
+``run`` about 60 ms of its start.  ``magline plugins
 --options`` prints them for whatever is installed, third-party plugins included; ``docs/plugin-options.md``
 holds magline's own (``python -m magline.core.station.options_reference > docs/plugin-options.md``).
 """
 
 from __future__ import annotations
 
+import ast
+import inspect
+import itertools
+import textwrap
 import types
 import typing
 from dataclasses import dataclass
@@ -53,13 +60,35 @@ class OptionRow:
 def option_rows(model: type[BaseModel], prefix: str = "") -> list[OptionRow]:
     """Every option of ``model``, a nested model's options under its field's name."""
     rows: list[OptionRow] = []
+    written = attribute_docstrings(model)
     for name, field in model.model_fields.items():
         key = prefix + (field.alias or name)
         kind = PATH_WORDS if _is_station_path(field) else type_words(field.annotation)
-        rows.append(OptionRow(key, kind, _default(field), _bounds(field.metadata), (field.description or "").strip()))
+        meaning = inspect.cleandoc(field.description or written.get(name, ""))
+        rows.append(OptionRow(key, kind, _default(field), _bounds(field.metadata), meaning))
         for nested, suffix in _nested_models(field.annotation):
             rows += option_rows(nested, f"{key}{suffix}.")
     return rows
+
+
+def attribute_docstrings(model: type) -> dict[str, str]:
+    """The docstring written under each annotated attribute of ``model`` and of the classes it derives from (a
+    subclass's own first), by attribute name; none where the source cannot be read."""
+    found: dict[str, str] = {}
+    for cls in reversed(model.__mro__):
+        if cls in (BaseModel, object) or not issubclass(cls, BaseModel):
+            continue
+        try:
+            tree = ast.parse(textwrap.dedent(inspect.getsource(cls)))
+        except (OSError, TypeError, SyntaxError):
+            continue
+        body = tree.body[0].body if tree.body and isinstance(tree.body[0], ast.ClassDef) else []
+        for statement, following in itertools.pairwise(body):
+            if (isinstance(statement, ast.AnnAssign) and isinstance(statement.target, ast.Name)
+                    and isinstance(following, ast.Expr) and isinstance(following.value, ast.Constant)
+                    and isinstance(following.value.value, str)):
+                found[statement.target.id] = following.value.value
+    return found
 
 
 def type_words(annotation: Any) -> str:

@@ -8,7 +8,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 
 class ArduPilotOptions(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True, use_attribute_docstrings=True)
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
     connect_timeout_s: Annotated[float, Field(gt=0)] = 10.0
     """The board's first heartbeat within this, else the unit is an ERROR in connect."""
     boot_timeout_s: Annotated[float, Field(gt=0)] = 30.0

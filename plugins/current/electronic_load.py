@@ -27,7 +27,7 @@ if TYPE_CHECKING:
 
 
 class LoadCommands(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True, use_attribute_docstrings=True)
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
     setup: list[str] = Field(default_factory=list)
     """SCPI commands sent once per unit before the input goes on (``{volts}`` is filled in)."""
     set_current: str = "CURR {amps:.3f}"
@@ -53,7 +53,7 @@ class SupplyCommands(LoadCommands):
 
 
 class ElectronicLoadOptions(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True, use_attribute_docstrings=True)
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
     resource: str
     """The instrument, e.g. TCPIP0::192.168.10.30::5025::SOCKET."""
     max_current_a: Annotated[float, Field(gt=0, le=1000)] = 60.0

@@ -33,7 +33,7 @@ PROPS_QUESTION = "Are the propellers off? The unit's motors will spin for the cu
 
 
 class MotorTestOptions(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True, use_attribute_docstrings=True)
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
     interlock_command: str | None = None
     """A command that exits 0 only when the fixture says the propellers are off; none: the operator confirms
     it, every unit."""

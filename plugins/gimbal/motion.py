@@ -24,7 +24,7 @@ if TYPE_CHECKING:
 
 
 class GimbalOptions(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True, use_attribute_docstrings=True)
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
     resource: str
     """The gimbal's controller, e.g. TCPIP0::10.0.0.12::5030::SOCKET."""
     pattern: Literal["tumble", "gimbal"] = "tumble"

@@ -10,7 +10,7 @@ from magline.plugin import ReferenceOptions
 
 
 class HelmholtzOptions(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True, use_attribute_docstrings=True)
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
     resource: str | None = None
     """One three-channel current controller, e.g. TCPIP0::10.0.0.9::5025::SOCKET (or ``resources``)."""
     resources: Annotated[list[str], Field(min_length=3, max_length=3)] | None = None

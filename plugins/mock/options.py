@@ -12,7 +12,7 @@ from magline.plugin import StationPath
 class MockFaults(BaseModel):
     """Faults a test can switch on to prove the station catches them."""
 
-    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True, use_attribute_docstrings=True)
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
     skip_commit: bool = False
     """The unit's commit returns without writing its storage: the calibration is lost at a power cycle."""
     refuse_writes: list[str] = Field(default_factory=list)
@@ -24,7 +24,7 @@ class MockFaults(BaseModel):
 
 
 class MockOptions(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True, use_attribute_docstrings=True)
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
     hard_iron_ut: Annotated[list[float], Field(min_length=3, max_length=3)] = [35.0, -22.0, 61.0]
     """The simulated unit's hard-iron offset, µT, in the sensor's axes."""
     soft_iron: Annotated[list[list[float]], Field(min_length=3, max_length=3)] = [

@@ -18,7 +18,7 @@ if TYPE_CHECKING:
 
 
 class CommandOptions(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True, use_attribute_docstrings=True)
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
     off: Annotated[list[str], Field(min_length=1)]
     """The command line that switches the unit's power off."""
     on: Annotated[list[str], Field(min_length=1)]

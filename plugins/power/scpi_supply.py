@@ -22,7 +22,7 @@ if TYPE_CHECKING:
 
 
 class ScpiSupplyOptions(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True, use_attribute_docstrings=True)
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
     resource: str
     """The bench supply, e.g. TCPIP0::192.168.10.21::5025::SOCKET or ASRL/dev/ttyUSB0::INSTR."""
     voltage_v: Annotated[float, Field(gt=0, le=60)] = 5.0

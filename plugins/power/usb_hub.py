@@ -26,7 +26,7 @@ if TYPE_CHECKING:
 
 
 class UsbHubOptions(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True, use_attribute_docstrings=True)
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
     location: Annotated[str, Field(min_length=1)]
     """The hub, as uhubctl names it: "1-1", "2-1.4"."""
     port: Annotated[int, Field(ge=1)]

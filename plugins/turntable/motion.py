@@ -34,7 +34,7 @@ class TiltStep(BaseModel):
     """One tilt the station file names: the cradle's pitch (nose up +) and roll (right side down +), and
     the words the operator reads (made from the angles when left out)."""
 
-    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True, use_attribute_docstrings=True)
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
     pitch_deg: Annotated[float, Field(ge=-90, le=90)] = 0.0
     """The cradle's pitch, nose up positive."""
     roll_deg: Annotated[float, Field(ge=-180, le=180)] = 0.0
@@ -44,7 +44,7 @@ class TiltStep(BaseModel):
 
 
 class TurntableOptions(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True, use_attribute_docstrings=True)
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
     resource: str
     """The table's controller, e.g. TCPIP0::10.0.0.14::5050::SOCKET or ASRL/dev/ttyUSB0::INSTR."""
     speed_dps: Annotated[float, Field(gt=0, le=720)] = 60.0

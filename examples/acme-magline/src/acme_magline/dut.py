@@ -26,7 +26,7 @@ MSS_PER_MG = 9.80665 / 1000.0
 class AcmeOptions(BaseModel):
     """``products.<part>.options`` of an ACME part, checked by ``magline check``."""
 
-    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True, use_attribute_docstrings=True)
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
     connect_timeout_s: Annotated[float, Field(gt=0)] = 3.0
     """The board answers within this, else the unit is an ERROR in connect."""
     boot_timeout_s: Annotated[float, Field(gt=0)] = 10.0

@@ -24,7 +24,7 @@ SECTION = "acme-feed"
 
 
 class FeedOptions(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True, use_attribute_docstrings=True)
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
     path: str
     """The plant's feed file, relative to the station file."""
     parts: list[str] | None = None

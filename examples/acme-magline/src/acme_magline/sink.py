@@ -14,7 +14,7 @@ from pydantic import BaseModel, ConfigDict
 
 
 class JsonLinesOptions(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True, use_attribute_docstrings=True)
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
     path: str = "magline-units.jsonl"
     """The JSON Lines file, relative to the station file."""
     raw: bool = False
