@@ -5,9 +5,9 @@ Why from the models: a table written by hand goes stale the day an option is add
 each option's type, default, bounds and what it is for: the field's ``description``, else the docstring
 written under it in the model's source.  Read here, when a table is asked for, not by pydantic's
 ``use_attribute_docstrings`` at every import: parsing the models' source cost every ``magline check`` and
-``run`` about 60 ms of its start.  ``magline plugins
---options`` prints them for whatever is installed, third-party plugins included; ``docs/plugin-options.md``
-holds magline's own (``python -m magline.core.station.options_reference > docs/plugin-options.md``).
+``run`` about 60 ms of its start.  ``magline plugins --options`` prints them for whatever is installed,
+third-party plugins included; ``docs/plugin-options.md`` holds magline's own
+(``python -m magline.core.station.options_reference > docs/plugin-options.md``).
 """
 
 from __future__ import annotations
@@ -29,21 +29,17 @@ if TYPE_CHECKING:
 
     from magline.core.plugins import Plugins
 
-# where each kind of registered name goes in a station file
-WHERE = {
-    "dut backend": "products.<part>.options (backend: {name})",
-    "field source": "field_source.options (type: {name})",
-    "result sink": "results[].options (sink: {name})",
-    "power control": "products.<part>.power.options (method: {name})",
-    "motion": "motion.options (type: {name})",
-    "current source": "current_source.options (type: {name})",
-    "plugin options": "plugins.{name}",
+# each kind of registered name: its heading and where its options go in a station file, in a station file's
+# order (top to bottom), which the reference follows
+KINDS = {
+    "dut backend": ("DUT backends", "products.<part>.options (backend: {name})"),
+    "power control": ("Power controls", "products.<part>.power.options (method: {name})"),
+    "field source": ("Field sources", "field_source.options (type: {name})"),
+    "motion": ("Motions", "motion.options (type: {name})"),
+    "current source": ("Current sources", "current_source.options (type: {name})"),
+    "result sink": ("Result sinks", "results[].options (sink: {name})"),
+    "plugin options": ("Plugin sections", "plugins.{name}"),
 }
-
-
-HEADINGS = {"dut backend": "DUT backends", "power control": "Power controls", "field source": "Field sources",
-            "motion": "Motions", "current source": "Current sources", "result sink": "Result sinks",
-            "plugin options": "Plugin sections"}
 
 
 @dataclass(frozen=True)
@@ -107,9 +103,8 @@ def type_words(annotation: Any) -> str:
         return f"mapping of {type_words(args[0])} to {type_words(args[1])}" if args else "mapping"
     if isinstance(annotation, type) and issubclass(annotation, BaseModel):
         return "mapping (below)"
-    return {float: "number", int: "integer", str: "text", bool: "true or false"}.get(annotation,
-                                                                                    getattr(annotation, "__name__",
-                                                                                            str(annotation)))
+    plain = {float: "number", int: "integer", str: "text", bool: "true or false"}
+    return plain.get(annotation) or getattr(annotation, "__name__", str(annotation))
 
 
 PATH_WORDS = "path (a relative one is beside the station file)"
@@ -187,8 +182,8 @@ def _nested_models(annotation: Any) -> list[tuple[type[BaseModel], str]]:
 
 
 def _order(kind: str) -> tuple[int, str]:
-    """Kinds in :data:`HEADINGS`' order (a station file's, top to bottom), any other after them."""
-    known = list(HEADINGS)
+    """Kinds in :data:`KINDS`' order, any other after them."""
+    known = list(KINDS)
     return (known.index(kind), kind) if kind in known else (len(known), kind)
 
 
@@ -218,9 +213,10 @@ def options_reference(plugins: Plugins, distributions: set[str] | None = None) -
         source = f"plugin `{by}`" + (f" ({dist} {version})" if dist is not None and dist != "magline" else "")
         by_kind.setdefault(kind, []).append((name, model, source))
     for kind, entries in sorted(by_kind.items(), key=lambda item: _order(item[0])):
-        lines += ["", f"## {HEADINGS.get(kind, kind)}"]
+        heading, where_of = KINDS.get(kind, (kind, "{name}"))
+        lines += ["", f"## {heading}"]
         for name, model, source in entries:
-            where = WHERE.get(kind, "{name}").format(name=name)
+            where = where_of.format(name=name)
             lines += ["", f"### `{name}`", "", f"In a station file: `{where}`. Registered by {source}.", ""]
             lines += markdown_table(model)
     return "\n".join(lines).lstrip("\n") + "\n"
