@@ -43,9 +43,13 @@ class Register(Protocol):
 
     ``Model`` (a pydantic model, optional) declares the options the name takes in a station file:
     ``magline check`` validates them with file, key and line, and the factory receives them
-    validated (an instance of ``Model``)."""
+    validated (an instance of ``Model``).  Either may be named by where it lives —
+    ``register(name, "package.module:create", options="package.module:Model")`` — and is then imported when
+    first needed: the model when a station file uses the name (or a reference table lists it), the factory
+    at its first call.  Why: every command registers every plugin, and what a plugin imports at registration
+    costs each command's start, ``magline --help`` and ``magline check`` included."""
 
-    def __call__(self, name: str, factory: Callable[..., Any], options: type[BaseModel] | None = None,
+    def __call__(self, name: str, factory: Callable[..., Any] | str, options: type[BaseModel] | str | None = None,
                  stores: dict[str, str] | None = None) -> None: ...
 
 
@@ -177,11 +181,12 @@ def magline_register_measurements(register: RegisterMeasurement) -> None:
 
 
 @hookspec
-def magline_register_plugin_options(register: Callable[[str, type[BaseModel]], None]) -> None:
+def magline_register_plugin_options(register: Callable[[str, type[BaseModel] | str], None]) -> None:
     """Declare a section of the station file's ``plugins:`` for a plugin that is not a registered backend,
     sink or source — a listener such as a plant feed.  Called once at start-up.
 
-    :param register: call ``register(section, Model)``: ``plugins.<section>`` in a station file is
+    :param register: call ``register(section, Model)`` (or ``register(section, "package.module:Model")``,
+        imported when a station file has the section): ``plugins.<section>`` in a station file is
         validated against the pydantic ``Model`` by ``magline check`` (file, key and line), and the plugin
         reads it during a run with ``run.plugin_options(section)`` (an instance of ``Model``; None when the
         station file has no such section: the plugin then does nothing).  A section registered twice, or a

@@ -14,7 +14,9 @@ from __future__ import annotations
 
 import logging
 import os
-from collections.abc import Callable
+import re
+from collections.abc import Callable, Iterator, Mapping
+from importlib import import_module
 from importlib.metadata import Distribution, entry_points
 from types import ModuleType
 from typing import TYPE_CHECKING, Any
@@ -42,6 +44,98 @@ def _plugin_name(impl: Any) -> str:
 
 class PluginError(RuntimeError):
     """A plugin could not be loaded or registered something invalid."""
+
+
+# where a model lives: "package.module:Class" (a class nested in another: "package.module:Outer.Inner")
+_PLACE = re.compile(r"^[A-Za-z_]\w*(\.[A-Za-z_]\w*)*:[A-Za-z_]\w*(\.[A-Za-z_]\w*)*$")
+
+
+def _object_at(place: str, what: str) -> object:
+    """What ``"package.module:Name"`` names, imported now; ``what`` says whose it is when it cannot be."""
+    module, _, qualname = place.partition(":")
+    try:
+        found: object = import_module(module)
+        for part in qualname.split("."):
+            found = getattr(found, part)
+    except Exception as exc:  # a plugin's broken module must say whose it is
+        raise PluginError(f"{what} cannot be imported: {type(exc).__name__}: {exc}") from exc
+    return found
+
+
+class FactoryAt:
+    """A factory registered by where it lives (``register(name, "package.module:create", ...)``): imported at
+    its first call, so that registering costs no import of what only a unit's run uses."""
+
+    def __init__(self, place: str, what: str) -> None:
+        self.place, self._what, self._factory = place, what, None
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Any:
+        if self._factory is None:
+            factory = _object_at(self.place, self._what)
+            if not callable(factory):
+                raise PluginError(f"{self._what} is not callable")
+            self._factory = factory
+        return self._factory(*args, **kwargs)
+
+    def __repr__(self) -> str:
+        return f"FactoryAt({self.place!r})"
+
+
+class OptionModels(Mapping[tuple[str, str], type]):
+    """``(kind, name) → model``: the options models plugins registered, each imported the first time it is read.
+
+    A plugin names its model either as the class (``options=AcmeOptions``) or as where it lives
+    (``options="acme.options:AcmeOptions"``).  Why the second: every command registers every plugin, and
+    importing each one's pydantic model cost ``magline check`` a tenth of a second on a slow host for backends
+    and rigs its station file never names; named by place, a model is imported when a station file uses its
+    name, or a reference table lists it."""
+
+    def __init__(self) -> None:
+        self._declared: dict[tuple[str, str], type | str] = {}
+        self._by: dict[tuple[str, str], str] = {}
+
+    def declare(self, key: tuple[str, str], options: object, by: str) -> None:
+        """Keep ``options`` (a class, or ``"module:Class"``) for ``key``, registered by plugin ``by``; a
+        place is checked for its form now and imported when first read."""
+        if isinstance(options, str):
+            if not _PLACE.match(options):
+                raise PluginError(f"plugin {by!r}: the options of {key[0]} {key[1]!r} are named "
+                                  f"{options!r}; a model is named 'package.module:Class'")
+        elif not isinstance(options, type):
+            raise PluginError(f"plugin {by!r}: the options of {key[0]} {key[1]!r} must be a pydantic model "
+                              f"class or 'package.module:Class', not {type(options).__name__}")
+        self._declared[key], self._by[key] = options, by
+
+    def class_name(self, key: tuple[str, str]) -> str:
+        """The model's class name, without importing it (for ``magline plugins``)."""
+        declared = self._declared[key]
+        return declared.rpartition(":")[2].rpartition(".")[2] if isinstance(declared, str) else declared.__name__
+
+    def __getitem__(self, key: tuple[str, str]) -> type:
+        declared = self._declared[key]
+        if isinstance(declared, type):
+            return declared
+        model = self._imported(key, declared)
+        self._declared[key] = model  # imported once: the class from then on
+        return model
+
+    def _imported(self, key: tuple[str, str], place: str) -> type:
+        from pydantic import BaseModel
+
+        what = f"plugin {self._by[key]!r}: the options model {place!r} of {key[0]} {key[1]!r}"
+        model = _object_at(place, what)
+        if not (isinstance(model, type) and issubclass(model, BaseModel)):
+            raise PluginError(f"{what} is not a pydantic model")
+        return model
+
+    def __contains__(self, key: object) -> bool:
+        return key in self._declared  # asking whether a model was registered imports none
+
+    def __iter__(self) -> Iterator[tuple[str, str]]:
+        return iter(self._declared)
+
+    def __len__(self) -> int:
+        return len(self._declared)
 
 
 class Plugins:
@@ -101,7 +195,7 @@ class Plugins:
         self.current_sources: dict[str, Callable[..., Any]] = {}
         # options models a plugin declared at registration (``register(name, factory, options=Model)``),
         # so ``magline check`` validates a product's options before any unit is connected
-        self.option_models: dict[tuple[str, str], type] = {}
+        self.option_models = OptionModels()
         # where each DUT backend can keep a calibration (a product's ``persist``), each in the backend's
         # words: ``register(name, factory, stores={"parameters": "…", "factory-storage": "…"})``
         self.calibration_stores: dict[str, dict[str, str]] = {}
@@ -117,8 +211,7 @@ class Plugins:
         # limit beside magline's catalogue
         self.measurements: dict[str, DeclaredMeasurement] = {}
         self._declare_measurements()
-        # the station file's ``plugins:`` sections, each with the options model its plugin registered
-        self.plugin_sections: dict[str, type] = {}
+        self.plugin_sections: dict[str, str] = {}  # section → the plugin that registered it
         self._plugin_sections()
 
     def _collect(self, kind: str, registry: dict[str, Any], hook: Any) -> None:
@@ -135,10 +228,17 @@ class Plugins:
                 if name in registry:
                     raise PluginError(f"{kind} {name!r} is registered twice (by plugin "
                                       f"{self.registered_by[(kind, name)]!r} and by plugin {_by!r})")
+                if isinstance(factory, str):
+                    if not _PLACE.match(factory):
+                        raise PluginError(f"plugin {_by!r}: the factory of {kind} {name!r} is named {factory!r}; "
+                                          "a factory is a callable or 'package.module:function'")
+                    factory = FactoryAt(factory, f"plugin {_by!r}: the factory {factory!r} of {kind} {name!r}")
+                elif not callable(factory):
+                    raise PluginError(f"plugin {_by!r}: the factory of {kind} {name!r} is not callable")
                 registry[name] = factory
                 self.registered_by[(kind, name)] = _by
                 if options is not None:
-                    self.option_models[(kind, name)] = options
+                    self.option_models.declare((kind, name), options, _by)
                 if stores is not None:
                     if kind != "dut backend" or "parameters" not in stores:
                         raise PluginError(f"plugin {_by!r}: stores= belongs to a DUT backend, and every backend "
@@ -173,14 +273,14 @@ class Plugins:
         for impl in reversed(self.hook.magline_register_plugin_options.get_hookimpls()):
             by = _plugin_name(impl)
 
-            def register(section: str, options: type, _by: str = by) -> None:
+            def register(section: str, options: type | str, _by: str = by) -> None:
                 if not isinstance(section, str) or not section:
                     raise PluginError(f"plugin {_by!r}: a plugins: section must be registered under a non-empty name")
                 if section in self.plugin_sections:
                     raise PluginError(f"plugins: section {section!r} is registered twice (by plugin "
                                       f"{self.registered_by[('plugin options', section)]!r} and by plugin {_by!r})")
-                self.plugin_sections[section] = options
-                self.option_models[("plugin options", section)] = options
+                self.option_models.declare(("plugin options", section), options, _by)
+                self.plugin_sections[section] = _by
                 self.registered_by[("plugin options", section)] = _by
 
             impl.function(register=register)
@@ -243,9 +343,9 @@ class Plugins:
         out: dict[str, dict[str, dict[str, Any]]] = {}
         for (kind, name), by in sorted(self.registered_by.items()):
             dist, version = self.versions.get(by, (None, None))
-            model = self.option_models.get((kind, name))
+            options = self.option_models.class_name((kind, name)) if (kind, name) in self.option_models else None
             out.setdefault(kind, {})[name] = {"plugin": by, "distribution": dist, "version": version,
-                                              "options": model.__name__ if model is not None else None}
+                                              "options": options}
         return out
 
 

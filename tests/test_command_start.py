@@ -57,6 +57,26 @@ def test_the_help_imports_no_station_reading_and_no_arithmetic():
                                    capture_output=True, timeout=120, check=True).stdout  # a plugin's command
 
 
+# every built-in plugin's options model, or the module holding it with its factory
+OPTIONS_MODULES = {"mock": "magline.plugins.mock.options", "px4": "magline.plugins.px4.options",
+                   "ardupilot": "magline.plugins.ardupilot.options", "inav": "magline.plugins.inav.options",
+                   "helmholtz": "magline.plugins.helmholtz.options", "gimbal": "magline.plugins.gimbal.motion",
+                   "turntable": "magline.plugins.turntable.motion", "command": "magline.plugins.power.command",
+                   "scpi-supply": "magline.plugins.power.scpi_supply", "usb-hub": "magline.plugins.power.usb_hub",
+                   "electronic-load": "magline.plugins.current.electronic_load",
+                   "motor-test": "magline.plugins.current.motor_test"}
+
+
+@pytest.mark.parametrize(("station", "uses"), [("stations/demo.yaml", {"mock"}),
+                                               ("stations/px4-sim.yaml", {"px4"}),
+                                               ("stations/helmholtz-sim.yaml", {"helmholtz", "mock"}),
+                                               ("stations/turntable-sim.yaml", {"turntable", "px4"})])
+def test_check_imports_the_options_models_of_the_plugins_its_station_names_and_no_other(station, uses):
+    code, modules = imported_by("check", station)
+    assert code == 0
+    assert {name for name, module in OPTIONS_MODULES.items() if module in modules} == uses
+
+
 def test_the_commands_that_use_them_still_find_them():
     """The probe sees imports: ``magline fit`` imports SciPy's optimiser on use, and ``history`` the store."""
     code, modules = imported_by("fit", "--help")

@@ -214,3 +214,115 @@ def test_a_plugins_path_option_is_read_beside_the_station_file_as_the_stations_o
     assert TableOptions(table="cal/table.csv").table == "cal/table.csv"
     with pytest.raises(ValueError, match=r"options\.table"):
         plugins.options("dut backend", "acme-table", {"table": 3}, "products.P.options", line)
+
+
+@pytest.fixture
+def placed(tmp_path, monkeypatch):
+    """An installed distribution whose backend names its factory and options model by place
+    (``"package.module:Name"``), their module apart from the one its entry point loads."""
+    site = tmp_path / "site"
+    installed_plugin(site, "placed_magline", "placed-magline", "2.1", textwrap.dedent('''
+        from magline.core.plugins import hookimpl
+
+        @hookimpl
+        def magline_register_dut_backends(register):
+            register("placed", "placed_magline.backend:create", options="placed_magline.backend:PlacedOptions")
+    '''))
+    (site / "placed_magline" / "backend.py").write_text(textwrap.dedent('''
+        from magline.plugins.mock.options import MockOptions
+        from magline.plugins.mock.plugin import create_mock_dut
+
+        CREATED = []
+
+        class PlacedOptions(MockOptions):
+            bench: str = "bench-1"
+
+        def create(product, options):
+            CREATED.append(options.bench)
+            return create_mock_dut(product, options)
+    '''), encoding="utf-8")
+    monkeypatch.syspath_prepend(str(site))
+    yield site
+    for name in ("placed_magline", "placed_magline.backend"):
+        sys.modules.pop(name, None)
+
+
+def test_a_factory_and_options_model_named_by_place_are_imported_when_a_station_uses_them(
+        placed, make_station, tmp_path, capsys):
+    """Registering, listing and checking a station that names other backends import nothing of the plugin's
+    module; a station naming the backend has its options checked against the model (file, key and line), and
+    a unit runs through the factory."""
+    plugins = load_plugins()
+    assert "placed" in plugins.dut_backends and "placed_magline.backend" not in sys.modules
+    assert main(["plugins"]) == 0
+    listed = json.loads(capsys.readouterr().out)["registered"]["dut backend"]["placed"]
+    assert listed["options"] == "PlacedOptions" and listed["version"] == "2.1"
+    assert main(["check", str(make_station())]) == 0
+    assert "placed_magline.backend" not in sys.modules
+
+    wrong = make_station({"products": {"MOCK-100": {"backend": "placed", "options": {"bench": 3}}}}, name="w.yaml")
+    assert main(["check", str(wrong)]) == 2
+    assert "w.yaml:" in (err := capsys.readouterr().err) and "products.MOCK-100.options.bench" in err
+    path = make_station({"products": {"MOCK-100": {"backend": "placed", "options": {"bench": "bench-7"}}}})
+    seq = Sequencer(load_station(path), load_plugins(), tmp_path, sleep=lambda s: None)
+    record = seq.run_unit("PL-1")
+    seq.close()
+    import placed_magline.backend
+
+    assert record.verdict is Outcome.PASS and placed_magline.backend.CREATED == ["bench-7"]
+
+
+@pytest.mark.parametrize(("factory", "options", "said"), [
+    ("placed_magline.backend.create", None, r"the factory of dut backend 'odd' is named 'placed_magline.backend"
+                                            r"\.create'; a factory is a callable or 'package.module:function'"),
+    (lambda product, options: None, "placed_magline.backend", r"a model is named 'package.module:Class'"),
+    (lambda product, options: None, {"bench": str}, r"must be a pydantic model class or 'package.module:Class', "
+                                                    r"not dict"),
+    ("placed_magline.backend", None, r"a factory is a callable"),
+])
+def test_a_place_of_the_wrong_form_is_refused_at_registration_naming_the_plugin(factory, options, said):
+    class Odd:
+        @hookimpl
+        def magline_register_dut_backends(self, register):
+            register("odd", factory, options=options)
+
+    with pytest.raises(PluginError, match=r"plugin 'Odd': .*" + said):
+        load_plugins(extra=[Odd()])
+
+
+@pytest.mark.parametrize(("options", "said"), [
+    ("placed_magline.gone:PlacedOptions", r"cannot be imported: ModuleNotFoundError: No module named "
+                                          r"'placed_magline.gone'"),
+    ("placed_magline.backend:Missing", "cannot be imported: AttributeError"),
+    ("placed_magline.backend:create", "is not a pydantic model"),
+])
+def test_a_place_that_names_no_model_is_an_error_of_the_plugin_when_a_station_uses_it(
+        placed, make_station, capsys, options, said):
+    """The form is right, what it names is not: the first station naming the backend is refused by ``magline
+    check`` with the plugin and the place, not a traceback, and a station that does not name it is unharmed."""
+    class Odd:
+        @hookimpl
+        def magline_register_dut_backends(self, register):
+            register("odd", "placed_magline.backend:create", options=options)
+
+    from magline.core.station import read_station_text, station_problems
+
+    plugins = load_plugins(extra=[Odd()])
+    good = make_station()
+    assert station_problems(read_station_text(good), str(good), plugins)[1] == []
+    odd = make_station({"products": {"MOCK-100": {"backend": "odd"}}}, name="o.yaml")
+    with pytest.raises(PluginError, match=rf"plugin 'Odd': the options model '{options}' of dut backend 'odd' "
+                                          + said):
+        station_problems(read_station_text(odd), str(odd), plugins)
+
+
+def test_a_factory_whose_place_names_nothing_fails_the_unit_with_the_plugin_named(placed):
+    class Odd:
+        @hookimpl
+        def magline_register_dut_backends(self, register):
+            register("odd", "placed_magline.backend:gone")
+
+    factory = load_plugins(extra=[Odd()]).dut_backends["odd"]
+    with pytest.raises(PluginError, match=r"plugin 'Odd': the factory 'placed_magline.backend:gone' of dut backend "
+                                          r"'odd' cannot be imported: AttributeError"):
+        factory(None, {})

@@ -22,9 +22,7 @@ def create_ardupilot_dut(product: Product, options: ArduPilotOptions) -> ArduPil
 
 @hookimpl
 def magline_register_dut_backends(register):
-    from magline.plugins.ardupilot.options import ArduPilotOptions
-
-    register("ardupilot", create_ardupilot_dut, options=ArduPilotOptions, stores={
+    register("ardupilot", create_ardupilot_dut, options="magline.plugins.ardupilot.options:ArduPilotOptions", stores={
         "parameters": "COMPASS_OFS/DIA/ODI/MOT in the parameter storage; ArduPilot's persistent parameters in "
                       "the bootloader sector hold IMU temperature calibration, accelerometer ids and OpenDroneID "
                       "only (AP_HAL_ChibiOS/Util.cpp), no factory store for the compass"})

@@ -8,14 +8,10 @@ from magline.plugin import hookimpl
 
 @hookimpl
 def magline_register_current_sources(register):
-    from magline.plugins.current.electronic_load import (
-        BenchSupplyOptions,
-        ElectronicLoadOptions,
-        create_bench_supply,
-        create_electronic_load,
-    )
-    from magline.plugins.current.motor_test import MotorTestOptions, create_motor_test
-
-    register("electronic-load", create_electronic_load, options=ElectronicLoadOptions)
-    register("bench-supply", create_bench_supply, options=BenchSupplyOptions)
-    register("motor-test", create_motor_test, options=MotorTestOptions)
+    # named by place: each source's module is imported when a station file uses it
+    register("electronic-load", "magline.plugins.current.electronic_load:create_electronic_load",
+             options="magline.plugins.current.electronic_load:ElectronicLoadOptions")
+    register("bench-supply", "magline.plugins.current.electronic_load:create_bench_supply",
+             options="magline.plugins.current.electronic_load:BenchSupplyOptions")
+    register("motor-test", "magline.plugins.current.motor_test:create_motor_test",
+             options="magline.plugins.current.motor_test:MotorTestOptions")

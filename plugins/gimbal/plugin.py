@@ -7,6 +7,6 @@ from magline.plugin import hookimpl
 
 @hookimpl
 def magline_register_motions(register):
-    from magline.plugins.gimbal.motion import GimbalOptions, create_gimbal_motion
-
-    register("gimbal", create_gimbal_motion, options=GimbalOptions)
+    # named by place: the rig's module is imported when a station file uses it
+    register("gimbal", "magline.plugins.gimbal.motion:create_gimbal_motion",
+             options="magline.plugins.gimbal.motion:GimbalOptions")

@@ -20,9 +20,7 @@ if TYPE_CHECKING:
 
 @hookimpl
 def magline_register_field_sources(register):
-    from magline.plugins.helmholtz.options import HelmholtzOptions
-
-    register("helmholtz", create_helmholtz_field, options=HelmholtzOptions)
+    register("helmholtz", create_helmholtz_field, options="magline.plugins.helmholtz.options:HelmholtzOptions")
 
 
 def create_helmholtz_field(station: Any, options: HelmholtzOptions) -> HelmholtzField:

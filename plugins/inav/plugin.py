@@ -20,7 +20,5 @@ def create_inav_dut(product: Product, options: InavOptions) -> InavDut:
 
 @hookimpl
 def magline_register_dut_backends(register):
-    from magline.plugins.inav.options import InavOptions
-
-    register("inav", create_inav_dut, options=InavOptions, stores={
+    register("inav", create_inav_dut, options="magline.plugins.inav.options:InavOptions", stores={
         "parameters": "magzero/maggain/align_mag in INAV's EEPROM settings; INAV has no factory calibration store"})

@@ -22,7 +22,5 @@ def create_mock_dut(product: Product, options: MockOptions) -> MockDut:
 
 @hookimpl
 def magline_register_dut_backends(register):
-    from magline.plugins.mock.options import MockOptions
-
-    register("mock", create_mock_dut, options=MockOptions)
+    register("mock", create_mock_dut, options="magline.plugins.mock.options:MockOptions")
 

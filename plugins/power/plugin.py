@@ -7,10 +7,10 @@ from magline.plugin import hookimpl
 
 @hookimpl
 def magline_register_power_controls(register):
-    from magline.plugins.power.command import CommandOptions, create_command_power
-    from magline.plugins.power.scpi_supply import ScpiSupplyOptions, create_scpi_supply
-    from magline.plugins.power.usb_hub import UsbHubOptions, create_usb_hub_power
-
-    register("scpi-supply", create_scpi_supply, options=ScpiSupplyOptions)
-    register("command", create_command_power, options=CommandOptions)
-    register("usb-hub", create_usb_hub_power, options=UsbHubOptions)
+    # named by place: each control's module is imported when a station file uses it
+    register("scpi-supply", "magline.plugins.power.scpi_supply:create_scpi_supply",
+             options="magline.plugins.power.scpi_supply:ScpiSupplyOptions")
+    register("command", "magline.plugins.power.command:create_command_power",
+             options="magline.plugins.power.command:CommandOptions")
+    register("usb-hub", "magline.plugins.power.usb_hub:create_usb_hub_power",
+             options="magline.plugins.power.usb_hub:UsbHubOptions")

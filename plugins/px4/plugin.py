@@ -20,9 +20,7 @@ def create_px4_dut(product: Product, options: Px4Options) -> Px4Dut:
 
 @hookimpl
 def magline_register_dut_backends(register):
-    from magline.plugins.px4.options import Px4Options
-
-    register("px4", create_px4_dut, options=Px4Options, stores={
+    register("px4", create_px4_dut, options="magline.plugins.px4.options:Px4Options", stores={
         "parameters": "CAL_MAGn_* in the parameter file, which a reset to defaults erases",
         "factory-storage": "PX4's factory calibration store (/fs/mtd_caldata), written by the commander's gyro "
                            "calibration with SYS_FAC_CAL_MODE = 1 and loaded at boot under the user's parameters"})

@@ -7,6 +7,6 @@ from magline.plugin import hookimpl
 
 @hookimpl
 def magline_register_motions(register):
-    from magline.plugins.turntable.motion import TurntableOptions, create_turntable_motion
-
-    register("turntable", create_turntable_motion, options=TurntableOptions)
+    # named by place: the rig's module is imported when a station file uses it
+    register("turntable", "magline.plugins.turntable.motion:create_turntable_motion",
+             options="magline.plugins.turntable.motion:TurntableOptions")
