@@ -183,8 +183,8 @@ def main(argv: list[str] | None = None) -> int:
     if since and until and since >= until:  # both in the stored form: the same zone and layout, so ordered as text
         _err(f"--since {since} is not before --until {until}: no run can start in that window (swapped?)")
         return 2
-    if hasattr(args, "handler"):
-        return args.handler(args)
+    if hasattr(args, "handler"):  # a plugin's command: its reader may go away too
+        return _quiet_broken_pipe(lambda: args.handler(args))
     handler = {"run": _run, "check": _check, "fit": _fit, "plugins": _plugins, "history": _history,
                "show": _show, "export": _export, "sync": _sync, "spc": _spc, "report": _report,
                "station": _station, "slots": _slots, "ports": _ports, "dashboard": _dashboard}

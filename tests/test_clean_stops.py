@@ -154,6 +154,18 @@ def test_fit_piped_into_head_exits_quietly(tmp_path):
     assert proc.stdout.startswith("model") and proc.stderr == ""
 
 
+def test_a_simulator_whose_reader_went_away_stops_quietly_on_sigterm():
+    """A plugin's command (``magline sim``) started by a program that then died: its last line goes to a
+    broken pipe, and it stops without a traceback."""
+    proc = subprocess.Popen([sys.executable, "-m", "magline.core.cli", "sim", "gimbal", "--listen",
+                             "tcp:127.0.0.1:0"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert proc.stdout.readline().startswith("listening on")
+    proc.stdout.close()  # the reader is gone
+    proc.send_signal(signal.SIGTERM)
+    assert proc.wait(timeout=60) == 0
+    assert proc.stderr.read() == ""
+
+
 def test_example_stations_that_are_different_stations_have_different_ids():
     ids = {}
     for path in sorted((REPO / "stations").glob("*.yaml")):
