@@ -84,12 +84,11 @@ class LinkReboot:
 
 
 def create_link_reboot(config: PowerConfig, station_dir: Path, options: dict) -> LinkReboot:
-    if config.options:
-        raise ValueError(f"{config.method} takes no options (got {', '.join(config.options)})")
     return LinkReboot()
 
 
 @hookimpl
 def magline_register_power_controls(register):
-    register("link-reboot", create_link_reboot)
-    register("mavlink-reboot", create_link_reboot)  # the former name: station files that say it keep working
+    register("link-reboot", create_link_reboot, options="magline.core.no_options:NoOptions")
+    # the former name: station files that say it keep working
+    register("mavlink-reboot", create_link_reboot, options="magline.core.no_options:NoOptions")

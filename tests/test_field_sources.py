@@ -49,9 +49,9 @@ def _with_field_source(path, source: dict):
     return path
 
 
-def _wmm_station(make_station, reference: dict | None = None, date: str = "2026-11-22"):
+def _wmm_station(make_station, reference: dict | None = None, date: str | dt.date = "2026-11-22"):
     options = {"date": date, **({"reference": reference} if reference else {})}
-    path = make_station({"products": {"MOCK-100": {"options": {"field_ut": _zurich_ut(date)}}}})
+    path = make_station({"products": {"MOCK-100": {"options": {"field_ut": _zurich_ut(str(date))}}}})
     return _with_field_source(path, {"type": "wmm", "options": options})
 
 
@@ -101,10 +101,48 @@ def test_a_drifting_reference_stops_the_batch_and_refuses_later_units(make_stati
     assert [p.name for p in third.phases if p.outcome is not Outcome.SKIPPED] == ["identify", "connect", "record"]
 
 
-def test_unknown_wmm_option_is_named(make_station, capsys):
-    path = _with_field_source(make_station(), {"type": "wmm", "options": {"dat": "2026-01-01"}})
-    assert main(["run", str(path), "--serial", "X"]) == 2
-    assert "unknown option(s) dat for wmm" in capsys.readouterr().err
+@pytest.mark.parametrize(("source", "said"), [
+    ({"type": "wmm", "options": {"dat": "2026-01-01"}}, "field_source.options.dat: unknown key (did you mean 'date'?)"),
+    ({"type": "wmm", "options": {"date": "2026-13-01"}}, "field_source.options.date: Input should be a valid date"),
+    ({"type": "fixed", "options": {"feld_ut": 48.0}}, "field_source.options.field_ut: required key is missing"),
+    ({"type": "fixed", "options": {"field_ut": "48"}}, "field_source.options.field_ut: Input should be a valid "
+                                                       "number (got str '48')"),
+    ({"type": "fixed", "options": {"field_ut": 4800.0}}, "field_source.options.field_ut: Input should be less than "
+                                                         "or equal to 1000"),
+    ({"type": "fixed", "options": {"field_ut": 48.0, "inclination_deg": 95}}, "field_source.options."
+                                                                              "inclination_deg: Input should be less"),
+    ({"type": "fixed", "options": {"field_ut": 48.0, "reference": {"resource": "TCPIP0::x", "tolerance_ut": 0}}},
+     "field_source.options.reference.tolerance_ut: Input should be greater than 0"),
+])
+def test_a_field_sources_wrong_option_is_told_by_check_with_its_line_and_no_unit_is_run(make_station, capsys,
+                                                                                          source, said):
+    """``fixed`` and ``wmm`` declare their options: a misspelt, mistyped or impossible one is named by ``magline
+    check`` with the file's line, and ``magline run`` refuses the station before any unit."""
+    path = _with_field_source(make_station(), source)
+    lines = path.read_text(encoding="utf-8").splitlines()
+    key = said.split(":")[0].split(".")[-1] if "missing" not in said else "options"  # a missing key: its mapping
+    start = lines.index("field_source:")
+    line = next(n for n, text in enumerate(lines[start:], start + 1) if text.strip().startswith(f"{key}:"))
+    for argv in (["check", str(path)], ["run", str(path), "--serial", "X"]):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert f"{path}:{line}: {said}" in err, err
+    assert not (path.parent / "magline-demo-results.sqlite").exists()
+
+
+def test_a_wmm_date_written_as_a_yaml_date_or_as_text_is_the_same_day(make_station):
+    """YAML reads an unquoted 2026-11-22 as a date and a quoted one as text: both are that day."""
+    from magline.core.field.wmm import WmmField
+    from magline.core.plugins import load_plugins
+    from magline.core.station import load_station
+
+    plugins = load_plugins()
+    days = []
+    for written in ("2026-11-22", dt.date(2026, 11, 22)):
+        station = load_station(_wmm_station(make_station, date=written))
+        options = plugins.options("field source", "wmm", station.field_source.options, "field_source.options")
+        days.append(WmmField(station, options).day)
+    assert days == [dt.date(2026, 11, 22)] * 2
 
 
 def test_a_field_that_does_not_match_the_reference_fails_regardless_of_residual(make_station):

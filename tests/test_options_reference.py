@@ -71,11 +71,18 @@ def wobbler(tmp_path, monkeypatch):
             """The arms, in order."""
             limit_deg: float | None = Field(None, description="The largest wobble.")
             """Not this: a description given to the field comes first."""
+            tilt_deg: Annotated[float, Field(ge=-90, le=90)] | None = None
+            """The cradle's tilt, when it has one."""
 
 
         @hookimpl
         def magline_register_motions(register):
             register("wobbler", lambda station, options: None, options=WobblerOptions)
+            register("still", lambda station, options: None, options=NoOptions)
+
+
+        class NoOptions(BaseModel):
+            model_config = ConfigDict(extra="forbid")
     '''))
     monkeypatch.syspath_prepend(str(site))
     yield site
@@ -97,8 +104,11 @@ def test_a_third_party_plugin_s_options_are_printed_with_its_types_defaults_boun
         "| `arms` | list of mapping (below) | [] | The arms, in order. |",
         "| `arms[].reach_mm` | number; > 0, ≤ 900 | 450 | How far the arm reaches. |",
         "| `limit_deg` | number or null | none | The largest wobble. |",
+        "| `tilt_deg` | number or null; ≥ -90, ≤ 90 | none | The cradle's tilt, when it has one. |",
     ]
     assert "### `px4`" in out  # the built-ins beside it
+    still = out.split("### `still`\n", 1)[1].split("\n### ", 1)[0]
+    assert "Takes no options: any key under its `options` is an error." in still and "| option |" not in still
 
 
 def test_the_docs_page_holds_magline_s_own_plugins_only(wobbler):

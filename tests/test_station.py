@@ -118,6 +118,31 @@ def test_check_validates_backend_and_power_options_with_lines(make_station, caps
     assert "products.MOCK-100.power.options.resource: required key is missing" in err
 
 
+@pytest.mark.parametrize(("changes", "key", "said"), [
+    ({"results": {"sink": "sqlite", "options": {"path": "other.sqlite"}}}, "results.options.path",
+     "result sink 'sqlite' takes no options"),
+    ({"results": {"sink": "sql", "url_env": "DB_URL", "options": {"url": "postgresql://x"}}}, "results.options.url",
+     "result sink 'sql' takes no options"),
+    ({"products": {"MOCK-100": {"power": {"method": "link-reboot", "options": {"delay_s": 2}}}}},
+     "products.MOCK-100.power.options.delay_s", "power control 'link-reboot' takes no options"),
+    ({"motion": {"type": "operator", "options": {"speed": 2}}}, "motion.options.speed",
+     "motion 'operator' takes no options"),
+])
+def test_an_option_under_a_name_that_takes_none_is_a_check_error_not_ignored(make_station, capsys, changes, key,
+                                                                             said):
+    """A store's ``path`` written under its ``options`` would be ignored, the records kept elsewhere than the
+    engineer wrote: ``magline check`` names it with its line, and ``magline run`` tests no unit."""
+    from magline.core.cli import main
+
+    path = make_station(changes)
+    line = [n for n, text in enumerate(path.read_text(encoding="utf-8").splitlines(), 1)  # the options' own:
+            if text.strip().startswith(key.rsplit(".", 1)[-1] + ":")][-1]                  # written after the rest
+    for argv in (["check", str(path)], ["run", str(path), "--serial", "X1"]):
+        assert main(argv) == 2
+        assert f"{path}:{line}: {key}: unknown key: {said}" in capsys.readouterr().err
+    assert not list(path.parent.glob("*.sqlite"))
+
+
 def test_fit_settings_are_checked_with_their_line():
     out = problems(GOOD + "fit:\n  gain_sigma: 0\n  max_direction_sigma_deg: 0.5\n")
     assert len(out) == 1 and out[0].startswith("line7.yaml:15: fit.gain_sigma:")

@@ -131,12 +131,13 @@ def test_magline_field_sources_meet_the_contract(magline_station):
 
     plugins = load_plugins()
     fixed = load_station(magline_station())
-    check_field_source(lambda: plugins.field_sources["fixed"](fixed, fixed.field_source.options), expected_ut=48.0)
+    options = plugins.options("field source", "fixed", fixed.field_source.options, "field_source.options")
+    check_field_source(lambda: plugins.field_sources["fixed"](fixed, options), expected_ut=48.0)
     wmm = load_station(magline_station(replace={"field_source": {"type": "wmm", "options": {"date": "2026-11-22"}}},
                                        name="wmm.yaml"))
     expected = wmm_field_nt(47.3769, 8.5417, 408.0, dt.date(2026, 11, 22))["f"] / 1000
-    check_field_source(lambda: plugins.field_sources["wmm"](wmm, wmm.field_source.options), expected_ut=expected,
-                       tolerance_ut=1e-6)
+    options = plugins.options("field source", "wmm", wmm.field_source.options, "field_source.options")
+    check_field_source(lambda: plugins.field_sources["wmm"](wmm, options), expected_ut=expected, tolerance_ut=1e-6)
 
 
 def test_magline_power_controls_meet_the_contract(magline_px4, tmp_path):

@@ -10,7 +10,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from magline.core.field.reference import ReferenceMonitor
+    from magline.core.field.reference import ReferenceMonitor, ReferenceOptions
 
 
 class CheckedField:
@@ -20,18 +20,16 @@ class CheckedField:
     # firmware's calibrated output to read it (a coil's field is gone by then: it does not say this).
     reference_is_ambient = True
 
-    def __init__(self, field_ut: float, reference: dict | None, model_name: str,
+    def __init__(self, field_ut: float, reference: ReferenceOptions | None, model_name: str,
                  inclination_deg: float | None = None) -> None:
-        from magline.core.dut import validated_options
-        from magline.core.field.reference import ReferenceMonitor, ReferenceOptions
-
         self.field_ut = float(field_ut)
         self.inclination_deg = inclination_deg  # the field's dip (positive down), when the source knows it
         self.model_name = model_name
         self.monitor: ReferenceMonitor | None = None
         if reference is not None:
-            options = validated_options(ReferenceOptions, reference, "field_source reference")
-            self.monitor = ReferenceMonitor(options, self.field_ut, model_name)
+            from magline.core.field.reference import ReferenceMonitor
+
+            self.monitor = ReferenceMonitor(reference, self.field_ut, model_name)
 
     def reference_field_ut(self) -> float:
         if self.monitor is not None:

@@ -4,7 +4,7 @@ Computed with NOAA's ``wmm-calculator`` package (WMM2025 ships inside it, works 
 station's ``location.altitude_m`` is read as height above mean sea level (what a site survey
 gives).  A date outside the model's validity warns and uses the nearest valid date: the field
 changes by ~0.1 %/year, far less than a fit's tolerance, but the station should get a newer model.
-Options: ``date`` (ISO, default today), ``reference`` (a fluxgate, see :mod:`.reference`).
+Options (:mod:`.options`): ``date`` (ISO, default today), ``reference`` (a fluxgate, see :mod:`.reference`).
 """
 
 from __future__ import annotations
@@ -12,10 +12,13 @@ from __future__ import annotations
 import datetime as dt
 import math
 import warnings
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from magline.core.field.checked import CheckedField
 from magline.core.plugins import hookimpl
+
+if TYPE_CHECKING:
+    from magline.core.field.options import WmmOptions
 
 NT_PER_UT = 1000.0
 
@@ -46,24 +49,14 @@ def wmm_field_nt(lat_deg: float, lon_deg: float, alt_m: float, day: dt.date, abo
 
 
 class WmmField(CheckedField):
-    def __init__(self, station: Any, options: dict[str, Any]) -> None:
+    def __init__(self, station: Any, options: WmmOptions) -> None:
         loc = station.station.location
-        when = options.get("date")
-        self.day = dt.date.fromisoformat(when) if when else dt.date.today()
+        self.day = options.date or dt.date.today()
         self.components_nt = c = wmm_field_nt(loc.latitude_deg, loc.longitude_deg, loc.altitude_m, self.day)
-        super().__init__(c["f"] / NT_PER_UT, options.get("reference"), f"World Magnetic Model ({self.day.isoformat()})",
+        super().__init__(c["f"] / NT_PER_UT, options.reference, f"World Magnetic Model ({self.day.isoformat()})",
                          inclination_deg=math.degrees(math.atan2(c["z"], math.hypot(c["x"], c["y"]))))
-
-
-def _factory(station: Any, options: dict) -> WmmField:
-    options = dict(station.field_source.options)
-    unknown = set(options) - {"date", "reference"}
-    if unknown:
-        raise ValueError(f"field_source.options: unknown option(s) {', '.join(sorted(unknown))} for wmm "
-                         "(known: date, reference)")
-    return WmmField(station, options)
 
 
 @hookimpl
 def magline_register_field_sources(register):
-    register("wmm", _factory)
+    register("wmm", WmmField, options="magline.core.field.options:WmmOptions")

@@ -21,4 +21,5 @@ def _factory(station: Any, station_dir: Path, entry: Any, options: Any) -> Any:
 
 @hookimpl
 def magline_register_result_sinks(register):
-    register("sqlite", _factory)
+    # its settings are the entry's own keys (path, reports), never under options
+    register("sqlite", _factory, options="magline.core.no_options:NoOptions")

@@ -136,7 +136,9 @@ def _option_problems(plugins: Plugins, key: tuple[str, str], options: Any, where
         for err in exc.errors():
             path = (*where, *err["loc"])
             kind = err["type"]
-            if kind == "extra_forbidden":  # the core's own words for a plugin's options too
+            if kind == "extra_forbidden" and not model.model_fields:
+                msg = f"unknown key: {key[0]} {key[1]!r} takes no options"
+            elif kind == "extra_forbidden":  # the core's own words for a plugin's options too
                 msg = "unknown key" + did_you_mean(err["loc"][-1], model.model_fields)
             elif kind == "missing":
                 msg = "required key is missing"

@@ -61,7 +61,8 @@ def option_rows(model: type[BaseModel], prefix: str = "") -> list[OptionRow]:
         key = prefix + (field.alias or name)
         kind = PATH_WORDS if _is_station_path(field) else type_words(field.annotation)
         meaning = inspect.cleandoc(field.description or written.get(name, ""))
-        rows.append(OptionRow(key, kind, _default(field), _bounds(field.metadata), meaning))
+        rows.append(OptionRow(key, kind, _default(field), _bounds([*field.metadata, *_optional_metadata(field)]),
+                              meaning))
         for nested, suffix in _nested_models(field.annotation):
             rows += option_rows(nested, f"{key}{suffix}.")
     return rows
@@ -125,6 +126,16 @@ def _annotated_words(annotation: Any, args: tuple) -> str:
     words = type_words(args[0])
     bounds = _bounds(args[1:])
     return f"{words} ({bounds})" if bounds else words
+
+
+def _optional_metadata(field: FieldInfo) -> list[Any]:
+    """The constraints of an optional option's value (``Annotated[float, Field(ge=…)] | None``): pydantic keeps
+    them on the union's member, not on the field."""
+    annotation = field.annotation
+    if typing.get_origin(annotation) not in (typing.Union, types.UnionType):
+        return []
+    return [m for arg in typing.get_args(annotation) if typing.get_origin(arg) is typing.Annotated
+            for item in typing.get_args(arg)[1:] for m in getattr(item, "metadata", [item])]
 
 
 def _bounds(metadata: Any) -> str:
@@ -218,7 +229,8 @@ def options_reference(plugins: Plugins, distributions: set[str] | None = None) -
         for name, model, source in entries:
             where = where_of.format(name=name)
             lines += ["", f"### `{name}`", "", f"In a station file: `{where}`. Registered by {source}.", ""]
-            lines += markdown_table(model)
+            lines += markdown_table(model) if model.model_fields else ["Takes no options: any key under its "
+                                                                        "`options` is an error."]
     return "\n".join(lines).lstrip("\n") + "\n"
 
 
