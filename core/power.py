@@ -89,6 +89,6 @@ def create_link_reboot(config: PowerConfig, station_dir: Path, options: dict) ->
 
 @hookimpl
 def magline_register_power_controls(register):
-    register("link-reboot", create_link_reboot, options="magline.core.no_options:NoOptions")
+    register("link-reboot", create_link_reboot, options="magline.core.station.no_options:NoOptions")
     # the former name: station files that say it keep working
-    register("mavlink-reboot", create_link_reboot, options="magline.core.no_options:NoOptions")
+    register("mavlink-reboot", create_link_reboot, options="magline.core.station.no_options:NoOptions")

@@ -143,6 +143,14 @@ def test_an_option_under_a_name_that_takes_none_is_a_check_error_not_ignored(mak
     assert not list(path.parent.glob("*.sqlite"))
 
 
+def test_a_station_altitude_outside_the_field_model_is_a_check_error(make_station, capsys):
+    from magline.core.cli import main
+
+    path = make_station({"station": {"location": {"altitude_m": -4080.0}}})  # 408 m, a slip of sign and unit
+    assert main(["check", str(path)]) == 2
+    assert "station.location.altitude_m: Input should be greater than or equal to -1000" in capsys.readouterr().err
+
+
 def test_fit_settings_are_checked_with_their_line():
     out = problems(GOOD + "fit:\n  gain_sigma: 0\n  max_direction_sigma_deg: 0.5\n")
     assert len(out) == 1 and out[0].startswith("line7.yaml:15: fit.gain_sigma:")

@@ -34,4 +34,4 @@ def create_operator_motion(station: Station, station_dir: Path, options: dict) -
 
 @hookimpl
 def magline_register_motions(register):
-    register("operator", create_operator_motion, options="magline.core.no_options:NoOptions")
+    register("operator", create_operator_motion, options="magline.core.station.no_options:NoOptions")

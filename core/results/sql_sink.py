@@ -24,4 +24,4 @@ def _factory(station: Any, station_dir: Path, entry: Any, options: Any) -> Any:
 @hookimpl
 def magline_register_result_sinks(register):
     # its settings are the entry's own keys (url_env, outbox, reports), never under options
-    register("sql", _factory, options="magline.core.no_options:NoOptions")
+    register("sql", _factory, options="magline.core.station.no_options:NoOptions")

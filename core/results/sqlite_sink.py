@@ -22,4 +22,4 @@ def _factory(station: Any, station_dir: Path, entry: Any, options: Any) -> Any:
 @hookimpl
 def magline_register_result_sinks(register):
     # its settings are the entry's own keys (path, reports), never under options
-    register("sqlite", _factory, options="magline.core.no_options:NoOptions")
+    register("sqlite", _factory, options="magline.core.station.no_options:NoOptions")

@@ -34,7 +34,9 @@ class _Strict(BaseModel):
 class Location(_Strict):
     latitude_deg: Annotated[float, Field(ge=-90, le=90)]
     longitude_deg: Annotated[float, Field(ge=-180, le=180)]
-    altitude_m: float = 0.0
+    # height above mean sea level; bounded by where the World Magnetic Model holds (1 km below the ellipsoid
+    # to 850 km above it), so a slip of sign or unit is a check error, not a field from outside the model
+    altitude_m: Annotated[float, Field(ge=-1000, le=850_000)] = 0.0
 
 
 class StationInfo(_Strict):
