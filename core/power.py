@@ -83,7 +83,7 @@ class LinkReboot:
         return None
 
 
-def create_link_reboot(config: PowerConfig, station_dir: Path, options: dict) -> LinkReboot:
+def create_link_reboot(config: PowerConfig, station_dir: Path, options: object) -> LinkReboot:
     return LinkReboot()
 
 

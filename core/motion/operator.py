@@ -28,7 +28,7 @@ class OperatorMotion:
         return None
 
 
-def create_operator_motion(station: Station, station_dir: Path, options: dict) -> OperatorMotion:
+def create_operator_motion(station: Station, station_dir: Path, options: object) -> OperatorMotion:
     return OperatorMotion()
 
 
