@@ -10,7 +10,8 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from magline.core.field.reference import ReferenceMonitor, ReferenceOptions
+    from magline.core.field.options import ReferenceOptions
+    from magline.core.field.reference import ReferenceMonitor
 
 
 class CheckedField:

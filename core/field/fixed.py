@@ -13,8 +13,7 @@ from magline.core.field.checked import CheckedField
 from magline.core.plugins import hookimpl
 
 if TYPE_CHECKING:
-    from magline.core.field.options import FixedFieldOptions
-    from magline.core.field.reference import ReferenceOptions
+    from magline.core.field.options import FixedFieldOptions, ReferenceOptions
 
 
 class FixedField(CheckedField):

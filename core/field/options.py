@@ -12,7 +12,29 @@ from typing import Annotated
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from magline.core.field.reference import ReferenceOptions
+
+class ReferenceOptions(BaseModel):
+    """``field_source.options.reference`` in a station file: the fluxgate (:mod:`.reference`) that checks the field.
+
+    Here, apart from the instrument's code, so that checking a station file imports none of that."""
+
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
+    resource: str
+    """The DAQ the fluxgate's outputs are wired to, e.g. TCPIP0::10.0.0.7::5025::SOCKET."""
+    channels: str = "(@101,102,103)"
+    """The fluxgate's X, Y, Z outputs on the DAQ."""
+    scale_ut_per_v: Annotated[float, Field(gt=0)] = 10.0
+    """The fluxgate's scale (±10 V = ±100 µT is common)."""
+    tolerance_ut: Annotated[float, Field(gt=0)] = 1.5
+    """How far the measured field may sit from the model's (|reference − model|)."""
+    drift_limit_ut: Annotated[float, Field(gt=0)] = 0.5
+    """How far the measured magnitude may drift from the batch's first check."""
+    every_n_units: Annotated[int, Field(ge=1)] = 10
+    """The field is checked at the first unit and every this many units after."""
+    readings: Annotated[int, Field(ge=1)] = 5
+    """Readings averaged per check."""
+    timeout_s: Annotated[float, Field(gt=0)] = 2.0
+    """One instrument's reply."""
 
 
 class FixedFieldOptions(BaseModel):
