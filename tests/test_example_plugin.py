@@ -60,3 +60,8 @@ def test_the_example_plugin_from_a_clean_venv_passes_its_own_tests(tmp_path):
     assert "11 passed" in out
     plugins = run(venv / "bin" / "magline", "plugins")
     assert '"acme"' in plugins and '"acme-magline"' in plugins  # registered, and by which distribution
+    # registered by place: listing (as every command's start) imports the plugin's modules, not its driver or sink
+    probe = ("import contextlib, io, sys\nsys.argv = ['magline', 'plugins']\nfrom magline.core.entry import main\n"
+             "with contextlib.redirect_stdout(io.StringIO()):\n    main()\n"
+             "print(' '.join(sorted(m for m in sys.modules if m.startswith('acme_magline'))))")
+    assert run(python, "-c", probe).split() == ["acme_magline", "acme_magline.feed", "acme_magline.plugin"]
