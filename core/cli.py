@@ -140,7 +140,7 @@ def main(argv: list[str] | None = None) -> int:
     scr = sub.add_parser("station", help="serve the station screen: operators run units from a browser")
     scr.add_argument("station", nargs="?", help="station file (default: the embedded demo)")
     scr.add_argument("--host", default="127.0.0.1", help="address to bind (any other than loopback needs the token)")
-    scr.add_argument("--port", type=int, default=8080)
+    scr.add_argument("--port", type=port_number, default=8080, help="TCP port (0: any free one, announced)")
     dash = sub.add_parser("dashboard", help="the line's page, read-only over the results store: every station live, "
                                             "the process, any unit by serial")
     given = dash.add_mutually_exclusive_group()
@@ -148,7 +148,7 @@ def main(argv: list[str] | None = None) -> int:
     given.add_argument("--store", help="a results store itself: a SQLite file, or a database URL "
                                        "(postgresql+psycopg://role:password@host/db, a role that can only read)")
     dash.add_argument("--host", default="127.0.0.1", help="address to bind (any other than loopback needs the token)")
-    dash.add_argument("--port", type=int, default=8090)
+    dash.add_argument("--port", type=port_number, default=8090, help="TCP port (0: any free one, announced)")
     from magline.core.quality.trends import shifts_argument
 
     dash.add_argument("--shifts", type=shifts_argument, default=None, metavar="HH:MM,…",
@@ -798,6 +798,18 @@ def _dashboard(args: argparse.Namespace, plugins: Plugins) -> int:
             return 2
         shifts = shifts or Shifts.parse(station.station.shifts)
     return serve(target, shifts or Shifts(), args.host, args.port)
+
+
+def port_number(text: str) -> int:
+    """``--port``: a TCP port, 0 for any free one.  Why checked here: a number past 65535 was bound modulo
+    65536 by the resolver, and the screen announced a port it was not on."""
+    try:
+        port = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a port number") from None
+    if not 0 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"{port} is not a TCP port (0 to 65535; 0: any free one)")
+    return port
 
 
 def _quiet_broken_pipe(handler: Callable[[], int]) -> int:

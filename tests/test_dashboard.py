@@ -169,6 +169,22 @@ def test_off_loopback_every_request_needs_the_token_and_the_store_is_never_writt
     assert hashlib.sha256((tmp_path / "line.sqlite").read_bytes()).hexdigest() == before
 
 
+def test_port_zero_serves_on_a_port_the_system_chose_and_announces_that_one(tmp_path):
+    recorded(tmp_path / "line.sqlite", [("T-1", 74.0)])
+    proc = subprocess.Popen([sys.executable, "-m", "magline.core.cli", "dashboard", "--store",
+                             str(tmp_path / "line.sqlite"), "--port", "0"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        said = proc.stdout.readline()
+        port = int(said.rstrip().rstrip("/").rsplit(":", 1)[1])
+        assert port != 0, said
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}/api/line", timeout=30) as answer:
+            assert answer.status == 200 and "T-1" in answer.read().decode()
+    finally:
+        proc.terminate()
+        proc.wait(10)
+
+
 @pytest.mark.parametrize("kind", ["missing", "not-magline", "server-refused"])
 def test_a_store_the_dashboard_cannot_open_is_one_clear_line(tmp_path, kind):
     from dead_ports import refused_port

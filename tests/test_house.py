@@ -109,6 +109,21 @@ def test_a_station_screen_on_a_taken_port_says_so_before_announcing_anything(tmp
     assert f"magline station: cannot listen on 127.0.0.1:{port}: Address already in use" in err
 
 
+@pytest.mark.parametrize("command", ["station", "dashboard"])
+@pytest.mark.parametrize(("port", "said"), [("99999", "99999 is not a TCP port (0 to 65535; 0: any free one)"),
+                                            ("-1", "-1 is not a TCP port"),
+                                            ("eighty", "'eighty' is not a port number")])
+def test_a_port_that_is_no_port_is_refused_before_anything_is_served(capsys, command, port, said):
+    """A port past 65535 was bound modulo 65536 by the resolver (99999 served on 34463, announced as 99999)."""
+    from magline.core.cli import main
+
+    with pytest.raises(SystemExit) as refused:
+        main([command, "--port", port])
+    out, err = capsys.readouterr()
+    assert refused.value.code == 2 and out == ""
+    assert f"argument --port: {said}" in err
+
+
 # The executive's contracts and its entry points; every other concept has a room (a folder) of its own:
 # links (core/links), acquisition (core/acquisition), the sequencer, fit, mounting, results, quality …
 # ``lazy``: how the packages offer their names on first use (a command's start imports only what it uses).

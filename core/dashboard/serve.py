@@ -49,6 +49,7 @@ def serve(target: str, shifts: Shifts, host: str, port: int) -> int:
         print(f"magline dashboard: cannot listen on {host}:{port}: {exc.strerror or exc} — give another --port",
               file=sys.stderr)
         return 2
+    port = sock.getsockname()[1]  # the port it is on (--port 0: the one the system chose)
     token = None if is_loopback(host) else secrets.token_urlsafe(18)
     address = f"http://{host}:{port}/"
     print(f"dashboard of {store.where} on " + (f"{address}?token={token} (token shown once)" if token else address),

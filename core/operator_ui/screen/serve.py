@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import ipaddress
 import secrets
 import signal
@@ -62,9 +63,11 @@ def serve(station: Station, where: Path, plugins: Plugins, host: str, port: int)
     try:
         sock = listening_socket(host, port)
     except OSError as exc:
-        print(f"magline station: cannot listen on {host}:{port}: {exc.strerror or exc} — another station screen or "
-              "program holds it; stop it or give another --port", file=sys.stderr)
+        held = (" — another station screen or program holds it; stop it or give another --port"
+                if exc.errno == errno.EADDRINUSE else "")
+        print(f"magline station: cannot listen on {host}:{port}: {exc.strerror or exc}{held}", file=sys.stderr)
         return 2
+    port = sock.getsockname()[1]  # the port it is on (--port 0: the one the system chose)
     token = None if is_loopback(host) else secrets.token_urlsafe(18)
     try:
         app, runner = build(station, where, plugins, token)
