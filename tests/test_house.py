@@ -113,9 +113,12 @@ def test_a_station_screen_on_a_taken_port_says_so_before_announcing_anything(tmp
 @pytest.mark.parametrize(("port", "said"), [("99999", "99999 is not a TCP port (0 to 65535; 0: any free one)"),
                                             ("-1", "-1 is not a TCP port"),
                                             ("eighty", "'eighty' is not a port number")])
-def test_a_port_that_is_no_port_is_refused_before_anything_is_served(capsys, command, port, said):
+def test_a_port_that_is_no_port_is_refused_before_anything_is_served(capsys, monkeypatch, tmp_path, command, port,
+                                                                     said):
     """A port past 65535 was bound modulo 65536 by the resolver (99999 served on 34463, announced as 99999)."""
     from magline.core.cli import main
+
+    monkeypatch.chdir(tmp_path)  # the embedded demo's store would be opened here, were the port taken
 
     with pytest.raises(SystemExit) as refused:
         main([command, "--port", port])
