@@ -26,6 +26,31 @@ from typing import Any
 from magline.core.plugins import hookimpl
 
 
+def number_option(*, above: float | None = None, least: float | None = None,
+                  most: float | None = None) -> Callable[[str], float]:
+    """An argparse type: a number within the bounds given, else the option's error says which.  Why: a negative
+    speed or boot time was taken and made a simulator that never turned or answered."""
+    if least is not None and most is not None:
+        words = f"between {least:g} and {most:g}"
+    else:
+        words = f"above {above:g}" if above is not None else f"at least {least:g}"
+
+    def number(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        if not (value == value and (above is None or value > above) and (least is None or value >= least)
+                and (most is None or value <= most)):
+            raise argparse.ArgumentTypeError(f"{text} is not {words}")
+        return value
+
+    return number
+
+
+POSITIVE, NOT_NEGATIVE, DIP = number_option(above=0), number_option(least=0), number_option(least=-90, most=90)
+
+
 @hookimpl
 def magline_add_commands(subparsers: Any) -> None:
     add_sim_command(subparsers)
@@ -42,7 +67,7 @@ def add_sim_command(subparsers: argparse._SubParsersAction) -> None:
                                          "under the system's temporary folder, named for the simulator and its "
                                          "address; the storage file is said when it starts)")
     board.add_argument("--mags", type=int, default=1, choices=[1, 2, 3], help="number of magnetometers (inav: 1)")
-    board.add_argument("--boot-time", type=float, default=2.0, help="seconds silent after a reboot (default 2)")
+    board.add_argument("--boot-time", type=NOT_NEGATIVE, default=2.0, help="seconds silent after a reboot (default 2)")
     board.add_argument("--motion",
                        help="comma list, one per acquisition (tumble, single_axis, gimbal, two_axis: a two-axis "
                             "gimbal at constant rates, still, shared); last repeats (default: tumble, or shared with "
@@ -52,11 +77,11 @@ def add_sim_command(subparsers: argparse._SubParsersAction) -> None:
     board.add_argument("--turntable", metavar="tcp:HOST:PORT",
                        help="the board sits in the cradle of this turntable simulator and moves with it (motion "
                             "'shared')")
-    board.add_argument("--speed", type=float, default=1.0, help="tumble speed factor")
-    board.add_argument("--field-ut", type=float, default=48.0, help="local field magnitude (µT)")
-    board.add_argument("--inclination-deg", type=float, default=62.0)
-    board.add_argument("--noise-ut", type=float, default=0.3)
-    board.add_argument("--mag-rate", type=float, metavar="HZ",
+    board.add_argument("--speed", type=POSITIVE, default=1.0, help="tumble speed factor")
+    board.add_argument("--field-ut", type=POSITIVE, default=48.0, help="local field magnitude (µT)")
+    board.add_argument("--inclination-deg", type=DIP, default=62.0)
+    board.add_argument("--noise-ut", type=NOT_NEGATIVE, default=0.3)
+    board.add_argument("--mag-rate", type=POSITIVE, metavar="HZ",
                        help="how often the sensors publish a new reading (default: ardupilot and inav 10 Hz, px4 per "
                             "driver); "
                             "a faster stream repeats readings, as real vehicles do")
@@ -68,7 +93,7 @@ def add_sim_command(subparsers: argparse._SubParsersAction) -> None:
                        help="also run a simulated SCPI electronic load in this board's power path, downstream of its "
                             "current sensor (its input on clamps the unit still, as for the current sweep)")
     board.add_argument("--load-fault", choices=["no_sink"], help="the load's input reports on but nothing flows")
-    board.add_argument("--load-rating", type=float, default=60.0, metavar="A",
+    board.add_argument("--load-rating", type=POSITIVE, default=60.0, metavar="A",
                        help="the load's largest current (default 60 A)")
     board.add_argument("--usb-powered", action="store_true",
                        help="the board takes its power from its USB port: a supply cut does not reboot it, the "
@@ -120,7 +145,7 @@ def add_sim_command(subparsers: argparse._SubParsersAction) -> None:
     table.add_argument("--operator", default="follow", choices=["follow", "wrong", "never"],
                        help="follow: sets each tilt asked; wrong: first sets a wrong tilt and corrects it when the "
                             "pendant names it; never: never tilts (default follow)")
-    table.add_argument("--reaction", type=float, default=0.5, metavar="S",
+    table.add_argument("--reaction", type=NOT_NEGATIVE, default=0.5, metavar="S",
                        help="seconds the operator takes to react to the pendant (default 0.5)")
     table.add_argument("--table-fault", choices=["not_homed", "not_turning", "stalls", "lost_link"])
     load = flavours.add_parser("load", help="a programmable DC electronic load on its own (SCPI): to try a station's "
@@ -128,7 +153,7 @@ def add_sim_command(subparsers: argparse._SubParsersAction) -> None:
                                             "(magline sim px4|ardupilot --load tcp:HOST:PORT), whose current sensor "
                                             "its current must flow through")
     load.add_argument("--listen", default="tcp:127.0.0.1:5040", help="its address (default tcp:127.0.0.1:5040)")
-    load.add_argument("--rating", type=float, default=60.0, metavar="A", help="its largest current (default 60 A)")
+    load.add_argument("--rating", type=POSITIVE, default=60.0, metavar="A", help="its largest current (default 60 A)")
     load.add_argument("--load-fault", choices=["no_sink"], help="the input reports on but nothing flows")
     sim.set_defaults(handler=run_sim)
 

@@ -36,10 +36,13 @@ def parse_listen(address: str) -> tuple[str, str, int]:
         scheme, host, port = address.split(":")
         if scheme not in ("udp", "tcp"):
             raise ValueError(scheme)
-        return scheme, host, int(port)
+        number = int(port)
     except ValueError as exc:
         raise AddressError(f"listen address {address!r}: expected udp:HOST:PORT, tcp:HOST:PORT or "
                            "serial:PATH[:BAUD]") from exc
+    if not 0 <= number <= 65535:  # the socket refuses it with an OverflowError, no OSError
+        raise AddressError(f"listen address {address!r}: {number} is not a port (0 to 65535; 0: any free one)")
+    return scheme, host, number
 
 
 class ServerLink(Protocol):

@@ -835,3 +835,40 @@ def test_px4_acknowledges_a_shutdown_before_it_goes_dark(tmp_path):
         # the ACK leaves first, so the station may hear it before the board has acted: then silence, and off
         assert gcs.recv("HEARTBEAT", timeout=1.5) is None and sim.power.value == "off"
         assert not sim.errors
+
+
+@pytest.mark.parametrize(("argv", "said"), [
+    (["px4", "--listen", "udp:127.0.0.1:99999"], "listen address 'udp:127.0.0.1:99999': 99999 is not a port"),
+    (["inav", "--listen", "tcp:127.0.0.1:70000"], "listen address 'tcp:127.0.0.1:70000': 70000 is not a port"),
+    (["gimbal", "--listen", "tcp:127.0.0.1:-5"], "listen address 'tcp:127.0.0.1:-5': -5 is not a port"),
+    (["coil", "--listen", "tcp:127.0.0.1:65536"], "65536 is not a port (0 to 65535; 0: any free one)"),
+])
+def test_a_listen_port_out_of_range_is_one_line_not_a_traceback(capsys, argv, said):
+    """The socket refuses such a port with an OverflowError, which no OSError handler caught."""
+    from magline.core.cli import main
+
+    assert main(["sim", *argv]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("magline sim: ") and said in lines[0]
+
+
+@pytest.mark.parametrize(("argv", "said"), [
+    (["px4", "--speed", "-1"], "argument --speed: -1 is not above 0"),
+    (["ardupilot", "--boot-time", "-3"], "argument --boot-time: -3 is not at least 0"),
+    (["inav", "--inclination-deg", "95"], "argument --inclination-deg: 95 is not between -90 and 90"),
+    (["px4", "--field-ut", "nan"], "argument --field-ut: nan is not above 0"),
+    (["turntable", "--reaction", "soon"], "argument --reaction: 'soon' is not a number"),
+])
+def test_a_simulator_setting_no_board_can_have_is_refused_before_it_starts(capsys, monkeypatch, argv, said):
+    """A negative speed or boot time was taken and made a board that never turned or never answered."""
+    import magline.sim.commands
+    from magline.core.cli import main
+
+    def started(args):
+        raise AssertionError(f"a simulator was started with {args}")
+
+    monkeypatch.setattr(magline.sim.commands, "run_sim", started)
+    with pytest.raises(SystemExit) as refused:
+        main(["sim", *argv])
+    out, err = capsys.readouterr()
+    assert refused.value.code == 2 and out == "" and said in err
