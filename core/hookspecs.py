@@ -79,6 +79,21 @@ def magline_register_dut_backends(register: Register) -> None:
 
 
 @hookspec
+def magline_connection_problem(backend: str, connection: str) -> str | None:
+    """Say what is wrong with how a station file reaches a unit, before any unit is connected.  Called by
+    ``magline check`` (and every command that loads a station) for each product's ``connection`` and each
+    slot's, with the product's backend; every answer that is not ``None`` is a problem of the station file.
+
+    :param backend: the product's DUT backend: answer for the backends your plugin registered, ``None`` for
+        the others
+    :param connection: the connection as the station file writes it
+    :return: what is wrong, in a sentence naming the forms the backend takes (the file, line and key are
+        added); ``None`` when it is well formed — whether a unit answers there is the connect phase's to find.
+        :func:`magline.plugin.connection_problem` checks the usual forms.
+    """
+
+
+@hookspec
 def magline_register_field_sources(register: Register) -> None:
     """Add field sources (the expected local field) by name.  Called once at start-up.
 

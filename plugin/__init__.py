@@ -37,6 +37,7 @@ What is here, by role:
   (:data:`INAV_ALIGNMENTS`, :data:`INAV_ALIGNMENT_NAMES`, :data:`INAV_COMPASS_DEFAULT_ALIGNMENT`,
   an external compass's :func:`inav_external_rotation` and :func:`inav_external_angles`; INAV's axes,
   forward-left-up, against magline's: :data:`INAV_TO_FRD`, :func:`inav_rotation_in_frd`),
+  what a station file's ``connection`` may be: :class:`ConnectionForms`, :func:`connection_problem`;
   a board on a serial port: :class:`SerialAddress`, :class:`SerialPortWatch` (present, permitted, not held,
   the same board after its reboot), :class:`UsbIdentity`, :func:`list_ports`, :data:`SERIAL_HINT`,
   :func:`mavlink2_frame_bytes` (a stream's bytes against what a UART carries);
@@ -84,6 +85,7 @@ _HOME: dict[str, tuple[str, ...]] = {
     "magline.core.fit.running": ("StopRule",),
     "magline.core.fit.samples_csv": ("RawSamples",),
     "magline.core.interference.source": ("CurrentSource", "CurrentSourceError"),
+    "magline.core.links.addresses": ("ConnectionForms", "connection_problem"),
     "magline.core.links.listening": ("SLICE_S", "get_listening", "stall_s"),
     "magline.core.links.msp": (
         "INAV_ALIGNMENT_NAMES", "INAV_ALIGNMENTS", "INAV_ARMED_FLAG", "INAV_COMPASS_DEFAULT_ALIGNMENT", "INAV_TO_FRD",

@@ -338,6 +338,28 @@ def test_magline_register_measurements(tmp_path, capsys):
     assert "magline measures" in unknown_measurements(["hook_board_temp_c"])
 
 
+def test_magline_connection_problem(tmp_path):
+    """A backend's plugin judges the connections of its own products (and slots) when the station is read: its
+    sentence is said with file, line and key; the other backends' products are not asked of it."""
+    from magline.testing import check_station
+
+    asked: list[tuple[str, str]] = []
+
+    class Judge:
+        @hookimpl
+        def magline_connection_problem(self, backend, connection):
+            asked.append((backend, connection))
+            return "the bench has no port 9" if backend == "mock" and connection.endswith(":9") else None
+
+    plugins = load_plugins(extra=[Judge()])
+    good = write_station(tmp_path, {"products": {"MOCK-100": {"connection": "bench:1"}}})
+    assert check_station(good, plugins) == [] and asked == [("mock", "bench:1")]
+    bad = write_station(tmp_path, {"products": {"MOCK-100": {"connection": "bench:9"}}})
+    (problem,) = check_station(bad, plugins)
+    assert (problem.key, problem.message) == ("products.MOCK-100.connection", "the bench has no port 9")
+    assert bad.read_text(encoding="utf-8").splitlines()[problem.line - 1].strip().startswith("connection:")
+
+
 def test_magline_register_plugin_options(tmp_path):
     """A listener configured in the station file: ``plugins.<section>`` validated by the plugin's model when
     the station is read (file, key and line), handed to the plugin by ``run.plugin_options``; a section no

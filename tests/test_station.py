@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import pytest
+from conftest import REPO
 
 from magline.core.cli import main
 from magline.core.station import StationError, load_station, load_station_text
@@ -180,3 +181,57 @@ def test_every_mistake_is_reported_in_one_pass_each_at_its_own_line(make_station
     assert "did you mean 'MOCK-100'?" in default.message
     text = path.read_text(encoding="utf-8").splitlines()
     assert text[default.line - 1].startswith("default_part:")
+
+
+GOOD_CONNECTIONS = {
+    "px4": ["udpout://127.0.0.1:14550", "udpin://0.0.0.0:14540", "tcpout://10.0.0.7:5760", "udp://:14540",
+            "serial:/dev/serial/by-path/pci-0000:00:14.0-usb-0:1.1:1.0:115200", "serial:/dev/ttyACM0"],
+    "ardupilot": ["tcp:127.0.0.1:5760", "udpin:0.0.0.0:14550", "udpout:10.0.0.7:14550", "serial:/dev/ttyACM0:57600"],
+    "inav": ["tcp:127.0.0.1:5760", "serial:/dev/serial/by-id/usb-INAV_Board-if00"],
+}
+BAD_CONNECTIONS = [
+    ("px4", "udpout://127.0.0.1:99999", "99999 is not a port (1 to 65535)"),
+    ("px4", "udpout://127.0.0.1:0", "0 is not a port (1 to 65535)"),
+    ("px4", "udpout:127.0.0.1:14550", "'udpout:127.0.0.1:14550' is no connection this backend opens: expected "
+                                      "udpin://HOST:PORT, udpout://HOST:PORT"),
+    ("px4", "udpin://:14540", "'udpin://:14540' names no HOST:PORT"),
+    ("ardupilot", "tcp://127.0.0.1:5760", "is no connection this backend opens: expected tcp:HOST:PORT"),
+    ("ardupilot", "tcp:127.0.0.1", "names no HOST:PORT"),
+    ("inav", "udpin:0.0.0.0:5760", "expected tcp:HOST:PORT or serial:DEVICE[:BAUD]"),
+    ("inav", "serial:ttyACM0:115200", "expected serial:DEVICE:BAUD with an absolute DEVICE path"),
+]
+
+
+def _connection_problems(make_station, backend: str, connection: str, name: str = "station.yaml") -> list:
+    from magline.testing import check_station
+
+    path = make_station({"products": {"MOCK-100": {"backend": backend, "connection": connection}}}, name=name)
+    return [(p.line, p.message) for p in check_station(path) if p.key == "products.MOCK-100.connection"], path
+
+
+@pytest.mark.parametrize(("backend", "connection"), [(b, c) for b, cs in GOOD_CONNECTIONS.items() for c in cs])
+def test_a_connection_the_backend_opens_is_no_problem(make_station, backend, connection):
+    assert _connection_problems(make_station, backend, connection)[0] == []
+
+
+@pytest.mark.parametrize(("backend", "connection", "said"), BAD_CONNECTIONS)
+def test_a_connection_no_link_can_open_is_a_check_error_with_its_line(make_station, backend, connection, said):
+    """Found before, only when a unit was connected: an ERROR of every unit that no retest could cure."""
+    (found,), path = _connection_problems(make_station, backend, connection)
+    line, message = found
+    assert said in message
+    assert path.read_text(encoding="utf-8").splitlines()[line - 1].strip() == f"connection: {connection}"
+
+
+def test_a_slot_s_connection_is_judged_by_its_part_s_backend(tmp_path):
+    from magline.testing import check_station
+
+    shipped = REPO / "stations" / "slots-sim.yaml"
+    assert check_station(shipped) == []
+    broken = tmp_path / "slots.yaml"
+    broken.write_text(shipped.read_text(encoding="utf-8").replace(
+        '{id: C, part: AP-QUAD-200, connection: "tcp:127.0.0.1:5760"}',
+        '{id: C, part: AP-QUAD-200, connection: "udpout://127.0.0.1:5760"}'), encoding="utf-8")
+    (problem,) = check_station(broken)
+    assert (problem.key, problem.line) == ("slots[2].connection", 39)
+    assert problem.message.startswith("'udpout://127.0.0.1:5760' is no connection this backend opens: expected tcp:")

@@ -72,6 +72,8 @@ def _plugin_problems(data: dict, text: str, name: str, plugins: Plugins) -> list
                 out.append(f"{name}:{line_of(text, ('products', part, 'persist'))}: products.{part}.persist: the "
                            f"{backend} backend has no {store} (it keeps a calibration in {', '.join(stores)}"
                            f"{' — ' + why if why else ''})")
+        out += _connection_problems(plugins, backend, product.get("connection"), ("products", part, "connection"),
+                                    text, name)
         power = product.get("power")
         if isinstance(power, dict):
             method = power.get("method", "link-reboot")
@@ -82,6 +84,9 @@ def _plugin_problems(data: dict, text: str, name: str, plugins: Plugins) -> list
                                         ("products", part, "power", "options"), text, name)
     for index, slot in enumerate(data.get("slots") or []):
         product = products.get(slot.get("part")) if isinstance(slot, dict) and isinstance(products, dict) else None
+        if isinstance(product, dict):
+            out += _connection_problems(plugins, product.get("backend"), slot.get("connection"),
+                                        ("slots", index, "connection"), text, name)
         if isinstance(product, dict) and isinstance(slot.get("options"), dict) and slot["options"]:
             merged = {**(product.get("options") or {}), **slot["options"]}
             out += _option_problems(plugins, ("dut backend", product.get("backend")), merged,
@@ -121,6 +126,15 @@ def _plugin_problems(data: dict, text: str, name: str, plugins: Plugins) -> list
         if isinstance(value, str) and value not in registry:
             unknown((section, key), what, value, registry)
     return out
+
+
+def _connection_problems(plugins: Plugins, backend: Any, connection: Any, where: tuple, text: str,
+                         name: str) -> list[str]:
+    """What the backends' plugins say of a product's or a slot's ``connection`` (magline_connection_problem)."""
+    if not isinstance(backend, str) or not isinstance(connection, str):
+        return []
+    said = plugins.hook.magline_connection_problem(backend=backend, connection=connection)
+    return [f"{name}:{line_of(text, where)}: {dotted(where)}: {problem}" for problem in said if problem]
 
 
 def _option_problems(plugins: Plugins, key: tuple[str, str], options: Any, where: tuple, text: str,

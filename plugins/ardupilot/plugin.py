@@ -26,3 +26,14 @@ def magline_register_dut_backends(register):
         "parameters": "COMPASS_OFS/DIA/ODI/MOT in the parameter storage; ArduPilot's persistent parameters in "
                       "the bootloader sector hold IMU temperature calibration, accelerometer ids and OpenDroneID "
                       "only (AP_HAL_ChibiOS/Util.cpp), no factory store for the compass"})
+
+
+@hookimpl
+def magline_connection_problem(backend, connection):
+    if backend != "ardupilot":
+        return None
+    from magline.plugin import ConnectionForms, connection_problem
+
+    # what pymavlink opens: scheme:HOST:PORT
+    return connection_problem(connection, ConnectionForms(("tcp", "udpin", "udpout", "udp"), url=False, expected=(
+        "tcp:HOST:PORT, udpin:HOST:PORT, udpout:HOST:PORT or serial:DEVICE:BAUD")))

@@ -24,3 +24,17 @@ def magline_register_dut_backends(register):
         "parameters": "CAL_MAGn_* in the parameter file, which a reset to defaults erases",
         "factory-storage": "PX4's factory calibration store (/fs/mtd_caldata), written by the commander's gyro "
                            "calibration with SYS_FAC_CAL_MODE = 1 and loaded at boot under the user's parameters"})
+
+
+# what MAVSDK opens (its own parser: scheme://HOST:PORT, a port from 1; the legacy udp:// and tcp:// too)
+CONNECTION_FORMS = "udpin://HOST:PORT, udpout://HOST:PORT, tcpout://HOST:PORT, tcpin://HOST:PORT or serial:DEVICE:BAUD"
+
+
+@hookimpl
+def magline_connection_problem(backend, connection):
+    if backend != "px4":
+        return None
+    from magline.plugin import ConnectionForms, connection_problem
+
+    return connection_problem(connection, ConnectionForms(("udpin", "udpout", "tcpout", "tcpin", "udp", "tcp"),
+                                                          url=True, expected=CONNECTION_FORMS, hostless=("udp",)))
