@@ -37,7 +37,7 @@ log = logging.getLogger("magline.plugins")
 DISABLE_ENV = "MAGLINE_DISABLE_PLUGINS"
 
 
-def _plugin_name(impl: Any) -> str:
+def implementer(impl: Any) -> str:
     """A plugin's name; one registered without a name (a test's or an application's object) by its class."""
     return impl.plugin_name if not impl.plugin_name.isdigit() else type(impl.plugin).__name__
 
@@ -219,7 +219,7 @@ class Plugins:
         which plugin registers what."""
         for impl in reversed(hook.get_hookimpls()):
             # a plugin registered without a name (a test's or an application's object) is called by its class
-            by = _plugin_name(impl)
+            by = implementer(impl)
 
             def register(name: str, factory: Any, options: type | None = None, _by: str = by,
                          stores: dict[str, str] | None = None) -> None:
@@ -251,7 +251,7 @@ class Plugins:
         from magline.core.measurements import DECLARED_MEANINGS, DeclaredMeasurement
 
         for impl in reversed(self.hook.magline_register_measurements.get_hookimpls()):
-            by = _plugin_name(impl)
+            by = implementer(impl)
 
             def register(name: str, unit: str = "", meaning: str = "",
                          possible: tuple[float, float] = (float("-inf"), float("inf")), _by: str = by) -> None:
@@ -271,7 +271,7 @@ class Plugins:
 
     def _plugin_sections(self) -> None:
         for impl in reversed(self.hook.magline_register_plugin_options.get_hookimpls()):
-            by = _plugin_name(impl)
+            by = implementer(impl)
 
             def register(section: str, options: type | str, _by: str = by) -> None:
                 if not isinstance(section, str) or not section:
@@ -295,7 +295,7 @@ class Plugins:
             try:
                 impl.function(**{name: kwargs[name] for name in impl.argnames if name in kwargs})
             except Exception as exc:
-                text = f"plugin {_plugin_name(impl)!r}, {hook_name}: {type(exc).__name__}: {exc}"
+                text = f"plugin {implementer(impl)!r}, {hook_name}: {type(exc).__name__}: {exc}"
                 log.warning("a listener failed (the unit's verdict stands): %s", text)
                 if faults is not None:
                     faults.append(text)

@@ -359,6 +359,15 @@ def test_magline_connection_problem(tmp_path):
     assert (problem.key, problem.message) == ("products.MOCK-100.connection", "the bench has no port 9")
     assert bad.read_text(encoding="utf-8").splitlines()[problem.line - 1].strip().startswith("connection:")
 
+    class Broken:
+        @hookimpl
+        def magline_connection_problem(self, backend, connection):
+            raise KeyError(backend)
+
+    (problem,) = check_station(good, load_plugins(extra=[Broken()]))
+    assert problem.key == "products.MOCK-100.connection"
+    assert problem.message == "plugin 'Broken' could not judge it: KeyError: 'mock'"
+
 
 def test_magline_register_plugin_options(tmp_path):
     """A listener configured in the station file: ``plugins.<section>`` validated by the plugin's model when
