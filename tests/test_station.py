@@ -235,3 +235,20 @@ def test_a_slot_s_connection_is_judged_by_its_part_s_backend(tmp_path):
     (problem,) = check_station(broken)
     assert (problem.key, problem.line) == ("slots[2].connection", 39)
     assert problem.message.startswith("'udpout://127.0.0.1:5760' is no connection this backend opens: expected tcp:")
+
+
+def test_a_slot_s_own_power_control_is_checked_as_a_product_s(tmp_path):
+    """A slot may have its own power control: its method and options were taken unread by ``magline check``."""
+    from magline.testing import check_station
+
+    shipped = REPO / "stations" / "slots-sim.yaml"
+    broken = tmp_path / "slots.yaml"
+    broken.write_text(shipped.read_text(encoding="utf-8").replace(
+        '{id: A, part: PX4-X500-100, connection: "udpout://127.0.0.1:14550"}',
+        '{id: A, part: PX4-X500-100, connection: "udpout://127.0.0.1:14550", power: {method: scpi-suply}}\n'
+        '  - {id: E, part: PX4-X500-100, connection: "udpout://127.0.0.1:14552", power: {method: scpi-supply, '
+        'options: {volts: 5}}}'), encoding="utf-8")
+    found = [(p.line, p.key, p.message.split(";")[0]) for p in check_station(broken)]
+    assert found == [(37, "slots[0].power.method", "unknown power control 'scpi-suply' (did you mean 'scpi-supply'?)"),
+                     (38, "slots[1].power.options.resource", "required key is missing"),
+                     (38, "slots[1].power.options.volts", "unknown key")]

@@ -55,6 +55,14 @@ def _plugin_problems(data: dict, text: str, name: str, plugins: Plugins) -> list
         out.append(f"{name}:{line_of(text, path)}: {dotted(path)}: unknown {what} {value!r}"
                    f"{did_you_mean(value, registry)}; loaded: {', '.join(sorted(registry))}")
 
+    def power_problems(power: Any, where: tuple) -> None:
+        if not isinstance(power, dict) or not isinstance(method := power.get("method", "link-reboot"), str):
+            return
+        if method not in plugins.power_controls:
+            unknown((*where, "method"), "power control", method, plugins.power_controls)
+        out.extend(_option_problems(plugins, ("power control", method), power.get("options"), (*where, "options"),
+                                    text, name))
+
     products = data.get("products")
     for part, product in (products.items() if isinstance(products, dict) else ()):
         if not isinstance(product, dict):
@@ -74,16 +82,11 @@ def _plugin_problems(data: dict, text: str, name: str, plugins: Plugins) -> list
                            f"{' — ' + why if why else ''})")
         out += _connection_problems(plugins, backend, product.get("connection"), ("products", part, "connection"),
                                     text, name)
-        power = product.get("power")
-        if isinstance(power, dict):
-            method = power.get("method", "link-reboot")
-            if isinstance(method, str):
-                if method not in plugins.power_controls:
-                    unknown(("products", part, "power", "method"), "power control", method, plugins.power_controls)
-                out += _option_problems(plugins, ("power control", method), power.get("options"),
-                                        ("products", part, "power", "options"), text, name)
+        power_problems(product.get("power"), ("products", part, "power"))
     for index, slot in enumerate(data.get("slots") or []):
         product = products.get(slot.get("part")) if isinstance(slot, dict) and isinstance(products, dict) else None
+        if isinstance(slot, dict):
+            power_problems(slot.get("power"), ("slots", index, "power"))  # a slot's own power control
         if isinstance(product, dict):
             out += _connection_problems(plugins, product.get("backend"), slot.get("connection"),
                                         ("slots", index, "connection"), text, name)
