@@ -59,11 +59,12 @@ def main(argv: list[str] | None = None) -> int:
     fit = sub.add_parser("fit", help="fit hard/soft iron to a raw-sample CSV")
     fit.add_argument("csv")
     fit.add_argument("--json", action="store_true", help="print one JSON object")
-    fit.add_argument("--field-ut", type=float, help="reference field magnitude (µT)")
+    fit.add_argument("--field-ut", type=number_option(above=0), help="reference field magnitude (µT)")
     fit.add_argument("--model", choices=["full", "diagonal", "sphere"], default="full")
-    fit.add_argument("--range-ut", type=float, help="sensor range (µT); samples at it are clipped")
-    fit.add_argument("--bins", type=int, default=100, help="coverage bins (Fibonacci sphere)")
-    fit.add_argument("--gain-sigma", type=float, default=GAIN_SIGMA,
+    fit.add_argument("--range-ut", type=number_option(above=0), help="sensor range (µT); samples at it are clipped")
+    fit.add_argument("--bins", type=whole_number(least=4, most=10000), default=100,
+                     help="coverage bins (Fibonacci sphere, 4 to 10000)")
+    fit.add_argument("--gain-sigma", type=number_option(above=0, most=1), default=GAIN_SIGMA,
                      help="1σ spread of the raw-to-reference field ratio (with --field-ut)")
     fit.add_argument("--run", help="a magline export --raw file: the run to fit (its UUID or first characters)")
     fit.add_argument("--serial", help="a magline export --raw file: the serial whose run to fit")
@@ -798,6 +799,45 @@ def _dashboard(args: argparse.Namespace, plugins: Plugins) -> int:
             return 2
         shifts = shifts or Shifts.parse(station.station.shifts)
     return serve(target, shifts or Shifts(), args.host, args.port)
+
+
+def number_option(*, above: float | None = None, least: float | None = None,
+                  most: float | None = None) -> Callable[[str], float]:
+    """An argparse type: a number within the bounds given, else the option's error says which.  Why: a value
+    no calculation can take (a negative field for ``magline fit``, a negative speed for a simulator) went on to
+    a traceback deep in the arithmetic, or to a board that never turned."""
+    if least is not None and most is not None:
+        words = f"between {least:g} and {most:g}"
+    else:
+        words = " and ".join([*([f"above {above:g}"] if above is not None else []),
+                              *([f"at least {least:g}"] if least is not None else []),
+                              *([f"at most {most:g}"] if most is not None else [])])
+
+    def number(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        if not (value == value and (above is None or value > above) and (least is None or value >= least)
+                and (most is None or value <= most)):
+            raise argparse.ArgumentTypeError(f"{text} is not {words}")
+        return value
+
+    return number
+
+
+def whole_number(*, least: int, most: int) -> Callable[[str], int]:
+    """An argparse type: a whole number from ``least`` to ``most``."""
+    def number(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+        if not least <= value <= most:
+            raise argparse.ArgumentTypeError(f"{value} is not between {least} and {most}")
+        return value
+
+    return number
 
 
 def port_number(text: str) -> int:

@@ -23,30 +23,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+from magline.core.cli import number_option
 from magline.core.plugins import hookimpl
-
-
-def number_option(*, above: float | None = None, least: float | None = None,
-                  most: float | None = None) -> Callable[[str], float]:
-    """An argparse type: a number within the bounds given, else the option's error says which.  Why: a negative
-    speed or boot time was taken and made a simulator that never turned or answered."""
-    if least is not None and most is not None:
-        words = f"between {least:g} and {most:g}"
-    else:
-        words = f"above {above:g}" if above is not None else f"at least {least:g}"
-
-    def number(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-        if not (value == value and (above is None or value > above) and (least is None or value >= least)
-                and (most is None or value <= most)):
-            raise argparse.ArgumentTypeError(f"{text} is not {words}")
-        return value
-
-    return number
-
 
 POSITIVE, NOT_NEGATIVE, DIP = number_option(above=0), number_option(least=0), number_option(least=-90, most=90)
 

@@ -84,6 +84,21 @@ def test_csv_errors_are_clear(tmp_path, capsys, content, expected):
     assert str(path) in err and expected in err
 
 
+@pytest.mark.parametrize(("option", "said"), [
+    (["--field-ut", "-5"], "argument --field-ut: -5 is not above 0"),  # was NumPy's LinAlgError
+    (["--field-ut", "0"], "argument --field-ut: 0 is not above 0"),  # was a ZeroDivisionError
+    (["--bins", "0"], "argument --bins: 0 is not between 4 and 10000"),  # was a ValueError's traceback
+    (["--range-ut", "-1"], "argument --range-ut: -1 is not above 0"),  # was "only 0 usable samples"
+    (["--gain-sigma", "-1"], "argument --gain-sigma: -1 is not above 0 and at most 1"),
+])
+def test_a_setting_no_fit_can_take_is_refused_by_its_option_not_a_traceback(tmp_path, capsys, option, said):
+    write_csv(tmp_path / "raw.csv")
+    with pytest.raises(SystemExit) as refused:
+        main(["fit", str(tmp_path / "raw.csv"), *option])
+    out, err = capsys.readouterr()
+    assert refused.value.code == 2 and out == "" and said in err and "Traceback" not in err
+
+
 def test_missing_file(tmp_path, capsys):
     assert main(["fit", str(tmp_path / "nope.csv")]) == 2
     assert "cannot read" in capsys.readouterr().err
