@@ -104,8 +104,9 @@ def main(argv: list[str] | None = None) -> int:
     spc.add_argument("--station", help="station file naming the results store and the limits (default: demo)")
     _run_filter_arguments(spc, "part number (default: the station's default or only part)")
     spc.add_argument("--measurement", action="append", metavar="NAME", help="only these measurements (repeat)")
-    spc.add_argument("--last", type=int, default=10_000, help="the latest N runs (default 10000)")
-    spc.add_argument("--baseline", type=int, default=50,
+    spc.add_argument("--last", type=whole_number(least=1, most=10**9), default=10_000,
+                     help="the latest N runs (default 10000)")
+    spc.add_argument("--baseline", type=whole_number(least=2, most=10**9), default=50,
                      help="the first N judged units set the centre line and limits (provisional ones; with --freeze: "
                           "the baseline frozen; default 50)")
     spc.add_argument("--freeze", action="store_true",

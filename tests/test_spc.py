@@ -682,3 +682,16 @@ def test_a_plugin_s_own_measurement_is_charted_like_magline_s(make_station, caps
     report = __import__("json").loads(capsys.readouterr().out)
     temp = next(m for m in report["measurements"] if m["name"] == "acme_board_temp_c")
     assert temp["chart"] is not None and temp["capability"]["n"] == 30
+
+
+@pytest.mark.parametrize(("argv", "said"), [
+    (["spc", "--last", "-5"], "argument --last: -5 is not between 1 and 1000000000"),  # was every run, unsaid
+    (["spc", "--baseline", "1"], "argument --baseline: 1 is not between 2 and 1000000000"),  # no σ from one unit
+    (["spc", "--baseline", "many"], "argument --baseline: 'many' is not a whole number"),
+])
+def test_a_count_no_chart_can_use_is_refused_by_its_option(capsys, argv, said):
+    from magline.core.cli import main
+
+    with pytest.raises(SystemExit) as refused:
+        main(argv)
+    assert refused.value.code == 2 and said in capsys.readouterr().err
