@@ -19,6 +19,7 @@ from scipy.spatial.transform import Rotation
 
 from magline.sim.magnetometers import attitude
 from magline.sim.scpi_server import ScpiServer
+from magline.sim.transport import parse_peer
 from magline.sim.turntable import cradle_moving, turned_angle
 
 PATTERNS = ("TUMBLE", "GIMBAL")
@@ -79,8 +80,7 @@ class MotionFollower:
     per reading."""
 
     def __init__(self, address: str) -> None:
-        _, host, port = address.split(":")
-        self.address = (host, int(port))
+        self.address = parse_peer(address, "the fixture's address")
         self._pattern: tuple[str, float, float] | None = None
         self._held = Rotation.identity()
         # a turntable: the turn (t0, angle0, °/s, until; wall-clock times) and the cradle's tilt, moving from a

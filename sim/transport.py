@@ -22,6 +22,18 @@ class AddressError(ValueError):
     """A ``--listen`` address that is not ``udp:HOST:PORT``, ``tcp:HOST:PORT`` or ``serial:PATH[:BAUD]``."""
 
 
+def parse_peer(address: str, what: str) -> tuple[str, int]:
+    """(host, port) of a simulator another one reaches (``--gimbal tcp:HOST:PORT``); ``what`` names it in the
+    error.  Why: a wrong one was said as Python's "not enough values to unpack"."""
+    try:
+        scheme, host, port = parse_listen(address)
+    except AddressError:
+        scheme, host, port = "", "", 0
+    if scheme != "tcp" or not host or port == 0:
+        raise AddressError(f"{what} {address!r}: expected tcp:HOST:PORT with a port from 1 to 65535")
+    return host, port
+
+
 def parse_listen(address: str) -> tuple[str, str, int]:
     """(scheme, host or path, port or baud; 0 for a serial port without one)."""
     if address.startswith("serial:"):

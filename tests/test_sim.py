@@ -842,9 +842,14 @@ def test_px4_acknowledges_a_shutdown_before_it_goes_dark(tmp_path):
     (["inav", "--listen", "tcp:127.0.0.1:70000"], "listen address 'tcp:127.0.0.1:70000': 70000 is not a port"),
     (["gimbal", "--listen", "tcp:127.0.0.1:-5"], "listen address 'tcp:127.0.0.1:-5': -5 is not a port"),
     (["coil", "--listen", "tcp:127.0.0.1:65536"], "65536 is not a port (0 to 65535; 0: any free one)"),
+    (["px4", "--listen", "udp:127.0.0.1:0", "--gimbal", "bogus"],  # was "not enough values to unpack"
+     "the fixture's address 'bogus': expected tcp:HOST:PORT with a port from 1 to 65535"),
+    (["ardupilot", "--listen", "tcp:127.0.0.1:0", "--turntable", "tcp:127.0.0.1:99999"],
+     "the fixture's address 'tcp:127.0.0.1:99999': expected tcp:HOST:PORT"),
 ])
-def test_a_listen_port_out_of_range_is_one_line_not_a_traceback(capsys, argv, said):
-    """The socket refuses such a port with an OverflowError, which no OSError handler caught."""
+def test_an_address_a_simulator_cannot_use_is_one_line_not_a_traceback(capsys, argv, said):
+    """A listen port out of range was an OverflowError (no OSError handler caught it), a fixture address without
+    its parts Python's "not enough values to unpack"."""
     from magline.core.cli import main
 
     assert main(["sim", *argv]) == 2
