@@ -24,7 +24,10 @@ its distribution.  Everything of magline a plugin uses comes from one import, it
 this page; a plugin that imports nothing else keeps working as magline's internals move).  Registration hooks take
 `register(name, factory, options=Model)`: with a pydantic `Model`, `magline check` validates the
 station file's `options` for that name (file, key and line) and the factory receives the validated
-model (result sinks; DUT backends and power controls receive their station entry).
+model (result sinks; DUT backends and power controls receive their station entry).  Either may be named by
+where it lives, `register(name, "package.module:create", options="package.module:Model")`, and is then
+imported when first needed: every command registers every plugin, and what a registration imports costs
+each command's start.
 """
 
 
