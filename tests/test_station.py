@@ -252,3 +252,28 @@ def test_a_slot_s_own_power_control_is_checked_as_a_product_s(tmp_path):
     assert found == [(37, "slots[0].power.method", "unknown power control 'scpi-suply' (did you mean 'scpi-supply'?)"),
                      (38, "slots[1].power.options.resource", "required key is missing"),
                      (38, "slots[1].power.options.volts", "unknown key")]
+
+
+def test_two_slots_on_one_vehicle_link_are_a_check_error(tmp_path):
+    """A slot line copied without its connection changed: both slots would test the unit on that link (the
+    second refused at run time, as its vehicle is held).  A slot without a connection has its part's."""
+    from magline.testing import check_station
+
+    shipped = (REPO / "stations" / "slots-sim.yaml").read_text(encoding="utf-8")
+    copied = tmp_path / "copied.yaml"
+    copied.write_text(shipped.replace('connection: "udpout://127.0.0.1:14551"', 'connection: "udpout://127.0.0.1:14550"'),
+                      encoding="utf-8")
+    unsaid = tmp_path / "unsaid.yaml"
+    unsaid.write_text(shipped.replace(', connection: "udpout://127.0.0.1:14551"', ""), encoding="utf-8")
+    said = "udpout://127.0.0.1:14550 is slot A's link too: two slots would test one unit"
+    for path, key in ((copied, "slots[1].connection"), (unsaid, "slots[1]")):
+        (problem,) = check_station(path)
+        assert (problem.line, problem.key) == (38, key) and problem.message.startswith(said)
+
+
+def test_slots_of_an_in_process_mock_share_its_connection_freely(make_station):
+    """The mock's connection names no link: its slots may all write the same words."""
+    from magline.testing import check_station
+
+    path = make_station({"slots": [{"id": "A", "part": "MOCK-100"}, {"id": "B", "part": "MOCK-100"}]})
+    assert check_station(path) == []

@@ -8,9 +8,18 @@ with its line instead.  Whether a unit answers there is still the connect phase'
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
 from magline.core.links.serial_port import SerialAddress, SerialAddressError
+
+# a connection that reaches one vehicle (a network or serial link): one unit's run at a time, one slot per link
+VEHICLE_LINK = re.compile(r"^(tcp|tcpin|tcpout|udp|udpin|udpout|serial|com|/dev/)", re.IGNORECASE)
+
+
+def names_a_vehicle_link(connection: str) -> bool:
+    """Whether ``connection`` reaches a vehicle of its own (an in-process mock's does not)."""
+    return bool(VEHICLE_LINK.match(connection.strip()))
 
 
 @dataclass(frozen=True)

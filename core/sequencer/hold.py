@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
 
 from magline.core.faults import StationFault
+from magline.core.links.addresses import names_a_vehicle_link
 from magline.core.results.contract import ClaimsSlots
 from magline.core.sequencer.periodic import every
 
@@ -37,7 +38,6 @@ if TYPE_CHECKING:
     from magline.core.station.schema import Product, Station
 
 # a vehicle link: a MAVLink / serial address (a mock's "in-process" or a description is no shared vehicle)
-VEHICLE_LINK = re.compile(r"^(tcp|tcpin|tcpout|udp|udpin|udpout|serial|com|/dev/)", re.IGNORECASE)
 # an instrument's address in a plugin's options: a VISA resource or a socket / serial address
 ADDRESS = re.compile(r"^(TCPIP\d*::|GPIB\d*::|USB\d*::|ASRL|tcp:|tcpin:|udp:|udpin:|udpout:|serial:|/dev/)",
                      re.IGNORECASE)
@@ -199,7 +199,7 @@ def unit_locks(station: Station, station_dir: Path | str, product: Product | Non
     name = f"station {station.station.id}" + (f" slot {slot}" if slot else "")
     keys = [Shared(f"station-{station.station.id}-{slot or 'unit'}-{store}", name)]  # the holder names the store
     connection = product.connection.strip() if product is not None else ""
-    if VEHICLE_LINK.match(connection):
+    if names_a_vehicle_link(connection):
         keys.append(Shared(f"link-{connection}", f"the vehicle on {connection}"))
     if product is not None:
         channel = product.power.options.get("channel")

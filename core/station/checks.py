@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 import yaml
 from pydantic import BaseModel, ValidationError
 
+from magline.core.links.addresses import names_a_vehicle_link
 from magline.core.plugins import Plugins, implementer
 from magline.core.station.loader import StationError, dotted, line_of, load_station_text, safe_data
 
@@ -83,10 +84,21 @@ def _plugin_problems(data: dict, text: str, name: str, plugins: Plugins) -> list
         out += _connection_problems(plugins, backend, product.get("connection"), ("products", part, "connection"),
                                     text, name)
         power_problems(product.get("power"), ("products", part, "power"))
+    linked: dict[str, Any] = {}  # a vehicle link → the slot that has it
     for index, slot in enumerate(data.get("slots") or []):
         product = products.get(slot.get("part")) if isinstance(slot, dict) and isinstance(products, dict) else None
         if isinstance(slot, dict):
             power_problems(slot.get("power"), ("slots", index, "power"))  # a slot's own power control
+        link = (slot.get("connection") if isinstance(slot, dict) else None) or \
+            (product.get("connection") if isinstance(product, dict) else None)
+        if isinstance(link, str) and names_a_vehicle_link(link):
+            if link.strip() in linked:
+                where = ("slots", index, "connection") if slot.get("connection") else ("slots", index)
+                out.append(f"{name}:{line_of(text, where)}: {dotted(where)}: {link.strip()} is slot "
+                           f"{linked[link.strip()]}'s link too: two slots would test one unit (each slot's unit "
+                           "needs a link of its own)")
+            else:
+                linked[link.strip()] = slot.get("id")
         if isinstance(product, dict):
             out += _connection_problems(plugins, product.get("backend"), slot.get("connection"),
                                         ("slots", index, "connection"), text, name)
