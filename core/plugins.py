@@ -285,17 +285,28 @@ class Plugins:
 
             impl.function(register=register)
 
+    def answers(self, hook_name: str, **kwargs: Any) -> list[tuple[str, Any, Exception | None]]:
+        """Each implementation of a hook called on its own, in pluggy's order, with the arguments it declares:
+        ``(plugin, answer, None)``, or ``(plugin, None, the exception)`` for one that raised — one plugin's fault
+        is said as its own, and the others are still heard.  An abort (a ``BaseException``) goes through."""
+        out: list[tuple[str, Any, Exception | None]] = []
+        for impl in reversed(getattr(self.hook, hook_name).get_hookimpls()):
+            try:
+                out.append((implementer(impl), impl.function(**{name: kwargs[name] for name in impl.argnames
+                                                                   if name in kwargs}), None))
+            except Exception as exc:
+                out.append((implementer(impl), None, exc))
+        return out
+
     def notify(self, hook_name: str, faults: list[str] | None = None, **kwargs: Any) -> None:
         """Call a listener hook's implementations one by one: one that raises is said (which plugin, which
         hook, the message) in ``faults`` and the log, and the others still hear.  Why: a listener — a plant
         feed whose file is not writable, a screen gone — must never touch the verdict, the exit code or a
         batch; a results store failing is not a listener (``magline_record_unit``) and stays an ERROR.  An
         abort (``UnitAborted``, a ``BaseException``) still goes through."""
-        for impl in reversed(getattr(self.hook, hook_name).get_hookimpls()):
-            try:
-                impl.function(**{name: kwargs[name] for name in impl.argnames if name in kwargs})
-            except Exception as exc:
-                text = f"plugin {implementer(impl)!r}, {hook_name}: {type(exc).__name__}: {exc}"
+        for plugin, _, exc in self.answers(hook_name, **kwargs):
+            if exc is not None:
+                text = f"plugin {plugin!r}, {hook_name}: {type(exc).__name__}: {exc}"
                 log.warning("a listener failed (the unit's verdict stands): %s", text)
                 if faults is not None:
                     faults.append(text)

@@ -16,7 +16,7 @@ import yaml
 from pydantic import BaseModel, ValidationError
 
 from magline.core.links.addresses import names_a_vehicle_link
-from magline.core.plugins import Plugins, implementer
+from magline.core.plugins import Plugins
 from magline.core.station.loader import StationError, dotted, line_of, load_station_text, safe_data
 
 if TYPE_CHECKING:
@@ -148,12 +148,9 @@ def _connection_problems(plugins: Plugins, backend: Any, connection: Any, where:
     """What the backends' plugins say of a product's or a slot's ``connection`` (magline_connection_problem)."""
     if not isinstance(backend, str) or not isinstance(connection, str):
         return []
-    said = []
-    for impl in plugins.hook.magline_connection_problem.get_hookimpls():
-        try:
-            said.append(impl.function(backend=backend, connection=connection))
-        except Exception as exc:  # a plugin's fault is said as one, with the file's place, never a traceback
-            said.append(f"plugin {implementer(impl)!r} could not judge it: {type(exc).__name__}: {exc}")
+    said = [f"plugin {plugin!r} could not judge it: {type(exc).__name__}: {exc}" if exc is not None else answer
+            for plugin, answer, exc in plugins.answers("magline_connection_problem", backend=backend,
+                                                       connection=connection)]
     return [f"{name}:{line_of(text, where)}: {dotted(where)}: {problem}" for problem in said if problem]
 
 
