@@ -87,8 +87,9 @@ class OptionModels(Mapping[tuple[str, str], type]):
     A plugin names its model either as the class (``options=AcmeOptions``) or as where it lives
     (``options="acme.options:AcmeOptions"``).  Why the second: every command registers every plugin, and
     importing magline's own twelve models (their modules, some with their rig's code) cost every ``magline
-    check`` 16 ms of its 0.18 s on one machine, for backends and rigs its station file never names; named by
-    place, a model is imported when a station file uses its name, or a reference table lists it."""
+    check`` 16 ms of its 0.18 s on one machine (``benchmarks/cli_start.py``), for backends and rigs its station
+    file never names; named by place, a model is imported when a station file uses its name, or a reference
+    table lists it."""
 
     def __init__(self) -> None:
         self._declared: dict[tuple[str, str], type | str] = {}
