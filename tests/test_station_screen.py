@@ -588,6 +588,10 @@ def test_a_second_screen_on_a_busy_station_shows_a_refusal_not_a_verdict(screen,
     second = Served(app, free_port())
     try:
         page = open_page(browser, first.url).page
+        # what the operator waits for before scanning: the cursor in the field.  Typed at once, the first
+        # character went nowhere on a loaded machine (the browser focuses an autofocus field after the load
+        # event, at its next rendering): the screen then showed serial USY-1
+        page.wait_for_function("document.activeElement && document.activeElement.id === 'serial'")
         page.keyboard.type("BUSY-1")
         page.keyboard.press("Enter")
         page.wait_for_selector("#attempt:has-text('attempt 1')")
