@@ -7,7 +7,8 @@ simulators' shipped defaults (boot time, sensor rate), real MAVLink on loopback.
 * four slots: ``stations/slots-sim.yaml`` (two PX4, two ArduPilot boards on one gimbal), against the
   same four boards calibrated one slot at a time.
 
-Goals: ArduPilot unit ≤ 25 s, PX4 unit ≤ 9 s, demo unit ≤ 4 s, four slots ≥ 3.5 × one.
+Goals: ArduPilot unit ≤ 25 s, PX4 unit ≤ 15 s waiting for the drift test and ≤ 9 s warm, demo unit ≤ 4 s, four
+slots ≥ 3.5 × one.
 Each is run ``stop: samples``, ``stop: determined`` and ``warm`` (determined with
 ``wait_for_drift_test: false``: what a line of units warm before calibration may choose).  A determined
 stop is measured on a line that has learnt its time skew (a new line's first units, which tumble
@@ -43,7 +44,9 @@ from slots import BOARDS, start, start_fixture, station_file  # noqa: E402  (the
 # units are warm before calibration, issue 28)
 STOPS = {"samples": {"stop": "samples"}, "determined": {"stop": "determined"},
          "warm": {"stop": "determined", "wait_for_drift_test": False}}
-GOALS_S = {"demo": 4.0, "px4": 9.0, "ardupilot": 25.0}
+# per mode: a PX4 unit that waits for the drift test tumbles until it is told, a warm one does not
+GOALS_S = {"determined": {"demo": 4.0, "px4": 15.0, "ardupilot": 25.0},
+           "warm": {"demo": 4.0, "px4": 9.0, "ardupilot": 25.0}}
 # units a new line runs before it has learnt its time skew: the passing units it learns from, and one
 LEARNING_UNITS = LEARN_MIN_UNITS + 1
 SLOT_SPEEDUP_GOAL = 3.5
@@ -185,7 +188,7 @@ def main() -> None:
                       f"units/h, four slots {units / four_s * 3600:5.0f} units/h: {one_s / four_s:.1f}×", flush=True)
     for mode in ("determined", "warm"):
         print(f"goals ({mode}, shipped station files):")
-        for name, goal in GOALS_S.items():
+        for name, goal in GOALS_S[mode].items():
             if (name, mode) not in medians:
                 continue
             got = medians[name, mode]

@@ -277,3 +277,51 @@ def test_slots_of_an_in_process_mock_share_its_connection_freely(make_station):
 
     path = make_station({"slots": [{"id": "A", "part": "MOCK-100"}, {"id": "B", "part": "MOCK-100"}]})
     assert check_station(path) == []
+
+
+
+SHARED_STORES = """\
+results:
+  - sink: sqlite
+    path: line.sqlite
+  - {sink: sqlite, path: ./line.sqlite}
+  - sink: sql
+    url_env: PLANT_DB
+  - sink: sql
+    url_env: QA_DB
+  - sink: sql
+    url_env: PLANT_DB
+    outbox: plant-outbox.sqlite
+"""
+
+
+def _demo_with(results: str) -> str:
+    """The shipped demo station with its ``results:`` block replaced (the block starts at line 48)."""
+    demo = (REPO / "stations" / "demo.yaml").read_text(encoding="utf-8")
+    return demo.replace("results:\n  sink: sqlite\n  path: magline-demo-results.sqlite\n", results)
+
+
+def test_two_results_stores_writing_one_file_or_one_server_are_a_check_error(tmp_path):
+    """Each unit would be recorded twice in that store, and its yield and statistics count it twice: a copied
+    line, or two ``sql`` stores both on the default outbox.  Said at the second store's line, naming the first."""
+    from magline.testing import check_station
+
+    path = tmp_path / "shared.yaml"
+    path.write_text(_demo_with(SHARED_STORES), encoding="utf-8")
+    found = [(p.line, p.key, p.message.split(" too:")[0]) for p in check_station(path)]
+    assert found == [(51, "results[1].path", "./line.sqlite is results[0].path's SQLite file"),
+                     (54, "results[3]", "magline-outbox.sqlite is results[2].outbox's SQLite file"),
+                     (57, "results[4].url_env", "the environment variable PLANT_DB is results[2].url_env's server")]
+    assert all("every unit would be recorded twice in it" in p.message for p in check_station(path))
+
+
+def test_stores_of_their_own_pass_the_check(tmp_path):
+    """Different files and servers are the usual fan-out; the same file name in another folder is another file."""
+    from magline.testing import check_station
+
+    path = tmp_path / "own.yaml"
+    path.write_text(_demo_with(SHARED_STORES).replace("./line.sqlite", "copy/line.sqlite")
+                    .replace("url_env: QA_DB", "url_env: QA_DB\n    outbox: qa.sqlite")
+                    .replace("PLANT_DB\n    outbox: plant-outbox.sqlite", "MES_DB\n    outbox: mes.sqlite"),
+                    encoding="utf-8")
+    assert check_station(path) == []

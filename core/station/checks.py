@@ -18,6 +18,7 @@ from pydantic import BaseModel, ValidationError
 from magline.core.links.addresses import names_a_vehicle_link
 from magline.core.plugins import Plugins
 from magline.core.station.loader import StationError, dotted, line_of, load_station_text, safe_data
+from magline.core.station.shared_stores import shared_store_problems
 
 if TYPE_CHECKING:
     from magline.core.station.schema import Station
@@ -40,7 +41,7 @@ def station_problems(text: str, name: str, plugins: Plugins) -> tuple[Station | 
     except yaml.YAMLError:
         return station, problems  # a syntax error was reported by the loader; nothing else to read
     if isinstance(data, dict):
-        problems += _plugin_problems(data, text, name, plugins)
+        problems += _plugin_problems(data, text, name, plugins) + shared_store_problems(data, text, name)
     return station, sorted(dict.fromkeys(problems), key=_line_number)
 
 
