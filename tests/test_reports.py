@@ -155,11 +155,16 @@ def test_the_batch_report_draws_every_chart_offline(make_station, tmp_path, brow
 
 @pytest.mark.parametrize("wanted", ["NO-SUCH-UNIT", "999"])
 def test_report_of_an_unknown_run_says_so(make_station, capsys, wanted):
+    """As ``magline show`` and ``history`` say it: nothing found is exit 1 with the store named; 2 is for a
+    command that could not read at all."""
     station = make_station()
     assert main(["run", str(station), "--serial", "K-1"]) == 0
     capsys.readouterr()
-    assert main(["report", wanted, "--station", str(station)]) == 2
-    assert f"no run or serial '{wanted}' in the results store" in capsys.readouterr().err
+    assert main(["report", wanted, "--station", str(station)]) == 1
+    err = capsys.readouterr().err
+    store = station.parent / "magline-demo-results.sqlite"
+    assert f"no run or serial '{wanted}' in {store} (magline history lists a unit's runs)" in err
+    assert main(["show", wanted, "--station", str(station)]) == 1 and capsys.readouterr().err == err
 
 
 def test_the_batch_report_reads_like_a_capability_study_and_a_point_opens_its_unit(make_station, tmp_path, browser,

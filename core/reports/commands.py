@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 from magline.core.faults import StationFault
 from magline.core.reports.unit_page import write_unit_page
 from magline.core.results.contract import ReadsInSql
-from magline.core.results.reading import attempt_sensor_streams, find_run_or_serial, run_attempts
+from magline.core.results.reading import RunNotFound, attempt_sensor_streams, find_run_or_serial, run_attempts
 
 if TYPE_CHECKING:
     from sqlalchemy import Connection
@@ -35,11 +35,13 @@ def default_name(run: dict[str, Any]) -> str:
     return f"{UNSAFE.sub('_', run['serial'])}-run{run['id']}.html"
 
 
-def write_report(engine: Any, wanted: str, output: Path | None, folder: Path = Path()) -> Path:
+def write_report(engine: Any, wanted: str, output: Path | None, folder: Path = Path(), where: str = "") -> Path:
+    """The run's report at ``output`` (else its default name in ``folder``); :class:`RunNotFound` names ``where``
+    (the store) when there is no such run."""
     with engine.connect() as conn:
         run = stored_run(conn, wanted)
     if run is None:
-        raise StationFault(f"no run or serial {wanted!r} in the results store")
+        raise RunNotFound(wanted, where or "the results store")
     return write_unit_page(run, output or folder / default_name(run))
 
 
@@ -64,7 +66,11 @@ def write_missing_reports(engine: Any, runs: list[dict[str, Any]], folder: Path)
 def report(store: Any, station: Station, wanted: str, output: str | None) -> int:
     if not isinstance(store, ReadsInSql):
         raise StationFault("this station's results sink is not a SQL store: reports read SQL stores only")
-    path = write_report(store.engine, wanted, Path(output) if output else None)
+    try:
+        path = write_report(store.engine, wanted, Path(output) if output else None, where=store.where)
+    except RunNotFound as missing:  # as ``magline show`` says it
+        print(missing, file=sys.stderr)
+        return 1
     print(path)
     print(f"report of {wanted} from {store.where}", file=sys.stderr)
     return 0

@@ -26,11 +26,12 @@ def magline_unit_finished(run: RunContext, record: RunRecord) -> None:
     if folder_name is None or not record.store:  # no reports asked, or nothing stored to report
         return
     from magline.core.reports.commands import write_report  # plotly and the page: only when a report is due
+    from magline.core.results.reading import RunNotFound
 
     try:
         if not isinstance(run.results, HoldsRecordsInSql):
             raise StationFault(f"the results sink {run.station.main_results.sink!r} is not a SQL store")
         folder = run.station_dir / folder_name
         record.report = str(write_report(run.results.record_engine, str(record.run_id), None, folder))
-    except (StationFault, OSError) as exc:
+    except (StationFault, OSError, RunNotFound) as exc:
         record.report_error = f"report not written: {exc}"

@@ -17,6 +17,7 @@ from magline.core.results.contract import ReadsInSql
 from magline.core.results.reading import (
     NUMERIC_NAMES,
     RUN_COLUMNS,
+    RunNotFound,
     attempt_sensor_streams,
     export_runs,
     find_run_or_serial,
@@ -48,8 +49,7 @@ def show(store: Any, run: str, as_json: bool, out: TextIO | None = None) -> int:
     with engine_of(store).connect() as conn:
         record = find_run_or_serial(conn, run)
     if record is None:
-        print(f"no run or serial {run.strip()!r} in {store.where} (magline history lists a unit's runs)",
-              file=sys.stderr)
+        print(RunNotFound(run, store.where), file=sys.stderr)
         return 1
     if as_json:
         out.write(json.dumps(record, default=str) + "\n")

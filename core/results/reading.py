@@ -94,6 +94,13 @@ def same_serial(conn: Connection, wanted: str) -> Any:
     return func.upper(runs.c.serial) == wanted.upper()
 
 
+class RunNotFound(LookupError):
+    """No run has that id or UUID and no unit that serial: the reading commands say so and exit 1."""
+
+    def __init__(self, wanted: str, where: str) -> None:
+        super().__init__(f"no run or serial {wanted.strip()!r} in {where} (magline history lists a unit's runs)")
+
+
 def find_run_or_serial(conn: Connection, wanted: str) -> dict[str, Any] | None:
     """A run by local id or UUID, else the latest run of a serial (spaces around it and its case ignored)."""
     wanted = wanted.strip()
