@@ -788,6 +788,59 @@ def test_a_step_read_while_a_held_burst_drains_counts_only_what_the_unit_took_af
     assert host[0] >= change_s + settle_s
 
 
+def test_a_unit_whose_clock_runs_at_a_fifth_of_the_host_s_is_read_at_its_own_rate():
+    """PX4's SITL keeps lockstep with its feeder, and on a machine short of CPU its clock ran at 21 % of the
+    host's: its lag grew by seconds a step, the least lag ever seen put its "now" far ahead, and no reading
+    was ever after a step's settle (the sweep outlasted its timeout, "readings 0").  Read at its own rate,
+    the step takes what the unit read after the settle, and only that."""
+    from magline.core.dut import SampleChunk
+    from magline.core.interference.sweep import SweepStep, UnitClock, _read_step
+
+    rate, change_s, settle_s = 0.2, 30.0, 0.5
+    host = [0.0]
+
+    def produced(at_s: float) -> SampleChunk:
+        """A chunk that reached the host at ``at_s`` (5 ms after the unit completed it): ten readings over the
+        0.1 s of the unit's clock before it, and the current then (the load's new level from ``change_s``)."""
+        unit_s = rate * (at_s - 0.005)
+        stamps = np.linspace(unit_s - 0.09, unit_s, 10) * 1000.0
+        new = stamps >= rate * change_s * 1000.0
+        return SampleChunk(mag_ut=np.where(new[:, None], 1.0, 0.0) * np.ones((10, 3)), t_ms=stamps,
+                           current_a=np.array([20.0 if unit_s >= rate * change_s else 0.0]),
+                           current_t_ms=np.array([unit_s * 1000.0]))
+
+    def link():
+        for at_s in np.arange(0.5, 120.0, 0.5):
+            host[0] = at_s
+            yield produced(at_s)
+
+    clock = UnitClock(now=lambda: host[0])
+    stream = link()
+    while host[0] < change_s:  # the sweep's earlier steps
+        clock.saw(next(stream))
+    step = SweepStep(level=1.0)
+    _read_step(stream, clock, step, change_s + settle_s, 10, [1], deadline=100.0)
+    assert step.firmware_a and set(step.firmware_a) == {20.0}
+    assert len(step.readings[1]) >= 10 and np.all(np.asarray(step.readings[1]) == 1.0)
+    assert clock.rate() == pytest.approx(rate, abs=0.01)
+
+
+def test_a_crystal_s_clock_and_a_late_link_keep_the_least_lag():
+    """A board's clock runs at the host's rate: the least lag stands, however late some chunks came."""
+    from magline.core.dut import SampleChunk
+    from magline.core.interference.sweep import UnitClock
+
+    host = [0.0]
+    clock = UnitClock(now=lambda: host[0])
+    rng = np.random.default_rng(3)
+    for at_s in np.arange(0.1, 20.0, 0.1):
+        late_s = 0.005 + (1.5 if 8.0 < at_s < 12.0 else 0.0) + rng.exponential(0.02)  # a held link for 4 s
+        host[0] = at_s + late_s
+        clock.saw(SampleChunk(mag_ut=np.zeros((1, 3)), t_ms=np.array([at_s * 1000.0 - 7000.0])))
+    assert clock.rate() is None
+    assert clock.at_ms(30.0) == pytest.approx(30000.0 - 7005.0, abs=5.0)
+
+
 @pytest.mark.parametrize("flavour", ["ardupilot", "px4"])
 def test_a_link_that_delivers_late_in_bursts_counts_no_reading_at_the_wrong_level(tmp_path, flavour):
     """The board's output held 0.4 s of every second, then delivered at once (a host that reads its port

@@ -127,6 +127,7 @@ class UnitClock:
     def __init__(self, now: Callable[[], float] = time.monotonic) -> None:
         self.now = now
         self.offset_ms: float | None = None  # host arrival less unit stamp, the smallest seen (ms)
+        self._seen: list[tuple[float, float]] = []  # (host arrival, newest stamp) of every chunk (ms)
 
     def saw(self, chunk: SampleChunk) -> None:
         stamps = [np.max(chunk.t_ms)] if len(chunk.t_ms) else []
@@ -134,14 +135,45 @@ class UnitClock:
         if chunk.imu is not None and len(chunk.imu.t_ms):
             stamps.append(np.max(chunk.imu.t_ms))
         if stamps:
-            offset = self.now() * 1000.0 - float(max(stamps))
+            host_ms, stamp_ms = self.now() * 1000.0, float(max(stamps))
+            offset = host_ms - stamp_ms
             self.offset_ms = offset if self.offset_ms is None else min(self.offset_ms, offset)
+            self._seen.append((host_ms, stamp_ms))
+
+    def rate(self) -> float | None:
+        """How fast the unit's clock runs against the host's, where it is plainly not a crystal's 1.0 (None:
+        the same, or too short a record to tell).  Why: a simulator that keeps lockstep with its feeder runs
+        slower than real time on a machine short of CPU (PX4's SITL with three CPU-bound processes beside it on
+        two cores read 21 % of it);
+        its lag then grows by seconds a step, and the least lag ever seen put its "now" seconds ahead, so no
+        reading was ever after a step's settle.  Read from the first chunk to the newest over at least
+        :data:`RATE_SPAN_S`; a link's lateness moves it by its own jitter over that span, far less than
+        :data:`SLOW_CLOCK`'s margin, so a real board keeps the least lag as above."""
+        if len(self._seen) < 2:
+            return None
+        (h0, s0), (h1, s1) = self._seen[0], self._seen[-1]
+        if h1 - h0 < RATE_SPAN_S * 1000.0:
+            return None
+        rate = (s1 - s0) / (h1 - h0)
+        return rate if rate < SLOW_CLOCK else None
 
     def at_ms(self, host_s: float) -> float:
-        """The unit's stamp at the host's time ``host_s`` (−∞ before the first chunk: take everything)."""
+        """The unit's stamp at the host's time ``host_s`` (−∞ before the first chunk: take everything).  At a
+        clock's own :meth:`rate`, the line of that slope on which no stamp seen lies after its arrival."""
         if self.offset_ms is None:
             return float("-inf")
-        return host_s * 1000.0 - self.offset_ms
+        rate = self.rate()
+        if rate is None:
+            return host_s * 1000.0 - self.offset_ms
+        seen = np.asarray(self._seen)
+        return float(np.max(seen[:, 1] - rate * seen[:, 0])) + rate * host_s * 1000.0
+
+
+# A unit's clock that ran below this share of the host's, over at least RATE_SPAN_S of the host's, is read at its
+# own rate (a real board's crystal is within 10⁻⁴ of it; to fake a half over seconds, a link's lateness would grow
+# by half of them: a line carrying half the stream, which the sweep refuses when it opens its stream).
+SLOW_CLOCK = 0.5
+RATE_SPAN_S = 5.0
 
 
 class LevelKeeper:
