@@ -141,14 +141,13 @@ class UnitClock:
             self._seen.append((host_ms, stamp_ms))
 
     def rate(self) -> float | None:
-        """How fast the unit's clock runs against the host's, where it is plainly not a crystal's 1.0 (None:
-        the same, or too short a record to tell).  Why: a simulator that keeps lockstep with its feeder runs
-        slower than real time on a machine short of CPU (PX4's SITL with three CPU-bound processes beside it on
-        two cores read 21 % of it);
-        its lag then grows by seconds a step, and the least lag ever seen put its "now" seconds ahead, so no
-        reading was ever after a step's settle.  Read from the first chunk to the newest over at least
-        :data:`RATE_SPAN_S`; a link's lateness moves it by its own jitter over that span, far less than
-        :data:`SLOW_CLOCK`'s margin, so a real board keeps the least lag as above."""
+        """How fast the unit's clock runs against the host's, where it is plainly slower than a crystal's 1.0
+        (None: not, or too short a record to tell).  Why: a simulator that keeps lockstep with its feeder runs
+        slower than real time on a machine short of CPU (PX4's SITL, with three CPU-bound processes beside it
+        on two cores, at 21 % of it); its lag then grows by seconds a step, the least lag ever seen put its
+        "now" seconds ahead, and no reading was ever after a step's settle.  Read from the first chunk to the
+        newest over at least :data:`RATE_SPAN_S`: a link's lateness moves it by the link's jitter over that
+        span, far less than :data:`SLOW_CLOCK`'s margin, so a real board keeps the least lag as above."""
         if len(self._seen) < 2:
             return None
         (h0, s0), (h1, s1) = self._seen[0], self._seen[-1]
