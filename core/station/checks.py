@@ -18,7 +18,7 @@ from pydantic import BaseModel, ValidationError
 from magline.core.links.addresses import names_a_vehicle_link
 from magline.core.plugins import Plugins
 from magline.core.station.loader import StationError, dotted, line_of, load_station_text, safe_data
-from magline.core.station.shared_stores import shared_store_problems
+from magline.core.station.shared_stores import results_entries, shared_store_problems
 
 if TYPE_CHECKING:
     from magline.core.station.schema import Station
@@ -115,9 +115,7 @@ def _plugin_problems(data: dict, text: str, name: str, plugins: Plugins) -> list
     if isinstance(motion, dict) and isinstance(motion.get("type", "operator"), str):
         out += _option_problems(plugins, ("motion", motion.get("type", "operator")), motion.get("options"),
                                 ("motion", "options"), text, name)
-    stores = data.get("results")
-    for where, entry in ([(("results",), stores)] if isinstance(stores, dict) else
-                         [(("results", i), e) for i, e in enumerate(stores)] if isinstance(stores, list) else []):
+    for where, entry in results_entries(data):
         sink = entry.get("sink", "sqlite") if isinstance(entry, dict) else None
         if not isinstance(sink, str):
             continue

@@ -19,11 +19,17 @@ WRITES = (("sqlite", "path", "magline-results.sqlite", "SQLite file"),
           ("sql", "url_env", None, "server"))
 
 
+def results_entries(data: dict) -> list[tuple[tuple, object]]:
+    """Each ``results`` entry of a station file's data with its key path: one store (a mapping) or a list."""
+    stores = data.get("results")
+    if isinstance(stores, dict):
+        return [(("results",), stores)]
+    return [(("results", i), entry) for i, entry in enumerate(stores)] if isinstance(stores, list) else []
+
+
 def shared_store_problems(data: dict, text: str, name: str) -> list[str]:
     """One line per store that writes where an earlier store of the same station already writes."""
-    stores = data.get("results")
-    entries = [(("results",), stores)] if isinstance(stores, dict) else \
-        [(("results", i), e) for i, e in enumerate(stores)] if isinstance(stores, list) else []
+    entries = results_entries(data)
     here = Path(name).parent
     taken: dict[tuple[str, str], tuple] = {}  # (kind, where it writes) → the first store's key path
     out: list[str] = []
